@@ -1,0 +1,93 @@
+"""Administration: vehicles, gateways, users, tokens."""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import Field
+
+from fleet_protocol.common import Identifier, Timestamp, WireModel
+
+__all__ = [
+    "CreateGateway",
+    "CreateUser",
+    "CreateVehicle",
+    "GatewayCreated",
+    "LoginRequest",
+    "PatchUser",
+    "Role",
+    "TokenResult",
+    "UserCreated",
+    "UserList",
+    "UserView",
+    "VehicleCreated",
+]
+
+Role = Literal["viewer", "operator", "manager", "admin"]
+ROLE_RANK = {"viewer": 0, "operator": 1, "manager": 2, "admin": 3}
+
+
+class CreateVehicle(WireModel):
+    vehicle_id: Identifier
+    name: str = Field(default="", max_length=128)
+    vehicle_type: str = Field(default="usv", min_length=1, max_length=32)
+
+
+class VehicleCreated(WireModel):
+    vehicle_id: str
+    token: str
+
+
+class CreateGateway(WireModel):
+    gateway_id: Identifier
+    vehicles: list[Identifier] = Field(default_factory=list, max_length=1000)
+
+
+class GatewayCreated(WireModel):
+    gateway_id: str
+    token: str
+    vehicles: list[str] = Field(default_factory=list)
+
+
+class CreateUser(WireModel):
+    username: Identifier
+    role: Role
+    vehicles: list[Identifier] = Field(default_factory=list, max_length=10000)
+    password: str | None = Field(default=None, min_length=8, max_length=256)
+
+
+class UserCreated(WireModel):
+    username: str
+    role: Role
+    token: str
+    vehicles: list[str] = Field(default_factory=list)
+
+
+class UserView(WireModel):
+    username: str
+    role: Role
+    vehicles: list[str]
+    disabled: bool
+    created_at: Timestamp | None = None
+
+
+class UserList(WireModel):
+    users: list[UserView]
+
+
+class PatchUser(WireModel):
+    role: Role | None = None
+    vehicles: list[Identifier] | None = Field(default=None, max_length=10000)
+    disabled: bool | None = None
+    password: str | None = Field(default=None, min_length=8, max_length=256)
+
+
+class LoginRequest(WireModel):
+    username: str = Field(min_length=1, max_length=64)
+    password: str = Field(min_length=1, max_length=256)
+
+
+class TokenResult(WireModel):
+    access_token: str
+    token_type: Literal["bearer"] = "bearer"
+    expires_in: int

@@ -1,0 +1,120 @@
+"""Operator side: ``/client/*`` bodies and answers (seed Table 1)."""
+
+from __future__ import annotations
+
+from typing import Any, Literal
+
+from pydantic import Field, model_validator
+
+from fleet_protocol.commands import CommandObject, CommandSpec
+from fleet_protocol.common import Identifier, Sample, Timestamp, WireModel
+from fleet_protocol.upper import ControlInfo, ControlMode, InstanceRef
+
+__all__ = [
+    "CancelCommand",
+    "ConnectInstance",
+    "ConnectInstanceResult",
+    "ControlRequest",
+    "ControlRequestList",
+    "GetFbMessageResult",
+    "GetParamResult",
+    "GrantControl",
+    "InstanceView",
+    "OkResult",
+    "Presence",
+    "QueuedCommand",
+    "SubmitControl",
+    "SubmitControlResult",
+]
+
+Presence = Literal["online", "stale", "offline", "finished"]
+
+
+class ConnectInstance(WireModel):
+    instance_id: str | None = Field(default=None, min_length=1, max_length=64)
+    vehicle_id: Identifier | None = None
+
+    @model_validator(mode="after")
+    def _one_of(self) -> ConnectInstance:
+        if not self.instance_id and not self.vehicle_id:
+            raise ValueError("give instance_id or vehicle_id")
+        return self
+
+
+class InstanceView(WireModel):
+    instance_id: str
+    vehicle_id: str
+    name: str
+    vehicle_type: str
+    capabilities: list[str]
+    presence: Presence
+    last_seen: Timestamp | None
+    control_mode: ControlMode
+    control: ControlInfo | None
+    started_at: Timestamp | None = None
+
+
+class ConnectInstanceResult(WireModel):
+    instance: InstanceView
+
+
+class GetParamResult(WireModel):
+    params: dict[str, Any]
+    position: Sample | None
+    updated_at: Timestamp | None
+
+
+class SubmitControl(WireModel):
+    instance_ids: list[str] = Field(min_length=1, max_length=1000)
+    command: CommandSpec
+    ttl_s: int = Field(default=30, ge=1, le=3600)
+
+    @model_validator(mode="after")
+    def _wildcard_only_for_stop(self) -> SubmitControl:
+        if "*" in self.instance_ids:
+            if self.instance_ids != ["*"]:
+                raise ValueError('"*" stands alone in instance_ids')
+            if self.command.type != "stop":
+                raise ValueError('instance_ids ["*"] is for stop only')
+        if len(set(self.instance_ids)) != len(self.instance_ids):
+            raise ValueError("instance_ids repeats an instance")
+        return self
+
+
+class QueuedCommand(WireModel):
+    instance_id: str
+    command_id: str
+    status: str = "queued"
+
+
+class SubmitControlResult(WireModel):
+    commands: list[QueuedCommand]
+
+
+class GetFbMessageResult(WireModel):
+    control_mode: ControlMode
+    commands: list[CommandObject]
+
+
+class CancelCommand(WireModel):
+    command_id: str = Field(min_length=1, max_length=64)
+
+
+class ControlRequest(WireModel):
+    request_id: str
+    username: str
+    instance_id: str
+    requested_at: Timestamp
+
+
+class ControlRequestList(WireModel):
+    requests: list[ControlRequest]
+
+
+class GrantControl(InstanceRef):
+    user: Identifier
+    duration_s: int = Field(ge=1, le=86400)
+
+
+class OkResult(WireModel):
+    ok: bool = True

@@ -1,0 +1,139 @@
+"""Commands (missions): their types, arguments, life cycle and wire object."""
+
+from __future__ import annotations
+
+
+from typing import Any, Literal, get_args
+
+from pydantic import Field, ValidationError, model_validator
+
+from fleet_protocol.common import Latitude, LatLon, Longitude, Timestamp, WireModel
+
+__all__ = [
+    "ACK_STATUSES",
+    "COMMAND_TYPES",
+    "FINAL_STATUSES",
+    "MOTION_TYPES",
+    "ARGS_MODELS",
+    "CommandObject",
+    "CommandSpec",
+    "CommandStatus",
+    "CommandType",
+    "FollowPathArgs",
+    "GoToArgs",
+    "HistoryEntry",
+    "KeepStationArgs",
+    "StopArgs",
+]
+
+CommandType = Literal["stop", "go_to", "keep_station", "follow_path"]
+COMMAND_TYPES: tuple[str, ...] = get_args(CommandType)
+MOTION_TYPES = frozenset({"go_to", "keep_station", "follow_path"})
+
+CommandStatus = Literal[
+    "queued",
+    "delivered",
+    "accepted",
+    "executing",
+    "done",
+    "rejected",
+    "failed",
+    "expired",
+    "cancelled",
+]
+FINAL_STATUSES = frozenset({"done", "rejected", "failed", "expired", "cancelled"})
+#: Statuses a vehicle may report in an ack.
+ACK_STATUSES = ("accepted", "executing", "done", "rejected", "failed")
+
+MAX_WAYPOINTS = 1000
+
+
+class StopArgs(WireModel):
+    pass
+
+
+class GoToArgs(WireModel):
+    lat: Latitude
+    lon: Longitude
+    speed_mps: float | None = Field(default=None, gt=0, le=50, allow_inf_nan=False)
+
+
+class KeepStationArgs(WireModel):
+    lat: Latitude | None = None
+    lon: Longitude | None = None
+    radius_m: float = Field(default=2.0, gt=0, le=10_000, allow_inf_nan=False)
+
+    @model_validator(mode="after")
+    def _both_or_neither(self) -> KeepStationArgs:
+        if (self.lat is None) != (self.lon is None):
+            raise ValueError("give both lat and lon, or neither (then: where the vehicle is)")
+        return self
+
+
+class FollowPathArgs(WireModel):
+    waypoints: list[LatLon] = Field(min_length=1, max_length=MAX_WAYPOINTS)
+    speed_mps: float | None = Field(default=None, gt=0, le=50, allow_inf_nan=False)
+    plan: bool = False
+    #: The planned path, filled in by the server when ``plan`` is true.
+    path: list[LatLon] | None = None
+
+
+ARGS_MODELS: dict[str, type[WireModel]] = {
+    "stop": StopArgs,
+    "go_to": GoToArgs,
+    "keep_station": KeepStationArgs,
+    "follow_path": FollowPathArgs,
+}
+
+
+class CommandSpec(WireModel):
+    """What an operator asks for: ``{type, args, max_drift_m?}``."""
+
+    type: CommandType
+    args: dict[str, Any] = Field(default_factory=dict)
+    max_drift_m: float | None = Field(default=None, gt=0, le=1_000_000, allow_inf_nan=False)
+
+    @model_validator(mode="after")
+    def _validate_args(self) -> CommandSpec:
+        model = ARGS_MODELS[self.type]
+        try:
+            parsed = model.model_validate(self.args)
+        except ValidationError as exc:
+            # Re-raise with field paths under ``args`` so a 422 names them.
+            raise ValueError(_args_message(exc)) from None
+        self.args = parsed.model_dump(exclude_none=True)
+        return self
+
+    def parsed_args(self) -> WireModel:
+        return ARGS_MODELS[self.type].model_validate(self.args)
+
+
+def _args_message(exc: ValidationError) -> str:
+    parts = []
+    for err in exc.errors():
+        loc = ".".join(str(p) for p in ("args", *err["loc"]))
+        parts.append(f"{loc}: {err['msg']}")
+    return "; ".join(parts)
+
+
+class HistoryEntry(WireModel):
+    status: str
+    at: Timestamp
+    detail: str | None = None
+
+
+class CommandObject(WireModel):
+    command_id: str
+    instance_id: str
+    vehicle_id: str | None = None
+    type: CommandType
+    args: dict[str, Any] = Field(default_factory=dict)
+    max_drift_m: float | None = None
+    status: CommandStatus
+    issued_by: str
+    issued_at: Timestamp
+    expires_at: Timestamp
+    progress: float | None = None
+    history: list[HistoryEntry] = Field(default_factory=list)
+
+

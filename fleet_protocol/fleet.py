@@ -1,0 +1,54 @@
+"""Fleet views: ``/api/*`` answers."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from pydantic import Field
+
+from fleet_protocol.common import Sample, Timestamp, WireModel
+from fleet_protocol.upper import ControlInfo
+
+__all__ = ["Event", "EventList", "TelemetryPage", "Track", "VehicleList", "VehicleView"]
+
+
+class VehicleView(WireModel):
+    vehicle_id: str
+    name: str
+    vehicle_type: str
+    presence: str
+    instance_id: str | None
+    position: Sample | None
+    control: ControlInfo | None
+    control_mode: str | None = None
+    last_seen: Timestamp | None = None
+
+
+class VehicleList(WireModel):
+    vehicles: list[VehicleView]
+
+
+class Track(WireModel):
+    vehicle_id: str
+    points: list[dict[str, Any]]
+    truncated: bool
+    next_from: Timestamp | None = None
+
+
+class TelemetryPage(WireModel):
+    samples: list[dict[str, Any]]
+    next_after_seq: int | None
+
+
+class Event(WireModel):
+    event_id: str
+    kind: str
+    vehicle_id: str | None = None
+    instance_id: str | None = None
+    at: Timestamp
+    actor: str | None = None
+    data: dict[str, Any] = Field(default_factory=dict)
+
+
+class EventList(WireModel):
+    events: list[Event]

@@ -1,0 +1,1 @@
+"""fleet-server: the cloud server of fleet-cloud."""

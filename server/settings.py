@@ -1,0 +1,87 @@
+"""Server settings: the ``FLEET_*`` environment variables of API.md (and ``.env``)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from pydantic import Field, SecretStr
+from pydantic_settings import BaseSettings, SettingsConfigDict
+
+DAY_S = 86400
+
+
+class Settings(BaseSettings):
+    model_config = SettingsConfigDict(
+        env_prefix="FLEET_", env_file=".env", extra="ignore", validate_default=True
+    )
+
+    mongo_url: SecretStr | None = Field(
+        default=None, description="MongoDB URL; unset: the embedded store (in process)"
+    )
+    db_name: str = Field(default="fleet", description="MongoDB database name")
+    snapshot_path: Path = Field(
+        default=Path("data/fleet-store.snapshot"),
+        description="embedded store's snapshot file (written periodically and on shutdown)",
+    )
+    snapshot_interval_s: float = Field(
+        default=5.0, gt=0, description="embedded store: seconds between snapshots"
+    )
+    redis_url: SecretStr | None = Field(
+        default=None, description="Redis URL for fan-out between replicas; unset: one process"
+    )
+    host: str = Field(default="127.0.0.1", description="address to listen on")
+    port: int = Field(default=8000, ge=0, le=65535, description="port to listen on")
+    admin_token: SecretStr | None = Field(
+        default=None, description="bootstrap admin token; unset on a fresh store: one is printed"
+    )
+    heartbeat_interval_s: float = Field(default=1.0, gt=0, description="agents' heartbeat period")
+    stale_after_s: float = Field(default=3.0, gt=0, description="presence: online -> stale")
+    offline_after_s: float = Field(default=10.0, gt=0, description="presence: stale -> offline")
+    ack_timeout_s: float = Field(
+        default=10.0, gt=0, description="redeliver a command not acknowledged within this"
+    )
+    safety_radius_m: float = Field(
+        default=5.0, ge=0, description="clearance a planned path keeps from other vehicles"
+    )
+    retention_s: float = Field(
+        default=7 * DAY_S,
+        gt=0,
+        description="telemetry, events and finished commands older than this are dropped",
+    )
+    max_body_bytes: int = Field(
+        default=1_048_576, ge=1024, description="largest request body accepted (else 413)"
+    )
+    failsafe_after_s: float = Field(
+        default=30.0, gt=0, description="vehicles' link-loss policy: act after this silence"
+    )
+    failsafe_action: str = Field(
+        default="keep_station", pattern="^(keep_station|stop)$", description="link-loss action"
+    )
+    token_ttl_s: int = Field(
+        default=12 * 3600, ge=60, description="lifetime of a token from /auth/token"
+    )
+    bucket_samples: int = Field(
+        default=200, ge=1, le=10_000, description="telemetry samples per stored bucket"
+    )
+    bucket_max_age_s: float = Field(
+        default=2.0, gt=0, description="a partly filled telemetry bucket is written after this"
+    )
+    long_poll_max: int = Field(default=4, ge=1, description="open long polls per vehicle")
+    max_pending_requests: int = Field(
+        default=50, ge=1, description="pending control requests per instance"
+    )
+    command_history_limit: int = Field(
+        default=50, ge=1, description="recent commands shown by get_fbmessage"
+    )
+    rate_limit_per_s: float = Field(
+        default=200.0, gt=0, description="requests per second per token before 429"
+    )
+    rate_limit_burst: int = Field(default=400, ge=1, description="burst allowance per token")
+    store_timeout_ms: int = Field(
+        default=2000, ge=100, description="MongoDB server selection / operation timeout"
+    )
+    log_level: str = Field(default="info", description="log level")
+
+    @property
+    def embedded(self) -> bool:
+        return self.mongo_url is None
