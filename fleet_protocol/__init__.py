@@ -12,3 +12,4 @@ from fleet_protocol.common import *  # noqa: F403
 from fleet_protocol.errors import *  # noqa: F403
 from fleet_protocol.fleet import *  # noqa: F403
 from fleet_protocol.upper import *  # noqa: F403
+from fleet_protocol.ws import *  # noqa: F403

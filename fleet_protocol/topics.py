@@ -1,0 +1,104 @@
+"""Topic names: their grammar, the namespaces, and which topics carry media.
+
+A topic is 1 to 8 segments of ``[a-z0-9_-]`` joined by ``/``, at most 128
+characters, with no wildcards (the grammar, checked here). The first segment
+is the namespace; the server's rules give meaning to these four (a topic
+elsewhere is well formed but nobody may write it):
+
+- ``fleet``: presence changes of the whole fleet, written by the server;
+- ``vehicle/<vehicle_id>/...``: what a vehicle produces (and, for
+  ``telemetry``, ``commands``, ``control`` and ``events``, what the server
+  says about it);
+- ``user/<username>/...``: what a person or a processing worker produces;
+- ``gateway/<gateway_id>/...``: what a gateway produces of its own.
+
+Media topics (camera frames, sonar images) travel as binary frames with
+latest-wins delivery. A topic is a media topic when one of its segments
+after the namespace and its owner is a media kind: ``vehicle/usv-1/camera``,
+``vehicle/usv-1/camera/front``, ``user/seg-worker/image/mask``.
+
+Pure functions only; the server's permission rules live in
+``server.domain.topics``.
+"""
+
+from __future__ import annotations
+
+import re
+from typing import Annotated
+
+from pydantic import AfterValidator
+
+__all__ = [
+    "MAX_TOPIC_CHARS",
+    "MAX_TOPIC_SEGMENTS",
+    "MEDIA_KINDS",
+    "NAMESPACES",
+    "SERVER_ONLY_VEHICLE_TOPICS",
+    "Topic",
+    "is_media_topic",
+    "split_topic",
+    "topic_owner",
+    "validate_topic",
+    "vehicle_topic",
+]
+
+MAX_TOPIC_CHARS = 128
+MAX_TOPIC_SEGMENTS = 8
+_SEGMENT = re.compile(r"^[a-z0-9_-]+$")
+
+NAMESPACES = frozenset({"fleet", "vehicle", "user", "gateway"})
+#: ``vehicle/<id>/<kind>`` (and below) that the server alone writes.
+SERVER_ONLY_VEHICLE_TOPICS = frozenset({"telemetry", "commands", "control", "events"})
+#: A segment (after namespace and owner) that makes a topic a media topic.
+MEDIA_KINDS = frozenset({"camera", "sonar", "image", "video"})
+
+
+def split_topic(topic: str) -> list[str]:
+    """The segments of a valid topic; ``ValueError`` saying why otherwise."""
+    if not isinstance(topic, str):
+        raise ValueError("a topic is a string")
+    if not topic:
+        raise ValueError("a topic is not empty")
+    if len(topic) > MAX_TOPIC_CHARS:
+        raise ValueError(f"a topic has at most {MAX_TOPIC_CHARS} characters")
+    segments = topic.split("/")
+    if len(segments) > MAX_TOPIC_SEGMENTS:
+        raise ValueError(f"a topic has at most {MAX_TOPIC_SEGMENTS} segments")
+    for segment in segments:
+        if not segment:
+            raise ValueError("a topic has no empty segment (no leading, trailing or double '/')")
+        if not _SEGMENT.match(segment):
+            raise ValueError(
+                f"topic segment {segment[:32]!r} may hold only a-z, 0-9, '_' and '-' (no wildcards)"
+            )
+    return segments
+
+
+def validate_topic(topic: str) -> str:
+    split_topic(topic)
+    return topic
+
+
+#: A validated topic name, for pydantic fields.
+Topic = Annotated[str, AfterValidator(validate_topic)]
+
+
+def topic_owner(topic: str) -> tuple[str, str | None]:
+    """``(namespace, owner id)`` of a valid topic.
+
+    ``("vehicle", "usv-1")`` for ``vehicle/usv-1/camera``; the owner is
+    ``None`` when the topic has no segment past its namespace.
+    """
+    segments = topic.split("/")
+    return segments[0], (segments[1] if len(segments) > 1 else None)
+
+
+def is_media_topic(topic: str) -> bool:
+    """Whether a (valid) topic carries media, delivered as binary frames, latest wins."""
+    segments = topic.split("/")
+    return any(segment in MEDIA_KINDS for segment in segments[2:])
+
+
+def vehicle_topic(vehicle_id: str, kind: str) -> str:
+    """``vehicle/<vehicle_id>/<kind>``, e.g. ``vehicle_topic("usv-1", "telemetry")``."""
+    return validate_topic(f"vehicle/{vehicle_id}/{kind}")

@@ -1,0 +1,423 @@
+"""WebSocket ops and pushes (API.md, "WebSocket"), parsed once by a discriminated union.
+
+One envelope both ways: ``{"op": ..., "id"?: ..., <fields>}``. An op that
+mirrors an ``/upper/*`` call is that call's body model plus ``op`` and ``id``
+(``UpdateParamOp`` is ``UpdateParam`` with ``op="update_param"``), so the
+fields are defined once. Ops in:
+
+- ``/ws/vehicle`` (:data:`VehicleOp`): start_instance, finish_instance,
+  update_param, update_fbmessage, heartbeat, register, subscribe,
+  unsubscribe, publish, batch;
+- ``/ws/client`` (:data:`ClientOp`): register, subscribe, unsubscribe,
+  publish.
+
+Pushes out: ``ack``, ``error``, ``command``, ``control``, ``event``,
+``routes``, ``lagging``. Parse a text frame with :func:`parse_vehicle_op` or
+:func:`parse_client_op`; a bad frame raises :class:`FrameError`, whose
+:meth:`FrameError.reply` is the push to send back (an ``ack`` with
+``ok: false`` when the frame carried a usable ``id``, else an ``error``).
+
+Binary frames (media topics) are a one-line JSON :class:`MediaHeader`, a
+``\\n``, then the bytes: :func:`encode_media_frame`, :func:`decode_media_frame`.
+"""
+
+from __future__ import annotations
+
+import json
+from typing import Annotated, Any, ClassVar, Literal
+
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    SerializationInfo,
+    SerializerFunctionWrapHandler,
+    TypeAdapter,
+    ValidationError,
+    model_serializer,
+)
+
+from fleet_protocol.commands import CommandObject
+from fleet_protocol.common import Identifier, Timestamp, WireModel
+from fleet_protocol.errors import ErrorBody, FieldError
+from fleet_protocol.topics import Topic
+from fleet_protocol.upper import (
+    ControlInfo,
+    FinishInstance,
+    Heartbeat,
+    StartInstance,
+    UpdateFbMessage,
+    UpdateParam,
+)
+
+__all__ = [
+    "MAX_BATCH_OPS",
+    "MAX_OP_ID_CHARS",
+    "MAX_TOPICS_PER_OP",
+    "AckPush",
+    "BatchOp",
+    "ClientOp",
+    "CommandPush",
+    "ControlPush",
+    "ErrorPush",
+    "EventPush",
+    "FinishInstanceOp",
+    "FrameError",
+    "HeartbeatOp",
+    "LaggingPush",
+    "MediaHeader",
+    "PublishOp",
+    "Push",
+    "RegisterOp",
+    "RoutesPush",
+    "StartInstanceOp",
+    "SubscribeOp",
+    "UnsubscribeOp",
+    "UpdateFbMessageOp",
+    "UpdateParamOp",
+    "VehicleOp",
+    "decode_media_frame",
+    "encode_media_frame",
+    "parse_client_op",
+    "parse_vehicle_op",
+]
+
+MAX_OP_ID_CHARS = 64
+MAX_TOPICS_PER_OP = 64
+MAX_BATCH_OPS = 256
+#: Bound on a media frame's JSON header line.
+MAX_MEDIA_HEADER_BYTES = 1024
+
+OpId = Annotated[str, Field(min_length=1, max_length=MAX_OP_ID_CHARS)]
+TopicList = Annotated[list[Topic], Field(min_length=1, max_length=MAX_TOPICS_PER_OP)]
+
+
+class _Op(WireModel):
+    """Fields every op carries: ``id`` (optional; with it, the op is acked)."""
+
+    id: OpId | None = None
+
+
+# -- ops mirroring /upper/* ---------------------------------------------------
+
+
+class StartInstanceOp(_Op, StartInstance):
+    op: Literal["start_instance"] = "start_instance"
+
+
+class FinishInstanceOp(_Op, FinishInstance):
+    op: Literal["finish_instance"] = "finish_instance"
+
+
+class UpdateParamOp(_Op, UpdateParam):
+    op: Literal["update_param"] = "update_param"
+
+
+class UpdateFbMessageOp(_Op, UpdateFbMessage):
+    op: Literal["update_fbmessage"] = "update_fbmessage"
+
+
+class HeartbeatOp(_Op, Heartbeat):
+    op: Literal["heartbeat"] = "heartbeat"
+
+
+# -- topic ops ----------------------------------------------------------------
+
+
+class _UnitOp(_Op):
+    #: A gateway names the vehicle the op acts for; absent, the op is the
+    #: connected unit's own (the vehicle, the gateway, the user).
+    vehicle_id: Identifier | None = None
+
+
+class RegisterOp(_UnitOp):
+    """The topics this unit produces (added to what it registered before)."""
+
+    op: Literal["register"] = "register"
+    topics: TopicList
+
+
+class SubscribeOp(_UnitOp):
+    op: Literal["subscribe"] = "subscribe"
+    topics: TopicList
+    #: At most one event per topic every ``throttle_ms`` (the latest value wins).
+    throttle_ms: int = Field(default=0, ge=0, le=3_600_000)
+
+
+class UnsubscribeOp(_UnitOp):
+    op: Literal["unsubscribe"] = "unsubscribe"
+    topics: TopicList
+
+
+class PublishOp(_UnitOp):
+    op: Literal["publish"] = "publish"
+    topic: Topic
+    data: Any = None
+
+
+_SingleVehicleOp = Annotated[
+    StartInstanceOp
+    | FinishInstanceOp
+    | UpdateParamOp
+    | UpdateFbMessageOp
+    | HeartbeatOp
+    | RegisterOp
+    | SubscribeOp
+    | UnsubscribeOp
+    | PublishOp,
+    Field(discriminator="op"),
+]
+
+
+class BatchOp(_Op):
+    """Several ops in one frame (gateways); each inner op with an ``id`` is acked."""
+
+    op: Literal["batch"] = "batch"
+    ops: list[_SingleVehicleOp] = Field(min_length=1, max_length=MAX_BATCH_OPS)
+
+
+VehicleOp = Annotated[_SingleVehicleOp | BatchOp, Field(discriminator="op")]
+ClientOp = Annotated[
+    RegisterOp | SubscribeOp | UnsubscribeOp | PublishOp, Field(discriminator="op")
+]
+
+# -- pushes -------------------------------------------------------------------
+
+
+class _Push(BaseModel):
+    """A frame from the server. Optional fields left ``None`` are not written."""
+
+    model_config = ConfigDict(extra="ignore", populate_by_name=True)
+    _omit_if_none: ClassVar[frozenset[str]] = frozenset()
+
+    @model_serializer(mode="wrap")
+    def _omit_none(
+        self, handler: SerializerFunctionWrapHandler, info: SerializationInfo
+    ) -> dict[str, Any]:
+        data: dict[str, Any] = handler(self)
+        for name in self._omit_if_none:
+            if data.get(name, 0) is None:
+                del data[name]
+        return data
+
+    def frame(self) -> str:
+        """The JSON text frame."""
+        return self.model_dump_json()
+
+
+class AckPush(_Push):
+    """The answer to an op with an ``id``; on success, the HTTP answer's fields beside."""
+
+    model_config = ConfigDict(extra="allow")
+    _omit_if_none = frozenset({"error"})
+
+    op: Literal["ack"] = "ack"
+    id: str
+    ok: bool
+    error: ErrorBody | None = None
+
+    @classmethod
+    def success(cls, op_id: str, result: BaseModel | dict[str, Any] | None = None) -> AckPush:
+        fields = result.model_dump(mode="json") if isinstance(result, BaseModel) else result
+        fields = {k: v for k, v in (fields or {}).items() if k not in ("op", "id", "ok", "error")}
+        return cls(id=op_id, ok=True, **fields)
+
+    @classmethod
+    def failure(cls, op_id: str, error: ErrorBody) -> AckPush:
+        return cls(id=op_id, ok=False, error=error)
+
+
+class ErrorPush(_Push):
+    """A failed op that carried no ``id``."""
+
+    op: Literal["error"] = "error"
+    error: ErrorBody
+
+
+class CommandPush(_Push, CommandObject):
+    """A command object, pushed to the vehicle the moment it is accepted."""
+
+    op: Literal["command"] = "command"
+
+    @property
+    def critical(self) -> bool:
+        """A ``stop`` is never dropped by a queue bound."""
+        return self.type == "stop"
+
+
+class ControlPush(_Push):
+    """Who holds remote control of the instance now (``null``: nobody)."""
+
+    op: Literal["control"] = "control"
+    instance_id: str
+    control: ControlInfo | None = None
+
+
+class EventPush(_Push):
+    _omit_if_none = frozenset({"snapshot", "ts"})
+
+    op: Literal["event"] = "event"
+    topic: str
+    data: Any = None
+    #: ``true`` on the current state sent first after a subscribe.
+    snapshot: bool | None = None
+    ts: Timestamp | None = None
+
+
+class RoutesPush(_Push):
+    """The part of the routing table this unit takes part in.
+
+    ``produces``: each topic it registered, with the units consuming it;
+    ``consumes``: each topic it subscribed to, with the units producing it;
+    for a gateway, ``forward_up`` (what it sends to the cloud) and
+    ``forward_down`` (what it delivers to its units from above).
+    """
+
+    op: Literal["routes"] = "routes"
+    unit: str
+    produces: dict[str, list[str]] = Field(default_factory=dict)
+    consumes: dict[str, list[str]] = Field(default_factory=dict)
+    forward_up: list[str] = Field(default_factory=list)
+    forward_down: list[str] = Field(default_factory=list)
+
+
+class LaggingPush(_Push):
+    """Messages were dropped for this connection since the last ``lagging``."""
+
+    _omit_if_none = frozenset({"total"})
+
+    op: Literal["lagging"] = "lagging"
+    dropped: int = Field(ge=1)
+    #: Dropped since the connection opened.
+    total: int | None = None
+
+
+Push = AckPush | ErrorPush | CommandPush | ControlPush | EventPush | RoutesPush | LaggingPush
+
+# -- parsing ------------------------------------------------------------------
+
+_vehicle_adapter: TypeAdapter[Any] = TypeAdapter(VehicleOp)
+_client_adapter: TypeAdapter[Any] = TypeAdapter(ClientOp)
+
+
+class FrameError(Exception):
+    """A frame that is not a valid op; :meth:`reply` is what to send back."""
+
+    def __init__(self, error: ErrorBody, op_id: str | None = None) -> None:
+        super().__init__(error.message)
+        self.error = error
+        self.op_id = op_id
+
+    def reply(self) -> AckPush | ErrorPush:
+        if self.op_id is not None:
+            return AckPush.failure(self.op_id, self.error)
+        return ErrorPush(error=self.error)
+
+
+def parse_vehicle_op(frame: str | bytes) -> Any:
+    """One op of ``/ws/vehicle`` (a :data:`VehicleOp` member), or :class:`FrameError`."""
+    return _parse(_vehicle_adapter, frame)
+
+
+def parse_client_op(frame: str | bytes) -> Any:
+    """One op of ``/ws/client`` (a :data:`ClientOp` member), or :class:`FrameError`."""
+    return _parse(_client_adapter, frame)
+
+
+def _parse(adapter: TypeAdapter[Any], frame: str | bytes) -> Any:
+    try:
+        return adapter.validate_json(frame)
+    except ValidationError as exc:
+        raise FrameError(_error_body(exc), _salvage_id(frame)) from None
+
+
+def _error_body(exc: ValidationError) -> ErrorBody:
+    details: list[FieldError] = []
+    for err in exc.errors(include_url=False):
+        if err["type"] == "json_invalid":
+            return ErrorBody(code="invalid", message="the frame is not valid JSON")
+        loc = [str(part) for part in err["loc"]]
+        # Drop the union tag pydantic inserts ("update_param" in ops.0.update_param.x).
+        field = ".".join(p for p in loc if not _is_tag(p))
+        message = err["msg"].removeprefix("Value error, ")
+        if err["type"] == "union_tag_invalid":
+            field, message = (
+                _join(field, "op"),
+                f"unknown op; expected one of {err['ctx']['expected_tags']}",
+            )
+        elif err["type"] == "union_tag_not_found":
+            field, message = _join(field, "op"), "the frame has no 'op'"
+        elif not field:
+            field = "frame"
+        details.append(FieldError(field=field, message=message))
+    summary = "; ".join(f"{d.field}: {d.message}" for d in details[:3])
+    return ErrorBody(code="invalid", message=f"invalid op ({summary})", details=details)
+
+
+_OP_TAGS = frozenset(
+    model.model_fields["op"].default
+    for model in (
+        StartInstanceOp,
+        FinishInstanceOp,
+        UpdateParamOp,
+        UpdateFbMessageOp,
+        HeartbeatOp,
+        RegisterOp,
+        SubscribeOp,
+        UnsubscribeOp,
+        PublishOp,
+        BatchOp,
+    )
+)
+
+
+def _join(path: str, name: str) -> str:
+    return f"{path}.{name}" if path else name
+
+
+def _is_tag(part: str) -> bool:
+    return part in _OP_TAGS
+
+
+def _salvage_id(frame: str | bytes) -> str | None:
+    """The frame's ``id``, when it has a usable one, so a failure can be acked."""
+    try:
+        value = json.loads(frame)
+    except ValueError:
+        return None
+    op_id = value.get("id") if isinstance(value, dict) else None
+    if isinstance(op_id, str) and 0 < len(op_id) <= MAX_OP_ID_CHARS:
+        return op_id
+    return None
+
+
+# -- binary media frames ------------------------------------------------------
+
+
+class MediaHeader(WireModel):
+    topic: Topic
+    ts: Timestamp
+    content_type: str = Field(min_length=1, max_length=128)
+
+
+def encode_media_frame(header: MediaHeader, payload: bytes) -> bytes:
+    """A binary frame: the header as one JSON line, ``\\n``, then the bytes."""
+    return header.model_dump_json().encode() + b"\n" + payload
+
+
+def decode_media_frame(frame: bytes) -> tuple[MediaHeader, bytes]:
+    """Header and payload of a binary frame, or :class:`FrameError`."""
+    end = frame.find(b"\n", 0, MAX_MEDIA_HEADER_BYTES + 1)
+    if end < 0:
+        raise FrameError(
+            ErrorBody(
+                code="invalid",
+                message="a binary frame starts with a JSON header line of at most"
+                f" {MAX_MEDIA_HEADER_BYTES} bytes ending in a newline",
+            )
+        )
+    try:
+        header = MediaHeader.model_validate_json(frame[:end])
+    except ValidationError as exc:
+        raise FrameError(_error_body(exc)) from None
+    return header, frame[end + 1 :]

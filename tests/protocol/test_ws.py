@@ -1,0 +1,249 @@
+"""WebSocket ops and pushes: parsed once, failures turned into the contract's bodies."""
+
+from __future__ import annotations
+
+import json
+from datetime import UTC, datetime
+
+import pytest
+
+from fleet_protocol import upper
+from fleet_protocol.errors import ErrorBody
+from fleet_protocol.ws import (
+    AckPush,
+    BatchOp,
+    CommandPush,
+    ControlPush,
+    ErrorPush,
+    EventPush,
+    FrameError,
+    HeartbeatOp,
+    LaggingPush,
+    MediaHeader,
+    PublishOp,
+    RegisterOp,
+    RoutesPush,
+    StartInstanceOp,
+    SubscribeOp,
+    UpdateParamOp,
+    decode_media_frame,
+    encode_media_frame,
+    parse_client_op,
+    parse_vehicle_op,
+)
+
+TS = "2026-11-22T10:00:00.123Z"
+
+
+def frame(**fields: object) -> str:
+    return json.dumps(fields)
+
+
+def failure(parse, text: str | bytes) -> dict:
+    with pytest.raises(FrameError) as caught:
+        parse(text)
+    return json.loads(caught.value.reply().frame())
+
+
+def test_update_param_op_is_the_http_body_plus_op_and_id():
+    op = parse_vehicle_op(
+        frame(
+            op="update_param",
+            id="7",
+            instance_id="i-1",
+            params={"mode": "survey"},
+            samples=[{"seq": 1, "ts": TS, "lat": 63.4, "lon": 10.4}],
+        )
+    )
+    assert isinstance(op, UpdateParamOp)
+    assert isinstance(op, upper.UpdateParam)
+    assert op.id == "7"
+    assert op.samples[0].seq == 1
+    assert op.params == {"mode": "survey"}
+
+
+@pytest.mark.parametrize(
+    ("fields", "model"),
+    [
+        ({"op": "start_instance", "vehicle_id": "usv-1"}, StartInstanceOp),
+        ({"op": "heartbeat", "instance_id": "i-1"}, HeartbeatOp),
+        ({"op": "register", "topics": ["vehicle/usv-1/camera"]}, RegisterOp),
+        ({"op": "subscribe", "topics": ["fleet"], "throttle_ms": 200}, SubscribeOp),
+        ({"op": "publish", "topic": "vehicle/usv-1/sonar", "data": {"x": 1}}, PublishOp),
+    ],
+)
+def test_each_vehicle_op_parses_to_its_model(fields, model):
+    assert type(parse_vehicle_op(frame(**fields))) is model
+
+
+def test_batch_holds_ops_each_with_its_own_id():
+    op = parse_vehicle_op(
+        frame(
+            op="batch",
+            id="b",
+            ops=[
+                {"op": "heartbeat", "id": "h1", "instance_id": "i-1"},
+                {"op": "publish", "topic": "vehicle/usv-2/depth", "vehicle_id": "usv-2"},
+            ],
+        )
+    )
+    assert isinstance(op, BatchOp)
+    assert [type(inner) for inner in op.ops] == [HeartbeatOp, PublishOp]
+    assert op.ops[0].id == "h1"
+    assert op.ops[1].vehicle_id == "usv-2"
+
+
+def test_a_batch_inside_a_batch_is_refused():
+    body = failure(parse_vehicle_op, frame(op="batch", id="b", ops=[{"op": "batch", "ops": []}]))
+    assert body["ok"] is False
+    assert body["error"]["details"][0]["field"] == "ops.0.op"
+
+
+def test_client_socket_refuses_vehicle_ops():
+    body = failure(parse_client_op, frame(op="heartbeat", id="h", instance_id="i-1"))
+    assert body == {
+        "op": "ack",
+        "id": "h",
+        "ok": False,
+        "error": body["error"],
+    }
+    assert body["error"]["code"] == "invalid"
+    assert "unknown op" in body["error"]["details"][0]["message"]
+
+
+def test_client_subscribe_parses_with_throttle():
+    op = parse_client_op(frame(op="subscribe", topics=["vehicle/usv-1/telemetry"], throttle_ms=50))
+    assert isinstance(op, SubscribeOp)
+    assert op.throttle_ms == 50
+
+
+def test_failure_with_an_id_is_an_ack_naming_the_field():
+    body = failure(
+        parse_vehicle_op, frame(op="update_param", id="9", instance_id="i", samples=[{}])
+    )
+    assert body["op"] == "ack"
+    assert body["id"] == "9"
+    assert body["ok"] is False
+    fields = {d["field"] for d in body["error"]["details"]}
+    assert {"samples.0.seq", "samples.0.ts", "samples.0.lat", "samples.0.lon"} <= fields
+
+
+def test_failure_without_an_id_is_an_error_push():
+    body = failure(parse_vehicle_op, frame(op="subscribe", topics=["fleet/#"]))
+    assert body["op"] == "error"
+    assert body["error"]["code"] == "invalid"
+    assert body["error"]["details"][0]["field"] == "topics.0"
+
+
+def test_an_id_over_64_characters_is_refused_and_not_echoed():
+    body = failure(parse_vehicle_op, frame(op="heartbeat", id="x" * 65, instance_id="i"))
+    assert body["op"] == "error"
+    assert body["error"]["details"][0]["field"] == "id"
+
+
+@pytest.mark.parametrize("text", ["not json", b"\xff\xfe", "[1, 2]", '"heartbeat"'])
+def test_frames_that_are_not_objects_get_an_error_push(text):
+    body = failure(parse_vehicle_op, text)
+    assert body["op"] == "error"
+    assert body["error"]["code"] == "invalid"
+
+
+def test_missing_op_is_named():
+    body = failure(parse_client_op, frame(id="1", topics=["fleet"]))
+    assert body["error"]["details"] == [{"field": "op", "message": "the frame has no 'op'"}]
+
+
+def test_ack_success_carries_the_http_answer_fields():
+    result = upper.UpdateParamResult(
+        accepted=2, duplicates=0, acked_through_seq=5, durable_through_seq=3
+    )
+    body = json.loads(AckPush.success("7", result).frame())
+    assert body == {
+        "op": "ack",
+        "id": "7",
+        "ok": True,
+        "accepted": 2,
+        "duplicates": 0,
+        "acked_through_seq": 5,
+        "durable_through_seq": 3,
+    }
+
+
+def test_ack_success_keeps_null_answer_fields_and_cannot_be_overridden():
+    body = json.loads(AckPush.success("s", {"control": None, "ok": False, "op": "x"}).frame())
+    assert body == {"op": "ack", "id": "s", "ok": True, "control": None}
+
+
+def test_ack_failure_and_error_push_carry_the_error_body():
+    error = ErrorBody(code="forbidden", message="not your vehicle")
+    assert json.loads(AckPush.failure("1", error).frame())["error"]["code"] == "forbidden"
+    assert json.loads(ErrorPush(error=error).frame()) == {
+        "op": "error",
+        "error": {"code": "forbidden", "message": "not your vehicle", "details": None},
+    }
+
+
+def make_command(type_: str = "stop") -> dict:
+    return {
+        "command_id": "c-1",
+        "instance_id": "i-1",
+        "type": type_,
+        "args": {},
+        "status": "queued",
+        "issued_by": "alice",
+        "issued_at": TS,
+        "expires_at": TS,
+    }
+
+
+def test_command_push_is_the_command_object_and_stop_is_critical():
+    stop = CommandPush.model_validate(make_command("stop"))
+    body = json.loads(stop.frame())
+    assert body["op"] == "command"
+    assert body["command_id"] == "c-1"
+    assert body["issued_at"] == TS
+    assert stop.critical
+    go = CommandPush.model_validate(make_command("go_to") | {"args": {"lat": 1, "lon": 2}})
+    assert not go.critical
+
+
+def test_event_push_omits_snapshot_unless_set():
+    assert json.loads(EventPush(topic="fleet", data={"a": 1}).frame()) == {
+        "op": "event",
+        "topic": "fleet",
+        "data": {"a": 1},
+    }
+    snap = json.loads(EventPush(topic="fleet", data=None, snapshot=True).frame())
+    assert snap["snapshot"] is True
+    assert "data" in snap
+
+
+def test_other_pushes_serialise_with_their_op():
+    assert json.loads(LaggingPush(dropped=3).frame()) == {"op": "lagging", "dropped": 3}
+    control = json.loads(ControlPush(instance_id="i-1").frame())
+    assert control == {"op": "control", "instance_id": "i-1", "control": None}
+    routes = json.loads(RoutesPush(unit="usv-1", produces={"vehicle/usv-1/camera": []}).frame())
+    assert routes["op"] == "routes"
+    assert routes["produces"] == {"vehicle/usv-1/camera": []}
+
+
+def test_media_frame_round_trip():
+    header = MediaHeader(
+        topic="vehicle/usv-1/camera",
+        ts=datetime(2026, 11, 22, 10, tzinfo=UTC),
+        content_type="image/jpeg",
+    )
+    payload = bytes(range(256)) * 4 + b"\n\n"
+    decoded_header, decoded_payload = decode_media_frame(encode_media_frame(header, payload))
+    assert decoded_header == header
+    assert decoded_payload == payload
+
+
+@pytest.mark.parametrize(
+    "data",
+    [b"no newline here", b'{"topic": "bad topic", "ts": "x"}\n', b"x" * 2000 + b"\n"],
+)
+def test_bad_media_frames_raise_frame_error(data):
+    with pytest.raises(FrameError) as caught:
+        decode_media_frame(data)
+    assert caught.value.reply().op == "error"
