@@ -1,0 +1,242 @@
+"""The durable outbox: telemetry kept on the vehicle until the server has it for good.
+
+One SQLite file (``--outbox``) holds three tables:
+
+- ``samples``: every sample, numbered with the next ``seq``, written here
+  before anything is sent, and deleted only once the server reports it
+  durable (``durable_through_seq``). Sending drains it oldest first.
+- ``seen``: every ``command_id`` the agent has seen and its last status, so
+  that a command delivered again, even after a restart, is not carried out
+  twice.
+- ``meta``: the next ``seq``, whether it was matched with the server's
+  ``last_seq`` yet, and how many samples were dropped.
+
+Bound: at most ``max_samples`` rows (default 172,800: two days at 1 Hz,
+nearly ten hours at 5 Hz). Past it the OLDEST samples are dropped, counted
+in ``dropped`` (kept in the file) and logged: at sea the newest position
+matters most. ``seen`` keeps the newest ``max_seen`` ids.
+
+The class is synchronous (stdlib ``sqlite3``, one connection behind a
+lock); the daemon calls it through ``asyncio.to_thread``. The file uses
+WAL with ``synchronous=NORMAL``: a killed agent loses nothing committed; a
+power cut may lose the last moments.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import sqlite3
+import threading
+import time
+from collections.abc import Iterator, MutableMapping
+from pathlib import Path
+from typing import Any
+
+log = logging.getLogger(__name__)
+
+DEFAULT_MAX_SAMPLES = 172_800
+DEFAULT_MAX_SEEN = 20_000
+UNFINISHED = ("accepted", "executing")
+
+_SCHEMA = """
+CREATE TABLE IF NOT EXISTS samples (seq INTEGER PRIMARY KEY, body TEXT NOT NULL);
+CREATE TABLE IF NOT EXISTS seen (
+    command_id TEXT PRIMARY KEY, status TEXT NOT NULL, updated_at REAL NOT NULL
+);
+CREATE INDEX IF NOT EXISTS seen_by_age ON seen (updated_at);
+CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
+"""
+
+
+class Outbox:
+    def __init__(
+        self,
+        path: str | Path,
+        max_samples: int = DEFAULT_MAX_SAMPLES,
+        max_seen: int = DEFAULT_MAX_SEEN,
+    ) -> None:
+        if max_samples < 1 or max_seen < 1:
+            raise ValueError("max_samples and max_seen must be at least 1")
+        self.path = Path(path)
+        if str(path) != ":memory:":
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+        self.max_samples = max_samples
+        self.max_seen = max_seen
+        self._lock = threading.Lock()
+        self._db = sqlite3.connect(str(path), check_same_thread=False, isolation_level=None)
+        self._db.execute("PRAGMA journal_mode=WAL")
+        self._db.execute("PRAGMA synchronous=NORMAL")
+        self._db.executescript(_SCHEMA)
+        self._count = self._db.execute("SELECT COUNT(*) FROM samples").fetchone()[0]
+        self.seen = SeenCommands(self)
+
+    def close(self) -> None:
+        with self._lock:
+            self._db.close()
+
+    # -- meta --------------------------------------------------------------
+    def _meta(self, key: str, default: int) -> int:
+        row = self._db.execute("SELECT value FROM meta WHERE key = ?", (key,)).fetchone()
+        return int(row[0]) if row else default
+
+    def _set_meta(self, key: str, value: int) -> None:
+        self._db.execute(
+            "INSERT INTO meta (key, value) VALUES (?, ?) "
+            "ON CONFLICT(key) DO UPDATE SET value = excluded.value",
+            (key, str(value)),
+        )
+
+    @property
+    def next_seq(self) -> int:
+        with self._lock:
+            return self._meta("next_seq", 1)
+
+    @property
+    def dropped(self) -> int:
+        with self._lock:
+            return self._meta("dropped", 0)
+
+    @property
+    def pending(self) -> int:
+        with self._lock:
+            return self._count
+
+    def oldest_seq(self) -> int | None:
+        with self._lock:
+            return self._db.execute("SELECT MIN(seq) FROM samples").fetchone()[0]
+
+    # -- samples -------------------------------------------------------------
+    def match_server(self, last_seq: int) -> None:
+        """Number from above the server's ``last_seq`` (``start_instance``).
+
+        The first time (a fresh install, or an outbox that filled while the
+        server was never reached), the samples not yet sent are renumbered
+        to follow ``last_seq``; afterwards numbering only ever moves up.
+        """
+        with self._lock, self._tx():
+            next_seq = self._meta("next_seq", 1)
+            if not self._meta("matched", 0):
+                low = self._db.execute("SELECT MIN(seq) FROM samples").fetchone()[0]
+                if low is not None and low <= last_seq:
+                    shift = last_seq + 1 - low
+                    # Negative first, then back, so no key collides mid-update.
+                    self._db.execute("UPDATE samples SET seq = -(seq + ?)", (shift,))
+                    self._db.execute("UPDATE samples SET seq = -seq")
+                    self._db.execute("UPDATE samples SET body = json_set(body, '$.seq', seq)")
+                    next_seq += shift
+                self._set_meta("matched", 1)
+            self._set_meta("next_seq", max(next_seq, last_seq + 1))
+
+    def append(self, sample: dict[str, Any]) -> int:
+        """Store one sample under the next ``seq`` and answer that ``seq``."""
+        with self._lock, self._tx():
+            seq = self._meta("next_seq", 1)
+            body = json.dumps({**sample, "seq": seq}, separators=(",", ":"), default=str)
+            self._db.execute("INSERT INTO samples (seq, body) VALUES (?, ?)", (seq, body))
+            self._set_meta("next_seq", seq + 1)
+            self._count += 1
+            if self._count > self.max_samples:
+                self._drop_oldest(self._count - self.max_samples)
+        return seq
+
+    def _drop_oldest(self, n: int) -> None:
+        self._db.execute(
+            "DELETE FROM samples WHERE seq IN (SELECT seq FROM samples ORDER BY seq LIMIT ?)",
+            (n,),
+        )
+        self._count -= n
+        total = self._meta("dropped", 0) + n
+        self._set_meta("dropped", total)
+        if total == n or total % 1000 < n:
+            log.warning(
+                "outbox full (%d samples): dropped the oldest, %d dropped so far",
+                self.max_samples,
+                total,
+            )
+
+    def batch(self, after_seq: int = 0, limit: int = 500) -> list[dict[str, Any]]:
+        """The oldest samples above ``after_seq``, at most ``limit``."""
+        with self._lock:
+            rows = self._db.execute(
+                "SELECT body FROM samples WHERE seq > ? ORDER BY seq LIMIT ?",
+                (after_seq, limit),
+            ).fetchall()
+        return [json.loads(r[0]) for r in rows]
+
+    def confirm_durable(self, through_seq: int) -> int:
+        """The server keeps everything up to ``through_seq``: forget it here."""
+        with self._lock, self._tx():
+            n = self._db.execute("DELETE FROM samples WHERE seq <= ?", (through_seq,)).rowcount
+            self._count -= n
+        return n
+
+    # -- plumbing --------------------------------------------------------------
+    def _tx(self) -> _Transaction:
+        return _Transaction(self._db)
+
+
+class _Transaction:
+    def __init__(self, db: sqlite3.Connection) -> None:
+        self.db = db
+
+    def __enter__(self) -> None:
+        self.db.execute("BEGIN IMMEDIATE")
+
+    def __exit__(self, exc_type: object, *_: object) -> None:
+        self.db.execute("ROLLBACK" if exc_type else "COMMIT")
+
+
+class SeenCommands(MutableMapping[str, str]):
+    """``command_id`` -> last status, persisted in the outbox file."""
+
+    def __init__(self, outbox: Outbox) -> None:
+        self._o = outbox
+
+    def __getitem__(self, command_id: str) -> str:
+        with self._o._lock:
+            row = self._o._db.execute(
+                "SELECT status FROM seen WHERE command_id = ?", (command_id,)
+            ).fetchone()
+        if row is None:
+            raise KeyError(command_id)
+        return row[0]
+
+    def __setitem__(self, command_id: str, status: str) -> None:
+        o = self._o
+        with o._lock, o._tx():
+            o._db.execute(
+                "INSERT INTO seen (command_id, status, updated_at) VALUES (?, ?, ?) "
+                "ON CONFLICT(command_id) DO UPDATE SET status = excluded.status, "
+                "updated_at = excluded.updated_at",
+                (command_id, status, time.time()),
+            )
+            over = o._db.execute("SELECT COUNT(*) FROM seen").fetchone()[0] - o.max_seen
+            if over > 0:
+                o._db.execute(
+                    "DELETE FROM seen WHERE command_id IN "
+                    "(SELECT command_id FROM seen ORDER BY updated_at, rowid LIMIT ?)",
+                    (over,),
+                )
+
+    def __delitem__(self, command_id: str) -> None:
+        with self._o._lock:
+            self._o._db.execute("DELETE FROM seen WHERE command_id = ?", (command_id,))
+
+    def __iter__(self) -> Iterator[str]:
+        with self._o._lock:
+            rows = self._o._db.execute("SELECT command_id FROM seen").fetchall()
+        return iter([r[0] for r in rows])
+
+    def __len__(self) -> int:
+        with self._o._lock:
+            return self._o._db.execute("SELECT COUNT(*) FROM seen").fetchone()[0]
+
+    def unfinished(self) -> list[str]:
+        """Ids last reported ``accepted`` or ``executing``."""
+        with self._o._lock:
+            rows = self._o._db.execute(
+                "SELECT command_id FROM seen WHERE status IN (?, ?) ORDER BY updated_at",
+                UNFINISHED,
+            ).fetchall()
+        return [r[0] for r in rows]
