@@ -1,0 +1,156 @@
+"""Control leases: who may command an instance, who may grant that. Pure.
+
+One holder per instance. A manager assigned to the vehicle, or an admin,
+grants; the grantee is an operator (or above) with access to the vehicle.
+Granting again to the holder extends the lease; granting to someone else
+ends the former one. ``stop`` needs no lease; nothing but ``stop`` passes
+while the vehicle reports local control.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from datetime import datetime, timedelta
+from typing import Any
+
+from server.domain.access import ROLE_RANK, Principal
+from server.errors import ControlNotHeld, Forbidden, Invalid, RateLimited, VehicleLocalControl
+
+
+@dataclass(frozen=True)
+class Lease:
+    instance_id: str
+    vehicle_id: str
+    holder: str
+    granted_by: str
+    granted_at: datetime
+    expires_at: datetime
+
+    def live(self, now: datetime) -> bool:
+        return now < self.expires_at
+
+    def info(self) -> dict[str, Any]:
+        return {"holder": self.holder, "granted_by": self.granted_by,
+                "expires_at": self.expires_at}
+
+    def to_doc(self) -> dict[str, Any]:
+        return {"instance_id": self.instance_id, "vehicle_id": self.vehicle_id,
+                "holder": self.holder, "granted_by": self.granted_by,
+                "granted_at": self.granted_at, "expires_at": self.expires_at}
+
+    @classmethod
+    def from_doc(cls, doc: dict[str, Any]) -> Lease:
+        return cls(doc["instance_id"], doc["vehicle_id"], doc["holder"], doc["granted_by"],
+                   doc["granted_at"], doc["expires_at"])
+
+
+@dataclass(frozen=True)
+class Grantee:
+    """What the rules need to know of the user a lease is granted to."""
+
+    username: str
+    role: str
+    vehicles: frozenset[str]
+    disabled: bool = False
+
+    def can_see(self, vehicle_id: str) -> bool:
+        return self.role == "admin" or vehicle_id in self.vehicles
+
+
+def may_grant(principal: Principal, vehicle_id: str) -> bool:
+    """A manager assigned to the vehicle, or an admin."""
+    return principal.is_admin or (principal.at_least("manager") and principal.can_see(vehicle_id))
+
+
+def check_granter(principal: Principal, vehicle_id: str) -> None:
+    if not may_grant(principal, vehicle_id):
+        raise Forbidden(f"only a manager of vehicle {vehicle_id}, or an admin, grants its control")
+
+
+def check_grantee(grantee: Grantee | None, username: str, vehicle_id: str) -> Grantee:
+    def refuse(why: str) -> Invalid:
+        return Invalid(f"cannot grant control to {username}: {why}",
+                       details=[{"field": "user", "message": why}])
+
+    if grantee is None:
+        raise refuse("no such user")
+    if grantee.disabled:
+        raise refuse("the account is disabled")
+    if ROLE_RANK.get(grantee.role, -1) < ROLE_RANK["operator"]:
+        raise refuse(f"a {grantee.role} cannot hold control; an operator or above can")
+    if not grantee.can_see(vehicle_id):
+        raise refuse(f"the user has no access to vehicle {vehicle_id}")
+    return grantee
+
+
+def grant(
+    current: Lease | None, *, instance_id: str, vehicle_id: str, holder: str, granted_by: str,
+    now: datetime, duration_s: float,
+) -> tuple[Lease, Lease | None]:
+    """The new lease, and the lease it ends (granted to someone else), if any.
+
+    Granting again to the live holder extends the lease: it never gets shorter.
+    """
+    expires_at = now + timedelta(seconds=duration_s)
+    if current is not None and current.live(now) and current.holder == holder:
+        lease = Lease(instance_id, vehicle_id, holder, granted_by, current.granted_at,
+                      max(expires_at, current.expires_at))
+        return lease, None
+    ended = current if current is not None and current.live(now) else None
+    return Lease(instance_id, vehicle_id, holder, granted_by, now, expires_at), ended
+
+
+def holds(lease: Lease | None, username: str, now: datetime) -> bool:
+    return lease is not None and lease.live(now) and lease.holder == username
+
+
+def check_submit(
+    principal: Principal, *, command_type: str, lease: Lease | None, control_mode: str,
+    now: datetime,
+) -> None:
+    """May this operator queue this command on this instance now?
+
+    Access to the vehicle and the operator role are checked before (they are
+    the same for every command). ``stop`` always passes.
+    """
+    if command_type == "stop":
+        return
+    if not holds(lease, principal.name, now):
+        who = f" ({lease.holder} holds it)" if lease is not None and lease.live(now) else ""
+        raise ControlNotHeld(f"you do not hold control of this instance{who}")
+    if control_mode == "local":
+        raise VehicleLocalControl("a person is at the vehicle's local controls; only stop passes")
+
+
+def check_release(lease: Lease | None, principal: Principal, now: datetime) -> Lease:
+    if lease is None or not lease.live(now) or lease.holder != principal.name:
+        raise ControlNotHeld("you do not hold control of this instance")
+    return lease
+
+
+# ---- control requests ---------------------------------------------------------
+
+@dataclass(frozen=True)
+class ControlRequest:
+    request_id: str
+    username: str
+    instance_id: str
+    vehicle_id: str
+    requested_at: datetime
+
+    def wire(self) -> dict[str, Any]:
+        return {"request_id": self.request_id, "username": self.username,
+                "instance_id": self.instance_id, "requested_at": self.requested_at}
+
+
+def add_request(
+    pending: list[ControlRequest], request: ControlRequest, *, limit: int
+) -> tuple[list[ControlRequest], ControlRequest]:
+    """A user's request joins the instance's pending ones (once: a repeat returns the first)."""
+    for existing in pending:
+        if existing.username == request.username:
+            return pending, existing
+    if len(pending) >= limit:
+        raise RateLimited(f"{limit} control requests are already pending on this instance",
+                          retry_after_s=30)
+    return [*pending, request], request
