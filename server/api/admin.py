@@ -1,0 +1,86 @@
+"""Administration: vehicles, gateways, users, tokens; password login."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from fastapi import APIRouter
+
+from fleet_protocol import (
+    CreateGateway,
+    CreateUser,
+    CreateVehicle,
+    GatewayCreated,
+    LoginRequest,
+    PatchUser,
+    TokenResult,
+    UserCreated,
+    UserList,
+    UserView,
+    VehicleCreated,
+)
+from server.api.deps import Admin, ServicesDep
+
+router = APIRouter(tags=["admin"])
+
+
+def _user_view(doc: dict[str, Any]) -> UserView:
+    return UserView.model_validate(doc)
+
+
+@router.post("/api/vehicles", status_code=201)
+async def create_vehicle(body: CreateVehicle, _: Admin, s: ServicesDep) -> VehicleCreated:
+    token = await s.auth.create_vehicle(body)
+    return VehicleCreated(vehicle_id=body.vehicle_id, token=token)
+
+
+@router.post("/api/vehicles/{vehicle_id}/rotate_token")
+async def rotate_vehicle_token(vehicle_id: str, _: Admin, s: ServicesDep) -> VehicleCreated:
+    return VehicleCreated(vehicle_id=vehicle_id, token=await s.auth.rotate_vehicle_token(vehicle_id))
+
+
+@router.post("/api/gateways", status_code=201)
+async def create_gateway(body: CreateGateway, _: Admin, s: ServicesDep) -> GatewayCreated:
+    token = await s.auth.create_gateway(body)
+    return GatewayCreated(gateway_id=body.gateway_id, token=token, vehicles=body.vehicles)
+
+
+@router.post("/api/users", status_code=201)
+async def create_user(body: CreateUser, _: Admin, s: ServicesDep) -> UserCreated:
+    token = await s.auth.create_user(body)
+    return UserCreated(username=body.username, role=body.role, token=token, vehicles=body.vehicles)
+
+
+@router.get("/api/users")
+async def list_users(_: Admin, s: ServicesDep) -> UserList:
+    return UserList(users=[_user_view(d) for d in await s.auth.list_users()])
+
+
+@router.get("/api/users/{username}")
+async def get_user(username: str, _: Admin, s: ServicesDep) -> UserView:
+    return _user_view(await s.auth.get_user(username))
+
+
+@router.patch("/api/users/{username}")
+async def patch_user(username: str, body: PatchUser, _: Admin, s: ServicesDep) -> UserView:
+    return _user_view(await s.auth.patch_user(username, body))
+
+
+@router.post("/api/users/{username}/rotate_token")
+async def rotate_user_token(username: str, _: Admin, s: ServicesDep) -> UserCreated:
+    user = await s.auth.get_user(username)
+    token = await s.auth.rotate_user_token(username)
+    return UserCreated(username=username, role=user["role"], token=token,
+                       vehicles=user.get("vehicles", []))
+
+
+@router.post("/api/users/{username}/revoke_tokens")
+async def revoke_user_tokens(username: str, _: Admin, s: ServicesDep) -> dict[str, bool]:
+    await s.auth.revoke_user_tokens(username)
+    return {"ok": True}
+
+
+@router.post("/auth/token", tags=["auth"])
+async def login(body: LoginRequest, s: ServicesDep) -> TokenResult:
+    token, ttl = await s.auth.login(body.username, body.password)
+    return TokenResult(access_token=token, expires_in=ttl)

@@ -1,0 +1,64 @@
+"""Dependencies: the services, and who is calling. Every route names one caller alias."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Annotated, Any
+
+from fastapi import Depends, Request
+
+from server.domain.access import Principal
+from server.errors import Forbidden
+
+if TYPE_CHECKING:
+    from server.container import Services
+
+
+def get_services(request: Request) -> Services:
+    services: Services = request.app.state.services
+    return services
+
+
+ServicesDep = Annotated["Services", Depends(get_services)]
+
+
+def bearer_token(request: Request) -> str | None:
+    header = request.headers.get("authorization", "")
+    scheme, _, value = header.partition(" ")
+    if scheme.lower() == "bearer" and value.strip():
+        return value.strip()
+    return None
+
+
+async def get_principal(request: Request) -> Principal:
+    services = get_services(request)
+    principal = await services.auth.authenticate(bearer_token(request))
+    services.auth.check_rate(principal)
+    request.state.principal = principal
+    return principal
+
+
+def _require_user(role: str) -> Any:
+    async def dependency(principal: Annotated[Principal, Depends(get_principal)]) -> Principal:
+        if principal.kind != "user":
+            raise Forbidden("this call is for users, not vehicle or gateway tokens")
+        if not principal.at_least(role):
+            raise Forbidden(f"this call needs the {role} role or above")
+        return principal
+
+    return dependency
+
+
+async def _vehicle_caller(principal: Annotated[Principal, Depends(get_principal)]) -> Principal:
+    if principal.kind not in ("vehicle", "gateway"):
+        raise Forbidden("this call is for vehicle and gateway tokens")
+    return principal
+
+
+Caller = Annotated[Principal, Depends(get_principal)]
+Viewer = Annotated[Principal, Depends(_require_user("viewer"))]
+Operator = Annotated[Principal, Depends(_require_user("operator"))]
+Manager = Annotated[Principal, Depends(_require_user("manager"))]
+Admin = Annotated[Principal, Depends(_require_user("admin"))]
+VehicleCaller = Annotated[Principal, Depends(_vehicle_caller)]
+# Kept as an alias: any user may read what they can see.
+CurrentUser = Viewer

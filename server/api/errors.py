@@ -1,0 +1,81 @@
+"""One handler renders every error as the contract's envelope."""
+
+from __future__ import annotations
+
+import logging
+import re
+from typing import Any
+
+from fastapi import FastAPI, Request
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import JSONResponse
+from starlette.exceptions import HTTPException as StarletteHTTPException
+
+from server.errors import FleetError, RateLimited, Unavailable
+
+log = logging.getLogger("fleet.api")
+
+_ARGS_PART = re.compile(r"^(args(?:\.[\w\d]+)*): (.*)$")
+_HTTP_CODES = {
+    400: "bad_request", 401: "unauthorized", 403: "forbidden", 404: "not_found",
+    405: "method_not_allowed", 406: "not_acceptable", 409: "conflict", 413: "too_large",
+    415: "unsupported_media_type", 422: "invalid", 429: "rate_limited", 503: "unavailable",
+}
+
+
+def envelope(status: int, code: str, message: str, details: Any = None,
+             headers: dict[str, str] | None = None) -> JSONResponse:
+    return JSONResponse(
+        {"error": {"code": code, "message": message, "details": details}},
+        status_code=status, headers=headers,
+    )
+
+
+def field_errors(errors: list[dict[str, Any]]) -> list[dict[str, str]]:
+    """Pydantic errors as ``[{field, message}]``; request location prefixes dropped."""
+    out: list[dict[str, str]] = []
+    for err in errors:
+        loc = [str(p) for p in err.get("loc", ())]
+        if loc and loc[0] in ("body", "query", "path", "header"):
+            loc = loc[1:]
+        # A discriminated/union tag in the path is noise for the reader.
+        loc = [p for p in loc if not p.startswith("function-")]
+        name = ".".join(loc) or "body"
+        msg = str(err.get("msg", "invalid value")).removeprefix("Value error, ")
+        # Command args are validated as one value: split their messages by field.
+        parts = [_ARGS_PART.match(p) for p in msg.split("; ")]
+        if parts and all(parts):
+            for m in parts:
+                assert m is not None
+                out.append({"field": f"{name}.{m.group(1)}", "message": m.group(2)})
+            continue
+        if err.get("type") == "json_invalid":
+            name, msg = "body", "the body is not valid JSON"
+        out.append({"field": name, "message": msg})
+    return out
+
+
+def install(app: FastAPI) -> None:
+    @app.exception_handler(FleetError)
+    async def _fleet(_: Request, exc: FleetError) -> JSONResponse:
+        headers = None
+        if isinstance(exc, RateLimited | Unavailable):
+            headers = {"Retry-After": str(max(1, round(exc.retry_after_s)))}
+        return envelope(exc.status, exc.code, exc.message, exc.details, headers)
+
+    @app.exception_handler(RequestValidationError)
+    async def _invalid(_: Request, exc: RequestValidationError) -> JSONResponse:
+        details = field_errors(list(exc.errors()))
+        fields = ", ".join(d["field"] for d in details)
+        return envelope(422, "invalid", f"invalid input: {fields}", details)
+
+    @app.exception_handler(StarletteHTTPException)
+    async def _http(_: Request, exc: StarletteHTTPException) -> JSONResponse:
+        code = _HTTP_CODES.get(exc.status_code, "error")
+        message = exc.detail if isinstance(exc.detail, str) else code.replace("_", " ")
+        return envelope(exc.status_code, code, message, headers=getattr(exc, "headers", None))
+
+    @app.exception_handler(Exception)
+    async def _unexpected(_: Request, exc: Exception) -> JSONResponse:
+        log.exception("unexpected error", exc_info=exc)
+        return envelope(500, "internal", "the server failed on this request; it is logged")

@@ -1,0 +1,42 @@
+"""Vehicle side, ``/upper/*`` (seed Table 1): instance life, heartbeat, telemetry."""
+
+from __future__ import annotations
+
+from fastapi import APIRouter
+
+from fleet_protocol import (
+    FinishInstance,
+    FinishInstanceResult,
+    Heartbeat,
+    HeartbeatResult,
+    StartInstance,
+    StartInstanceResult,
+    UpdateParam,
+    UpdateParamResult,
+)
+from server.api.deps import ServicesDep, VehicleCaller
+
+router = APIRouter(prefix="/upper", tags=["vehicle"])
+
+
+@router.post("/start_instance")
+async def start_instance(body: StartInstance, caller: VehicleCaller,
+                         s: ServicesDep) -> StartInstanceResult:
+    return await s.link.start(caller, body)
+
+
+@router.post("/finish_instance")
+async def finish_instance(body: FinishInstance, caller: VehicleCaller,
+                          s: ServicesDep) -> FinishInstanceResult:
+    return await s.link.finish(caller, body.instance_id)
+
+
+@router.post("/heartbeat")
+async def heartbeat(body: Heartbeat, caller: VehicleCaller, s: ServicesDep) -> HeartbeatResult:
+    return await s.link.heartbeat(caller, body.instance_id)
+
+
+@router.post("/update_param")
+async def update_param(body: UpdateParam, caller: VehicleCaller,
+                       s: ServicesDep) -> UpdateParamResult:
+    return await s.link.update_param(caller, body)

@@ -1,0 +1,58 @@
+"""``fleet-server``: run the cloud server. ``--help`` lists every FLEET_* setting."""
+
+from __future__ import annotations
+
+import logging
+from typing import Any
+
+import typer
+import uvicorn
+
+from server.settings import Settings
+
+
+def _settings_help() -> str:
+    lines = ["\b", "Settings come from FLEET_* environment variables (or a .env file):"]
+    for name, field in Settings.model_fields.items():
+        default: Any = field.default
+        if default is None:
+            default = "unset"
+        lines.append(f"  FLEET_{name.upper():<27} {field.description} [default: {default}]")
+    return "\n\n".join(["Run the fleet-cloud server.", "\n".join(lines)])
+
+
+app = typer.Typer(add_completion=False, help=_settings_help(), rich_markup_mode=None)
+
+
+@app.command(help=_settings_help())
+def serve(
+    host: str | None = typer.Option(None, help="address to listen on (FLEET_HOST)"),
+    port: int | None = typer.Option(None, help="port to listen on (FLEET_PORT)"),
+) -> None:
+    overrides: dict[str, Any] = {}
+    if host is not None:
+        overrides["host"] = host
+    if port is not None:
+        overrides["port"] = port
+    settings = Settings(**overrides)
+    run(settings)
+
+
+def run(settings: Settings) -> None:
+    from server.app import create_app
+
+    logging.basicConfig(
+        level=settings.log_level.upper(), format="%(asctime)s %(levelname)s %(name)s: %(message)s"
+    )
+    uvicorn.run(
+        create_app(settings), host=settings.host, port=settings.port,
+        log_level=settings.log_level, access_log=False, ws_per_message_deflate=False,
+    )
+
+
+def main() -> None:
+    app()
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,163 @@
+"""The services, built once in the app's lifespan and handed to routes by dependency."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+from collections.abc import Awaitable, Callable
+from dataclasses import dataclass, field
+from datetime import datetime, timedelta
+from typing import Any
+
+from fleet_protocol import utcnow
+from server.metrics import Metrics
+from server.services.auth import AuthService
+from server.services.commands import CommandService
+from server.services.control import ControlService
+from server.services.events import EventService
+from server.services.fleet import FleetViews
+from server.services.instances import InstanceService
+from server.services.link import VehicleLink
+from server.services.telemetry import TelemetryService
+from server.settings import Settings
+from server.storage import Store, open_store
+from server.storage.accounts import AccountsRepo
+from server.storage.commands import CommandsRepo
+from server.storage.control import ControlRepo
+from server.storage.events import EventsRepo
+from server.storage.instances import InstancesRepo
+
+log = logging.getLogger("fleet.server")
+Clock = Callable[[], datetime]
+
+
+@dataclass
+class Services:
+    settings: Settings
+    store: Store
+    clock: Clock
+    metrics: Metrics
+    auth: AuthService
+    events: EventService
+    instances: InstanceService
+    control: ControlService
+    commands: CommandService
+    telemetry: TelemetryService
+    link: VehicleLink
+    views: FleetViews
+    extra: dict[str, Any] = field(default_factory=dict)
+    tasks: list[asyncio.Task[None]] = field(default_factory=list)
+    admin_token: str | None = None
+
+    def spawn(self, name: str, fn: Callable[[], Awaitable[None]], every_s: float) -> None:
+        """Run ``fn`` every ``every_s`` seconds until shutdown; failures are logged, not fatal."""
+
+        async def loop() -> None:
+            while True:
+                try:
+                    await fn()
+                except asyncio.CancelledError:
+                    raise
+                except Exception:
+                    log.exception("background task %s failed; it goes on", name)
+                await asyncio.sleep(every_s)
+
+        self.tasks.append(asyncio.create_task(loop(), name=name))
+
+    async def stop_tasks(self) -> None:
+        for task in self.tasks:
+            task.cancel()
+        for task in self.tasks:
+            with contextlib.suppress(asyncio.CancelledError):
+                await task
+        self.tasks.clear()
+
+
+async def build(settings: Settings, metrics: Metrics, clock: Clock = utcnow) -> Services:
+    store = open_store(settings)
+    if store.embedded:
+        log.warning(
+            "embedded store (mongomock, in process), kept in %s; set FLEET_MONGO_URL for MongoDB",
+            settings.snapshot_path,
+        )
+        await store.load()
+    accounts = AccountsRepo(store)
+    events_repo = EventsRepo(store)
+    instances_repo = InstancesRepo(store)
+    if await store.ping():
+        for repo in (accounts, events_repo, instances_repo):
+            await repo.ensure_indexes()
+    auth = AuthService(settings, accounts)
+    events = EventService(events_repo, clock)
+    instances = InstanceService(settings, instances_repo, auth, events, clock)
+    control = ControlService(settings, ControlRepo(store), instances, auth, events, clock)
+    commands = CommandService(settings, CommandsRepo(store), instances, control, events, clock)
+    telemetry = TelemetryService(settings, store, clock)
+    services = Services(
+        settings, store, clock, metrics, auth, events, instances, control, commands, telemetry,
+        link=VehicleLink(settings, instances, telemetry, control),
+        views=FleetViews(auth, instances, control),
+    )
+    if await store.ping():
+        await instances.load()
+        await control.load()
+        await commands.load()
+        await telemetry.load()
+        services.admin_token = await auth.bootstrap_admin()
+    else:
+        log.error("the store cannot be reached at start-up; /readyz says so until it can")
+    _register_gauges(services)
+    return services
+
+
+def _register_gauges(services: Services) -> None:
+    def presence_counts() -> dict[str, float]:
+        counts: dict[str, float] = {"online": 0, "stale": 0, "offline": 0}
+        for state in services.instances.live():
+            presence = services.instances.presence(state)
+            counts[presence] = counts.get(presence, 0) + 1
+        return counts
+
+    services.metrics.live_gauge(
+        "fleet_vehicles", "vehicles with a live instance, by presence", presence_counts, "presence"
+    )
+
+
+def start_background(services: Services) -> None:
+    settings = services.settings
+    services.spawn("presence", services.instances.sweep, 0.25)
+    services.spawn("leases", services.control.sweep, 0.2)
+    services.spawn("commands", services.commands.sweep, 0.2)
+    services.tasks.append(asyncio.create_task(services.telemetry.run_writer(), name="telemetry"))
+    if services.store.embedded:
+        services.spawn("journal", _flush(services), settings.snapshot_interval_s)
+    services.spawn("retention", _retention(services), 60.0)
+
+
+def _flush(services: Services) -> Callable[[], Awaitable[None]]:
+    async def flush() -> None:
+        await services.store.flush()
+
+    return flush
+
+
+def _retention(services: Services) -> Callable[[], Awaitable[None]]:
+    async def drop_old() -> None:
+        before = services.clock() - timedelta(seconds=services.settings.retention_s)
+        await services.events.drop_before(before)
+        await services.commands.drop_finished_before(before)
+        await services.telemetry.drop_before(before)
+        await services.instances.drop_finished_before(before)
+        await services.auth.repo.drop_expired_tokens(services.clock())
+
+    return drop_old
+
+
+async def shutdown(services: Services) -> None:
+    await services.stop_tasks()
+    with contextlib.suppress(Exception):
+        await services.instances.sweep()
+    with contextlib.suppress(Exception):
+        await services.telemetry.flush_all()
+    await services.store.close()

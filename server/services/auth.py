@@ -1,0 +1,282 @@
+"""Authentication and accounts: tokens (SHA-256 digests), passwords (argon2), roles.
+
+Every request looks its token up by digest; the answer is cached in process
+and the cache entry dropped the moment the token is revoked, its owner
+disabled or changed, so a revoked token fails at once.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import hashlib
+import logging
+import secrets
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from datetime import timedelta
+from typing import Any
+
+from argon2 import PasswordHasher
+from argon2.exceptions import InvalidHashError, VerificationError
+
+from fleet_protocol import CreateGateway, CreateUser, CreateVehicle, PatchUser, utcnow
+from server.domain.access import Principal
+from server.errors import Conflict, Invalid, NotFound, RateLimited, Unauthorized
+from server.settings import Settings
+from server.storage.accounts import AccountsRepo
+
+log = logging.getLogger("fleet.auth")
+TOKEN_PREFIX = "fct_"
+BOOTSTRAP_ADMIN = "admin"
+
+
+def digest(token: str) -> str:
+    return hashlib.sha256(token.encode("utf-8")).hexdigest()
+
+
+def new_token() -> str:
+    return TOKEN_PREFIX + secrets.token_urlsafe(32)
+
+
+@dataclass
+class _Cached:
+    principal: Principal
+    expires_at: float | None  # monotonic-free wall clock seconds, None: never
+
+
+class _Bucket:
+    """Token-bucket rate limit per token."""
+
+    __slots__ = ("stamp", "tokens")
+
+    def __init__(self, burst: float) -> None:
+        self.tokens = burst
+        self.stamp = time.monotonic()
+
+
+RevokeListener = Callable[[set[str]], None]
+
+
+class AuthService:
+    def __init__(self, settings: Settings, repo: AccountsRepo) -> None:
+        self.settings = settings
+        self.repo = repo
+        self._hasher = PasswordHasher()
+        self._cache: dict[str, _Cached] = {}
+        self._buckets: dict[str, _Bucket] = {}
+        self._revoke_listeners: list[RevokeListener] = []
+
+    # ---- requests -------------------------------------------------------
+    async def authenticate(self, token: str | None) -> Principal:
+        if not token:
+            raise Unauthorized("a bearer token is required")
+        key = digest(token)
+        cached = self._cache.get(key)
+        now = time.time()
+        if cached is not None and (cached.expires_at is None or cached.expires_at > now):
+            return cached.principal
+        principal, expires_at = await self._load(key)
+        if len(self._cache) > 100_000:
+            self._cache.clear()
+        self._cache[key] = _Cached(principal, expires_at)
+        return principal
+
+    async def _load(self, key: str) -> tuple[Principal, float | None]:
+        doc = await self.repo.token(key)
+        if doc is None or doc.get("revoked_at") is not None:
+            raise Unauthorized("the token is not valid")
+        expires = doc.get("expires_at")
+        if expires is not None and expires <= utcnow():
+            raise Unauthorized("the token has expired")
+        kind, subject = doc["kind"], doc["subject"]
+        if kind == "user":
+            user = await self.repo.user(subject)
+            if user is None or user.get("disabled"):
+                raise Unauthorized("the account is disabled")
+            principal = Principal(
+                "user", subject, user["role"], frozenset(user.get("vehicles", [])), doc["token_id"]
+            )
+        elif kind == "gateway":
+            gw = await self.repo.gateway(subject)
+            if gw is None:
+                raise Unauthorized("the gateway no longer exists")
+            principal = Principal(
+                "gateway", subject, None, frozenset(gw.get("vehicles", [])), doc["token_id"]
+            )
+        else:
+            principal = Principal("vehicle", subject, None, frozenset({subject}), doc["token_id"])
+        return principal, expires.timestamp() if expires is not None else None
+
+    def check_rate(self, principal: Principal) -> None:
+        bucket = self._buckets.get(principal.token_id)
+        burst = float(self.settings.rate_limit_burst)
+        if bucket is None:
+            bucket = self._buckets[principal.token_id] = _Bucket(burst)
+        now = time.monotonic()
+        bucket.tokens = min(burst, bucket.tokens + (now - bucket.stamp) * self.settings.rate_limit_per_s)
+        bucket.stamp = now
+        if bucket.tokens < 1:
+            wait = (1 - bucket.tokens) / self.settings.rate_limit_per_s
+            raise RateLimited("too many requests for this token", retry_after_s=max(wait, 0.1))
+        bucket.tokens -= 1
+
+    def on_revoke(self, listener: RevokeListener) -> None:
+        """Called with the token ids that stopped being valid (to close their sockets)."""
+        self._revoke_listeners.append(listener)
+
+    # ---- tokens ---------------------------------------------------------
+    async def _issue(self, kind: str, subject: str, *, ttl_s: int | None = None,
+                     purpose: str = "api", token: str | None = None) -> str:
+        token = token or new_token()
+        now = utcnow()
+        await self.repo.insert_token({
+            "token_id": secrets.token_hex(8),
+            "digest": digest(token),
+            "kind": kind,
+            "subject": subject,
+            "purpose": purpose,
+            "created_at": now,
+            "expires_at": now + timedelta(seconds=ttl_s) if ttl_s else None,
+            "revoked_at": None,
+        })
+        return token
+
+    async def _revoke(self, flt: dict[str, Any]) -> None:
+        revoked = await self.repo.revoke_tokens(flt, utcnow())
+        self._forget({doc["digest"] for doc in revoked}, {doc["token_id"] for doc in revoked})
+
+    def _forget(self, digests: set[str], token_ids: set[str]) -> None:
+        for key in digests:
+            self._cache.pop(key, None)
+        if token_ids:
+            for listener in self._revoke_listeners:
+                listener(token_ids)
+
+    def _forget_subject(self, kind: str, subject: str) -> None:
+        stale = {k for k, c in self._cache.items()
+                 if c.principal.kind == kind and c.principal.name == subject}
+        ids = {self._cache[k].principal.token_id for k in stale}
+        self._forget(stale, ids)
+
+    async def bootstrap_admin(self) -> str | None:
+        """Make sure an admin exists. Returns a token to print, or None when it came from
+        ``FLEET_ADMIN_TOKEN`` (the operator already knows it)."""
+        if await self.repo.user(BOOTSTRAP_ADMIN) is None:
+            await self.repo.insert_user({
+                "username": BOOTSTRAP_ADMIN, "role": "admin", "vehicles": [],
+                "disabled": False, "password_hash": None, "created_at": utcnow(),
+            })
+        given = self.settings.admin_token
+        if given is not None:
+            token = given.get_secret_value()
+            doc = await self.repo.token(digest(token))
+            if doc is None or doc.get("revoked_at") is not None:
+                await self._issue("user", BOOTSTRAP_ADMIN, purpose="bootstrap-env", token=token)
+            return None
+        # No token given: each start revokes the former printed one and prints a new one.
+        await self._revoke({"subject": BOOTSTRAP_ADMIN, "purpose": "bootstrap"})
+        return await self._issue("user", BOOTSTRAP_ADMIN, purpose="bootstrap")
+
+    async def login(self, username: str, password: str) -> tuple[str, int]:
+        user = await self.repo.user(username)
+        stored = (user or {}).get("password_hash")
+        ok = False
+        if stored:
+            try:
+                ok = await asyncio.to_thread(self._hasher.verify, stored, password)
+            except (VerificationError, InvalidHashError):
+                ok = False
+        if not ok or user is None or user.get("disabled"):
+            raise Unauthorized("wrong username or password")
+        ttl = self.settings.token_ttl_s
+        return await self._issue("user", username, ttl_s=ttl, purpose="session"), ttl
+
+    # ---- administration -------------------------------------------------
+    async def create_vehicle(self, body: CreateVehicle) -> str:
+        if await self.repo.vehicle(body.vehicle_id) is not None:
+            raise Conflict(f"vehicle {body.vehicle_id} exists already", code="exists")
+        await self.repo.upsert_vehicle(body.vehicle_id, {
+            "vehicle_id": body.vehicle_id, "name": body.name or body.vehicle_id,
+            "vehicle_type": body.vehicle_type, "created_at": utcnow(),
+        })
+        return await self._issue("vehicle", body.vehicle_id)
+
+    async def rotate_vehicle_token(self, vehicle_id: str) -> str:
+        if await self.repo.vehicle(vehicle_id) is None:
+            raise NotFound(f"no vehicle {vehicle_id}")
+        await self._revoke({"kind": "vehicle", "subject": vehicle_id})
+        return await self._issue("vehicle", vehicle_id)
+
+    async def create_gateway(self, body: CreateGateway) -> str:
+        if await self.repo.gateway(body.gateway_id) is not None:
+            raise Conflict(f"gateway {body.gateway_id} exists already", code="exists")
+        await self._require_vehicles(body.vehicles)
+        await self.repo.upsert_gateway(body.gateway_id, {
+            "gateway_id": body.gateway_id, "vehicles": sorted(set(body.vehicles)),
+            "created_at": utcnow(),
+        })
+        return await self._issue("gateway", body.gateway_id)
+
+    async def _require_vehicles(self, vehicles: list[str]) -> None:
+        known = {d["vehicle_id"] for d in await self.repo.all_vehicles()}
+        missing = sorted(set(vehicles) - known)
+        if missing:
+            raise Invalid("unknown vehicles", details=[
+                {"field": "vehicles", "message": f"no vehicle {v}"} for v in missing])
+
+    async def create_user(self, body: CreateUser) -> str:
+        if await self.repo.user(body.username) is not None:
+            raise Conflict(f"user {body.username} exists already", code="exists")
+        await self._require_vehicles(body.vehicles)
+        await self.repo.insert_user({
+            "username": body.username, "role": body.role,
+            "vehicles": sorted(set(body.vehicles)), "disabled": False,
+            "password_hash": await self._hash(body.password), "created_at": utcnow(),
+        })
+        return await self._issue("user", body.username)
+
+    async def _hash(self, password: str | None) -> str | None:
+        return None if password is None else await asyncio.to_thread(self._hasher.hash, password)
+
+    async def list_users(self) -> list[dict[str, Any]]:
+        return await self.repo.all_users()
+
+    async def get_user(self, username: str) -> dict[str, Any]:
+        user = await self.repo.user(username)
+        if user is None:
+            raise NotFound(f"no user {username}")
+        return user
+
+    async def patch_user(self, username: str, body: PatchUser) -> dict[str, Any]:
+        await self.get_user(username)
+        fields: dict[str, Any] = body.model_dump(exclude_none=True, exclude={"password"})
+        if body.vehicles is not None:
+            await self._require_vehicles(body.vehicles)
+            fields["vehicles"] = sorted(set(body.vehicles))
+        if body.password is not None:
+            fields["password_hash"] = await self._hash(body.password)
+        if fields:
+            await self.repo.update_user(username, fields)
+        self._forget_subject("user", username)
+        return await self.get_user(username)
+
+    async def revoke_user_tokens(self, username: str) -> None:
+        await self.get_user(username)
+        await self._revoke({"kind": "user", "subject": username})
+
+    async def rotate_user_token(self, username: str) -> str:
+        await self.revoke_user_tokens(username)
+        return await self._issue("user", username)
+
+    async def vehicle_meta(self, vehicle_id: str) -> dict[str, Any] | None:
+        return await self.repo.vehicle(vehicle_id)
+
+    async def all_vehicle_meta(self) -> list[dict[str, Any]]:
+        return await self.repo.all_vehicles()
+
+    async def user_access(self, username: str) -> tuple[str, frozenset[str]] | None:
+        user = await self.repo.user(username)
+        if user is None or user.get("disabled"):
+            return None
+        return user["role"], frozenset(user.get("vehicles", []))

@@ -1,0 +1,83 @@
+"""Events and audit: who did what, when. Presence changes, grants, commands, failsafes."""
+
+from __future__ import annotations
+
+import secrets
+from collections.abc import Callable
+from datetime import datetime, timedelta
+from typing import Any
+
+from fleet_protocol import format_ts
+from server.domain.access import Principal
+from server.storage.events import EventsRepo
+
+Clock = Callable[[], datetime]
+EventListener = Callable[[dict[str, Any]], None]
+MAX_EVENTS_PER_QUERY = 10_000
+
+
+class EventService:
+    def __init__(self, repo: EventsRepo, clock: Clock) -> None:
+        self.repo = repo
+        self.clock = clock
+        self._listeners: list[EventListener] = []
+
+    def subscribe(self, listener: EventListener) -> None:
+        """Live fan-out (the bus) hooks in here."""
+        self._listeners.append(listener)
+
+    async def record(
+        self,
+        kind: str,
+        *,
+        vehicle_id: str | None = None,
+        instance_id: str | None = None,
+        actor: Principal | str | None = None,
+        data: dict[str, Any] | None = None,
+    ) -> dict[str, Any]:
+        doc = {
+            "event_id": secrets.token_hex(8),
+            "kind": kind,
+            "vehicle_id": vehicle_id,
+            "instance_id": instance_id,
+            "at": self.clock(),
+            "actor": actor.label() if isinstance(actor, Principal) else actor,
+            "data": data or {},
+        }
+        await self.repo.insert(doc)
+        doc.pop("_id", None)
+        for listener in self._listeners:
+            listener(doc)
+        return doc
+
+    async def query(
+        self,
+        principal: Principal,
+        *,
+        vehicle_id: str | None,
+        kind: str | None,
+        start: datetime | None,
+        end: datetime | None,
+        limit: int,
+    ) -> list[dict[str, Any]]:
+        end = end or self.clock() + timedelta(seconds=1)
+        start = start or end - timedelta(days=1)
+        if vehicle_id is not None:
+            vehicle_ids: list[str] | None = [vehicle_id]
+        elif principal.is_admin:
+            vehicle_ids = None
+        else:
+            vehicle_ids = sorted(principal.vehicles)
+        return await self.repo.query(
+            vehicle_ids=vehicle_ids, kind=kind, start=start, end=end,
+            limit=min(limit, MAX_EVENTS_PER_QUERY),
+        )
+
+    async def drop_before(self, before: datetime) -> int:
+        return await self.repo.drop_before(before)
+
+
+def event_json(doc: dict[str, Any]) -> dict[str, Any]:
+    out = dict(doc)
+    out["at"] = format_ts(doc["at"])
+    return out

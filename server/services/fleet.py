@@ -1,0 +1,89 @@
+"""What operators read about the fleet: vehicles, instances, parameters, events."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from fleet_protocol import ConnectInstance, GetParamResult, InstanceView, Sample, VehicleView
+from server.domain.access import Principal
+from server.errors import Forbidden, NotFound
+from server.services.auth import AuthService
+from server.services.instances import InstanceService, InstanceState
+from server.services.link import Leases
+
+
+class FleetViews:
+    def __init__(self, auth: AuthService, instances: InstanceService, leases: Leases) -> None:
+        self.auth = auth
+        self.instances = instances
+        self.leases = leases
+
+    def instance_view(self, state: InstanceState) -> InstanceView:
+        return InstanceView(
+            instance_id=state.instance_id, vehicle_id=state.vehicle_id, name=state.name,
+            vehicle_type=state.vehicle_type, capabilities=state.capabilities,
+            presence=self.instances.presence(state), last_seen=state.last_seen,
+            control_mode=state.control_mode,  # type: ignore[arg-type]
+            control=self.leases.lease_info(state.instance_id), started_at=state.started_at,
+        )
+
+    async def vehicles(self, principal: Principal) -> list[VehicleView]:
+        out = []
+        for meta in await self.auth.all_vehicle_meta():
+            vid = meta["vehicle_id"]
+            if not principal.can_see(vid):
+                continue
+            state = await self.instances.current_or_latest(vid)
+            out.append(self._vehicle_view(meta, state))
+        return out
+
+    async def vehicle(self, principal: Principal, vehicle_id: str) -> VehicleView:
+        meta = await self.visible_vehicle(principal, vehicle_id)
+        return self._vehicle_view(meta, await self.instances.current_or_latest(vehicle_id))
+
+    async def visible_vehicle(self, principal: Principal, vehicle_id: str) -> dict[str, Any]:
+        meta = await self.auth.vehicle_meta(vehicle_id)
+        if meta is None:
+            raise NotFound(f"no vehicle {vehicle_id}")
+        if not principal.can_see(vehicle_id):
+            raise Forbidden(f"no access to vehicle {vehicle_id}")
+        return meta
+
+    def _vehicle_view(self, meta: dict[str, Any], state: InstanceState | None) -> VehicleView:
+        if state is None:
+            return VehicleView(vehicle_id=meta["vehicle_id"], name=meta.get("name", ""),
+                               vehicle_type=meta.get("vehicle_type", ""), presence="offline",
+                               instance_id=None, position=None, control=None)
+        return VehicleView(
+            vehicle_id=state.vehicle_id, name=state.name, vehicle_type=state.vehicle_type,
+            presence=self.instances.presence(state), instance_id=state.instance_id,
+            position=Sample.model_validate(state.position) if state.position else None,
+            control=self.leases.lease_info(state.instance_id),
+            control_mode=state.control_mode, last_seen=state.last_seen,
+        )
+
+    async def connect(self, principal: Principal, body: ConnectInstance) -> InstanceView:
+        if body.instance_id:
+            state = await self.instances.for_viewer(principal, body.instance_id)
+            if body.vehicle_id and body.vehicle_id != state.vehicle_id:
+                raise NotFound(f"instance {body.instance_id} is not vehicle {body.vehicle_id}'s")
+        else:
+            assert body.vehicle_id is not None
+            await self.visible_vehicle(principal, body.vehicle_id)
+            found = await self.instances.current_or_latest(body.vehicle_id)
+            if found is None:
+                raise NotFound(f"vehicle {body.vehicle_id} has not started an instance yet")
+            state = found
+        return self.instance_view(state)
+
+    async def params(self, principal: Principal, instance_id: str,
+                     names: list[str] | None) -> GetParamResult:
+        state = await self.instances.for_viewer(principal, instance_id)
+        params = state.params
+        if names:
+            params = {k: v for k, v in params.items() if k in names}
+        return GetParamResult(
+            params=params,
+            position=Sample.model_validate(state.position) if state.position else None,
+            updated_at=state.params_updated_at,
+        )

@@ -1,0 +1,96 @@
+"""The vehicle's link to the server: the use cases behind ``/upper/*`` and ``/ws/vehicle``.
+
+One place composes instances, telemetry and control for what a vehicle does,
+so the HTTP routes and the WebSocket ops call the same methods.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Protocol
+
+from fleet_protocol import (
+    ControlInfo,
+    FailsafePolicy,
+    FinishInstanceResult,
+    HeartbeatResult,
+    Sample,
+    StartInstance,
+    StartInstanceResult,
+    UpdateParam,
+    UpdateParamResult,
+)
+from server.domain.access import Principal
+from server.services.instances import InstanceService, InstanceState
+from server.settings import Settings
+
+
+class IngestResult(Protocol):
+    accepted: int
+    duplicates: int
+    acked_through_seq: int
+    durable_through_seq: int
+    latest: Sample | None
+
+
+class Telemetry(Protocol):
+    async def ingest(self, vehicle_id: str, instance_id: str,
+                     samples: list[Sample]) -> IngestResult: ...
+
+    async def last_seq(self, vehicle_id: str) -> int: ...
+
+
+class Leases(Protocol):
+    def lease_info(self, instance_id: str) -> ControlInfo | None: ...
+
+
+class VehicleLink:
+    def __init__(self, settings: Settings, instances: InstanceService, telemetry: Telemetry,
+                 leases: Leases) -> None:
+        self.settings = settings
+        self.instances = instances
+        self.telemetry = telemetry
+        self.leases = leases
+        self.sample_listeners: list[Any] = []
+
+    def failsafe(self) -> FailsafePolicy:
+        return FailsafePolicy(after_s=self.settings.failsafe_after_s,
+                              action=self.settings.failsafe_action)  # type: ignore[arg-type]
+
+    async def start(self, principal: Principal, body: StartInstance) -> StartInstanceResult:
+        state, resumed = await self.instances.start(principal, body)
+        s = self.settings
+        return StartInstanceResult(
+            instance_id=state.instance_id, resumed=resumed,
+            last_seq=await self.telemetry.last_seq(state.vehicle_id),
+            heartbeat_interval_s=s.heartbeat_interval_s, stale_after_s=s.stale_after_s,
+            offline_after_s=s.offline_after_s, ack_timeout_s=s.ack_timeout_s,
+            server_time=self.instances.clock(), failsafe=self.failsafe(),
+            control=self.leases.lease_info(state.instance_id),
+        )
+
+    async def live(self, principal: Principal, instance_id: str) -> InstanceState:
+        """The caller's live instance; the call counts as contact."""
+        state = await self.instances.for_vehicle_caller(principal, instance_id)
+        self.instances.touch(state)
+        return state
+
+    async def finish(self, principal: Principal, instance_id: str) -> FinishInstanceResult:
+        state = await self.instances.for_vehicle_caller(principal, instance_id)
+        await self.instances.finish(principal, state)
+        return FinishInstanceResult(instance_id=instance_id)
+
+    async def heartbeat(self, principal: Principal, instance_id: str) -> HeartbeatResult:
+        await self.live(principal, instance_id)
+        return HeartbeatResult(server_time=self.instances.clock())
+
+    async def update_param(self, principal: Principal, body: UpdateParam) -> UpdateParamResult:
+        state = await self.live(principal, body.instance_id)
+        self.instances.merge_params(state, body.params)
+        result = await self.telemetry.ingest(state.vehicle_id, state.instance_id, body.samples)
+        if result.latest is not None:
+            self.instances.set_position(state, result.latest)
+        return UpdateParamResult(
+            accepted=result.accepted, duplicates=result.duplicates,
+            acked_through_seq=result.acked_through_seq,
+            durable_through_seq=result.durable_through_seq,
+        )

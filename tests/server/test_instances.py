@@ -1,0 +1,134 @@
+"""Instances and presence through /upper and /client."""
+
+from __future__ import annotations
+
+import httpx
+
+from tests.factories import ADMIN, FakeClock, make_user, make_vehicle, sample, start_instance
+
+
+async def test_start_returns_the_contract_fields(client: httpx.AsyncClient) -> None:
+    vid, vh = await make_vehicle(client)
+    body = await start_instance(client, vid, vh)
+    assert body["resumed"] is False
+    assert body["last_seq"] == 0
+    for key in ("instance_id", "heartbeat_interval_s", "stale_after_s", "offline_after_s",
+                "ack_timeout_s", "server_time", "failsafe", "control"):
+        assert key in body
+    assert body["failsafe"] == {"after_s": 30.0, "action": "keep_station"}
+    assert body["server_time"].endswith("Z")
+
+
+async def test_returning_vehicle_resumes_its_instance(clocked_client: httpx.AsyncClient,
+                                                      clock: FakeClock) -> None:
+    client = clocked_client
+    vid, vh = await make_vehicle(client)
+    first = await start_instance(client, vid, vh)
+    clock.advance(3600)  # long out of contact: offline, still reserved
+    view = (await client.get(f"/api/vehicles/{vid}", headers=ADMIN)).json()
+    assert view["presence"] == "offline" and view["instance_id"] == first["instance_id"]
+    again = await start_instance(client, vid, vh)
+    assert again["resumed"] is True and again["instance_id"] == first["instance_id"]
+
+
+async def test_presence_moves_by_heartbeat_age(clocked_client: httpx.AsyncClient,
+                                               clock: FakeClock) -> None:
+    client = clocked_client
+    vid, vh = await make_vehicle(client)
+    iid = (await start_instance(client, vid, vh))["instance_id"]
+
+    async def presence() -> str:
+        r = await client.post("/client/connect_instance", headers=ADMIN, json={"instance_id": iid})
+        return str(r.json()["instance"]["presence"])
+
+    assert await presence() == "online"
+    clock.advance(5)
+    assert await presence() == "stale"
+    clock.advance(10)
+    assert await presence() == "offline"
+    r = await client.post("/upper/heartbeat", headers=vh, json={"instance_id": iid})
+    assert r.status_code == 200 and r.json()["ok"] is True
+    assert await presence() == "online"
+
+
+async def test_finish_is_for_good(client: httpx.AsyncClient) -> None:
+    vid, vh = await make_vehicle(client)
+    iid = (await start_instance(client, vid, vh))["instance_id"]
+    r = await client.post("/upper/finish_instance", headers=vh, json={"instance_id": iid})
+    assert r.json() == {"instance_id": iid, "state": "finished"}
+    again = await client.post("/upper/heartbeat", headers=vh, json={"instance_id": iid})
+    assert again.status_code == 409
+    assert again.json()["error"]["code"] == "instance_finished"
+    view = await client.post("/client/connect_instance", headers=ADMIN, json={"instance_id": iid})
+    assert view.json()["instance"]["presence"] == "finished"
+    fresh = await start_instance(client, vid, vh)
+    assert fresh["resumed"] is False and fresh["instance_id"] != iid
+
+
+async def test_unknown_instance_is_404(client: httpx.AsyncClient) -> None:
+    _, vh = await make_vehicle(client)
+    r = await client.post("/upper/heartbeat", headers=vh, json={"instance_id": "i-nope"})
+    assert r.status_code == 404 and r.json()["error"]["code"] == "not_found"
+
+
+async def test_unregistered_vehicle_cannot_start(client: httpx.AsyncClient) -> None:
+    _, vh = await make_vehicle(client)
+    r = await client.post("/upper/start_instance", headers=vh, json={"vehicle_id": "ghost"})
+    assert r.status_code == 403
+
+
+async def test_another_vehicles_instance_is_403(client: httpx.AsyncClient) -> None:
+    v1, h1 = await make_vehicle(client)
+    _, h2 = await make_vehicle(client)
+    iid = (await start_instance(client, v1, h1))["instance_id"]
+    r = await client.post("/upper/heartbeat", headers=h2, json={"instance_id": iid})
+    assert r.status_code == 403
+
+
+async def test_params_merge_and_position(client: httpx.AsyncClient) -> None:
+    vid, vh = await make_vehicle(client)
+    iid = (await start_instance(client, vid, vh, params={"mode": "survey", "gain": 2}))[
+        "instance_id"]
+    r = await client.post("/upper/update_param", headers=vh, json={
+        "instance_id": iid, "params": {"gain": None, "depth_limit": 5},
+        "samples": [sample(1, lat=43.9401), sample(2, lat=43.9402)]})
+    assert r.status_code == 200, r.text
+    assert r.json()["accepted"] == 2
+    got = (await client.get("/client/get_param", headers=ADMIN,
+                            params={"instance_id": iid})).json()
+    assert got["params"] == {"mode": "survey", "depth_limit": 5}
+    assert got["position"]["seq"] == 2 and got["position"]["lat"] == 43.9402
+    some = (await client.get("/client/get_param", headers=ADMIN,
+                             params={"instance_id": iid, "names": "mode"})).json()
+    assert some["params"] == {"mode": "survey"}
+
+
+async def test_viewer_sees_only_assigned_vehicles(client: httpx.AsyncClient) -> None:
+    v1, h1 = await make_vehicle(client)
+    v2, h2 = await make_vehicle(client)
+    i2 = (await start_instance(client, v2, h2))["instance_id"]
+    _, viewer = await make_user(client, "viewer", [v1])
+    listed = (await client.get("/api/vehicles", headers=viewer)).json()["vehicles"]
+    assert [v["vehicle_id"] for v in listed] == [v1]
+    assert listed[0]["presence"] == "offline" and listed[0]["instance_id"] is None
+    r = await client.get("/client/get_param", headers=viewer, params={"instance_id": i2})
+    assert r.status_code == 403
+    r = await client.post("/client/connect_instance", headers=viewer, json={"vehicle_id": v2})
+    assert r.status_code == 403
+
+
+async def test_connect_by_vehicle_id(client: httpx.AsyncClient) -> None:
+    vid, vh = await make_vehicle(client)
+    iid = (await start_instance(client, vid, vh, capabilities=["stop", "go_to"]))["instance_id"]
+    r = await client.post("/client/connect_instance", headers=ADMIN, json={"vehicle_id": vid})
+    inst = r.json()["instance"]
+    assert inst["instance_id"] == iid and inst["capabilities"] == ["stop", "go_to"]
+    assert inst["control_mode"] == "idle" and inst["control"] is None
+
+
+async def test_events_record_instance_life(client: httpx.AsyncClient) -> None:
+    vid, vh = await make_vehicle(client)
+    await start_instance(client, vid, vh)
+    r = await client.get("/api/events", headers=ADMIN, params={"vehicle_id": vid})
+    kinds = [(e["kind"], e["data"].get("action")) for e in r.json()["events"]]
+    assert ("instance", "started") in kinds
