@@ -61,7 +61,7 @@ class VehicleLink:
         s = self.settings
         return StartInstanceResult(
             instance_id=state.instance_id, resumed=resumed,
-            last_seq=await self.telemetry.last_seq(state.vehicle_id),
+            last_seq=max(0, await self.telemetry.last_seq(state.vehicle_id)),
             heartbeat_interval_s=s.heartbeat_interval_s, stale_after_s=s.stale_after_s,
             offline_after_s=s.offline_after_s, ack_timeout_s=s.ack_timeout_s,
             server_time=self.instances.clock(), failsafe=self.failsafe(),
@@ -91,6 +91,6 @@ class VehicleLink:
             self.instances.set_position(state, result.latest)
         return UpdateParamResult(
             accepted=result.accepted, duplicates=result.duplicates,
-            acked_through_seq=result.acked_through_seq,
-            durable_through_seq=result.durable_through_seq,
+            acked_through_seq=max(0, result.acked_through_seq),
+            durable_through_seq=max(0, result.durable_through_seq),
         )

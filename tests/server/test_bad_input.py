@@ -7,7 +7,6 @@ import random
 
 import httpx
 import pytest
-from fastapi.routing import APIRoute
 
 from server.app import create_app
 from server.settings import Settings
@@ -67,14 +66,13 @@ async def test_garbage_at_every_route_never_500(client: httpx.AsyncClient, seed:
     vid, vh = await make_vehicle(client)
     iid = (await start_instance(client, vid, vh))["instance_id"]
     rng = random.Random(seed)
-    app = client._transport.app  # type: ignore[attr-defined]
-    routes = [r for r in app.routes if isinstance(r, APIRoute)]
-    assert len(routes) > 20
-    for route in routes:
-        path = route.path.replace("{vehicle_id}", rng.choice([vid, "zz", "%00"])) \
+    paths = create_app(Settings()).openapi()["paths"]
+    assert len(paths) > 15
+    for template, operations in paths.items():
+        path = template.replace("{vehicle_id}", rng.choice([vid, "zz", "%00"])) \
             .replace("{username}", rng.choice(["admin", "nobody"])) \
             .replace("{command_id}", rng.choice(["c-1", "x" * 300]))
-        for method in route.methods:
+        for method in (m.upper() for m in operations):
             for headers in (ADMIN, vh, {"Authorization": "Bearer \x7f"}, {}):
                 for body in rng.sample(GARBAGE, 6):
                     params = {"instance_id": rng.choice([iid, "", "nope"]),
