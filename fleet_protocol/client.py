@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Any, Literal
 
-from pydantic import Field, model_validator
+from pydantic import Field, ValidationInfo, field_validator, model_validator
 
 from fleet_protocol.commands import CommandObject, CommandSpec
 from fleet_protocol.common import Identifier, Sample, Timestamp, WireModel
@@ -69,16 +69,21 @@ class SubmitControl(WireModel):
     command: CommandSpec
     ttl_s: int = Field(default=30, ge=1, le=3600)
 
-    @model_validator(mode="after")
-    def _wildcard_only_for_stop(self) -> SubmitControl:
-        if "*" in self.instance_ids:
-            if self.instance_ids != ["*"]:
-                raise ValueError('"*" stands alone in instance_ids')
-            if self.command.type != "stop":
-                raise ValueError('instance_ids ["*"] is for stop only')
-        if len(set(self.instance_ids)) != len(self.instance_ids):
+    @field_validator("instance_ids")
+    @classmethod
+    def _wildcard_alone_no_repeats(cls, ids: list[str]) -> list[str]:
+        if "*" in ids and ids != ["*"]:
+            raise ValueError('"*" stands alone in instance_ids')
+        if len(set(ids)) != len(ids):
             raise ValueError("instance_ids repeats an instance")
-        return self
+        return ids
+
+    @field_validator("command")
+    @classmethod
+    def _wildcard_only_for_stop(cls, command: CommandSpec, info: ValidationInfo) -> CommandSpec:
+        if info.data.get("instance_ids") == ["*"] and command.type != "stop":
+            raise ValueError('instance_ids ["*"] is for stop only')
+        return command
 
 
 class QueuedCommand(WireModel):

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-
 from typing import Any, Literal, get_args
 
 from pydantic import Field, ValidationError, model_validator
@@ -11,10 +10,10 @@ from fleet_protocol.common import Latitude, LatLon, Longitude, Timestamp, WireMo
 
 __all__ = [
     "ACK_STATUSES",
+    "ARGS_MODELS",
     "COMMAND_TYPES",
     "FINAL_STATUSES",
     "MOTION_TYPES",
-    "ARGS_MODELS",
     "CommandObject",
     "CommandSpec",
     "CommandStatus",
@@ -135,5 +134,3 @@ class CommandObject(WireModel):
     expires_at: Timestamp
     progress: float | None = None
     history: list[HistoryEntry] = Field(default_factory=list)
-
-

@@ -10,6 +10,7 @@ from fleet_protocol.commands import ACK_STATUSES, CommandObject, CommandType
 from fleet_protocol.common import Identifier, Sample, Timestamp, WireModel
 
 __all__ = [
+    "MAX_SAMPLES_PER_CALL",
     "ControlInfo",
     "ControlMode",
     "FailsafePolicy",
@@ -20,7 +21,6 @@ __all__ = [
     "Heartbeat",
     "HeartbeatResult",
     "InstanceRef",
-    "MAX_SAMPLES_PER_CALL",
     "StartInstance",
     "StartInstanceResult",
     "UpdateFbMessage",

@@ -11,8 +11,11 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-app = typer.Typer(add_completion=False, no_args_is_help=True,
-                  help="Operate a fleet-cloud fleet: list vehicles, send missions, manage control.")
+app = typer.Typer(
+    add_completion=False,
+    no_args_is_help=True,
+    help="Operate a fleet-cloud fleet: list vehicles, send missions, manage control.",
+)
 console = Console()
 
 ServerOpt = typer.Option("http://127.0.0.1:8000", envvar="FLEET_SERVER", help="server URL")
@@ -21,8 +24,9 @@ JsonOpt = typer.Option(False, "--json", help="print JSON for scripts")
 
 
 def _call(server: str, token: str, method: str, path: str, **kwargs: Any) -> Any:
-    with httpx.Client(base_url=server, headers={"Authorization": f"Bearer {token}"},
-                      timeout=30) as client:
+    with httpx.Client(
+        base_url=server, headers={"Authorization": f"Bearer {token}"}, timeout=30
+    ) as client:
         try:
             r = client.request(method, path, **kwargs)
         except httpx.HTTPError as exc:
@@ -52,44 +56,87 @@ def vehicles(server: str = ServerOpt, token: str = TokenOpt, as_json: bool = Jso
         pos = v.get("position")
         where = f"{pos['lat']:.5f}, {pos['lon']:.5f}" if pos else "-"
         ctl = v.get("control")
-        table.add_row(v["vehicle_id"], v["name"], v["vehicle_type"], v["presence"],
-                      v.get("instance_id") or "-", where, ctl["holder"] if ctl else "-")
+        table.add_row(
+            v["vehicle_id"],
+            v["name"],
+            v["vehicle_type"],
+            v["presence"],
+            v.get("instance_id") or "-",
+            where,
+            ctl["holder"] if ctl else "-",
+        )
     console.print(table)
 
 
 @app.command()
 def stop(
     instance_ids: list[str] = typer.Argument(None, help="instances to stop; none: every vehicle"),
-    server: str = ServerOpt, token: str = TokenOpt, as_json: bool = JsonOpt,
+    server: str = ServerOpt,
+    token: str = TokenOpt,
+    as_json: bool = JsonOpt,
 ) -> None:
     """Stop vehicles at once (needs no lease). With no instance: every vehicle you can see."""
-    data = _call(server, token, "POST", "/client/submit_control", json={
-        "instance_ids": instance_ids or ["*"], "command": {"type": "stop", "args": {}}})
+    data = _call(
+        server,
+        token,
+        "POST",
+        "/client/submit_control",
+        json={"instance_ids": instance_ids or ["*"], "command": {"type": "stop", "args": {}}},
+    )
     _print_queued(data, as_json)
 
 
 @app.command()
-def goto(instance_id: str, lat: float, lon: float,
-         speed: float | None = typer.Option(None, help="m/s"),
-         ttl: int = typer.Option(30, help="seconds the order stays valid"),
-         server: str = ServerOpt, token: str = TokenOpt, as_json: bool = JsonOpt) -> None:
+def goto(
+    instance_id: str,
+    lat: float,
+    lon: float,
+    speed: float | None = typer.Option(None, help="m/s"),
+    ttl: int = typer.Option(30, help="seconds the order stays valid"),
+    server: str = ServerOpt,
+    token: str = TokenOpt,
+    as_json: bool = JsonOpt,
+) -> None:
     """Send one vehicle to a position (needs a lease)."""
     args: dict[str, Any] = {"lat": lat, "lon": lon}
     if speed is not None:
         args["speed_mps"] = speed
-    data = _call(server, token, "POST", "/client/submit_control", json={
-        "instance_ids": [instance_id], "command": {"type": "go_to", "args": args}, "ttl_s": ttl})
+    data = _call(
+        server,
+        token,
+        "POST",
+        "/client/submit_control",
+        json={
+            "instance_ids": [instance_id],
+            "command": {"type": "go_to", "args": args},
+            "ttl_s": ttl,
+        },
+    )
     _print_queued(data, as_json)
 
 
 @app.command()
-def grant(instance_id: str, user: str, duration: int = typer.Option(3600, help="seconds"),
-          server: str = ServerOpt, token: str = TokenOpt, as_json: bool = JsonOpt) -> None:
+def grant(
+    instance_id: str,
+    user: str,
+    duration: int = typer.Option(3600, help="seconds"),
+    server: str = ServerOpt,
+    token: str = TokenOpt,
+    as_json: bool = JsonOpt,
+) -> None:
     """(manager) Grant remote control of an instance to an operator."""
-    data = _call(server, token, "POST", "/client/grant_control",
-                 json={"instance_id": instance_id, "user": user, "duration_s": duration})
-    print(json.dumps(data, indent=2) if as_json else
-          f"{data['holder']} holds {instance_id} until {data['expires_at']}")
+    data = _call(
+        server,
+        token,
+        "POST",
+        "/client/grant_control",
+        json={"instance_id": instance_id, "user": user, "duration_s": duration},
+    )
+    print(
+        json.dumps(data, indent=2)
+        if as_json
+        else f"{data['holder']} holds {instance_id} until {data['expires_at']}"
+    )
 
 
 def _print_queued(data: dict[str, Any], as_json: bool) -> None:

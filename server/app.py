@@ -50,4 +50,3 @@ def create_app(settings: Settings | None = None, *, clock: container.Clock = utc
     app.add_middleware(MetricsMiddleware, metrics=metrics)
     app.add_middleware(BodyLimit, max_bytes=settings.max_body_bytes)
     return app
-

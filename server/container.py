@@ -95,7 +95,16 @@ async def build(settings: Settings, metrics: Metrics, clock: Clock = utcnow) -> 
     commands = CommandService(settings, CommandsRepo(store), instances, control, events, clock)
     telemetry = TelemetryService(settings, store, clock)
     services = Services(
-        settings, store, clock, metrics, auth, events, instances, control, commands, telemetry,
+        settings,
+        store,
+        clock,
+        metrics,
+        auth,
+        events,
+        instances,
+        control,
+        commands,
+        telemetry,
         link=VehicleLink(settings, instances, telemetry, control),
         views=FleetViews(auth, instances, control),
     )

@@ -36,8 +36,10 @@ async def _register(base: str, admin: str) -> dict[str, str]:
     headers = {"Authorization": f"Bearer {admin}"}
     async with httpx.AsyncClient(base_url=base, headers=headers, timeout=10) as client:
         for vehicle_id, name, _, _ in VEHICLES:
-            r = await client.post("/api/vehicles", json={
-                "vehicle_id": vehicle_id, "name": name, "vehicle_type": "usv"})
+            r = await client.post(
+                "/api/vehicles",
+                json={"vehicle_id": vehicle_id, "name": name, "vehicle_type": "usv"},
+            )
             if r.status_code == 409:
                 r = await client.post(f"/api/vehicles/{vehicle_id}/rotate_token")
             r.raise_for_status()
@@ -49,23 +51,45 @@ def _start_agents(base: str, tokens: dict[str, str]) -> list[subprocess.Popen[by
     procs = []
     for vehicle_id, _, lat, lon in VEHICLES:
         env = {**os.environ, "FLEET_AGENT_TOKEN": tokens[vehicle_id]}  # not on the command line
-        procs.append(subprocess.Popen(
-            [sys.executable, "-m", "vehicle_client.cli", "run", "--server", base,
-             "--vehicle-id", vehicle_id, "--adapter", "sim", "--start", f"{lat},{lon}",
-             "--rate-hz", "1", "--outbox", str(DATA / f"{vehicle_id}.outbox")],
-            env=env,
-        ))
+        procs.append(
+            subprocess.Popen(
+                [
+                    sys.executable,
+                    "-m",
+                    "vehicle_client.cli",
+                    "run",
+                    "--server",
+                    base,
+                    "--vehicle-id",
+                    vehicle_id,
+                    "--adapter",
+                    "sim",
+                    "--start",
+                    f"{lat},{lon}",
+                    "--rate-hz",
+                    "1",
+                    "--outbox",
+                    str(DATA / f"{vehicle_id}.outbox"),
+                ],
+                env=env,
+            )
+        )
     return procs
 
 
 async def main() -> None:
-    DATA.mkdir(exist_ok=True)
     settings = Settings()
     admin = settings.admin_token.get_secret_value() if settings.admin_token else new_token()
     settings = settings.model_copy(update={"admin_token": Settings(admin_token=admin).admin_token})
-    server = uvicorn.Server(uvicorn.Config(
-        create_app(settings), host=settings.host, port=settings.port, log_level="warning",
-        ws_per_message_deflate=False))
+    server = uvicorn.Server(
+        uvicorn.Config(
+            create_app(settings),
+            host=settings.host,
+            port=settings.port,
+            log_level="warning",
+            ws_per_message_deflate=False,
+        )
+    )
     serving = asyncio.create_task(server.serve())
     while not server.started:
         if serving.done():
@@ -92,5 +116,6 @@ async def main() -> None:
 
 
 if __name__ == "__main__":
+    DATA.mkdir(exist_ok=True)
     with contextlib.suppress(KeyboardInterrupt):
         asyncio.run(main())

@@ -15,8 +15,9 @@ from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 
 class _Live(Collector):
-    def __init__(self, name: str, doc: str, label: str | None,
-                 read: Callable[[], dict[str, float]]) -> None:
+    def __init__(
+        self, name: str, doc: str, label: str | None, read: Callable[[], dict[str, float]]
+    ) -> None:
         self.name, self.doc, self.label, self.read = name, doc, label, read
 
     def collect(self) -> Iterable[Metric]:
@@ -30,19 +31,25 @@ class Metrics:
     def __init__(self) -> None:
         self.registry = CollectorRegistry()
         self.requests = Counter(
-            "fleet_http_requests", "HTTP requests", ["method", "route", "status"],
+            "fleet_http_requests",
+            "HTTP requests",
+            ["method", "route", "status"],
             registry=self.registry,
         )
         self.latency = Histogram(
-            "fleet_http_request_seconds", "HTTP request latency", ["route"],
+            "fleet_http_request_seconds",
+            "HTTP request latency",
+            ["route"],
             buckets=(0.001, 0.0025, 0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1, 2.5, 10, 30),
             registry=self.registry,
         )
-        self.samples = Counter("fleet_samples_ingested", "telemetry samples stored",
-                               registry=self.registry)
+        self.samples = Counter(
+            "fleet_samples_ingested", "telemetry samples stored", registry=self.registry
+        )
 
-    def live_gauge(self, name: str, doc: str, read: Callable[[], dict[str, float]],
-                   label: str | None = None) -> None:
+    def live_gauge(
+        self, name: str, doc: str, read: Callable[[], dict[str, float]], label: str | None = None
+    ) -> None:
         self.registry.register(_Live(name, doc, label, read))
 
 

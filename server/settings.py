@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Literal
 
 from pydantic import Field, SecretStr
 from pydantic_settings import BaseSettings, SettingsConfigDict
@@ -54,8 +55,8 @@ class Settings(BaseSettings):
     failsafe_after_s: float = Field(
         default=30.0, gt=0, description="vehicles' link-loss policy: act after this silence"
     )
-    failsafe_action: str = Field(
-        default="keep_station", pattern="^(keep_station|stop)$", description="link-loss action"
+    failsafe_action: Literal["keep_station", "stop"] = Field(
+        default="keep_station", description="link-loss action"
     )
     token_ttl_s: int = Field(
         default=12 * 3600, ge=60, description="lifetime of a token from /auth/token"

@@ -25,7 +25,7 @@ def make_settings(tmp_path: Path) -> Callable[..., Settings]:
             "rate_limit_burst": 100_000,
         }
         values.update(overrides)
-        return Settings(_env_file=None, **values)  # type: ignore[call-arg]
+        return Settings(_env_file=None, **values)
 
     return build
 

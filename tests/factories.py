@@ -36,19 +36,27 @@ def unique(prefix: str) -> str:
     return f"{prefix}-{next(_ids)}"
 
 
-async def make_vehicle(client: httpx.AsyncClient, vehicle_id: str | None = None,
-                       vehicle_type: str = "usv") -> tuple[str, dict[str, str]]:
+async def make_vehicle(
+    client: httpx.AsyncClient, vehicle_id: str | None = None, vehicle_type: str = "usv"
+) -> tuple[str, dict[str, str]]:
     """Register a vehicle; returns its id and its auth header."""
     vehicle_id = vehicle_id or unique("usv")
-    r = await client.post("/api/vehicles", headers=ADMIN, json={
-        "vehicle_id": vehicle_id, "name": vehicle_id.upper(), "vehicle_type": vehicle_type})
+    r = await client.post(
+        "/api/vehicles",
+        headers=ADMIN,
+        json={"vehicle_id": vehicle_id, "name": vehicle_id.upper(), "vehicle_type": vehicle_type},
+    )
     assert r.status_code == 201, r.text
     return vehicle_id, bearer(r.json()["token"])
 
 
-async def make_user(client: httpx.AsyncClient, role: str = "operator",
-                    vehicles: list[str] | None = None, username: str | None = None,
-                    password: str | None = None) -> tuple[str, dict[str, str]]:
+async def make_user(
+    client: httpx.AsyncClient,
+    role: str = "operator",
+    vehicles: list[str] | None = None,
+    username: str | None = None,
+    password: str | None = None,
+) -> tuple[str, dict[str, str]]:
     username = username or unique(role)
     body: dict[str, Any] = {"username": username, "role": role, "vehicles": vehicles or []}
     if password:
@@ -58,21 +66,39 @@ async def make_user(client: httpx.AsyncClient, role: str = "operator",
     return username, bearer(r.json()["token"])
 
 
-async def start_instance(client: httpx.AsyncClient, vehicle_id: str, headers: dict[str, str],
-                         capabilities: list[str] | None = None,
-                         params: dict[str, Any] | None = None) -> dict[str, Any]:
-    r = await client.post("/upper/start_instance", headers=headers, json={
-        "vehicle_id": vehicle_id, "name": vehicle_id, "vehicle_type": "usv",
-        "capabilities": ["stop", "go_to", "keep_station", "follow_path"]
-        if capabilities is None else capabilities,
-        "params": params or {}})
+async def start_instance(
+    client: httpx.AsyncClient,
+    vehicle_id: str,
+    headers: dict[str, str],
+    capabilities: list[str] | None = None,
+    params: dict[str, Any] | None = None,
+) -> dict[str, Any]:
+    r = await client.post(
+        "/upper/start_instance",
+        headers=headers,
+        json={
+            "vehicle_id": vehicle_id,
+            "name": vehicle_id,
+            "vehicle_type": "usv",
+            "capabilities": ["stop", "go_to", "keep_station", "follow_path"]
+            if capabilities is None
+            else capabilities,
+            "params": params or {},
+        },
+    )
     assert r.status_code == 200, r.text
     result: dict[str, Any] = r.json()
     return result
 
 
-def sample(seq: int, ts: datetime | None = None, lat: float = 43.94, lon: float = 15.44,
-           **extra: Any) -> dict[str, Any]:
+def sample(
+    seq: int, ts: datetime | None = None, lat: float = 43.94, lon: float = 15.44, **extra: Any
+) -> dict[str, Any]:
     ts = ts or datetime(2026, 11, 22, 10, 0, 0, tzinfo=UTC) + timedelta(seconds=seq)
-    return {"seq": seq, "ts": ts.isoformat().replace("+00:00", "Z"), "lat": lat, "lon": lon,
-            **extra}
+    return {
+        "seq": seq,
+        "ts": ts.isoformat().replace("+00:00", "Z"),
+        "lat": lat,
+        "lon": lon,
+        **extra,
+    }

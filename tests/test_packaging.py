@@ -53,11 +53,24 @@ def test_vehicle_client_never_imports_the_server() -> None:
 
 
 def test_fleet_server_help_lists_every_setting() -> None:
-    r = subprocess.run([sys.executable, "-m", "server.cli", "--help"], capture_output=True,
-                       text=True, cwd=ROOT)
+    r = subprocess.run(
+        [sys.executable, "-m", "server.cli", "--help"], capture_output=True, text=True, cwd=ROOT
+    )
     assert r.returncode == 0
-    for name in ("FLEET_MONGO_URL", "FLEET_DB_NAME", "FLEET_SNAPSHOT_PATH", "FLEET_REDIS_URL",
-                 "FLEET_HOST", "FLEET_PORT", "FLEET_ADMIN_TOKEN", "FLEET_HEARTBEAT_INTERVAL_S",
-                 "FLEET_STALE_AFTER_S", "FLEET_OFFLINE_AFTER_S", "FLEET_ACK_TIMEOUT_S",
-                 "FLEET_SAFETY_RADIUS_M", "FLEET_RETENTION_S", "FLEET_MAX_BODY_BYTES"):
+    for name in (
+        "FLEET_MONGO_URL",
+        "FLEET_DB_NAME",
+        "FLEET_SNAPSHOT_PATH",
+        "FLEET_REDIS_URL",
+        "FLEET_HOST",
+        "FLEET_PORT",
+        "FLEET_ADMIN_TOKEN",
+        "FLEET_HEARTBEAT_INTERVAL_S",
+        "FLEET_STALE_AFTER_S",
+        "FLEET_OFFLINE_AFTER_S",
+        "FLEET_ACK_TIMEOUT_S",
+        "FLEET_SAFETY_RADIUS_M",
+        "FLEET_RETENTION_S",
+        "FLEET_MAX_BODY_BYTES",
+    ):
         assert name in r.stdout, name

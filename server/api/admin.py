@@ -36,7 +36,9 @@ async def create_vehicle(body: CreateVehicle, _: Admin, s: ServicesDep) -> Vehic
 
 @router.post("/api/vehicles/{vehicle_id}/rotate_token")
 async def rotate_vehicle_token(vehicle_id: str, _: Admin, s: ServicesDep) -> VehicleCreated:
-    return VehicleCreated(vehicle_id=vehicle_id, token=await s.auth.rotate_vehicle_token(vehicle_id))
+    return VehicleCreated(
+        vehicle_id=vehicle_id, token=await s.auth.rotate_vehicle_token(vehicle_id)
+    )
 
 
 @router.post("/api/gateways", status_code=201)
@@ -70,8 +72,9 @@ async def patch_user(username: str, body: PatchUser, _: Admin, s: ServicesDep) -
 async def rotate_user_token(username: str, _: Admin, s: ServicesDep) -> UserCreated:
     user = await s.auth.get_user(username)
     token = await s.auth.rotate_user_token(username)
-    return UserCreated(username=username, role=user["role"], token=token,
-                       vehicles=user.get("vehicles", []))
+    return UserCreated(
+        username=username, role=user["role"], token=token, vehicles=user.get("vehicles", [])
+    )
 
 
 @router.post("/api/users/{username}/revoke_tokens")

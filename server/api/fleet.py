@@ -32,21 +32,27 @@ async def get_vehicle(vehicle_id: str, user: Viewer, s: ServicesDep) -> VehicleV
 
 
 @router.post("/client/connect_instance")
-async def connect_instance(body: ConnectInstance, user: Viewer,
-                           s: ServicesDep) -> ConnectInstanceResult:
+async def connect_instance(
+    body: ConnectInstance, user: Viewer, s: ServicesDep
+) -> ConnectInstanceResult:
     return ConnectInstanceResult(instance=await s.views.connect(user, body))
 
 
 @router.get("/client/get_param")
-async def get_param(instance_id: InstanceId, user: Viewer, s: ServicesDep,
-                    names: Annotated[str | None, Query(max_length=4096)] = None) -> GetParamResult:
+async def get_param(
+    instance_id: InstanceId,
+    user: Viewer,
+    s: ServicesDep,
+    names: Annotated[str | None, Query(max_length=4096)] = None,
+) -> GetParamResult:
     wanted = [n.strip() for n in names.split(",") if n.strip()] if names else None
     return await s.views.params(user, instance_id, wanted)
 
 
 @router.get("/api/events")
 async def list_events(
-    user: Viewer, s: ServicesDep,
+    user: Viewer,
+    s: ServicesDep,
     vehicle_id: Annotated[str | None, Query(max_length=64)] = None,
     kind: Annotated[str | None, Query(max_length=64)] = None,
     start: Annotated[Timestamp | None, Query(alias="from")] = None,
@@ -55,6 +61,7 @@ async def list_events(
 ) -> EventList:
     if vehicle_id is not None:
         await s.views.visible_vehicle(user, vehicle_id)
-    docs = await s.events.query(user, vehicle_id=vehicle_id, kind=kind, start=start, end=end,
-                                limit=limit)
+    docs = await s.events.query(
+        user, vehicle_id=vehicle_id, kind=kind, start=start, end=end, limit=limit
+    )
     return EventList.model_validate({"events": docs})

@@ -23,15 +23,26 @@ async def readyz(services: ServicesDep) -> JSONResponse:
     if bus is not None and getattr(bus, "remote", False):
         checks["redis"] = bool(getattr(bus, "healthy", False))
     ready = all(checks.values())
-    body = {"ready": ready, "checks": checks,
-            "store": "embedded" if services.store.embedded else "mongodb"}
+    body = {
+        "ready": ready,
+        "checks": checks,
+        "store": "embedded" if services.store.embedded else "mongodb",
+    }
     if ready:
         return JSONResponse(body)
     return JSONResponse(
-        {**body, "error": {"code": "unavailable", "message": "not ready: "
-                           + ", ".join(k for k, v in checks.items() if not v) + " unreachable",
-                           "details": checks}},
-        status_code=503, headers={"Retry-After": "2"},
+        {
+            **body,
+            "error": {
+                "code": "unavailable",
+                "message": "not ready: "
+                + ", ".join(k for k, v in checks.items() if not v)
+                + " unreachable",
+                "details": checks,
+            },
+        },
+        status_code=503,
+        headers={"Retry-After": "2"},
     )
 
 

@@ -13,11 +13,15 @@ class BodyTooLarge(Exception):
 
 
 def _envelope(limit: int) -> bytes:
-    return json.dumps({"error": {
-        "code": "too_large",
-        "message": f"the request body is larger than {limit} bytes",
-        "details": {"max_body_bytes": limit},
-    }}).encode()
+    return json.dumps(
+        {
+            "error": {
+                "code": "too_large",
+                "message": f"the request body is larger than {limit} bytes",
+                "details": {"max_body_bytes": limit},
+            }
+        }
+    ).encode()
 
 
 class BodyLimit:
@@ -64,7 +68,9 @@ class BodyLimit:
 
     async def _reject(self, send: Send) -> None:
         body = _envelope(self.max_bytes)
-        headers: list[Any] = [(b"content-type", b"application/json"),
-                              (b"content-length", str(len(body)).encode())]
+        headers: list[Any] = [
+            (b"content-type", b"application/json"),
+            (b"content-length", str(len(body)).encode()),
+        ]
         await send({"type": "http.response.start", "status": 413, "headers": headers})
         await send({"type": "http.response.body", "body": body})

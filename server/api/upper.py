@@ -20,14 +20,16 @@ router = APIRouter(prefix="/upper", tags=["vehicle"])
 
 
 @router.post("/start_instance")
-async def start_instance(body: StartInstance, caller: VehicleCaller,
-                         s: ServicesDep) -> StartInstanceResult:
+async def start_instance(
+    body: StartInstance, caller: VehicleCaller, s: ServicesDep
+) -> StartInstanceResult:
     return await s.link.start(caller, body)
 
 
 @router.post("/finish_instance")
-async def finish_instance(body: FinishInstance, caller: VehicleCaller,
-                          s: ServicesDep) -> FinishInstanceResult:
+async def finish_instance(
+    body: FinishInstance, caller: VehicleCaller, s: ServicesDep
+) -> FinishInstanceResult:
     return await s.link.finish(caller, body.instance_id)
 
 
@@ -37,6 +39,7 @@ async def heartbeat(body: Heartbeat, caller: VehicleCaller, s: ServicesDep) -> H
 
 
 @router.post("/update_param")
-async def update_param(body: UpdateParam, caller: VehicleCaller,
-                       s: ServicesDep) -> UpdateParamResult:
+async def update_param(
+    body: UpdateParam, caller: VehicleCaller, s: ServicesDep
+) -> UpdateParamResult:
     return await s.link.update_param(caller, body)

@@ -114,7 +114,9 @@ class AuthService:
         if bucket is None:
             bucket = self._buckets[principal.token_id] = _Bucket(burst)
         now = time.monotonic()
-        bucket.tokens = min(burst, bucket.tokens + (now - bucket.stamp) * self.settings.rate_limit_per_s)
+        bucket.tokens = min(
+            burst, bucket.tokens + (now - bucket.stamp) * self.settings.rate_limit_per_s
+        )
         bucket.stamp = now
         if bucket.tokens < 1:
             wait = (1 - bucket.tokens) / self.settings.rate_limit_per_s
@@ -126,20 +128,29 @@ class AuthService:
         self._revoke_listeners.append(listener)
 
     # ---- tokens ---------------------------------------------------------
-    async def _issue(self, kind: str, subject: str, *, ttl_s: int | None = None,
-                     purpose: str = "api", token: str | None = None) -> str:
+    async def _issue(
+        self,
+        kind: str,
+        subject: str,
+        *,
+        ttl_s: int | None = None,
+        purpose: str = "api",
+        token: str | None = None,
+    ) -> str:
         token = token or new_token()
         now = utcnow()
-        await self.repo.insert_token({
-            "token_id": secrets.token_hex(8),
-            "digest": digest(token),
-            "kind": kind,
-            "subject": subject,
-            "purpose": purpose,
-            "created_at": now,
-            "expires_at": now + timedelta(seconds=ttl_s) if ttl_s else None,
-            "revoked_at": None,
-        })
+        await self.repo.insert_token(
+            {
+                "token_id": secrets.token_hex(8),
+                "digest": digest(token),
+                "kind": kind,
+                "subject": subject,
+                "purpose": purpose,
+                "created_at": now,
+                "expires_at": now + timedelta(seconds=ttl_s) if ttl_s else None,
+                "revoked_at": None,
+            }
+        )
         return token
 
     async def _revoke(self, flt: dict[str, Any]) -> None:
@@ -154,8 +165,11 @@ class AuthService:
                 listener(token_ids)
 
     def _forget_subject(self, kind: str, subject: str) -> None:
-        stale = {k for k, c in self._cache.items()
-                 if c.principal.kind == kind and c.principal.name == subject}
+        stale = {
+            k
+            for k, c in self._cache.items()
+            if c.principal.kind == kind and c.principal.name == subject
+        }
         ids = {self._cache[k].principal.token_id for k in stale}
         self._forget(stale, ids)
 
@@ -163,10 +177,16 @@ class AuthService:
         """Make sure an admin exists. Returns a token to print, or None when it came from
         ``FLEET_ADMIN_TOKEN`` (the operator already knows it)."""
         if await self.repo.user(BOOTSTRAP_ADMIN) is None:
-            await self.repo.insert_user({
-                "username": BOOTSTRAP_ADMIN, "role": "admin", "vehicles": [],
-                "disabled": False, "password_hash": None, "created_at": utcnow(),
-            })
+            await self.repo.insert_user(
+                {
+                    "username": BOOTSTRAP_ADMIN,
+                    "role": "admin",
+                    "vehicles": [],
+                    "disabled": False,
+                    "password_hash": None,
+                    "created_at": utcnow(),
+                }
+            )
         given = self.settings.admin_token
         if given is not None:
             token = given.get_secret_value()
@@ -196,10 +216,15 @@ class AuthService:
     async def create_vehicle(self, body: CreateVehicle) -> str:
         if await self.repo.vehicle(body.vehicle_id) is not None:
             raise Conflict(f"vehicle {body.vehicle_id} exists already", code="exists")
-        await self.repo.upsert_vehicle(body.vehicle_id, {
-            "vehicle_id": body.vehicle_id, "name": body.name or body.vehicle_id,
-            "vehicle_type": body.vehicle_type, "created_at": utcnow(),
-        })
+        await self.repo.upsert_vehicle(
+            body.vehicle_id,
+            {
+                "vehicle_id": body.vehicle_id,
+                "name": body.name or body.vehicle_id,
+                "vehicle_type": body.vehicle_type,
+                "created_at": utcnow(),
+            },
+        )
         return await self._issue("vehicle", body.vehicle_id)
 
     async def rotate_vehicle_token(self, vehicle_id: str) -> str:
@@ -212,28 +237,39 @@ class AuthService:
         if await self.repo.gateway(body.gateway_id) is not None:
             raise Conflict(f"gateway {body.gateway_id} exists already", code="exists")
         await self._require_vehicles(body.vehicles)
-        await self.repo.upsert_gateway(body.gateway_id, {
-            "gateway_id": body.gateway_id, "vehicles": sorted(set(body.vehicles)),
-            "created_at": utcnow(),
-        })
+        await self.repo.upsert_gateway(
+            body.gateway_id,
+            {
+                "gateway_id": body.gateway_id,
+                "vehicles": sorted(set(body.vehicles)),
+                "created_at": utcnow(),
+            },
+        )
         return await self._issue("gateway", body.gateway_id)
 
     async def _require_vehicles(self, vehicles: list[str]) -> None:
         known = {d["vehicle_id"] for d in await self.repo.all_vehicles()}
         missing = sorted(set(vehicles) - known)
         if missing:
-            raise Invalid("unknown vehicles", details=[
-                {"field": "vehicles", "message": f"no vehicle {v}"} for v in missing])
+            raise Invalid(
+                "unknown vehicles",
+                details=[{"field": "vehicles", "message": f"no vehicle {v}"} for v in missing],
+            )
 
     async def create_user(self, body: CreateUser) -> str:
         if await self.repo.user(body.username) is not None:
             raise Conflict(f"user {body.username} exists already", code="exists")
         await self._require_vehicles(body.vehicles)
-        await self.repo.insert_user({
-            "username": body.username, "role": body.role,
-            "vehicles": sorted(set(body.vehicles)), "disabled": False,
-            "password_hash": await self._hash(body.password), "created_at": utcnow(),
-        })
+        await self.repo.insert_user(
+            {
+                "username": body.username,
+                "role": body.role,
+                "vehicles": sorted(set(body.vehicles)),
+                "disabled": False,
+                "password_hash": await self._hash(body.password),
+                "created_at": utcnow(),
+            }
+        )
         return await self._issue("user", body.username)
 
     async def _hash(self, password: str | None) -> str | None:

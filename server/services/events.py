@@ -69,7 +69,10 @@ class EventService:
         else:
             vehicle_ids = sorted(principal.vehicles)
         return await self.repo.query(
-            vehicle_ids=vehicle_ids, kind=kind, start=start, end=end,
+            vehicle_ids=vehicle_ids,
+            kind=kind,
+            start=start,
+            end=end,
             limit=min(limit, MAX_EVENTS_PER_QUERY),
         )
 

@@ -20,11 +20,16 @@ class FleetViews:
 
     def instance_view(self, state: InstanceState) -> InstanceView:
         return InstanceView(
-            instance_id=state.instance_id, vehicle_id=state.vehicle_id, name=state.name,
-            vehicle_type=state.vehicle_type, capabilities=state.capabilities,
-            presence=self.instances.presence(state), last_seen=state.last_seen,
-            control_mode=state.control_mode,  # type: ignore[arg-type]
-            control=self.leases.lease_info(state.instance_id), started_at=state.started_at,
+            instance_id=state.instance_id,
+            vehicle_id=state.vehicle_id,
+            name=state.name,
+            vehicle_type=state.vehicle_type,
+            capabilities=state.capabilities,
+            presence=self.instances.presence(state),
+            last_seen=state.last_seen,
+            control_mode=state.control_mode,
+            control=self.leases.lease_info(state.instance_id),
+            started_at=state.started_at,
         )
 
     async def vehicles(self, principal: Principal) -> list[VehicleView]:
@@ -51,15 +56,25 @@ class FleetViews:
 
     def _vehicle_view(self, meta: dict[str, Any], state: InstanceState | None) -> VehicleView:
         if state is None:
-            return VehicleView(vehicle_id=meta["vehicle_id"], name=meta.get("name", ""),
-                               vehicle_type=meta.get("vehicle_type", ""), presence="offline",
-                               instance_id=None, position=None, control=None)
+            return VehicleView(
+                vehicle_id=meta["vehicle_id"],
+                name=meta.get("name", ""),
+                vehicle_type=meta.get("vehicle_type", ""),
+                presence="offline",
+                instance_id=None,
+                position=None,
+                control=None,
+            )
         return VehicleView(
-            vehicle_id=state.vehicle_id, name=state.name, vehicle_type=state.vehicle_type,
-            presence=self.instances.presence(state), instance_id=state.instance_id,
+            vehicle_id=state.vehicle_id,
+            name=state.name,
+            vehicle_type=state.vehicle_type,
+            presence=self.instances.presence(state),
+            instance_id=state.instance_id,
             position=Sample.model_validate(state.position) if state.position else None,
             control=self.leases.lease_info(state.instance_id),
-            control_mode=state.control_mode, last_seen=state.last_seen,
+            control_mode=state.control_mode,
+            last_seen=state.last_seen,
         )
 
     async def connect(self, principal: Principal, body: ConnectInstance) -> InstanceView:
@@ -76,8 +91,9 @@ class FleetViews:
             state = found
         return self.instance_view(state)
 
-    async def params(self, principal: Principal, instance_id: str,
-                     names: list[str] | None) -> GetParamResult:
+    async def params(
+        self, principal: Principal, instance_id: str, names: list[str] | None
+    ) -> GetParamResult:
         state = await self.instances.for_viewer(principal, instance_id)
         params = state.params
         if names:

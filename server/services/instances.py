@@ -52,19 +52,39 @@ class InstanceState:
 
     def to_doc(self) -> dict[str, Any]:
         return {
-            "instance_id": self.instance_id, "vehicle_id": self.vehicle_id,
-            "name": self.name, "vehicle_type": self.vehicle_type,
-            "capabilities": self.capabilities, "started_at": self.started_at,
-            "params": self.params, "params_updated_at": self.params_updated_at,
-            "last_seen": self.last_seen, "control_mode": self.control_mode,
-            "position": self.position, "finished_at": self.finished_at,
+            "instance_id": self.instance_id,
+            "vehicle_id": self.vehicle_id,
+            "name": self.name,
+            "vehicle_type": self.vehicle_type,
+            "capabilities": self.capabilities,
+            "started_at": self.started_at,
+            "params": self.params,
+            "params_updated_at": self.params_updated_at,
+            "last_seen": self.last_seen,
+            "control_mode": self.control_mode,
+            "position": self.position,
+            "finished_at": self.finished_at,
         }
 
     @classmethod
     def from_doc(cls, doc: dict[str, Any]) -> InstanceState:
-        fields = {k: doc.get(k) for k in (
-            "instance_id", "vehicle_id", "name", "vehicle_type", "capabilities", "started_at",
-            "params", "params_updated_at", "last_seen", "control_mode", "position", "finished_at")}
+        fields: dict[str, Any] = {
+            k: doc.get(k)
+            for k in (
+                "instance_id",
+                "vehicle_id",
+                "name",
+                "vehicle_type",
+                "capabilities",
+                "started_at",
+                "params",
+                "params_updated_at",
+                "last_seen",
+                "control_mode",
+                "position",
+                "finished_at",
+            )
+        }
         fields["params"] = fields["params"] or {}
         fields["capabilities"] = fields["capabilities"] or []
         fields["control_mode"] = fields["control_mode"] or "idle"
@@ -72,8 +92,14 @@ class InstanceState:
 
 
 class InstanceService:
-    def __init__(self, settings: Settings, repo: InstancesRepo, auth: AuthService,
-                 events: EventService, clock: Clock) -> None:
+    def __init__(
+        self,
+        settings: Settings,
+        repo: InstancesRepo,
+        auth: AuthService,
+        events: EventService,
+        clock: Clock,
+    ) -> None:
         self.settings = settings
         self.repo = repo
         self.auth = auth
@@ -137,8 +163,11 @@ class InstanceService:
 
     def _presence(self, state: InstanceState, now: datetime) -> Presence:
         return presence_of(
-            state.last_seen, now, stale_after_s=self.settings.stale_after_s,
-            offline_after_s=self.settings.offline_after_s, finished=state.finished,
+            state.last_seen,
+            now,
+            stale_after_s=self.settings.stale_after_s,
+            offline_after_s=self.settings.offline_after_s,
+            finished=state.finished,
             polling=state.polling > 0,
         )
 
@@ -154,11 +183,15 @@ class InstanceService:
         resumed = state is not None
         if state is None:
             state = InstanceState(
-                instance_id="i-" + secrets.token_hex(8), vehicle_id=body.vehicle_id,
+                instance_id="i-" + secrets.token_hex(8),
+                vehicle_id=body.vehicle_id,
                 name=body.name or meta.get("name") or body.vehicle_id,
-                vehicle_type=body.vehicle_type, capabilities=list(body.capabilities),
-                started_at=now, params=dict(body.params),
-                params_updated_at=now if body.params else None, last_seen=now,
+                vehicle_type=body.vehicle_type,
+                capabilities=list(body.capabilities),
+                started_at=now,
+                params=dict(body.params),
+                params_updated_at=now if body.params else None,
+                last_seen=now,
             )
             await self.repo.insert(state.to_doc())
             self._index(state)
@@ -170,8 +203,11 @@ class InstanceService:
             self.merge_params(state, body.params)
             await self.repo.save(state.instance_id, state.to_doc())
         await self.events.record(
-            "instance", vehicle_id=state.vehicle_id, instance_id=state.instance_id,
-            actor=principal, data={"action": "resumed" if resumed else "started"},
+            "instance",
+            vehicle_id=state.vehicle_id,
+            instance_id=state.instance_id,
+            actor=principal,
+            data={"action": "resumed" if resumed else "started"},
         )
         self.touch(state)
         return state, resumed
@@ -219,8 +255,11 @@ class InstanceService:
         for hook in self.finish_hooks:
             await hook(state, principal)
         await self.events.record(
-            "instance", vehicle_id=state.vehicle_id, instance_id=state.instance_id,
-            actor=principal, data={"action": "finished"},
+            "instance",
+            vehicle_id=state.vehicle_id,
+            instance_id=state.instance_id,
+            actor=principal,
+            data={"action": "finished"},
         )
 
     # ---- background -----------------------------------------------------
@@ -237,7 +276,9 @@ class InstanceService:
             if presence != state.presence:
                 self._set_presence(state, presence)
                 await self.events.record(
-                    "presence", vehicle_id=state.vehicle_id, instance_id=state.instance_id,
+                    "presence",
+                    vehicle_id=state.vehicle_id,
+                    instance_id=state.instance_id,
                     data={"presence": presence},
                 )
             if state.dirty:

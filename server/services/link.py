@@ -33,8 +33,9 @@ class IngestResult(Protocol):
 
 
 class Telemetry(Protocol):
-    async def ingest(self, vehicle_id: str, instance_id: str,
-                     samples: list[Sample]) -> IngestResult: ...
+    async def ingest(
+        self, vehicle_id: str, instance_id: str, samples: list[Sample]
+    ) -> IngestResult: ...
 
     async def last_seq(self, vehicle_id: str) -> int: ...
 
@@ -44,8 +45,9 @@ class Leases(Protocol):
 
 
 class VehicleLink:
-    def __init__(self, settings: Settings, instances: InstanceService, telemetry: Telemetry,
-                 leases: Leases) -> None:
+    def __init__(
+        self, settings: Settings, instances: InstanceService, telemetry: Telemetry, leases: Leases
+    ) -> None:
         self.settings = settings
         self.instances = instances
         self.telemetry = telemetry
@@ -53,18 +55,23 @@ class VehicleLink:
         self.sample_listeners: list[Any] = []
 
     def failsafe(self) -> FailsafePolicy:
-        return FailsafePolicy(after_s=self.settings.failsafe_after_s,
-                              action=self.settings.failsafe_action)  # type: ignore[arg-type]
+        return FailsafePolicy(
+            after_s=self.settings.failsafe_after_s, action=self.settings.failsafe_action
+        )
 
     async def start(self, principal: Principal, body: StartInstance) -> StartInstanceResult:
         state, resumed = await self.instances.start(principal, body)
         s = self.settings
         return StartInstanceResult(
-            instance_id=state.instance_id, resumed=resumed,
+            instance_id=state.instance_id,
+            resumed=resumed,
             last_seq=max(0, await self.telemetry.last_seq(state.vehicle_id)),
-            heartbeat_interval_s=s.heartbeat_interval_s, stale_after_s=s.stale_after_s,
-            offline_after_s=s.offline_after_s, ack_timeout_s=s.ack_timeout_s,
-            server_time=self.instances.clock(), failsafe=self.failsafe(),
+            heartbeat_interval_s=s.heartbeat_interval_s,
+            stale_after_s=s.stale_after_s,
+            offline_after_s=s.offline_after_s,
+            ack_timeout_s=s.ack_timeout_s,
+            server_time=self.instances.clock(),
+            failsafe=self.failsafe(),
             control=self.leases.lease_info(state.instance_id),
         )
 
@@ -90,7 +97,8 @@ class VehicleLink:
         if result.latest is not None:
             self.instances.set_position(state, result.latest)
         return UpdateParamResult(
-            accepted=result.accepted, duplicates=result.duplicates,
+            accepted=result.accepted,
+            duplicates=result.duplicates,
             acked_through_seq=max(0, result.acked_through_seq),
             durable_through_seq=max(0, result.durable_through_seq),
         )

@@ -61,7 +61,9 @@ class AccountsRepo:
         """Revoke the live tokens matching ``flt``; returns them (as they were)."""
         live = await self.tokens.find({**flt, "revoked_at": None})
         for doc in live:
-            await self.tokens.update_one({"token_id": doc["token_id"]}, {"$set": {"revoked_at": at}})
+            await self.tokens.update_one(
+                {"token_id": doc["token_id"]}, {"$set": {"revoked_at": at}}
+            )
         return live
 
     async def drop_expired_tokens(self, before: datetime) -> int:

@@ -74,9 +74,7 @@ class Collection:
         self._store.journal_op("update", self.name, flt=flt, update=update, upsert=upsert)
         return int(result.matched_count) + (1 if result.upserted_id is not None else 0)
 
-    async def replace_one(
-        self, flt: Mapping[str, Any], doc: Doc, *, upsert: bool = False
-    ) -> int:
+    async def replace_one(self, flt: Mapping[str, Any], doc: Doc, *, upsert: bool = False) -> int:
         async with self._store.guard():
             result = await self._raw.replace_one(dict(flt), doc, upsert=upsert)
         self._store.journal_op("replace", self.name, flt=flt, docs=[doc], upsert=upsert)
@@ -91,7 +89,8 @@ class Collection:
 
     async def count(self, flt: Mapping[str, Any] | None = None) -> int:
         async with self._store.guard():
-            return int(await self._raw.count_documents(dict(flt or {})))
+            n = await self._raw.count_documents(dict(flt or {}))
+        return int(n)
 
     async def aggregate(self, pipeline: list[Mapping[str, Any]]) -> list[Doc]:
         async with self._store.guard():

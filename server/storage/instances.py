@@ -20,7 +20,9 @@ class InstancesRepo:
         return await self.instances.find({"finished_at": None}, projection={"_id": 0})
 
     async def get(self, instance_id: str) -> Doc | None:
-        docs = await self.instances.find({"instance_id": instance_id}, projection={"_id": 0}, limit=1)
+        docs = await self.instances.find(
+            {"instance_id": instance_id}, projection={"_id": 0}, limit=1
+        )
         return docs[0] if docs else None
 
     async def latest_for_vehicle(self, vehicle_id: str) -> Doc | None:

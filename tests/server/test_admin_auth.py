@@ -19,13 +19,19 @@ async def test_bad_token_is_401(client: httpx.AsyncClient) -> None:
 
 
 async def test_admin_creates_vehicle_and_token_is_shown_once(client: httpx.AsyncClient) -> None:
-    r = await client.post("/api/vehicles", headers=ADMIN,
-                          json={"vehicle_id": "usv-a", "name": "A", "vehicle_type": "usv"})
+    r = await client.post(
+        "/api/vehicles",
+        headers=ADMIN,
+        json={"vehicle_id": "usv-a", "name": "A", "vehicle_type": "usv"},
+    )
     assert r.status_code == 201
     body = r.json()
     assert body["vehicle_id"] == "usv-a" and body["token"].startswith("fct_")
-    again = await client.post("/api/vehicles", headers=ADMIN,
-                              json={"vehicle_id": "usv-a", "name": "A", "vehicle_type": "usv"})
+    again = await client.post(
+        "/api/vehicles",
+        headers=ADMIN,
+        json={"vehicle_id": "usv-a", "name": "A", "vehicle_type": "usv"},
+    )
     assert again.status_code == 409
     listed = await client.get("/api/vehicles", headers=ADMIN)
     assert "token" not in listed.text
@@ -33,8 +39,11 @@ async def test_admin_creates_vehicle_and_token_is_shown_once(client: httpx.Async
 
 async def test_non_admin_cannot_administer(client: httpx.AsyncClient) -> None:
     _, op = await make_user(client, "operator")
-    r = await client.post("/api/vehicles", headers=op,
-                          json={"vehicle_id": "usv-b", "name": "B", "vehicle_type": "usv"})
+    r = await client.post(
+        "/api/vehicles",
+        headers=op,
+        json={"vehicle_id": "usv-b", "name": "B", "vehicle_type": "usv"},
+    )
     assert r.status_code == 403
     assert r.json()["error"]["code"] == "forbidden"
     assert (await client.get("/api/users", headers=op)).status_code == 403
@@ -57,10 +66,12 @@ async def test_rotating_a_vehicle_token_revokes_the_old_one(client: httpx.AsyncC
     r = await client.post(f"/api/vehicles/{vid}/rotate_token", headers=ADMIN)
     assert r.status_code == 200
     new = bearer(r.json()["token"])
-    assert (await client.post("/upper/start_instance", headers=old,
-                              json={"vehicle_id": vid})).status_code == 401
-    assert (await client.post("/upper/start_instance", headers=new,
-                              json={"vehicle_id": vid})).status_code == 200
+    assert (
+        await client.post("/upper/start_instance", headers=old, json={"vehicle_id": vid})
+    ).status_code == 401
+    assert (
+        await client.post("/upper/start_instance", headers=new, json={"vehicle_id": vid})
+    ).status_code == 200
 
 
 async def test_users_listed_and_disabled(client: httpx.AsyncClient) -> None:
@@ -68,8 +79,13 @@ async def test_users_listed_and_disabled(client: httpx.AsyncClient) -> None:
     name, token = await make_user(client, "viewer", [vid])
     users = (await client.get("/api/users", headers=ADMIN)).json()["users"]
     mine = next(u for u in users if u["username"] == name)
-    assert mine == {"username": name, "role": "viewer", "vehicles": [vid], "disabled": False,
-                    "created_at": mine["created_at"]}
+    assert mine == {
+        "username": name,
+        "role": "viewer",
+        "vehicles": [vid],
+        "disabled": False,
+        "created_at": mine["created_at"],
+    }
     assert "password_hash" not in str(users)
     assert (await client.get("/api/vehicles", headers=token)).status_code == 200
     r = await client.patch(f"/api/users/{name}", headers=ADMIN, json={"disabled": True})
@@ -81,31 +97,38 @@ async def test_patch_user_changes_access_at_once(client: httpx.AsyncClient) -> N
     v1, _ = await make_vehicle(client)
     v2, _ = await make_vehicle(client)
     name, token = await make_user(client, "viewer", [v1])
-    seen = [v["vehicle_id"] for v in (await client.get("/api/vehicles", headers=token)).json()[
-        "vehicles"]]
+    seen = [
+        v["vehicle_id"]
+        for v in (await client.get("/api/vehicles", headers=token)).json()["vehicles"]
+    ]
     assert seen == [v1]
     await client.patch(f"/api/users/{name}", headers=ADMIN, json={"vehicles": [v2]})
-    seen = [v["vehicle_id"] for v in (await client.get("/api/vehicles", headers=token)).json()[
-        "vehicles"]]
+    seen = [
+        v["vehicle_id"]
+        for v in (await client.get("/api/vehicles", headers=token)).json()["vehicles"]
+    ]
     assert seen == [v2]
 
 
 async def test_user_with_unknown_vehicle_is_422(client: httpx.AsyncClient) -> None:
-    r = await client.post("/api/users", headers=ADMIN,
-                          json={"username": "x1", "role": "viewer", "vehicles": ["nope"]})
+    r = await client.post(
+        "/api/users", headers=ADMIN, json={"username": "x1", "role": "viewer", "vehicles": ["nope"]}
+    )
     assert r.status_code == 422
     assert r.json()["error"]["details"][0]["field"] == "vehicles"
 
 
 async def test_password_login(client: httpx.AsyncClient) -> None:
     name, _ = await make_user(client, "operator", password="correct horse battery")
-    r = await client.post("/auth/token", json={"username": name,
-                                               "password": "correct horse battery"})
+    r = await client.post(
+        "/auth/token", json={"username": name, "password": "correct horse battery"}
+    )
     assert r.status_code == 200
     body = r.json()
     assert body["token_type"] == "bearer" and body["expires_in"] > 0
-    assert (await client.get("/api/vehicles",
-                             headers=bearer(body["access_token"]))).status_code == 200
+    assert (
+        await client.get("/api/vehicles", headers=bearer(body["access_token"]))
+    ).status_code == 200
     wrong = await client.post("/auth/token", json={"username": name, "password": "nope-nope"})
     assert wrong.status_code == 401
 
@@ -115,18 +138,20 @@ async def test_user_token_rotation(client: httpx.AsyncClient) -> None:
     r = await client.post(f"/api/users/{name}/rotate_token", headers=ADMIN)
     assert r.status_code == 200
     assert (await client.get("/api/vehicles", headers=old)).status_code == 401
-    assert (await client.get("/api/vehicles",
-                             headers=bearer(r.json()["token"]))).status_code == 200
+    assert (await client.get("/api/vehicles", headers=bearer(r.json()["token"]))).status_code == 200
 
 
 async def test_gateway_acts_for_its_vehicles_only(client: httpx.AsyncClient) -> None:
     v1, _ = await make_vehicle(client)
     v2, _ = await make_vehicle(client)
-    r = await client.post("/api/gateways", headers=ADMIN,
-                          json={"gateway_id": "gw-1", "vehicles": [v1]})
+    r = await client.post(
+        "/api/gateways", headers=ADMIN, json={"gateway_id": "gw-1", "vehicles": [v1]}
+    )
     assert r.status_code == 201
     gw = bearer(r.json()["token"])
-    assert (await client.post("/upper/start_instance", headers=gw,
-                              json={"vehicle_id": v1})).status_code == 200
-    assert (await client.post("/upper/start_instance", headers=gw,
-                              json={"vehicle_id": v2})).status_code == 403
+    assert (
+        await client.post("/upper/start_instance", headers=gw, json={"vehicle_id": v1})
+    ).status_code == 200
+    assert (
+        await client.post("/upper/start_instance", headers=gw, json={"vehicle_id": v2})
+    ).status_code == 403

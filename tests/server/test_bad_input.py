@@ -13,20 +13,40 @@ from server.settings import Settings
 from tests.factories import ADMIN, make_vehicle, start_instance
 
 GARBAGE: list[object] = [
-    None, 0, -1, 1e308, "", "x" * 5000, [], [1, "a", None], {}, {"instance_id": None},
-    {"instance_id": ["a"]}, {"vehicle_id": "../../etc"}, {"samples": "many"},
-    {"samples": [{"seq": -5}]}, {"command": {"type": "launch"}},
-    {"instance_ids": [], "command": {}}, {"ttl_s": 0}, {"duration_s": 10**12},
-    {"username": {"$ne": None}}, {"params": {"a": float("nan")}} if False else {"params": 5},
+    None,
+    0,
+    -1,
+    1e308,
+    "",
+    "x" * 5000,
+    [],
+    [1, "a", None],
+    {},
+    {"instance_id": None},
+    {"instance_id": ["a"]},
+    {"vehicle_id": "../../etc"},
+    {"samples": "many"},
+    {"samples": [{"seq": -5}]},
+    {"command": {"type": "launch"}},
+    {"instance_ids": [], "command": {}},
+    {"ttl_s": 0},
+    {"duration_s": 10**12},
+    {"username": {"$ne": None}},
+    {"params": {"a": float("nan")}} if False else {"params": 5},
 ]
 
 
 async def test_422_names_the_fields(client: httpx.AsyncClient) -> None:
     vid, vh = await make_vehicle(client)
     iid = (await start_instance(client, vid, vh))["instance_id"]
-    r = await client.post("/upper/update_param", headers=vh, json={
-        "instance_id": iid,
-        "samples": [{"seq": 1, "ts": "2026-11-22T10:00:00Z", "lat": 95, "lon": 15}]})
+    r = await client.post(
+        "/upper/update_param",
+        headers=vh,
+        json={
+            "instance_id": iid,
+            "samples": [{"seq": 1, "ts": "2026-11-22T10:00:00Z", "lat": 95, "lon": 15}],
+        },
+    )
     assert r.status_code == 422
     err = r.json()["error"]
     assert err["code"] == "invalid"
@@ -34,8 +54,9 @@ async def test_422_names_the_fields(client: httpx.AsyncClient) -> None:
 
 
 async def test_malformed_json_is_422(client: httpx.AsyncClient) -> None:
-    r = await client.post("/api/vehicles", headers={**ADMIN, "content-type": "application/json"},
-                          content=b"{not json")
+    r = await client.post(
+        "/api/vehicles", headers={**ADMIN, "content-type": "application/json"}, content=b"{not json"
+    )
     assert r.status_code == 422
     assert r.json()["error"]["code"] == "invalid"
 
@@ -46,10 +67,12 @@ async def test_over_size_body_is_413(make_settings: object) -> None:
     settings: Settings = make_settings(max_body_bytes=2048)  # type: ignore[operator]
     app = create_app(settings)
     async with LifespanManager(app) as m:
-        async with httpx.AsyncClient(transport=httpx.ASGITransport(app=m.app),
-                                     base_url="http://t") as c:
-            r = await c.post("/api/vehicles", headers=ADMIN,
-                             content=json.dumps({"name": "x" * 5000}).encode())
+        async with httpx.AsyncClient(
+            transport=httpx.ASGITransport(app=m.app), base_url="http://t"
+        ) as c:
+            r = await c.post(
+                "/api/vehicles", headers=ADMIN, content=json.dumps({"name": "x" * 5000}).encode()
+            )
             assert r.status_code == 413
             assert r.json()["error"]["code"] == "too_large"
 
@@ -69,20 +92,25 @@ async def test_garbage_at_every_route_never_500(client: httpx.AsyncClient, seed:
     paths = create_app(Settings()).openapi()["paths"]
     assert len(paths) > 15
     for template, operations in paths.items():
-        path = template.replace("{vehicle_id}", rng.choice([vid, "zz", "%00"])) \
-            .replace("{username}", rng.choice(["admin", "nobody"])) \
+        path = (
+            template.replace("{vehicle_id}", rng.choice([vid, "zz", "%00"]))
+            .replace("{username}", rng.choice(["admin", "nobody"]))
             .replace("{command_id}", rng.choice(["c-1", "x" * 300]))
+        )
         for method in (m.upper() for m in operations):
             for headers in (ADMIN, vh, {"Authorization": "Bearer \x7f"}, {}):
                 for body in rng.sample(GARBAGE, 6):
-                    params = {"instance_id": rng.choice([iid, "", "nope"]),
-                              "wait_s": rng.choice(["0", "-1", "abc", "99"]),
-                              "max_points": rng.choice(["1", "0", "zz"]),
-                              "from": rng.choice(["yesterday", "2026-11-22T00:00:00"]),
-                              "after_seq": rng.choice(["-3", "x"]),
-                              "format": rng.choice(["csv", "exe"])}
-                    r = await client.request(method, path, headers=headers, json=body,
-                                             params=params)
+                    params = {
+                        "instance_id": rng.choice([iid, "", "nope"]),
+                        "wait_s": rng.choice(["0", "-1", "abc", "99"]),
+                        "max_points": rng.choice(["1", "0", "zz"]),
+                        "from": rng.choice(["yesterday", "2026-11-22T00:00:00"]),
+                        "after_seq": rng.choice(["-3", "x"]),
+                        "format": rng.choice(["csv", "exe"]),
+                    }
+                    r = await client.request(
+                        method, path, headers=headers, json=body, params=params
+                    )
                     assert r.status_code < 500, (method, path, body, r.text)
                     if r.status_code >= 400:
                         assert "error" in r.json(), (method, path, r.text)

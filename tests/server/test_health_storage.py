@@ -38,16 +38,24 @@ async def test_embedded_store_survives_a_clean_restart(
     async with LifespanManager(app) as m, _app_client(m.app) as c:
         vid, vh = await make_vehicle(c)
         iid = (await start_instance(c, vid, vh))["instance_id"]
-        r = await c.post("/upper/update_param", headers=vh, json={
-            "instance_id": iid, "samples": [sample(i) for i in range(1, 51)]})
+        r = await c.post(
+            "/upper/update_param",
+            headers=vh,
+            json={"instance_id": iid, "samples": [sample(i) for i in range(1, 51)]},
+        )
         assert r.json()["acked_through_seq"] == 50
     app = create_app(settings)
     async with LifespanManager(app) as m, _app_client(m.app) as c:
         again = await start_instance(c, vid, vh)  # the vehicle's token survived too
         assert again["resumed"] is True and again["instance_id"] == iid
         assert again["last_seq"] == 50
-        page = (await c.get(f"/api/vehicles/{vid}/telemetry", headers=ADMIN,
-                            params={"after_seq": 0, "limit": 100})).json()
+        page = (
+            await c.get(
+                f"/api/vehicles/{vid}/telemetry",
+                headers=ADMIN,
+                params={"after_seq": 0, "limit": 100},
+            )
+        ).json()
         assert [s["seq"] for s in page["samples"]] == list(range(1, 51))
 
 
@@ -73,15 +81,23 @@ async def test_unreachable_mongodb_is_503_not_a_hang(
 
 
 @pytest.mark.mongo
-@pytest.mark.skipif(not os.environ.get("FLEET_TEST_MONGO_URL"),
-                    reason="FLEET_TEST_MONGO_URL not set: no MongoDB server on this machine")
+@pytest.mark.skipif(
+    not os.environ.get("FLEET_TEST_MONGO_URL"),
+    reason="FLEET_TEST_MONGO_URL not set: no MongoDB server on this machine",
+)
 async def test_real_mongodb_round_trip(make_settings: Callable[..., Settings]) -> None:
-    app = create_app(make_settings(mongo_url=os.environ["FLEET_TEST_MONGO_URL"],
-                                   db_name=f"fleet_test_{os.getpid()}"))
+    app = create_app(
+        make_settings(
+            mongo_url=os.environ["FLEET_TEST_MONGO_URL"], db_name=f"fleet_test_{os.getpid()}"
+        )
+    )
     async with LifespanManager(app) as m, _app_client(m.app) as c:
         assert (await c.get("/readyz")).json()["store"] == "mongodb"
         vid, vh = await make_vehicle(c)
         iid = (await start_instance(c, vid, vh))["instance_id"]
-        r = await c.post("/upper/update_param", headers=vh, json={
-            "instance_id": iid, "samples": [sample(1), sample(2)]})
+        r = await c.post(
+            "/upper/update_param",
+            headers=vh,
+            json={"instance_id": iid, "samples": [sample(1), sample(2)]},
+        )
         assert r.json()["durable_through_seq"] == 2

@@ -12,15 +12,24 @@ async def test_start_returns_the_contract_fields(client: httpx.AsyncClient) -> N
     body = await start_instance(client, vid, vh)
     assert body["resumed"] is False
     assert body["last_seq"] == 0
-    for key in ("instance_id", "heartbeat_interval_s", "stale_after_s", "offline_after_s",
-                "ack_timeout_s", "server_time", "failsafe", "control"):
+    for key in (
+        "instance_id",
+        "heartbeat_interval_s",
+        "stale_after_s",
+        "offline_after_s",
+        "ack_timeout_s",
+        "server_time",
+        "failsafe",
+        "control",
+    ):
         assert key in body
     assert body["failsafe"] == {"after_s": 30.0, "action": "keep_station"}
     assert body["server_time"].endswith("Z")
 
 
-async def test_returning_vehicle_resumes_its_instance(clocked_client: httpx.AsyncClient,
-                                                      clock: FakeClock) -> None:
+async def test_returning_vehicle_resumes_its_instance(
+    clocked_client: httpx.AsyncClient, clock: FakeClock
+) -> None:
     client = clocked_client
     vid, vh = await make_vehicle(client)
     first = await start_instance(client, vid, vh)
@@ -31,8 +40,9 @@ async def test_returning_vehicle_resumes_its_instance(clocked_client: httpx.Asyn
     assert again["resumed"] is True and again["instance_id"] == first["instance_id"]
 
 
-async def test_presence_moves_by_heartbeat_age(clocked_client: httpx.AsyncClient,
-                                               clock: FakeClock) -> None:
+async def test_presence_moves_by_heartbeat_age(
+    clocked_client: httpx.AsyncClient, clock: FakeClock
+) -> None:
     client = clocked_client
     vid, vh = await make_vehicle(client)
     iid = (await start_instance(client, vid, vh))["instance_id"]
@@ -88,23 +98,32 @@ async def test_another_vehicles_instance_is_403(client: httpx.AsyncClient) -> No
 async def test_params_merge_and_position(client: httpx.AsyncClient) -> None:
     vid, vh = await make_vehicle(client)
     iid = (await start_instance(client, vid, vh, params={"mode": "survey", "gain": 2}))[
-        "instance_id"]
-    r = await client.post("/upper/update_param", headers=vh, json={
-        "instance_id": iid, "params": {"gain": None, "depth_limit": 5},
-        "samples": [sample(1, lat=43.9401), sample(2, lat=43.9402)]})
+        "instance_id"
+    ]
+    r = await client.post(
+        "/upper/update_param",
+        headers=vh,
+        json={
+            "instance_id": iid,
+            "params": {"gain": None, "depth_limit": 5},
+            "samples": [sample(1, lat=43.9401), sample(2, lat=43.9402)],
+        },
+    )
     assert r.status_code == 200, r.text
     assert r.json()["accepted"] == 2
-    got = (await client.get("/client/get_param", headers=ADMIN,
-                            params={"instance_id": iid})).json()
+    got = (await client.get("/client/get_param", headers=ADMIN, params={"instance_id": iid})).json()
     assert got["params"] == {"mode": "survey", "depth_limit": 5}
     assert got["position"]["seq"] == 2 and got["position"]["lat"] == 43.9402
-    some = (await client.get("/client/get_param", headers=ADMIN,
-                             params={"instance_id": iid, "names": "mode"})).json()
+    some = (
+        await client.get(
+            "/client/get_param", headers=ADMIN, params={"instance_id": iid, "names": "mode"}
+        )
+    ).json()
     assert some["params"] == {"mode": "survey"}
 
 
 async def test_viewer_sees_only_assigned_vehicles(client: httpx.AsyncClient) -> None:
-    v1, h1 = await make_vehicle(client)
+    v1, _h1 = await make_vehicle(client)
     v2, h2 = await make_vehicle(client)
     i2 = (await start_instance(client, v2, h2))["instance_id"]
     _, viewer = await make_user(client, "viewer", [v1])
