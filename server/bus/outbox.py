@@ -1,0 +1,219 @@
+"""A connection's outgoing queue and its one writer task.
+
+Everything a WebSocket sends goes through its :class:`Outbox`: the bus
+handler and the op loop only ``put`` frames (never block), and one writer
+task ``await``\\ s ``send`` for each in turn, so a slow socket never stalls the
+fan-out to the others.
+
+- **Bounded.** With ``max_size`` frames waiting, a new frame drops the
+  oldest waiting frame that is not critical; the drops are counted and the
+  client is told before the next frame with ``{"op": "lagging",
+  "dropped": n}``.
+- **Critical frames** (a ``stop`` command push) are never dropped, and go
+  before every other waiting frame.
+- **Latest wins** (binary media topics): a new frame on a topic replaces the
+  one of that topic still waiting.
+- **Throttle** (a subscription's ``throttle_ms``): at most one frame per
+  topic every N ms, the latest value held back and sent when the interval
+  is over.
+
+``send`` is any coroutine taking a text or binary frame
+(``websocket.send_text`` / ``send_bytes`` behind one function), so the
+outbox is tested without a socket.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import time
+from collections import deque
+from collections.abc import Awaitable, Callable
+from types import TracebackType
+from typing import Self
+
+from fleet_protocol.ws import LaggingPush
+from server.bus.throttle import Throttle
+
+__all__ = ["DEFAULT_MAX_QUEUE", "Frame", "Outbox"]
+
+log = logging.getLogger(__name__)
+
+Frame = str | bytes
+DEFAULT_MAX_QUEUE = 1000
+
+
+class _Entry:
+    __slots__ = ("frame", "topic")
+
+    def __init__(self, frame: Frame, topic: str | None) -> None:
+        self.frame = frame
+        self.topic = topic
+
+
+class Outbox:
+    def __init__(
+        self,
+        send: Callable[[Frame], Awaitable[None]],
+        *,
+        max_size: int = DEFAULT_MAX_QUEUE,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        if max_size < 1:
+            raise ValueError("max_size is at least 1")
+        self._send = send
+        self.max_size = max_size
+        self._clock = clock
+        self._critical: deque[_Entry] = deque()
+        self._normal: deque[_Entry] = deque()
+        #: topic -> its waiting entry, for latest-wins topics.
+        self._latest: dict[str, _Entry] = {}
+        #: (frame, latest_wins) held back per topic by a throttle.
+        self._throttle: Throttle[tuple[Frame, bool]] = Throttle()
+        self._wakeup = asyncio.Event()
+        self._idle = asyncio.Event()
+        self._idle.set()
+        self._task: asyncio.Task[None] | None = None
+        self._unreported_drops = 0
+        self.closed = asyncio.Event()
+        #: Why the writer stopped, when ``send`` failed.
+        self.error: BaseException | None = None
+        self.sent = 0
+        self.dropped = 0
+        self.superseded = 0
+
+    # -- the producers' side ----------------------------------------------------
+
+    def put(
+        self,
+        frame: Frame,
+        *,
+        critical: bool = False,
+        topic: str | None = None,
+        latest_wins: bool = False,
+        throttle_ms: int = 0,
+    ) -> None:
+        """Queue ``frame``; never blocks, never raises for a full queue.
+
+        ``topic`` names the frame's topic for ``latest_wins`` and
+        ``throttle_ms``. A critical frame ignores both and is never dropped.
+        """
+        if self.closed.is_set():
+            return
+        if critical:
+            self._critical.append(_Entry(frame, None))
+        elif topic is not None and throttle_ms > 0:
+            if self._throttle.offer(topic, (frame, latest_wins), throttle_ms / 1000, self._clock()):
+                self._enqueue(frame, topic, latest_wins)
+        else:
+            self._enqueue(frame, topic, latest_wins)
+        self._idle.clear()
+        self._wakeup.set()
+
+    def forget(self, topic: str) -> None:
+        """Drop a topic's throttle state and held frame (on unsubscribe)."""
+        self._throttle.forget(topic)
+
+    def __len__(self) -> int:
+        """Frames waiting (throttled ones held back not included)."""
+        return len(self._critical) + len(self._normal)
+
+    def _enqueue(self, frame: Frame, topic: str | None, latest_wins: bool) -> None:
+        if latest_wins and topic is not None:
+            waiting = self._latest.get(topic)
+            if waiting is not None:
+                waiting.frame = frame
+                self.superseded += 1
+                return
+        if len(self) >= self.max_size:
+            if not self._normal:
+                self._count_drop()  # only critical frames wait: the new one goes
+                return
+            oldest = self._normal.popleft()
+            if oldest.topic is not None and self._latest.get(oldest.topic) is oldest:
+                del self._latest[oldest.topic]
+            self._count_drop()
+        entry = _Entry(frame, topic)
+        self._normal.append(entry)
+        if latest_wins and topic is not None:
+            self._latest[topic] = entry
+
+    def _count_drop(self) -> None:
+        self.dropped += 1
+        self._unreported_drops += 1
+
+    # -- the writer ---------------------------------------------------------------
+
+    def start(self) -> None:
+        if self._task is None:
+            self._task = asyncio.create_task(self._write(), name="outbox-writer")
+
+    async def close(self) -> None:
+        """Stop the writer; frames still waiting are not sent."""
+        if self._task is not None:
+            self._task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await self._task
+            self._task = None
+        self.closed.set()
+        self._idle.set()
+
+    async def wait_idle(self) -> None:
+        """Until nothing waits or is held back (or the writer stopped)."""
+        await self._idle.wait()
+
+    async def __aenter__(self) -> Self:
+        self.start()
+        return self
+
+    async def __aexit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        await self.close()
+
+    def _next(self) -> Frame | None:
+        for topic, (frame, latest_wins) in self._throttle.due(self._clock()):
+            self._enqueue(frame, topic, latest_wins)
+        if self._critical:
+            return self._critical.popleft().frame
+        if self._unreported_drops:
+            frame = LaggingPush(dropped=self._unreported_drops, total=self.dropped).frame()
+            self._unreported_drops = 0
+            return frame
+        if self._normal:
+            entry = self._normal.popleft()
+            if entry.topic is not None and self._latest.get(entry.topic) is entry:
+                del self._latest[entry.topic]
+            return entry.frame
+        return None
+
+    async def _write(self) -> None:
+        try:
+            while True:
+                frame = self._next()
+                if frame is None:
+                    await self._wait_for_work()
+                    continue
+                await self._send(frame)
+                self.sent += 1
+        except asyncio.CancelledError:
+            raise
+        except Exception as exc:
+            self.error = exc
+            log.info("outbox: send failed, writer stops: %r", exc)
+        finally:
+            self.closed.set()
+            self._idle.set()
+
+    async def _wait_for_work(self) -> None:
+        due = self._throttle.next_due()
+        if due is None:
+            self._idle.set()
+        self._wakeup.clear()
+        timeout = None if due is None else max(0.0, due - self._clock())
+        with contextlib.suppress(TimeoutError):
+            await asyncio.wait_for(self._wakeup.wait(), timeout)
