@@ -168,8 +168,8 @@ class _Pump:
             for client in self.clients:
                 if client.want_write():
                     client.loop_write()
-            sockets = {client.socket(): client for client in self.clients}
-            readable, _, _ = select.select(list(sockets), [], [], 0.05)
+            sockets = {c.socket(): c for c in self.clients if c.socket() is not None}
+            readable, _, _ = select.select(list(sockets), [], [], 0.05)  # type: ignore[type-var]
             for sock in readable:
                 sockets[sock].loop_read()
             for client in self.clients:

@@ -193,6 +193,9 @@ class RedisBus(Bus):
             except (RedisError, OSError) as exc:
                 if self.healthy:
                     log.warning("redis bus: lost Redis (%s); serving this replica only", exc)
+            except Exception:
+                # Whatever it was, the loop lives on: reconnect rather than stay down.
+                log.exception("redis bus: unexpected failure; reconnecting")
             finally:
                 self._pubsub = None
                 self._healthy.clear()
