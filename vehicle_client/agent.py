@@ -1,0 +1,334 @@
+"""The vehicle agent daemon: the I/O shell around ``Pilot``, the outbox and an adapter.
+
+Four loops run for the agent's whole life, link or no link:
+
+- the adapter (the simulator's physics, or the ROS bridge);
+- ``_sample_loop``: a sample every ``1/rate_hz`` s into the outbox;
+- ``_pilot_loop``: task reports to acks, local-control changes, link-loss
+  failsafe;
+- ``_link_loop``: sessions with the server, retried with backoff and jitter.
+
+A session starts (or resumes) the instance and runs four more loops until
+one fails: telemetry uplink (drains the outbox oldest first, deletes what
+is durable), command downlink (long poll), feedback (acks and control
+mode, honouring ``abort``) and heartbeat (server clock). A ``FatalError``
+ends the agent; anything else ends the session only.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+from dataclasses import dataclass, field
+from typing import Any
+
+from pydantic import ValidationError
+
+from fleet_protocol import FbAck, Sample, StartInstance, UpdateFbMessage, UpdateParam
+from fleet_protocol.common import format_ts, utcnow
+from vehicle_client.adapters.base import Adapter
+from vehicle_client.backoff import Backoff
+from vehicle_client.clock import ServerClock
+from vehicle_client.decisions import Effect, Execute, Halt, LinkMonitor, Pilot
+from vehicle_client.errors import FatalError, RetryableError, SessionLost
+from vehicle_client.outbox import Outbox
+from vehicle_client.sim.simulator import TaskReport
+from vehicle_client.transport.base import Transport
+
+log = logging.getLogger(__name__)
+
+MAX_ACKS_PER_CALL = 256
+#: A long poll that comes back empty-handed this fast is not repeated sooner.
+MIN_POLL_GAP_S = 0.2
+
+
+@dataclass
+class AgentConfig:
+    vehicle_id: str
+    name: str = ""
+    rate_hz: float = 1.0
+    batch_size: int = 500
+    poll_wait_s: float = 20.0
+    tick_s: float = 0.1
+
+    def __post_init__(self) -> None:
+        if not 0 < self.rate_hz <= 100:
+            raise FatalError(f"rate_hz must be in (0, 100], got {self.rate_hz}")
+        if not 1 <= self.batch_size <= 5000:
+            raise FatalError(f"batch_size must be in [1, 5000], got {self.batch_size}")
+        if not 0 <= self.poll_wait_s <= 30:
+            raise FatalError(f"poll_wait_s must be in [0, 30], got {self.poll_wait_s}")
+
+
+@dataclass
+class AgentStats:
+    sessions: int = 0
+    samples_sent: int = 0
+    duplicates: int = 0
+    durable_through_seq: int = 0
+    last_error: str | None = None
+    connected: bool = False
+    extra: dict[str, Any] = field(default_factory=dict)
+
+
+def _first_error(group: BaseExceptionGroup) -> BaseException:
+    """The error that decides: a fatal one first, then the rest in order."""
+    flat: list[BaseException] = []
+
+    def walk(g: BaseExceptionGroup) -> None:
+        for e in g.exceptions:
+            walk(e) if isinstance(e, BaseExceptionGroup) else flat.append(e)
+
+    walk(group)
+    for kind in (FatalError, SessionLost, RetryableError):
+        for e in flat:
+            if isinstance(e, kind):
+                return e
+    return flat[0]
+
+
+class VehicleAgent:
+    def __init__(
+        self,
+        config: AgentConfig,
+        adapter: Adapter,
+        transport: Transport,
+        outbox: Outbox,
+        *,
+        backoff: Backoff | None = None,
+    ) -> None:
+        self.config = config
+        self.adapter = adapter
+        self.transport = transport
+        self.outbox = outbox
+        self.backoff = backoff or Backoff()
+        self.clock = ServerClock()
+        caps = frozenset(adapter.capabilities) | {"stop"}
+        self.pilot = Pilot(caps, seen=outbox.seen)
+        self.link = LinkMonitor(after_s=self.pilot.failsafe.after_s)
+        self.stats = AgentStats()
+        self.instance_id: str | None = None
+        self._acks: list[FbAck] = []
+        self._params: dict[str, Any] = {}
+        self._sent_mode: str | None = None
+        self._cursor = 0
+        self._heartbeat_s = 1.0
+        self._uplink_wake = asyncio.Event()
+        self._fb_wake = asyncio.Event()
+
+    # -- life ----------------------------------------------------------------
+    async def run(self) -> None:
+        """Run until cancelled; raises ``FatalError`` when retrying cannot help."""
+        self._apply(self.pilot.on_restart(self.outbox.seen.unfinished()))
+        try:
+            async with asyncio.TaskGroup() as tg:
+                tg.create_task(self.adapter.run(), name="adapter")
+                tg.create_task(self._sample_loop(), name="sample")
+                tg.create_task(self._pilot_loop(), name="pilot")
+                tg.create_task(self._link_loop(), name="link")
+        except BaseExceptionGroup as group:
+            raise _first_error(group) from None
+
+    async def _link_loop(self) -> None:
+        while True:
+            try:
+                await self._session()
+            except RetryableError as exc:
+                self.stats.connected = False
+                self.stats.last_error = str(exc)
+                delay = self.backoff.next_delay(exc.retry_after_s)
+                log.warning(
+                    "%s: link down (%s); retrying in %.1f s", self.config.vehicle_id, exc, delay
+                )
+                await asyncio.sleep(delay)
+
+    async def _session(self) -> None:
+        await self._start()
+        try:
+            async with asyncio.TaskGroup() as tg:
+                tg.create_task(self._uplink(), name="uplink")
+                tg.create_task(self._downlink(), name="downlink")
+                tg.create_task(self._feedback(), name="feedback")
+                tg.create_task(self._heartbeat(), name="heartbeat")
+        except BaseExceptionGroup as group:
+            raise _first_error(group) from None
+
+    async def _start(self) -> None:
+        body = StartInstance(
+            vehicle_id=self.config.vehicle_id,
+            name=self.config.name or self.config.vehicle_id,
+            vehicle_type=self.adapter.vehicle_type,
+            capabilities=sorted(self.pilot.capabilities),  # type: ignore[arg-type]
+            params=self.adapter.describe(),
+        )
+        sent = utcnow()
+        res = await self.transport.start_instance(body)
+        self.clock.observe(res.server_time, sent, utcnow())
+        self.instance_id = res.instance_id
+        self.pilot.failsafe = res.failsafe
+        self.link.after_s = res.failsafe.after_s
+        self._heartbeat_s = res.heartbeat_interval_s
+        await asyncio.to_thread(self.outbox.match_server, res.last_seq)
+        self._cursor = 0  # re-send from the first sample not yet durable
+        self._sent_mode = None
+        self.backoff.reset()
+        self.stats.sessions += 1
+        self.stats.connected = True
+        self._contact()
+        log.info(
+            "%s: instance %s %s, server has seq <= %d, %d samples waiting",
+            self.config.vehicle_id,
+            res.instance_id,
+            "resumed" if res.resumed else "started",
+            res.last_seq,
+            self.outbox.pending,
+        )
+        self._fb_wake.set()
+        self._uplink_wake.set()
+
+    def _contact(self) -> None:
+        if self.link.contact(asyncio.get_running_loop().time()) == "restored":
+            log.warning(
+                "%s: link back; the failsafe (%s) had taken over",
+                self.config.vehicle_id,
+                self.pilot.failsafe.action,
+            )
+            self._fb_wake.set()
+
+    # -- session loops ---------------------------------------------------------
+    async def _uplink(self) -> None:
+        assert self.instance_id is not None
+        size = self.config.batch_size
+        while True:
+            batch = await asyncio.to_thread(self.outbox.batch, self._cursor, size)
+            params = dict(self._params)
+            if batch or params:
+                body = UpdateParam(instance_id=self.instance_id, params=params, samples=batch)
+                res = await self.transport.update_param(body)
+                self._contact()
+                for key, value in params.items():
+                    if self._params.get(key, object()) == value:
+                        del self._params[key]
+                self.stats.samples_sent += res.accepted
+                self.stats.duplicates += res.duplicates
+                self.stats.durable_through_seq = res.durable_through_seq
+                await asyncio.to_thread(self.outbox.confirm_durable, res.durable_through_seq)
+                top = batch[-1]["seq"] if batch else self._cursor
+                self._cursor = res.acked_through_seq
+                if len(batch) == size and res.acked_through_seq >= top:
+                    continue  # draining a backlog: next batch at once
+            await self._wait(self._uplink_wake, 1.0 / self.config.rate_hz)
+
+    async def _downlink(self) -> None:
+        assert self.instance_id is not None
+        loop = asyncio.get_running_loop()
+        while True:
+            asked = loop.time()
+            res = await self.transport.get_control(self.instance_id, self.config.poll_wait_s)
+            self._contact()
+            if res.commands:
+                now = self.clock.server_now(utcnow())
+                self._apply(self.pilot.on_commands(res.commands, now))
+            # A poll that came back at once is not repeated sooner than this.
+            await asyncio.sleep(max(0.0, MIN_POLL_GAP_S - (loop.time() - asked)))
+
+    async def _feedback(self) -> None:
+        assert self.instance_id is not None
+        while True:
+            await self._fb_wake.wait()
+            self._fb_wake.clear()
+            acks = self._acks[:MAX_ACKS_PER_CALL]
+            mode = self.pilot.control_mode
+            if not acks and mode == self._sent_mode:
+                continue
+            body = UpdateFbMessage(instance_id=self.instance_id, control_mode=mode, acks=acks)
+            res = await self.transport.update_fbmessage(body)
+            self._contact()
+            del self._acks[: len(acks)]
+            self._sent_mode = mode
+            if res.abort:
+                self._apply(self.pilot.on_abort(res.abort))
+            if self._acks:
+                self._fb_wake.set()
+
+    async def _heartbeat(self) -> None:
+        assert self.instance_id is not None
+        while True:
+            await asyncio.sleep(self._heartbeat_s)
+            sent = utcnow()
+            res = await self.transport.heartbeat(self.instance_id)
+            self.clock.observe(res.server_time, sent, utcnow())
+            self._contact()
+
+    # -- always-on loops -------------------------------------------------------
+    async def _sample_loop(self) -> None:
+        loop = asyncio.get_running_loop()
+        period = 1.0 / self.config.rate_hz
+        due = loop.time()
+        while True:
+            fields = self.adapter.telemetry()
+            if fields is not None:
+                sample = {**fields, "ts": format_ts(utcnow())}
+                try:
+                    Sample.model_validate({**sample, "seq": 0})
+                except ValidationError as exc:
+                    log.error("%s: sample not stored: %s", self.config.vehicle_id, exc)
+                else:
+                    await asyncio.to_thread(self.outbox.append, sample)
+                    self._uplink_wake.set()
+            due += period
+            await asyncio.sleep(max(0.0, due - loop.time()))
+
+    async def _pilot_loop(self) -> None:
+        loop = asyncio.get_running_loop()
+        while True:
+            await asyncio.sleep(self.config.tick_s)
+            local = self.adapter.local_control
+            if local != self.pilot.local_control:
+                self.pilot.local_control = local
+                self._fb_wake.set()
+            report = self.adapter.report()
+            if report is not None:
+                self._apply(self.pilot.on_report(report))
+            if self.link.poll(loop.time()) == "lost":
+                log.warning(
+                    "%s: no answer from the server for %.0f s: failsafe %s",
+                    self.config.vehicle_id,
+                    self.link.after_s,
+                    self.pilot.failsafe.action,
+                )
+                self._apply(self.pilot.on_link_lost())
+                self._params["failsafe"] = {
+                    "action": self.pilot.failsafe.action,
+                    "after_s": self.link.after_s,
+                    "engaged_at": format_ts(utcnow()),
+                }
+
+    # -- effects -----------------------------------------------------------------
+    def _apply(self, effects: list[Effect]) -> None:
+        was_failsafe = self.pilot.in_failsafe
+        for effect in effects:
+            if isinstance(effect, FbAck):
+                self._acks.append(effect)
+            elif isinstance(effect, Execute):
+                try:
+                    self.adapter.execute(effect.kind, effect.args)
+                except (ValueError, KeyError) as exc:
+                    failed = TaskReport(effect.kind, "failed", detail=f"vehicle refused: {exc}")
+                    self._acks.extend(
+                        e for e in self.pilot.on_report(failed) if isinstance(e, FbAck)
+                    )
+            elif isinstance(effect, Halt):
+                self.adapter.halt()
+        if was_failsafe and not self.pilot.in_failsafe:
+            self._params["failsafe"] = None
+        if effects:
+            self._fb_wake.set()
+
+    @staticmethod
+    async def _wait(event: asyncio.Event, within_s: float) -> None:
+        try:
+            await asyncio.wait_for(event.wait(), within_s)
+        except TimeoutError:
+            pass
+        event.clear()
