@@ -1,0 +1,86 @@
+"""``fleet-agent`` settings: options over FLEET_AGENT_* over TOML, and clear refusals."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from vehicle_client.cli import app
+from vehicle_client.config import AgentSettings, GatewaySettings, load
+from vehicle_client.errors import FatalError
+
+EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "gateway.toml"
+runner = CliRunner()
+
+
+@pytest.fixture(autouse=True)
+def _clean_env(monkeypatch: pytest.MonkeyPatch) -> None:
+    import os
+
+    for key in list(os.environ):
+        if key.startswith("FLEET_AGENT_"):
+            monkeypatch.delenv(key)
+
+
+def test_options_win_over_env_which_wins_over_the_file(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    config = tmp_path / "agent.toml"
+    config.write_text('vehicle_id = "usv-file"\nrate_hz = 2.0\ntime_scale = 3.0\n')
+    monkeypatch.setenv("FLEET_AGENT_RATE_HZ", "5")
+    settings = load(AgentSettings, config, time_scale=10.0, start=None)
+    assert settings.vehicle_id == "usv-file"
+    assert settings.rate_hz == 5.0
+    assert settings.time_scale == 10.0
+
+
+def test_the_token_never_shows_in_the_settings_repr(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("FLEET_AGENT_TOKEN", "very-secret-token")
+    settings = load(AgentSettings, None, vehicle_id="usv-1")
+    assert settings.token.get_secret_value() == "very-secret-token"
+    assert "very-secret-token" not in repr(settings)
+
+
+def test_the_example_gateway_file_loads() -> None:
+    settings = load(GatewaySettings, EXAMPLE)
+    assert [v.vehicle_id for v in settings.vehicles] == ["usv-1", "usv-2", "usv-3"]
+    assert settings.vehicles[2].max_speed_mps == 0.8
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["run", "--vehicle-id", "usv-1", "--start", "95,1"], "not a position"),
+        (["run", "--vehicle-id", "USV 1"], "vehicle_id"),
+        (["run", "--vehicle-id", "usv-1", "--rate-hz", "0"], "rate_hz"),
+        (["run", "--vehicle-id", "usv-1", "--server", "fleet:80", "--token", "t"], "URL"),
+        (["run", "--vehicle-id", "usv-1", "--server", "http://x"], "no token"),
+        (["run"], "no vehicle"),
+        (["run", "--config", "/nonexistent/agent.toml"], "not found"),
+        (["gateway", "--config", "/nonexistent/gateway.toml"], "not found"),
+    ],
+)
+def test_bad_configuration_exits_2_with_a_clear_message(args: list[str], message: str) -> None:
+    result = runner.invoke(app, args)
+    assert result.exit_code == 2, result.output
+    assert "fleet-agent: error:" in result.output
+    assert message in result.output
+
+
+def test_a_gateway_with_a_vehicle_twice_is_refused(tmp_path: Path) -> None:
+    config = tmp_path / "gw.toml"
+    config.write_text(
+        'token = "t"\n[[vehicles]]\nvehicle_id = "a"\n[[vehicles]]\nvehicle_id = "a"\n'
+    )
+    result = runner.invoke(app, ["gateway", "--config", str(config)])
+    assert result.exit_code == 2
+    assert "appears twice" in result.output
+
+
+def test_a_gateway_without_vehicles_is_refused(tmp_path: Path) -> None:
+    config = tmp_path / "gw.toml"
+    config.write_text('server = "http://127.0.0.1:1"\n')
+    with pytest.raises(FatalError, match="vehicles"):
+        load(GatewaySettings, config)

@@ -1,0 +1,136 @@
+"""The agent's settings: command-line options, then ``FLEET_AGENT_*`` variables, then a TOML file.
+
+``fleet-agent run`` reads ``AgentSettings``: a flat TOML file
+(``server = "..."``, ``vehicle_id = "..."``, ...) given with ``--config``.
+``fleet-agent gateway`` reads ``GatewaySettings``: the shared link at the top
+of the file and one ``[[vehicles]]`` table per vehicle (see
+``examples/gateway.toml``).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, Literal
+
+from pydantic import BaseModel, Field, SecretStr, ValidationError, field_validator
+from pydantic_settings import (
+    BaseSettings,
+    PydanticBaseSettingsSource,
+    SettingsConfigDict,
+    TomlConfigSettingsSource,
+)
+
+from fleet_protocol.common import ID_PATTERN
+from vehicle_client.errors import FatalError
+from vehicle_client.outbox import DEFAULT_MAX_SAMPLES
+from vehicle_client.sim.dynamics import Current
+
+
+def parse_pair(text: str, what: str) -> tuple[float, float]:
+    try:
+        a, b = (float(x) for x in text.split(","))
+    except ValueError:
+        raise ValueError(f"{what} must be two numbers separated by a comma, got {text!r}") from None
+    return a, b
+
+
+class VehicleOptions(BaseModel):
+    """What differs per vehicle (one in ``run``, several in a gateway)."""
+
+    vehicle_id: str = Field(pattern=ID_PATTERN)
+    name: str = ""
+    adapter: Literal["sim", "ros"] = "sim"
+    #: Simulator start position, "LAT,LON" (default: off Biograd na Moru).
+    start: str = "43.94,15.44"
+    #: Simulator water current, "SPEED_MPS,TOWARDS_DEG".
+    current: str = "0.0,0"
+    max_speed_mps: float = Field(default=0.5, gt=0, le=50)
+    #: The ROS bridge's local address (``--adapter ros``).
+    ros_bridge: str = "127.0.0.1:9311"
+
+    @field_validator("start")
+    @classmethod
+    def _start(cls, value: str) -> str:
+        lat, lon = parse_pair(value, "start")
+        if not (-90 <= lat <= 90 and -180 <= lon <= 180):
+            raise ValueError(f"start {value!r} is not a position (LAT,LON in degrees)")
+        return value
+
+    @field_validator("current")
+    @classmethod
+    def _current(cls, value: str) -> str:
+        speed, _ = parse_pair(value, "current")
+        if not 0 <= speed <= 5:
+            raise ValueError("current speed must be within 0..5 m/s")
+        return value
+
+    @property
+    def start_latlon(self) -> tuple[float, float]:
+        return parse_pair(self.start, "start")
+
+    @property
+    def water_current(self) -> Current:
+        return Current.from_speed(*parse_pair(self.current, "current"))
+
+
+class LinkOptions(BaseSettings):
+    """What the agent (or gateway) shares: the server link and the pace."""
+
+    model_config = SettingsConfigDict(env_prefix="FLEET_AGENT_", extra="ignore")
+
+    server: str = "http://127.0.0.1:8000"
+    token: SecretStr = SecretStr("")
+    rate_hz: float = Field(default=1.0, gt=0, le=100)
+    time_scale: float = Field(default=1.0, gt=0, le=1000)
+    poll_wait_s: float = Field(default=20.0, ge=0, le=30)
+    batch_size: int = Field(default=500, ge=1, le=5000)
+    max_samples: int = Field(default=DEFAULT_MAX_SAMPLES, ge=1)
+    log_level: str = "INFO"
+
+
+class AgentSettings(LinkOptions, VehicleOptions):
+    vehicle_id: str = Field(default="", pattern=r"^$|" + ID_PATTERN)
+    outbox: Path = Path("fleet-agent-outbox.db")
+
+
+class GatewaySettings(LinkOptions):
+    outbox_dir: Path = Path("fleet-gateway-outbox")
+    vehicles: list[VehicleOptions] = Field(min_length=1, max_length=1000)
+
+
+def _with_file(cls: type[BaseSettings], config: Path | None) -> type[BaseSettings]:
+    class WithFile(cls):  # type: ignore[valid-type, misc]
+        @classmethod
+        def settings_customise_sources(
+            cls,
+            settings_cls: type[BaseSettings],
+            init_settings: PydanticBaseSettingsSource,
+            env_settings: PydanticBaseSettingsSource,
+            dotenv_settings: PydanticBaseSettingsSource,
+            file_secret_settings: PydanticBaseSettingsSource,
+        ) -> tuple[PydanticBaseSettingsSource, ...]:
+            sources = [init_settings, env_settings]
+            if config is not None:
+                sources.append(TomlConfigSettingsSource(settings_cls, toml_file=config))
+            return tuple(sources)
+
+    return WithFile
+
+
+def _describe(exc: ValidationError) -> str:
+    return "; ".join(
+        f"{'.'.join(str(p) for p in e['loc']) or 'settings'}: {e['msg']}" for e in exc.errors()
+    )
+
+
+def load(cls: type[BaseSettings], config: Path | None, **options: Any) -> Any:
+    """Settings from options (``None`` = not given), env and ``config``; ``FatalError`` if bad."""
+    if config is not None and not config.is_file():
+        raise FatalError(f"config file {config} not found")
+    given = {k: v for k, v in options.items() if v is not None}
+    try:
+        return _with_file(cls, config)(**given)
+    except ValidationError as exc:
+        raise FatalError(f"bad configuration: {_describe(exc)}") from None
+    except (OSError, ValueError) as exc:
+        raise FatalError(f"bad configuration: {exc}") from None
