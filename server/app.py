@@ -11,7 +11,7 @@ from fastapi.staticfiles import StaticFiles
 
 from fleet_protocol import utcnow
 from server import container
-from server.api import admin, errors, fleet, health, upper
+from server.api import admin, client, control, errors, fleet, health, upper, upper_control, ws
 from server.api.limits import BodyLimit
 from server.metrics import Metrics, MetricsMiddleware
 from server.settings import Settings
@@ -43,7 +43,7 @@ def create_app(settings: Settings | None = None, *, clock: container.Clock = utc
     )
     metrics = Metrics()  # not bound to a loop: built here so the middleware can hold it
     errors.install(app)
-    for module in (health, admin, upper, fleet):
+    for module in (health, admin, upper, upper_control, client, control, fleet, ws):
         app.include_router(module.router)
     if WEB_DIR.is_dir() and any(WEB_DIR.iterdir()):
         app.mount("/", StaticFiles(directory=WEB_DIR, html=True), name="web")

@@ -11,6 +11,7 @@ from datetime import datetime, timedelta
 from typing import Any
 
 from fleet_protocol import utcnow
+from server.bus import Bus, make_bus
 from server.metrics import Metrics
 from server.services.auth import AuthService
 from server.services.commands import CommandService
@@ -19,6 +20,7 @@ from server.services.events import EventService
 from server.services.fleet import FleetViews
 from server.services.instances import InstanceService
 from server.services.link import VehicleLink
+from server.services.live import LiveHub
 from server.services.telemetry import TelemetryService
 from server.settings import Settings
 from server.storage import Store, open_store
@@ -46,6 +48,8 @@ class Services:
     telemetry: TelemetryService
     link: VehicleLink
     views: FleetViews
+    bus: Bus
+    live: LiveHub
     extra: dict[str, Any] = field(default_factory=dict)
     tasks: list[asyncio.Task[None]] = field(default_factory=list)
     admin_token: str | None = None
@@ -94,6 +98,13 @@ async def build(settings: Settings, metrics: Metrics, clock: Clock = utcnow) -> 
     control = ControlService(settings, ControlRepo(store), instances, auth, events, clock)
     commands = CommandService(settings, CommandsRepo(store), instances, control, events, clock)
     telemetry = TelemetryService(settings, store, clock)
+    views = FleetViews(auth, instances, control)
+    link = VehicleLink(settings, instances, telemetry, control)
+    bus = make_bus(settings)
+    await bus.start()
+    live = LiveHub(settings, bus, instances, commands, control, events, views)
+    link.sample_listeners.append(live.telemetry)
+    auth.on_revoke(live.revoked)
     services = Services(
         settings,
         store,
@@ -105,8 +116,10 @@ async def build(settings: Settings, metrics: Metrics, clock: Clock = utcnow) -> 
         control,
         commands,
         telemetry,
-        link=VehicleLink(settings, instances, telemetry, control),
-        views=FleetViews(auth, instances, control),
+        link=link,
+        views=views,
+        bus=bus,
+        live=live,
     )
     if await store.ping():
         await instances.load()
@@ -130,6 +143,18 @@ def _register_gauges(services: Services) -> None:
 
     services.metrics.live_gauge(
         "fleet_vehicles", "vehicles with a live instance, by presence", presence_counts, "presence"
+    )
+
+    def commands_by_status() -> dict[str, float]:
+        return {k: float(v) for k, v in services.commands.counts_by_status().items()}
+
+    services.metrics.live_gauge(
+        "fleet_commands", "active commands by status", commands_by_status, "status"
+    )
+    services.metrics.live_gauge(
+        "fleet_ws_connections",
+        "open WebSocket connections",
+        lambda: {"": float(len(services.live.connections))},
     )
 
 
@@ -164,7 +189,11 @@ def _retention(services: Services) -> Callable[[], Awaitable[None]]:
 
 
 async def shutdown(services: Services) -> None:
+    with contextlib.suppress(Exception):
+        await services.live.stop()
     await services.stop_tasks()
+    with contextlib.suppress(Exception):
+        await services.bus.close()
     with contextlib.suppress(Exception):
         await services.instances.sweep()
     with contextlib.suppress(Exception):

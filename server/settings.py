@@ -78,6 +78,21 @@ class Settings(BaseSettings):
         default=200.0, gt=0, description="requests per second per token before 429"
     )
     rate_limit_burst: int = Field(default=400, ge=1, description="burst allowance per token")
+    ws_queue_size: int = Field(
+        default=1000, ge=10, description="frames waiting per WebSocket before the oldest drop"
+    )
+    ws_ops_per_s: float = Field(
+        default=500.0, gt=0, description="ops per second per WebSocket before rate_limited"
+    )
+    ws_max_topics: int = Field(
+        default=256, ge=1, description="topics one unit may register, and subscribe to"
+    )
+    ws_max_binary_bytes: int = Field(
+        default=4 * 1_048_576, ge=1024, description="largest binary (media) frame accepted"
+    )
+    ws_max_text_bytes: int = Field(
+        default=1_048_576, ge=1024, description="largest JSON frame accepted on a WebSocket"
+    )
     store_timeout_ms: int = Field(
         default=2000, ge=100, description="MongoDB server selection / operation timeout"
     )

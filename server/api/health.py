@@ -19,9 +19,8 @@ async def healthz() -> dict[str, str]:
 @router.get("/readyz")
 async def readyz(services: ServicesDep) -> JSONResponse:
     checks = {"store": await services.store.ping()}
-    bus = services.extra.get("bus")
-    if bus is not None and getattr(bus, "remote", False):
-        checks["redis"] = bool(getattr(bus, "healthy", False))
+    if services.bus.remote:
+        checks["redis"] = services.bus.healthy
     ready = all(checks.values())
     body = {
         "ready": ready,

@@ -32,6 +32,10 @@ class FleetViews:
             started_at=state.started_at,
         )
 
+    def live_view(self, state: InstanceState) -> VehicleView:
+        """The view of a vehicle from its instance alone (no store read)."""
+        return self._vehicle_view({"vehicle_id": state.vehicle_id}, state)
+
     async def vehicles(self, principal: Principal) -> list[VehicleView]:
         out = []
         for meta in await self.auth.all_vehicle_meta():

@@ -50,6 +50,11 @@ class InstanceState:
     def finished(self) -> bool:
         return self.finished_at is not None
 
+    def position_json(self) -> dict[str, Any] | None:
+        if self.position is None:
+            return None
+        return Sample.model_validate(self.position).model_dump(mode="json", exclude_none=True)
+
     def to_doc(self) -> dict[str, Any]:
         return {
             "instance_id": self.instance_id,
@@ -144,6 +149,10 @@ class InstanceService:
         if not principal.can_see(state.vehicle_id):
             raise Forbidden(f"no access to vehicle {state.vehicle_id}")
         return state
+
+    def current_by_id(self, instance_id: str) -> InstanceState | None:
+        """A live (unfinished) instance of this process, if any."""
+        return self._by_id.get(instance_id)
 
     def current(self, vehicle_id: str) -> InstanceState | None:
         return self._by_vehicle.get(vehicle_id)

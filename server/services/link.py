@@ -6,7 +6,8 @@ so the HTTP routes and the WebSocket ops call the same methods.
 
 from __future__ import annotations
 
-from typing import Any, Protocol
+from collections.abc import Callable
+from typing import Protocol
 
 from fleet_protocol import (
     ControlInfo,
@@ -30,6 +31,8 @@ class IngestResult(Protocol):
     acked_through_seq: int
     durable_through_seq: int
     latest: Sample | None
+    stored: list[Sample]
+    replayed: list[bool]
 
 
 class Telemetry(Protocol):
@@ -52,7 +55,8 @@ class VehicleLink:
         self.instances = instances
         self.telemetry = telemetry
         self.leases = leases
-        self.sample_listeners: list[Any] = []
+        #: Called as ``listener(vehicle_id, samples, replayed)`` with what was stored.
+        self.sample_listeners: list[Callable[[str, list[Sample], list[bool]], None]] = []
 
     def failsafe(self) -> FailsafePolicy:
         return FailsafePolicy(
@@ -96,6 +100,9 @@ class VehicleLink:
         result = await self.telemetry.ingest(state.vehicle_id, state.instance_id, body.samples)
         if result.latest is not None:
             self.instances.set_position(state, result.latest)
+        if result.stored:
+            for listener in self.sample_listeners:
+                listener(state.vehicle_id, result.stored, result.replayed)
         return UpdateParamResult(
             accepted=result.accepted,
             duplicates=result.duplicates,

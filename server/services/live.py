@@ -1,0 +1,383 @@
+"""Live links: the WebSocket connections, their topics, and the server's own events.
+
+The hub keeps this replica's connections and the routing table of the
+multilayer interface, turns what the services report (presence, control,
+commands, events, telemetry) into events on the server's topics, and
+delivers every topic message through the bus, so that a socket on one
+replica hears what was published on another.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import logging
+import secrets
+from collections.abc import Awaitable, Callable
+from dataclasses import dataclass, field
+from datetime import datetime
+from typing import Any
+
+from fleet_protocol import format_ts
+from fleet_protocol.topics import is_media_topic
+from fleet_protocol.ws import CommandPush, ControlPush, EventPush, RoutesPush
+from server.bus import Bus, Message, Subscription
+from server.bus.outbox import Outbox
+from server.domain.access import Principal
+from server.domain.routing import RoutingTable
+from server.domain.topics import UnitRef
+from server.services.commands import CommandService
+from server.services.control import ControlService
+from server.services.events import EventService
+from server.services.fleet import FleetViews
+from server.services.instances import InstanceService, InstanceState
+from server.settings import Settings
+
+log = logging.getLogger("fleet.live")
+
+CLOSE_UNAUTHORIZED = 4401
+CLOSE_FORBIDDEN = 4403
+CLOSE_REPLACED = 4409
+RECENT_EVENTS = 20
+
+
+@dataclass(eq=False)
+class Connection:
+    """One WebSocket: who it is, its outbox, its subscriptions and units."""
+
+    principal: Principal
+    token: str
+    outbox: Outbox
+    close: Callable[[int, str], Awaitable[None]]
+    kind: str  # "vehicle" (vehicle and gateway tokens) or "client"
+    id: str = field(default_factory=lambda: secrets.token_hex(6))
+    subs: dict[tuple[str, str], Subscription] = field(default_factory=dict)
+    throttle: dict[str, int] = field(default_factory=dict)
+    #: topic -> the units of this connection subscribed to it (a gateway serves several)
+    topic_units: dict[str, set[str]] = field(default_factory=dict)
+    units: set[str] = field(default_factory=set)
+    instances: set[str] = field(default_factory=set)  # instances this socket serves
+    buffering: dict[str, list[Message]] = field(default_factory=dict)
+    closed: bool = False
+
+
+class LiveHub:
+    def __init__(
+        self,
+        settings: Settings,
+        bus: Bus,
+        instances: InstanceService,
+        commands: CommandService,
+        control: ControlService,
+        events: EventService,
+        views: FleetViews,
+    ) -> None:
+        self.settings = settings
+        self.bus = bus
+        self.instances = instances
+        self.commands = commands
+        self.control = control
+        self.events = events
+        self.views = views
+        self.routing = RoutingTable(settings.ws_max_topics)
+        self.connections: set[Connection] = set()
+        self._vehicle_socket: dict[str, Connection] = {}  # instance_id -> its socket here
+        self._unit_conn: dict[str, Connection] = {}
+        self._tasks: set[asyncio.Task[Any]] = set()
+        self._last_message: dict[str, Any] | None = None
+        self._last_frame = ""
+        instances.presence_listeners.append(self._on_presence)
+        control.change_listeners.append(self._on_control)
+        commands.ready_listeners.append(self._on_ready)
+        events.subscribe(self._on_event)
+
+    # ---- server topics ------------------------------------------------------
+    def _fire(self, coro: Awaitable[Any]) -> None:
+        task = asyncio.ensure_future(coro)
+        self._tasks.add(task)
+        task.add_done_callback(self._tasks.discard)
+
+    def emit(self, topic: str, data: Any) -> None:
+        """An event on a topic the server writes, to every subscriber on every replica."""
+        message = {
+            "op": "event",
+            "topic": topic,
+            "data": data,
+            "ts": format_ts(self.instances.clock()),
+        }
+        self._fire(self.bus.publish(topic, message))
+
+    def _on_presence(self, state: InstanceState, presence: str) -> None:
+        view = self.views.live_view(state).model_dump(mode="json")
+        self.emit("fleet", {"vehicles": [view]})
+
+    def _on_control(self, instance_id: str, vehicle_id: str, info: dict[str, Any] | None) -> None:
+        data = {"instance_id": instance_id, "control": _jsonable(info)}
+        self.emit(f"vehicle/{vehicle_id}/control", data)
+
+    def _on_event(self, doc: dict[str, Any]) -> None:
+        vehicle_id = doc.get("vehicle_id")
+        if not vehicle_id:
+            return
+        event = _jsonable(doc)
+        self.emit(f"vehicle/{vehicle_id}/events", {"events": [event]})
+        if doc["kind"] == "command":
+            self.emit(f"vehicle/{vehicle_id}/commands", {"commands": [event["data"]]})
+
+    def telemetry(self, vehicle_id: str, samples: list[Any], replayed: list[bool]) -> None:
+        topic = f"vehicle/{vehicle_id}/telemetry"
+        for sample, late in zip(samples, replayed, strict=True):
+            data = sample.model_dump(mode="json", exclude_none=True)
+            if late:
+                data["replayed"] = True
+            self.emit(topic, data)
+
+    # ---- commands to vehicle sockets ------------------------------------------
+    def _on_ready(self, instance_id: str) -> None:
+        if instance_id in self._vehicle_socket:
+            self._fire(self.deliver_commands(instance_id))
+        else:  # the vehicle's socket may be on another replica
+            self._fire(self.bus.publish(f"_ready/{instance_id}", {"instance_id": instance_id}))
+
+    async def deliver_commands(self, instance_id: str) -> None:
+        conn = self._vehicle_socket.get(instance_id)
+        if conn is None or conn.closed:
+            return
+        state = self.instances.current_by_id(instance_id)
+        if state is None:
+            return
+        for cmd in await self.commands.take(state):
+            push = CommandPush.model_validate(cmd.wire())
+            conn.outbox.put(push.frame(), critical=push.critical)
+
+    async def attach_instance(self, conn: Connection, state: InstanceState) -> None:
+        """This socket now serves the instance: commands and control go to it."""
+        former = self._vehicle_socket.get(state.instance_id)
+        self._vehicle_socket[state.instance_id] = conn
+        conn.instances.add(state.instance_id)
+        if former is not None and former is not conn:
+            former.instances.discard(state.instance_id)
+            if former.principal.kind == "vehicle":
+                await self.close(former, CLOSE_REPLACED, "another connection took this vehicle")
+        if ("_ready", state.instance_id) not in conn.subs:
+            conn.subs[("_ready", state.instance_id)] = await self.bus.subscribe(
+                f"_ready/{state.instance_id}", lambda _t, _m: self._on_ready_remote(state)
+            )
+            topic = f"vehicle/{state.vehicle_id}/control"
+            conn.subs[("_control", topic)] = await self.bus.subscribe(
+                topic, lambda _t, m: self._control_push(conn, m)
+            )
+        control = self.control.lease_info(state.instance_id)
+        conn.outbox.put(ControlPush(instance_id=state.instance_id, control=control).frame())
+        await self.deliver_commands(state.instance_id)
+
+    def _on_ready_remote(self, state: InstanceState) -> None:
+        self._fire(self.deliver_commands(state.instance_id))
+
+    @staticmethod
+    def _control_push(conn: Connection, message: Message) -> None:
+        if isinstance(message, dict):
+            data = message.get("data") or {}
+            push = ControlPush(instance_id=data.get("instance_id", ""), control=data.get("control"))
+            conn.outbox.put(push.frame())
+
+    def touch(self, conn: Connection) -> None:
+        """Every frame on a vehicle's socket counts as contact."""
+        for instance_id in conn.instances:
+            state = self.instances.current_by_id(instance_id)
+            if state is not None:
+                self.instances.touch(state)
+
+    # ---- subscriptions ------------------------------------------------------------
+    async def subscribe(
+        self, conn: Connection, unit: UnitRef, topics: list[str], throttle_ms: int
+    ) -> None:
+        self._add_unit(conn, unit)
+        changed = self.routing.subscribe(unit.id, topics)
+        for topic in topics:
+            conn.throttle[topic] = throttle_ms
+            conn.topic_units.setdefault(topic, set()).add(unit.id)
+            if ("sub", topic) in conn.subs:
+                continue
+            conn.buffering[topic] = []
+            conn.subs[("sub", topic)] = await self.bus.subscribe(
+                topic, lambda t, m: self._deliver(conn, t, m)
+            )
+            snapshot = await self.snapshot(conn.principal, topic)
+            if snapshot is not None:
+                frame = EventPush(topic=topic, data=snapshot, snapshot=True).frame()
+                conn.outbox.put(frame, topic=topic)
+            for message in conn.buffering.pop(topic, []):
+                self._deliver(conn, topic, message)
+        self._push_routes(changed)
+
+    async def unsubscribe(self, conn: Connection, unit: UnitRef, topics: list[str]) -> None:
+        if unit.id in self.routing:
+            self._push_routes(self.routing.unsubscribe(unit.id, topics))
+        for topic in topics:
+            units = conn.topic_units.get(topic, set())
+            units.discard(unit.id)
+            if units:
+                continue  # another unit behind this gateway still wants it
+            conn.topic_units.pop(topic, None)
+            sub = conn.subs.pop(("sub", topic), None)
+            if sub is not None:
+                await self.bus.unsubscribe(sub)
+            conn.throttle.pop(topic, None)
+            conn.outbox.forget(topic)
+
+    def register(self, conn: Connection, unit: UnitRef, topics: list[str]) -> None:
+        self._add_unit(conn, unit)
+        self._push_routes(self.routing.register(unit.id, topics))
+
+    async def publish(self, conn: Connection, unit: UnitRef, topic: str, data: Any) -> None:
+        """A unit's message to the topic's subscribers (not back to its own connection)."""
+        self._add_unit(conn, unit)
+        message = {
+            "op": "event",
+            "topic": topic,
+            "data": data,
+            "source": unit.id,
+            "ts": format_ts(self.instances.clock()),
+        }
+        await self.bus.publish(topic, message)
+
+    async def publish_media(self, topic: str, frame: bytes) -> None:
+        await self.bus.publish(topic, frame)
+
+    def _deliver(self, conn: Connection, topic: str, message: Message) -> None:
+        buffer = conn.buffering.get(topic)
+        if buffer is not None:
+            buffer.append(message)
+            return
+        throttle = conn.throttle.get(topic, 0)
+        if isinstance(message, bytes):
+            conn.outbox.put(message, topic=topic, latest_wins=True, throttle_ms=throttle)
+            return
+        source = message.get("source")
+        if source is not None and self._unit_conn.get(source) is conn:
+            return  # the publisher's own connection (a gateway delivers to its units itself)
+        if topic == "fleet":
+            filtered = self._visible_fleet(conn.principal, message)
+            if filtered is None:
+                return
+            frame = json.dumps(filtered, separators=(",", ":"))
+        else:
+            frame = self._encode(message)
+        conn.outbox.put(frame, topic=topic, latest_wins=is_media_topic(topic), throttle_ms=throttle)
+
+    def _encode(self, message: dict[str, Any]) -> str:
+        """One JSON encoding per message, however many local subscribers it has."""
+        if self._last_message is not message:
+            self._last_message = message
+            self._last_frame = json.dumps(message, separators=(",", ":"))
+        return self._last_frame
+
+    @staticmethod
+    def _visible_fleet(principal: Principal, message: dict[str, Any]) -> dict[str, Any] | None:
+        vehicles = [v for v in message["data"]["vehicles"] if principal.can_see(v["vehicle_id"])]
+        if not vehicles:
+            return None
+        return {**message, "data": {"vehicles": vehicles}}
+
+    async def snapshot(self, principal: Principal, topic: str) -> Any:
+        """The current state of a server topic, sent first after a subscribe."""
+        if topic == "fleet":
+            views = await self.views.vehicles(principal)
+            return {"vehicles": [v.model_dump(mode="json") for v in views]}
+        parts = topic.split("/")
+        if len(parts) != 3 or parts[0] != "vehicle":
+            return None
+        vehicle_id, kind = parts[1], parts[2]
+        state = await self.instances.current_or_latest(vehicle_id)
+        if kind == "telemetry":
+            return state.position_json() if state is not None and state.position else None
+        if kind == "control":
+            info = self.control.lease_info(state.instance_id) if state is not None else None
+            return {
+                "instance_id": state.instance_id if state else None,
+                "control": info.model_dump(mode="json") if info else None,
+            }
+        if kind == "commands":
+            if state is None:
+                return {"commands": []}
+            _, recent = await self.commands.recent(principal, state.instance_id)
+            return {"commands": [_jsonable(c.wire()) for c in recent]}
+        if kind == "events":
+            docs = await self.events.query(
+                principal, vehicle_id=vehicle_id, kind=None, start=None, end=None, limit=10_000
+            )
+            return {"events": [_jsonable(d) for d in docs[-RECENT_EVENTS:]]}
+        return None
+
+    # ---- routing table ------------------------------------------------------------
+    def _add_unit(self, conn: Connection, unit: UnitRef) -> None:
+        if unit.parent is not None and unit.parent not in self.routing:
+            self.routing.add_unit(unit.parent, "gateway")
+            self._unit_conn[unit.parent] = conn
+            conn.units.add(unit.parent)
+        if unit.id not in self.routing:
+            self.routing.add_unit(unit.id, unit.kind, unit.parent)
+        self._unit_conn[unit.id] = conn
+        conn.units.add(unit.id)
+
+    def _push_routes(self, changed: frozenset[str]) -> None:
+        for unit_id in changed:
+            conn = self._unit_conn.get(unit_id)
+            if conn is not None and not conn.closed:
+                view = self.routing.view(unit_id)
+                conn.outbox.put(RoutesPush(**view.as_dict()).frame())
+
+    # ---- connections --------------------------------------------------------------
+    def add(self, conn: Connection) -> None:
+        self.connections.add(conn)
+        conn.outbox.start()
+
+    async def close(self, conn: Connection, code: int, reason: str) -> None:
+        if conn.closed:
+            return
+        conn.closed = True
+        try:
+            await conn.outbox.close()
+        finally:
+            await conn.close(code, reason)
+
+    async def drop(self, conn: Connection) -> None:
+        """Forget a connection that ended: its subscriptions, units and instances."""
+        conn.closed = True
+        self.connections.discard(conn)
+        for sub in conn.subs.values():
+            await self.bus.unsubscribe(sub)
+        conn.subs.clear()
+        changed: set[str] = set()
+        for unit_id in sorted(conn.units, key=lambda u: u.startswith("gateway:")):
+            if self._unit_conn.get(unit_id) is conn and unit_id in self.routing:
+                changed |= self.routing.remove_unit(unit_id)
+                del self._unit_conn[unit_id]
+        self._push_routes(frozenset(changed - conn.units))
+        for instance_id in conn.instances:
+            if self._vehicle_socket.get(instance_id) is conn:
+                del self._vehicle_socket[instance_id]
+        await conn.outbox.close()
+
+    def revoked(self, token_ids: set[str]) -> None:
+        for conn in list(self.connections):
+            if conn.principal.token_id in token_ids:
+                self._fire(self.close(conn, CLOSE_UNAUTHORIZED, "the token was revoked"))
+
+    async def stop(self) -> None:
+        for conn in list(self.connections):
+            await self.close(conn, 1001, "the server is shutting down")
+        for task in list(self._tasks):
+            task.cancel()
+
+
+def _jsonable(value: Any) -> Any:
+    """Datetimes in the contract's format, recursively; the rest as it is."""
+    if isinstance(value, datetime):
+        return format_ts(value)
+    if isinstance(value, dict):
+        return {k: _jsonable(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_jsonable(v) for v in value]
+    return value

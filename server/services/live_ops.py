@@ -1,0 +1,154 @@
+"""What each WebSocket op does: parse once, authorize, call the service, ack."""
+
+from __future__ import annotations
+
+import time
+from typing import TYPE_CHECKING, Any
+
+from pydantic import BaseModel
+
+from fleet_protocol import ErrorBody, UpdateFbMessageResult
+from fleet_protocol.topics import is_media_topic
+from fleet_protocol.ws import (
+    AckPush,
+    BatchOp,
+    ErrorPush,
+    FinishInstanceOp,
+    FrameError,
+    HeartbeatOp,
+    PublishOp,
+    RegisterOp,
+    StartInstanceOp,
+    SubscribeOp,
+    UnsubscribeOp,
+    UpdateFbMessageOp,
+    UpdateParamOp,
+    decode_media_frame,
+    parse_client_op,
+    parse_vehicle_op,
+)
+from server.domain.topics import check_read, check_write, unit_for
+from server.errors import FleetError, Invalid, RateLimited
+from server.services.live import Connection
+
+if TYPE_CHECKING:
+    from server.container import Services
+
+_INSTANCE_OPS = (FinishInstanceOp, UpdateParamOp, UpdateFbMessageOp, HeartbeatOp)
+
+
+class OpRunner:
+    """Runs the ops of one connection, in the order they arrive."""
+
+    def __init__(self, services: Services, conn: Connection) -> None:
+        self.s = services
+        self.conn = conn
+        self._allowance = float(services.settings.ws_ops_per_s)
+        self._stamp = time.monotonic()
+
+    def _rate(self) -> None:
+        rate = self.s.settings.ws_ops_per_s
+        now = time.monotonic()
+        self._allowance = min(rate, self._allowance + (now - self._stamp) * rate)
+        self._stamp = now
+        if self._allowance < 1:
+            raise RateLimited(f"more than {rate:g} ops per second on this connection")
+        self._allowance -= 1
+
+    def _reply(self, op_id: str | None, error: ErrorBody) -> None:
+        push = AckPush.failure(op_id, error) if op_id else ErrorPush(error=error)
+        self.conn.outbox.put(push.frame())
+
+    async def text(self, frame: str) -> None:
+        if len(frame) > self.s.settings.ws_max_text_bytes:
+            limit = self.s.settings.ws_max_text_bytes
+            self._reply(
+                None, ErrorBody(code="too_large", message=f"a JSON frame has at most {limit} bytes")
+            )
+            return
+        parse = parse_vehicle_op if self.conn.kind == "vehicle" else parse_client_op
+        try:
+            op = parse(frame)
+        except FrameError as exc:
+            self.conn.outbox.put(exc.reply().frame())
+            return
+        await self.run(op)
+
+    async def binary(self, frame: bytes) -> None:
+        try:
+            self._rate()
+            if len(frame) > self.s.settings.ws_max_binary_bytes:
+                raise Invalid(
+                    f"a binary frame has at most {self.s.settings.ws_max_binary_bytes} bytes",
+                    code="too_large",
+                )
+            header, _ = decode_media_frame(frame)
+            if not is_media_topic(header.topic):
+                raise Invalid(f"{header.topic} is not a media topic; send JSON on it")
+            check_write(self.conn.principal, header.topic)
+            await self.s.live.publish_media(header.topic, frame)
+        except FrameError as exc:
+            self.conn.outbox.put(exc.reply().frame())
+        except FleetError as exc:
+            self._reply(None, ErrorBody(code=exc.code, message=exc.message, details=exc.details))
+
+    async def run(self, op: Any) -> None:
+        if isinstance(op, BatchOp):
+            for inner in op.ops:
+                await self.run(inner)
+            if op.id:
+                self.conn.outbox.put(AckPush.success(op.id, {"count": len(op.ops)}).frame())
+            return
+        try:
+            self._rate()
+            result = await self.dispatch(op)
+        except FleetError as exc:
+            self._reply(op.id, ErrorBody(code=exc.code, message=exc.message, details=exc.details))
+            return
+        if op.id:
+            self.conn.outbox.put(AckPush.success(op.id, result).frame())
+        if isinstance(op, StartInstanceOp):
+            state = self.s.instances.current(op.vehicle_id)
+            if state is not None:
+                await self.s.live.attach_instance(self.conn, state)
+
+    async def dispatch(self, op: Any) -> BaseModel | dict[str, Any] | None:
+        principal = self.conn.principal
+        live, link = self.s.live, self.s.link
+        if isinstance(op, _INSTANCE_OPS) and op.instance_id not in self.conn.instances:
+            state = await self.s.instances.for_vehicle_caller(principal, op.instance_id)
+            if not isinstance(op, FinishInstanceOp):
+                await live.attach_instance(self.conn, state)
+        match op:
+            case StartInstanceOp():
+                return await link.start(principal, op)
+            case FinishInstanceOp():
+                return await link.finish(principal, op.instance_id)
+            case HeartbeatOp():
+                return await link.heartbeat(principal, op.instance_id)
+            case UpdateParamOp():
+                return await link.update_param(principal, op)
+            case UpdateFbMessageOp():
+                abort = await self.s.commands.acknowledge(
+                    principal, op.instance_id, op.control_mode, op.acks
+                )
+                return UpdateFbMessageResult(abort=abort)
+            case RegisterOp():
+                check_write(principal, op.topics)
+                live.register(self.conn, unit_for(principal, op.vehicle_id), op.topics)
+                return {"topics": op.topics}
+            case SubscribeOp():
+                check_read(principal, op.topics)
+                await live.subscribe(
+                    self.conn, unit_for(principal, op.vehicle_id), op.topics, op.throttle_ms
+                )
+                return {"topics": op.topics}
+            case UnsubscribeOp():
+                await live.unsubscribe(self.conn, unit_for(principal, op.vehicle_id), op.topics)
+                return {"topics": op.topics}
+            case PublishOp():
+                unit = unit_for(principal, op.vehicle_id)
+                check_write(principal, op.topic)
+                await live.publish(self.conn, unit, op.topic, op.data)
+                return None
+        raise Invalid(f"op {getattr(op, 'op', '?')} is not handled here")

@@ -1,0 +1,213 @@
+"""/ws/vehicle end to end: real uvicorn, real websockets clients."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import AsyncIterator, Callable
+
+import httpx
+import pytest
+import websockets
+
+from server.settings import Settings
+from tests.factories import ADMIN, ADMIN_TOKEN, make_user, make_vehicle, sample
+from tests.live import call, connect, recv_until, serve, ws_url
+
+CAPS = ["stop", "go_to", "keep_station", "follow_path"]
+
+
+@pytest.fixture
+async def base(make_settings: Callable[..., Settings]) -> AsyncIterator[str]:
+    async with serve(make_settings()) as url:
+        yield url
+
+
+@pytest.fixture
+async def api(base: str) -> AsyncIterator[httpx.AsyncClient]:
+    async with httpx.AsyncClient(base_url=base, timeout=10) as c:
+        yield c
+
+
+def token_of(headers: dict[str, str]) -> str:
+    return headers["Authorization"].removeprefix("Bearer ")
+
+
+async def _close_code(ws: websockets.ClientConnection) -> int | None:
+    with pytest.raises(websockets.ConnectionClosed):
+        await recv_until(ws, lambda f: False, timeout=10)
+    return ws.close_code
+
+
+async def test_no_token_closes_4401(base: str) -> None:
+    async with websockets.connect(ws_url(base, "/ws/vehicle")) as ws:
+        assert await _close_code(ws) == 4401
+
+
+async def test_bad_token_in_query_closes_4401(base: str) -> None:
+    async with websockets.connect(ws_url(base, "/ws/client", "fct_nope")) as ws:
+        assert await _close_code(ws) == 4401
+
+
+async def test_wrong_kind_of_token_closes_4403(base: str, api: httpx.AsyncClient) -> None:
+    _, vh = await make_vehicle(api)
+    async with await connect(base, "/ws/client", token_of(vh)) as ws:
+        assert await _close_code(ws) == 4403
+    async with await connect(base, "/ws/vehicle", ADMIN_TOKEN) as ws:
+        assert await _close_code(ws) == 4403
+
+
+async def _start(ws: websockets.ClientConnection, vehicle_id: str) -> str:
+    ack = await call(
+        ws,
+        "start_instance",
+        "s1",
+        vehicle_id=vehicle_id,
+        name=vehicle_id,
+        vehicle_type="usv",
+        capabilities=CAPS,
+    )
+    assert ack["ok"] is True, ack
+    return str(ack["instance_id"])
+
+
+async def _lease(api: httpx.AsyncClient, vehicle_id: str, iid: str) -> dict[str, str]:
+    user, op = await make_user(api, "operator", [vehicle_id])
+    r = await api.post(
+        "/client/grant_control",
+        headers=ADMIN,
+        json={"instance_id": iid, "user": user, "duration_s": 600},
+    )
+    assert r.status_code == 200, r.text
+    return op
+
+
+async def test_command_is_pushed_at_once_and_acked(base: str, api: httpx.AsyncClient) -> None:
+    vid, vh = await make_vehicle(api)
+    async with await connect(base, "/ws/vehicle", token_of(vh)) as ws:
+        iid = await _start(ws, vid)
+        op = await _lease(api, vid, iid)
+        control = await recv_until(ws, lambda f: f["op"] == "control" and f["control"])
+        assert control["instance_id"] == iid and control["control"]["holder"]
+        r = await api.post(
+            "/client/submit_control",
+            headers=op,
+            json={
+                "instance_ids": [iid],
+                "command": {"type": "go_to", "args": {"lat": 43.95, "lon": 15.45}},
+            },
+        )
+        assert r.status_code == 202, r.text
+        command_id = r.json()["commands"][0]["command_id"]
+        pushed = await recv_until(ws, lambda f: f["op"] == "command")
+        assert pushed["command_id"] == command_id and pushed["type"] == "go_to"
+        assert pushed["status"] == "delivered"
+        ack = await call(
+            ws,
+            "update_fbmessage",
+            "f1",
+            instance_id=iid,
+            control_mode="remote",
+            acks=[{"command_id": command_id, "status": "accepted"}],
+        )
+        assert ack["ok"] is True and ack["abort"] == []
+    got = (await api.get(f"/api/commands/{command_id}", headers=ADMIN)).json()
+    assert got["status"] == "accepted"
+
+
+async def test_stop_jumps_the_queue_on_the_socket(base: str, api: httpx.AsyncClient) -> None:
+    vid, vh = await make_vehicle(api)
+    async with await connect(base, "/ws/vehicle", token_of(vh)) as ws:
+        iid = await _start(ws, vid)
+        _, anyone = await make_user(api, "operator", [vid])  # no lease: stop is still allowed
+        r = await api.post(
+            "/client/submit_control",
+            headers=anyone,
+            json={"instance_ids": ["*"], "command": {"type": "stop"}},
+        )
+        assert r.status_code == 202, r.text
+        pushed = await recv_until(ws, lambda f: f["op"] == "command")
+        assert pushed["type"] == "stop" and pushed["instance_id"] == iid
+
+
+async def test_telemetry_over_the_socket_is_stored(base: str, api: httpx.AsyncClient) -> None:
+    vid, vh = await make_vehicle(api)
+    async with await connect(base, "/ws/vehicle", token_of(vh)) as ws:
+        iid = await _start(ws, vid)
+        ack = await call(
+            ws,
+            "update_param",
+            "u1",
+            instance_id=iid,
+            params={"mode": "survey"},
+            samples=[sample(1), sample(2), sample(3)],
+        )
+        assert ack["ok"] is True and ack["accepted"] == 3 and ack["acked_through_seq"] == 3
+        dup = await call(ws, "update_param", "u2", instance_id=iid, samples=[sample(3)])
+        assert dup["accepted"] == 0 and dup["duplicates"] == 1
+    params = (await api.get("/client/get_param", headers=ADMIN, params={"instance_id": iid})).json()
+    assert params["params"] == {"mode": "survey"} and params["position"]["seq"] == 3
+
+
+async def test_bad_op_is_answered_not_fatal(base: str, api: httpx.AsyncClient) -> None:
+    vid, vh = await make_vehicle(api)
+    async with await connect(base, "/ws/vehicle", token_of(vh)) as ws:
+        await ws.send("{not json")
+        err = await recv_until(ws, lambda f: f["op"] == "error")
+        assert err["error"]["code"] == "invalid"
+        await ws.send(json.dumps({"op": "launch_missiles", "id": "x1"}))
+        nack = await recv_until(ws, lambda f: f["op"] == "ack")
+        assert nack["id"] == "x1" and nack["ok"] is False
+        assert nack["error"]["details"][0]["field"] == "op"
+        other = await call(ws, "heartbeat", "h1", instance_id="i-unknown")
+        assert other["ok"] is False and other["error"]["code"] == "not_found"
+        iid = await _start(ws, vid)  # the socket still works
+        assert iid
+
+
+async def test_second_socket_replaces_the_first(base: str, api: httpx.AsyncClient) -> None:
+    vid, vh = await make_vehicle(api)
+    async with await connect(base, "/ws/vehicle", token_of(vh)) as first:
+        await _start(first, vid)
+        async with await connect(base, "/ws/vehicle", token_of(vh)) as second:
+            await _start(second, vid)
+            assert await _close_code(first) == 4409
+
+
+async def test_revoked_token_closes_the_open_socket(base: str, api: httpx.AsyncClient) -> None:
+    vid, vh = await make_vehicle(api)
+    async with await connect(base, "/ws/vehicle", token_of(vh)) as ws:
+        await _start(ws, vid)
+        r = await api.post(f"/api/vehicles/{vid}/rotate_token", headers=ADMIN)
+        assert r.status_code == 200
+        assert await _close_code(ws) == 4401
+
+
+async def test_gateway_batches_ops_for_its_vehicles(base: str, api: httpx.AsyncClient) -> None:
+    v1, _ = await make_vehicle(api)
+    v2, _ = await make_vehicle(api)
+    v3, _ = await make_vehicle(api)
+    r = await api.post(
+        "/api/gateways", headers=ADMIN, json={"gateway_id": "gw-ws", "vehicles": [v1, v2]}
+    )
+    gw = r.json()["token"]
+    async with await connect(base, "/ws/vehicle", gw) as ws:
+        await ws.send(
+            json.dumps(
+                {
+                    "op": "batch",
+                    "id": "b1",
+                    "ops": [
+                        {"op": "start_instance", "id": "a", "vehicle_id": v1, "capabilities": CAPS},
+                        {"op": "start_instance", "id": "b", "vehicle_id": v2, "capabilities": CAPS},
+                        {"op": "start_instance", "id": "c", "vehicle_id": v3, "capabilities": CAPS},
+                    ],
+                }
+            )
+        )
+        acks = {}
+        while len(acks) < 4:
+            frame = await recv_until(ws, lambda f: f["op"] == "ack")
+            acks[frame["id"]] = frame
+        assert acks["a"]["ok"] and acks["b"]["ok"]
+        assert acks["c"]["ok"] is False and acks["c"]["error"]["code"] == "forbidden"
+        assert acks["b1"]["ok"] is True
