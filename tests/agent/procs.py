@@ -46,12 +46,12 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-def _stop(proc: subprocess.Popen | None, sig: int) -> None:
+def _stop(proc: subprocess.Popen | None, sig: int, grace_s: float = 15.0) -> None:
     if proc is None or proc.poll() is not None:
         return
     proc.send_signal(sig)
     try:
-        proc.wait(timeout=15)
+        proc.wait(timeout=grace_s)
     except subprocess.TimeoutExpired:
         proc.kill()
         proc.wait(timeout=15)
@@ -94,8 +94,9 @@ class ServerProcess:
     def kill(self) -> None:
         _stop(self.proc, signal.SIGKILL)
 
-    def stop(self) -> None:
-        _stop(self.proc, signal.SIGTERM)
+    def stop(self, grace_s: float = 30.0) -> None:
+        """SIGTERM; a graceful stop waits for open long polls (up to their wait_s)."""
+        _stop(self.proc, signal.SIGTERM, grace_s)
 
 
 class AgentProcess:

@@ -30,7 +30,7 @@ def server(tmp_path: Path) -> Iterator[ServerProcess]:
     proc = ServerProcess(tmp_path)
     proc.start()
     yield proc
-    proc.stop()
+    proc.stop(grace_s=2.0)  # then killed: the test is over, nothing more to keep
 
 
 @pytest.fixture
