@@ -1,0 +1,51 @@
+"""Operator side, arbitration: request, list, grant, revoke and release control."""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+from fastapi import APIRouter, Query
+
+from fleet_protocol import (
+    ControlInfo,
+    ControlRequest,
+    ControlRequestList,
+    GrantControl,
+    InstanceRef,
+    OkResult,
+)
+from server.api.deps import Manager, Operator, ServicesDep, Viewer
+
+router = APIRouter(prefix="/client", tags=["control"])
+
+
+@router.post("/request_control")
+async def request_control(body: InstanceRef, user: Operator, s: ServicesDep) -> ControlRequest:
+    return ControlRequest.model_validate(await s.control.request(user, body.instance_id))
+
+
+@router.get("/control_requests")
+async def control_requests(
+    user: Viewer, s: ServicesDep,
+    instance_id: Annotated[str | None, Query(min_length=1, max_length=64)] = None,
+) -> ControlRequestList:
+    return ControlRequestList.model_validate(
+        {"requests": s.control.requests_for(user, instance_id)})
+
+
+@router.post("/grant_control")
+async def grant_control(body: GrantControl, user: Manager, s: ServicesDep) -> ControlInfo:
+    lease = await s.control.grant(user, body.instance_id, body.user, body.duration_s)
+    return ControlInfo.model_validate(lease.info())
+
+
+@router.post("/revoke_control")
+async def revoke_control(body: InstanceRef, user: Manager, s: ServicesDep) -> OkResult:
+    await s.control.revoke(user, body.instance_id)
+    return OkResult()
+
+
+@router.post("/release_control")
+async def release_control(body: InstanceRef, user: Operator, s: ServicesDep) -> OkResult:
+    await s.control.release(user, body.instance_id)
+    return OkResult()

@@ -1,0 +1,362 @@
+"""Commands: submit (all or nothing), queue, hand out, acknowledge, cancel, expire.
+
+Hot state (each instance's active commands) lives in memory in a
+:class:`~server.services.lanes.Lane` and in the small ``commands_active``
+collection; a command that ends is inserted once into the history.
+Delivery has one path, :meth:`CommandService.take`, used by the long poll
+and by vehicle sockets alike: sockets register in ``ready_listeners`` and
+are told an instance has something to hand out (on submit, and when a
+redelivery falls due), then call :meth:`take`.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import copy
+import secrets
+from collections.abc import Callable
+from datetime import datetime
+from typing import Any
+
+from fleet_protocol import CommandSpec, SubmitControl
+from server.domain import arbitration
+from server.domain import commands as life
+from server.domain.access import Principal
+from server.domain.commands import AckOutcome, Command
+from server.errors import (
+    ControlNotHeld,
+    FleetError,
+    Forbidden,
+    InstanceFinished,
+    NotFound,
+    RateLimited,
+)
+from server.services.control import ControlService
+from server.services.events import EventService
+from server.services.instances import InstanceService, InstanceState
+from server.services.lanes import Lane
+from server.settings import Settings
+from server.storage.commands import CommandsRepo
+
+Clock = Callable[[], datetime]
+ReadyListener = Callable[[str], None]
+Planner = Callable[[InstanceState, dict[str, Any], list[InstanceState]], dict[str, Any]]
+
+#: Motion commands waiting on one instance; ``stop`` is never refused by this bound.
+MAX_ACTIVE_PER_INSTANCE = 256
+
+
+class CommandService:
+    def __init__(self, settings: Settings, repo: CommandsRepo, instances: InstanceService,
+                 control: ControlService, events: EventService, clock: Clock,
+                 planner: Planner | None = None) -> None:
+        self.settings = settings
+        self.repo = repo
+        self.instances = instances
+        self.control = control
+        self.events = events
+        self.clock = clock
+        self.planner = planner
+        self._lanes: dict[str, Lane] = {}
+        self._seq = 0
+        #: Called with an instance id that has commands to hand out (vehicle sockets).
+        self.ready_listeners: list[ReadyListener] = []
+        control.lease_end_listeners.append(self._on_lease_end)
+        instances.finish_hooks.append(self._on_finish)
+
+    async def load(self) -> None:
+        """Take the active commands of a former run up again."""
+        await self.repo.ensure_indexes()
+        for doc in await self.repo.all_active():
+            cmd = Command.from_doc(doc)
+            self._lane(cmd.instance_id).add(cmd)
+            self._seq = max(self._seq, cmd.seq)
+
+    # ---- operators ------------------------------------------------------------
+    async def submit(self, principal: Principal, body: SubmitControl) -> list[dict[str, Any]]:
+        now = self.clock()
+        targets, refusals = await self._targets(principal, body.instance_ids)
+        args_by_instance: dict[str, dict[str, Any]] = {}
+        for index, state in targets:
+            try:
+                args_by_instance[state.instance_id] = self._admit(principal, state, body.command)
+            except FleetError as exc:
+                refusals.append((index, state.instance_id, exc))
+        if refusals:
+            raise _refused(refusals, len(body.instance_ids))
+        made = []
+        for _, state in targets:
+            self._seq += 1
+            made.append(life.new_command(
+                command_id="c-" + secrets.token_hex(8), instance_id=state.instance_id,
+                vehicle_id=state.vehicle_id, type=body.command.type,
+                args=args_by_instance[state.instance_id], issued_by=principal.name, now=now,
+                ttl_s=body.ttl_s, seq=self._seq, max_drift_m=body.command.max_drift_m,
+                position=state.position,
+            ))
+        if made:
+            await self.repo.insert_active([cmd.to_doc() for cmd in made])
+        for cmd in made:
+            lane = self._lane(cmd.instance_id)
+            lane.add(cmd)
+            await self.events.record(
+                "command", vehicle_id=cmd.vehicle_id, instance_id=cmd.instance_id,
+                actor=principal, data={"command_id": cmd.command_id, "type": cmd.type,
+                                       "status": "queued", "args": cmd.args},
+            )
+            if cmd.is_stop:
+                others = [c for c in lane.active.values() if c is not cmd]
+                for gone in life.supersede(others, cmd, now):
+                    await self._finished(gone)
+            self._ready(lane)
+        return [{"instance_id": c.instance_id, "command_id": c.command_id, "status": "queued"}
+                for c in made]
+
+    async def cancel(self, principal: Principal, command_id: str) -> Command:
+        cmd = await self._find(command_id)
+        if not principal.can_see(cmd.vehicle_id):
+            raise Forbidden(f"no access to vehicle {cmd.vehicle_id}")
+        if cmd.final:
+            return cmd
+        lease = self.control.lease(cmd.instance_id)
+        if not (cmd.issued_by == principal.name
+                or arbitration.holds(lease, principal.name, self.clock())
+                or arbitration.may_grant(principal, cmd.vehicle_id)):
+            raise ControlNotHeld("only its issuer, the control holder or a manager cancels it")
+        if life.cancel(cmd, self.clock(), f"by {principal.name}"):
+            await self._finished(cmd, actor=principal)
+        return cmd
+
+    async def get(self, principal: Principal, command_id: str) -> Command:
+        cmd = await self._find(command_id)
+        if not principal.can_see(cmd.vehicle_id):
+            raise Forbidden(f"no access to vehicle {cmd.vehicle_id}")
+        return cmd
+
+    async def recent(self, principal: Principal, instance_id: str) -> tuple[str, list[Command]]:
+        """The instance's control mode and its recent commands, newest first."""
+        state = await self.instances.for_viewer(principal, instance_id)
+        limit = self.settings.command_history_limit
+        lane = self._lanes.get(state.instance_id)
+        mine = [*lane.active.values(), *lane.recent] if lane is not None else []
+        if lane is None or not lane.history_loaded:
+            seen = {c.command_id for c in mine}
+            for doc in await self.repo.recent_finished(state.instance_id, limit):
+                if doc["command_id"] not in seen:
+                    mine.append(Command.from_doc(doc))
+            if lane is not None:
+                lane.history_loaded = True
+        mine.sort(key=lambda c: (c.issued_at, c.seq), reverse=True)
+        return state.control_mode, mine[:limit]
+
+    # ---- vehicles -------------------------------------------------------------
+    async def get_control(self, principal: Principal, instance_id: str,
+                          wait_s: float) -> list[Command]:
+        """Hand out what is due, waiting up to ``wait_s`` for something to come."""
+        state = await self.instances.for_vehicle_caller(principal, instance_id)
+        lane = self._lane(state.instance_id)
+        if wait_s > 0 and lane.polls >= self.settings.long_poll_max:
+            raise RateLimited(f"{lane.polls} long polls are already open for this vehicle",
+                              retry_after_s=1)
+        self.instances.touch(state)
+        loop = asyncio.get_running_loop()
+        deadline = loop.time() + wait_s
+        lane.polls += 1
+        state.polling += 1
+        try:
+            while True:
+                woken = lane.waiter()
+                out = await self.take(state)
+                remaining = deadline - loop.time()
+                if out or remaining <= 0 or state.finished:
+                    return out
+                try:
+                    await asyncio.wait_for(woken.wait(), remaining)
+                except TimeoutError:
+                    pass
+        finally:
+            lane.polls -= 1
+            state.polling -= 1
+            self.instances.touch(state)
+
+    async def take(self, state: InstanceState) -> list[Command]:
+        """The commands to hand out now, in order (``stop`` first), marked delivered."""
+        if state.finished:
+            return []
+        lane = self._lane(state.instance_id)
+        out, ended = life.handout(
+            list(lane.active.values()), self.clock(),
+            ack_timeout_s=self.settings.ack_timeout_s, position=state.position,
+        )
+        for cmd in ended:
+            await self._finished(cmd)
+        for cmd in out:
+            await self.repo.save_active(cmd.to_doc())
+        return out
+
+    async def acknowledge(self, principal: Principal, instance_id: str,
+                          control_mode: str | None, acks: list[Any]) -> list[str]:
+        """Apply the vehicle's acks; returns the ``abort`` list."""
+        state = await self.instances.for_vehicle_caller(principal, instance_id)
+        self.instances.touch(state)
+        self.instances.set_control_mode(state, control_mode)
+        lane = self._lane(state.instance_id)
+        now = self.clock()
+        abort: list[str] = []
+        for ack in acks:
+            cmd = lane.get(ack.command_id) or await self._stored(ack.command_id, state)
+            if cmd is None:
+                abort.append(ack.command_id)  # unknown here: never to be carried out
+                continue
+            outcome = life.apply_ack(cmd, ack.status, now, progress=ack.progress,
+                                     detail=ack.detail)
+            if outcome is AckOutcome.LATE:
+                if cmd.status in life.ABORT_STATUSES:
+                    abort.append(cmd.command_id)
+            elif cmd.final:
+                await self._finished(cmd)
+            elif cmd.command_id in lane.active:
+                await self.repo.save_active(cmd.to_doc())
+        abort.extend(lane.take_aborts())
+        return list(dict.fromkeys(abort))
+
+    def counts_by_status(self) -> dict[str, int]:
+        """Active commands by status (for /metrics)."""
+        counts: dict[str, int] = {}
+        for lane in self._lanes.values():
+            for cmd in lane.active.values():
+                counts[cmd.status] = counts.get(cmd.status, 0) + 1
+        return counts
+
+    # ---- background and hooks ----------------------------------------------------
+    async def sweep(self, now: datetime | None = None) -> None:
+        """Expire what is past ``expires_at``; wake the lanes with a redelivery due."""
+        now = now or self.clock()
+        timeout = self.settings.ack_timeout_s
+        for lane in list(self._lanes.values()):
+            due = False
+            for cmd in list(lane.active.values()):
+                if life.expire_if_due(cmd, now):
+                    await self._finished(cmd)
+                elif life.due_for_delivery(cmd, now, timeout):
+                    due = True
+            if due:
+                self._ready(lane)
+
+    async def drop_finished_before(self, before: datetime) -> int:
+        return await self.repo.drop_finished_before(before)
+
+    async def _on_lease_end(self, lease: arbitration.Lease, reason: str) -> None:
+        lane = self._lanes.get(lease.instance_id)
+        if lane is None:
+            return
+        now = self.clock()
+        detail = "instance_finished" if reason == "instance_finished" else "lease_ended"
+        for cmd in list(lane.active.values()):
+            if (cmd.issued_by == lease.holder and not cmd.is_stop
+                    and cmd.status in life.UNACKNOWLEDGED):
+                life.cancel(cmd, now, detail)
+                await self._finished(cmd)
+
+    async def _on_finish(self, state: InstanceState, principal: Principal | None) -> None:
+        lane = self._lanes.get(state.instance_id)
+        if lane is None:
+            return
+        now = self.clock()
+        for cmd in list(lane.active.values()):
+            life.cancel(cmd, now, "instance_finished")
+            await self._finished(cmd)
+        lane.wake()
+        del self._lanes[state.instance_id]
+
+    # ---- internals ------------------------------------------------------------
+    def _lane(self, instance_id: str) -> Lane:
+        lane = self._lanes.get(instance_id)
+        if lane is None:
+            lane = self._lanes[instance_id] = Lane(instance_id,
+                                                   self.settings.command_history_limit)
+        return lane
+
+    def _ready(self, lane: Lane) -> None:
+        lane.wake()
+        for listener in self.ready_listeners:
+            listener(lane.instance_id)
+
+    async def _targets(
+        self, principal: Principal, ids: list[str]
+    ) -> tuple[list[tuple[int, InstanceState]], list[tuple[int, str, FleetError]]]:
+        if ids == ["*"]:
+            live = [s for s in self.instances.live()
+                    if not s.finished and principal.can_see(s.vehicle_id)]
+            return list(enumerate(sorted(live, key=lambda s: s.vehicle_id))), []
+        targets, refusals = [], []
+        for index, instance_id in enumerate(ids):
+            try:
+                targets.append((index, await self.instances.find(instance_id)))
+            except FleetError as exc:
+                refusals.append((index, instance_id, exc))
+        return targets, refusals
+
+    def _admit(self, principal: Principal, state: InstanceState,
+               spec: CommandSpec) -> dict[str, Any]:
+        """Check one instance takes this command; returns its args (planned, if asked)."""
+        if not principal.can_see(state.vehicle_id):
+            raise Forbidden(f"no access to vehicle {state.vehicle_id}")
+        if state.finished:
+            raise InstanceFinished(f"instance {state.instance_id} is finished")
+        life.check_capability(spec.type, state.capabilities)
+        arbitration.check_submit(principal, command_type=spec.type,
+                                 lease=self.control.lease(state.instance_id),
+                                 control_mode=state.control_mode, now=self.clock())
+        lane = self._lanes.get(state.instance_id)
+        if spec.type != "stop" and lane is not None \
+                and len(lane.active) >= MAX_ACTIVE_PER_INSTANCE:
+            raise RateLimited(f"{MAX_ACTIVE_PER_INSTANCE} commands already wait on this instance")
+        args = dict(spec.args)
+        if spec.type == "follow_path" and args.get("plan") and self.planner is not None:
+            others = [s for s in self.instances.live() if s.instance_id != state.instance_id]
+            args = self.planner(state, args, others)
+        return args
+
+    async def _find(self, command_id: str) -> Command:
+        for lane in self._lanes.values():
+            cmd = lane.get(command_id)
+            if cmd is not None:
+                return cmd
+        doc = await self.repo.get(command_id)
+        if doc is None:
+            raise NotFound(f"no command {command_id}")
+        return Command.from_doc(doc)
+
+    async def _stored(self, command_id: str, state: InstanceState) -> Command | None:
+        doc = await self.repo.get(command_id)
+        if doc is None or doc["instance_id"] != state.instance_id:
+            return None
+        return Command.from_doc(doc)
+
+    async def _finished(self, cmd: Command, actor: Principal | None = None) -> None:
+        """Record a command that just reached a final status."""
+        lane = self._lanes.get(cmd.instance_id)
+        if lane is not None:
+            lane.retire(cmd)
+        now = self.clock()
+        await self.repo.finish(cmd.to_doc(), now)
+        last = cmd.history[-1] if cmd.history else {}
+        await self.events.record(
+            "command", vehicle_id=cmd.vehicle_id, instance_id=cmd.instance_id, actor=actor,
+            data={"command_id": cmd.command_id, "type": cmd.type, "status": cmd.status,
+                  "detail": last.get("detail")},
+        )
+
+
+def _refused(refusals: list[tuple[int, str, FleetError]], asked: int) -> FleetError:
+    """All or nothing: the first refusal's status, and every refusal in ``details``."""
+    refusals.sort(key=lambda r: r[0])
+    first = refusals[0][2]
+    details = [{"field": f"instance_ids.{index}", "instance_id": instance_id, "code": exc.code,
+                "message": exc.message} for index, instance_id, exc in refusals]
+    message = (first.message if asked == 1 else
+               f"{len(refusals)} of {asked} instances refused ({first.message}); nothing queued")
+    error = copy.copy(first)  # same class, status and Retry-After
+    error.message, error.details, error.args = message, details, (message,)
+    return error

@@ -1,0 +1,220 @@
+"""Arbitration through HTTP: request, grant, extend, hand over, revoke, release, expiry."""
+
+from __future__ import annotations
+
+from collections.abc import AsyncIterator, Callable
+from datetime import timedelta
+from typing import Any
+
+import pytest
+
+from fleet_protocol import parse_ts
+from server.settings import Settings
+from tests.factories import ADMIN
+from tests.server.commanding import GO_TO, STOP, World, eventually, world
+
+
+@pytest.fixture
+async def w(make_settings: Callable[..., Settings]) -> AsyncIterator[World]:
+    async with world(make_settings(max_pending_requests=2)) as w:
+        yield w
+
+
+async def post(w: World, path: str, headers: dict[str, str], **body: Any) -> Any:
+    return await w.http.post(f"/client/{path}", headers=headers, json=body)
+
+
+async def test_a_request_reaches_the_manager_and_a_grant_answers_it(w: World) -> None:
+    v = await w.vehicle()
+    op = await w.person("operator", v)
+    boss = await w.person("manager", v)
+    r = await post(w, "request_control", op.headers, instance_id=v.instance_id)
+    assert r.status_code == 200, r.text
+    request = r.json()
+    assert (request["username"], request["instance_id"]) == (op.username, v.instance_id)
+    assert request["request_id"] and request["requested_at"]
+    again = await post(w, "request_control", op.headers, instance_id=v.instance_id)
+    assert again.json()["request_id"] == request["request_id"]
+
+    r = await w.http.get("/client/control_requests", headers=boss.headers,
+                         params={"instance_id": v.instance_id})
+    assert r.status_code == 200
+    assert [q["request_id"] for q in r.json()["requests"]] == [request["request_id"]]
+    r = await w.http.get("/client/control_requests", headers=op.headers)
+    assert r.json()["requests"] == []  # an operator answers none
+
+    r = await w.grant(v, op.username, duration_s=60, by=boss.headers)
+    assert r.status_code == 200, r.text
+    lease = r.json()
+    assert (lease["holder"], lease["granted_by"]) == (op.username, boss.username)
+    assert parse_ts(lease["expires_at"]) == w.clock.now + timedelta(seconds=60)
+    r = await w.http.get("/client/control_requests", headers=boss.headers)
+    assert r.json()["requests"] == []
+    assert (await w.submit(op, [v], GO_TO)).status_code == 202
+
+
+async def test_pending_requests_are_bounded(w: World) -> None:
+    v = await w.vehicle()
+    people = [await w.person("operator", v) for _ in range(3)]
+    codes = [(await post(w, "request_control", p.headers, instance_id=v.instance_id)).status_code
+             for p in people]
+    assert codes == [200, 200, 429]
+
+
+async def test_request_control_refusals(w: World) -> None:
+    v = await w.vehicle()
+    viewer = await w.person("viewer", v)
+    stranger = await w.person("operator")
+    op = await w.person("operator", v)
+    cases = [
+        ({}, {"instance_id": v.instance_id}, 401),
+        (viewer.headers, {"instance_id": v.instance_id}, 403),
+        (stranger.headers, {"instance_id": v.instance_id}, 403),
+        (v.headers, {"instance_id": v.instance_id}, 403),
+        (op.headers, {"instance_id": "i-nope"}, 404),
+        (op.headers, {}, 422),
+    ]
+    for headers, body, status in cases:
+        r = await w.http.post("/client/request_control", headers=headers, json=body)
+        assert r.status_code == status, (body, r.text)
+
+
+async def test_grant_refusals(w: World) -> None:
+    v = await w.vehicle()
+    op = await w.person("operator", v)
+    viewer = await w.person("viewer", v)
+    outsider = await w.person("operator")
+    other_boss = await w.person("manager")
+    good = {"instance_id": v.instance_id, "user": op.username, "duration_s": 60}
+    cases = [
+        ({}, good, 401, "unauthorized"),
+        (op.headers, good, 403, "forbidden"),
+        (other_boss.headers, good, 403, "forbidden"),
+        (ADMIN, {**good, "user": viewer.username}, 422, "invalid"),
+        (ADMIN, {**good, "user": outsider.username}, 422, "invalid"),
+        (ADMIN, {**good, "user": "nobody"}, 422, "invalid"),
+        (ADMIN, {**good, "duration_s": 0}, 422, "invalid"),
+        (ADMIN, {**good, "duration_s": 86401}, 422, "invalid"),
+        (ADMIN, {**good, "instance_id": "i-nope"}, 404, "not_found"),
+    ]
+    for headers, body, status, code in cases:
+        r = await w.http.post("/client/grant_control", headers=headers, json=body)
+        assert (r.status_code, r.json()["error"]["code"]) == (status, code), (body, r.text)
+    r = await w.http.post("/client/grant_control", headers=ADMIN,
+                          json={**good, "user": viewer.username})
+    assert r.json()["error"]["details"][0]["field"] == "user"
+
+
+async def test_granting_again_to_the_holder_extends(w: World) -> None:
+    v = await w.vehicle()
+    op = await w.operator_in_control(v, duration_s=60)
+    w.clock.advance(50)
+    r = await w.grant(v, op.username, duration_s=60)
+    assert parse_ts(r.json()["expires_at"]) == w.clock.now + timedelta(seconds=60)
+    w.clock.advance(30)  # past the first expiry, within the extension
+    assert (await w.submit(op, [v], GO_TO)).status_code == 202
+
+
+async def test_a_grant_to_someone_else_ends_the_lease_and_cancels_its_queue(w: World) -> None:
+    v = await w.vehicle()
+    first = await w.operator_in_control(v)
+    go = await w.queued(first, v, GO_TO)
+    second = await w.person("operator", v)
+    assert (await w.grant(v, second.username)).status_code == 200
+    cmd = await w.command(go)
+    assert cmd["status"] == "cancelled"
+    assert cmd["history"][-1]["detail"] == "lease_ended"
+    assert (await w.submit(first, [v], GO_TO)).json()["error"]["code"] == "control_not_held"
+    assert (await w.submit(second, [v], GO_TO)).status_code == 202
+
+
+async def test_revoke_ends_the_lease_cancels_motion_and_keeps_stops(w: World) -> None:
+    v = await w.vehicle()
+    op = await w.operator_in_control(v)
+    boss = await w.person("manager", v)
+    r = await w.submit(op, [v], GO_TO)
+    go = r.json()["commands"][0]["command_id"]
+    w.clock.advance(1)
+    stop = await w.queued(op, v, STOP)  # supersedes ``go``
+    w.clock.advance(1)
+    later_go = await w.queued(op, v, GO_TO)
+    r = await post(w, "revoke_control", boss.headers, instance_id=v.instance_id)
+    assert r.status_code == 200, r.text
+    assert r.json() == {"ok": True}
+    assert (await w.command(later_go))["history"][-1]["detail"] == "lease_ended"
+    assert (await w.command(stop))["status"] == "queued"
+    assert (await w.command(go))["history"][-1]["detail"] == "superseded_by_stop"
+    assert (await w.submit(op, [v], GO_TO)).json()["error"]["code"] == "control_not_held"
+
+
+async def test_revoke_refusals(w: World) -> None:
+    v = await w.vehicle()
+    op = await w.operator_in_control(v)
+    other_boss = await w.person("manager")
+    for headers, status in (({}, 401), (op.headers, 403), (other_boss.headers, 403)):
+        r = await post(w, "revoke_control", headers, instance_id=v.instance_id)
+        assert r.status_code == status, r.text
+    assert (await w.submit(op, [v], GO_TO)).status_code == 202  # still held
+
+
+async def test_the_holder_releases(w: World) -> None:
+    v = await w.vehicle()
+    op = await w.operator_in_control(v)
+    go = await w.queued(op, v, GO_TO)
+    other = await w.person("operator", v)
+    r = await post(w, "release_control", other.headers, instance_id=v.instance_id)
+    assert (r.status_code, r.json()["error"]["code"]) == (409, "control_not_held")
+    r = await post(w, "release_control", op.headers, instance_id=v.instance_id)
+    assert r.status_code == 200, r.text
+    assert (await w.command(go))["status"] == "cancelled"
+    r = await post(w, "release_control", op.headers, instance_id=v.instance_id)
+    assert r.status_code == 409
+
+
+async def test_a_lease_ends_at_its_expiry(w: World) -> None:
+    v = await w.vehicle()
+    op = await w.operator_in_control(v, duration_s=60)
+    go = await w.queued(op, v, GO_TO, ttl_s=600)
+    w.clock.advance(60)
+    assert (await w.submit(op, [v], GO_TO)).json()["error"]["code"] == "control_not_held"
+
+    async def cancelled() -> bool:
+        return (await w.command(go))["status"] == "cancelled"
+
+    await eventually(cancelled)  # the lease sweeper, on its own beat
+    assert (await w.command(go))["history"][-1]["detail"] == "lease_ended"
+
+
+async def test_the_vehicle_and_the_operators_are_told_who_holds_control(w: World) -> None:
+    v = await w.vehicle()
+    op = await w.operator_in_control(v)
+    r = await w.http.post("/upper/start_instance", headers=v.headers, json={
+        "vehicle_id": v.vehicle_id, "capabilities": ["go_to"]})
+    assert r.json()["resumed"] is True
+    assert r.json()["control"]["holder"] == op.username
+    r = await w.http.post("/client/connect_instance", headers=op.headers,
+                          json={"instance_id": v.instance_id})
+    assert r.json()["instance"]["control"]["holder"] == op.username
+
+
+async def test_finish_instance_ends_the_lease(w: World) -> None:
+    v = await w.vehicle()
+    await w.operator_in_control(v)
+    await w.http.post("/upper/finish_instance", headers=v.headers,
+                      json={"instance_id": v.instance_id})
+    r = await w.http.post("/client/connect_instance", headers=ADMIN,
+                          json={"instance_id": v.instance_id})
+    assert r.json()["instance"]["control"] is None
+    r = await w.grant(v, (await w.person("operator", v)).username)
+    assert r.json()["error"]["code"] == "instance_finished"
+
+
+async def test_grants_revokes_and_releases_are_audited(w: World) -> None:
+    v = await w.vehicle()
+    op = await w.operator_in_control(v)
+    await post(w, "release_control", op.headers, instance_id=v.instance_id)
+    await w.grant(v, op.username)
+    await post(w, "revoke_control", ADMIN, instance_id=v.instance_id)
+    r = await w.http.get("/api/events", headers=ADMIN, params={"vehicle_id": v.vehicle_id})
+    kinds = [e["kind"] for e in r.json()["events"] if e["kind"].startswith("control_")]
+    assert kinds == ["control_grant", "control_release", "control_grant", "control_revoke"]
