@@ -21,17 +21,20 @@ InstanceId = Annotated[str, Query(min_length=1, max_length=64)]
 
 
 @router.post("/client/submit_control", status_code=202)
-async def submit_control(body: SubmitControl, user: Operator,
-                         s: ServicesDep) -> SubmitControlResult:
+async def submit_control(
+    body: SubmitControl, user: Operator, s: ServicesDep
+) -> SubmitControlResult:
     return SubmitControlResult.model_validate({"commands": await s.commands.submit(user, body)})
 
 
 @router.get("/client/get_fbmessage")
-async def get_fbmessage(instance_id: InstanceId, user: Viewer,
-                        s: ServicesDep) -> GetFbMessageResult:
+async def get_fbmessage(
+    instance_id: InstanceId, user: Viewer, s: ServicesDep
+) -> GetFbMessageResult:
     mode, commands = await s.commands.recent(user, instance_id)
     return GetFbMessageResult.model_validate(
-        {"control_mode": mode, "commands": [c.wire() for c in commands]})
+        {"control_mode": mode, "commands": [c.wire() for c in commands]}
+    )
 
 
 @router.post("/client/cancel_command")
@@ -40,6 +43,7 @@ async def cancel_command(body: CancelCommand, user: Operator, s: ServicesDep) ->
 
 
 @router.get("/api/commands/{command_id}")
-async def get_command(command_id: Annotated[str, Path(max_length=64)], user: Viewer,
-                      s: ServicesDep) -> CommandObject:
+async def get_command(
+    command_id: Annotated[str, Path(max_length=64)], user: Viewer, s: ServicesDep
+) -> CommandObject:
     return CommandObject.model_validate((await s.commands.get(user, command_id)).wire())

@@ -26,11 +26,13 @@ async def request_control(body: InstanceRef, user: Operator, s: ServicesDep) -> 
 
 @router.get("/control_requests")
 async def control_requests(
-    user: Viewer, s: ServicesDep,
+    user: Viewer,
+    s: ServicesDep,
     instance_id: Annotated[str | None, Query(min_length=1, max_length=64)] = None,
 ) -> ControlRequestList:
     return ControlRequestList.model_validate(
-        {"requests": s.control.requests_for(user, instance_id)})
+        {"requests": s.control.requests_for(user, instance_id)}
+    )
 
 
 @router.post("/grant_control")

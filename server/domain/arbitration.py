@@ -30,18 +30,28 @@ class Lease:
         return now < self.expires_at
 
     def info(self) -> dict[str, Any]:
-        return {"holder": self.holder, "granted_by": self.granted_by,
-                "expires_at": self.expires_at}
+        return {"holder": self.holder, "granted_by": self.granted_by, "expires_at": self.expires_at}
 
     def to_doc(self) -> dict[str, Any]:
-        return {"instance_id": self.instance_id, "vehicle_id": self.vehicle_id,
-                "holder": self.holder, "granted_by": self.granted_by,
-                "granted_at": self.granted_at, "expires_at": self.expires_at}
+        return {
+            "instance_id": self.instance_id,
+            "vehicle_id": self.vehicle_id,
+            "holder": self.holder,
+            "granted_by": self.granted_by,
+            "granted_at": self.granted_at,
+            "expires_at": self.expires_at,
+        }
 
     @classmethod
     def from_doc(cls, doc: dict[str, Any]) -> Lease:
-        return cls(doc["instance_id"], doc["vehicle_id"], doc["holder"], doc["granted_by"],
-                   doc["granted_at"], doc["expires_at"])
+        return cls(
+            doc["instance_id"],
+            doc["vehicle_id"],
+            doc["holder"],
+            doc["granted_by"],
+            doc["granted_at"],
+            doc["expires_at"],
+        )
 
 
 @dataclass(frozen=True)
@@ -69,8 +79,10 @@ def check_granter(principal: Principal, vehicle_id: str) -> None:
 
 def check_grantee(grantee: Grantee | None, username: str, vehicle_id: str) -> Grantee:
     def refuse(why: str) -> Invalid:
-        return Invalid(f"cannot grant control to {username}: {why}",
-                       details=[{"field": "user", "message": why}])
+        return Invalid(
+            f"cannot grant control to {username}: {why}",
+            details=[{"field": "user", "message": why}],
+        )
 
     if grantee is None:
         raise refuse("no such user")
@@ -84,8 +96,14 @@ def check_grantee(grantee: Grantee | None, username: str, vehicle_id: str) -> Gr
 
 
 def grant(
-    current: Lease | None, *, instance_id: str, vehicle_id: str, holder: str, granted_by: str,
-    now: datetime, duration_s: float,
+    current: Lease | None,
+    *,
+    instance_id: str,
+    vehicle_id: str,
+    holder: str,
+    granted_by: str,
+    now: datetime,
+    duration_s: float,
 ) -> tuple[Lease, Lease | None]:
     """The new lease, and the lease it ends (granted to someone else), if any.
 
@@ -93,8 +111,14 @@ def grant(
     """
     expires_at = now + timedelta(seconds=duration_s)
     if current is not None and current.live(now) and current.holder == holder:
-        lease = Lease(instance_id, vehicle_id, holder, granted_by, current.granted_at,
-                      max(expires_at, current.expires_at))
+        lease = Lease(
+            instance_id,
+            vehicle_id,
+            holder,
+            granted_by,
+            current.granted_at,
+            max(expires_at, current.expires_at),
+        )
         return lease, None
     ended = current if current is not None and current.live(now) else None
     return Lease(instance_id, vehicle_id, holder, granted_by, now, expires_at), ended
@@ -105,7 +129,11 @@ def holds(lease: Lease | None, username: str, now: datetime) -> bool:
 
 
 def check_submit(
-    principal: Principal, *, command_type: str, lease: Lease | None, control_mode: str,
+    principal: Principal,
+    *,
+    command_type: str,
+    lease: Lease | None,
+    control_mode: str,
     now: datetime,
 ) -> None:
     """May this operator queue this command on this instance now?
@@ -130,6 +158,7 @@ def check_release(lease: Lease | None, principal: Principal, now: datetime) -> L
 
 # ---- control requests ---------------------------------------------------------
 
+
 @dataclass(frozen=True)
 class ControlRequest:
     request_id: str
@@ -139,8 +168,12 @@ class ControlRequest:
     requested_at: datetime
 
     def wire(self) -> dict[str, Any]:
-        return {"request_id": self.request_id, "username": self.username,
-                "instance_id": self.instance_id, "requested_at": self.requested_at}
+        return {
+            "request_id": self.request_id,
+            "username": self.username,
+            "instance_id": self.instance_id,
+            "requested_at": self.requested_at,
+        }
 
 
 def add_request(
@@ -151,6 +184,7 @@ def add_request(
         if existing.username == request.username:
             return pending, existing
     if len(pending) >= limit:
-        raise RateLimited(f"{limit} control requests are already pending on this instance",
-                          retry_after_s=30)
+        raise RateLimited(
+            f"{limit} control requests are already pending on this instance", retry_after_s=30
+        )
     return [*pending, request], request

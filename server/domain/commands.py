@@ -69,45 +69,78 @@ class Command:
     def wire(self) -> dict[str, Any]:
         """The contract's command object (times as datetimes; the wire model formats them)."""
         return {
-            "command_id": self.command_id, "instance_id": self.instance_id,
-            "vehicle_id": self.vehicle_id, "type": self.type, "args": self.args,
-            "max_drift_m": self.max_drift_m, "status": self.status,
-            "issued_by": self.issued_by, "issued_at": self.issued_at,
-            "expires_at": self.expires_at, "progress": self.progress,
+            "command_id": self.command_id,
+            "instance_id": self.instance_id,
+            "vehicle_id": self.vehicle_id,
+            "type": self.type,
+            "args": self.args,
+            "max_drift_m": self.max_drift_m,
+            "status": self.status,
+            "issued_by": self.issued_by,
+            "issued_at": self.issued_at,
+            "expires_at": self.expires_at,
+            "progress": self.progress,
             "history": [dict(h) for h in self.history],
         }
 
     def to_doc(self) -> dict[str, Any]:
         doc = self.wire()
-        doc.update(seq=self.seq, issued_from=list(self.issued_from) if self.issued_from else None,
-                   delivered_at=self.delivered_at, deliveries=self.deliveries)
+        doc.update(
+            seq=self.seq,
+            issued_from=list(self.issued_from) if self.issued_from else None,
+            delivered_at=self.delivered_at,
+            deliveries=self.deliveries,
+        )
         return doc
 
     @classmethod
     def from_doc(cls, doc: dict[str, Any]) -> Command:
         origin = doc.get("issued_from")
         return cls(
-            command_id=doc["command_id"], instance_id=doc["instance_id"],
-            vehicle_id=doc.get("vehicle_id") or "", type=doc["type"], args=doc.get("args") or {},
-            issued_by=doc["issued_by"], issued_at=doc["issued_at"],
-            expires_at=doc["expires_at"], seq=int(doc.get("seq") or 0),
+            command_id=doc["command_id"],
+            instance_id=doc["instance_id"],
+            vehicle_id=doc.get("vehicle_id") or "",
+            type=doc["type"],
+            args=doc.get("args") or {},
+            issued_by=doc["issued_by"],
+            issued_at=doc["issued_at"],
+            expires_at=doc["expires_at"],
+            seq=int(doc.get("seq") or 0),
             max_drift_m=doc.get("max_drift_m"),
             issued_from=(float(origin[0]), float(origin[1])) if origin else None,
-            status=doc["status"], progress=doc.get("progress"),
+            status=doc["status"],
+            progress=doc.get("progress"),
             history=[dict(h) for h in doc.get("history") or []],
-            delivered_at=doc.get("delivered_at"), deliveries=int(doc.get("deliveries") or 0),
+            delivered_at=doc.get("delivered_at"),
+            deliveries=int(doc.get("deliveries") or 0),
         )
 
 
 def new_command(
-    *, command_id: str, instance_id: str, vehicle_id: str, type: str, args: dict[str, Any],
-    issued_by: str, now: datetime, ttl_s: float, seq: int, max_drift_m: float | None = None,
+    *,
+    command_id: str,
+    instance_id: str,
+    vehicle_id: str,
+    type: str,
+    args: dict[str, Any],
+    issued_by: str,
+    now: datetime,
+    ttl_s: float,
+    seq: int,
+    max_drift_m: float | None = None,
     position: dict[str, Any] | None = None,
 ) -> Command:
     cmd = Command(
-        command_id=command_id, instance_id=instance_id, vehicle_id=vehicle_id, type=type,
-        args=args, issued_by=issued_by, issued_at=now,
-        expires_at=now + timedelta(seconds=ttl_s), seq=seq, max_drift_m=max_drift_m,
+        command_id=command_id,
+        instance_id=instance_id,
+        vehicle_id=vehicle_id,
+        type=type,
+        args=args,
+        issued_by=issued_by,
+        issued_at=now,
+        expires_at=now + timedelta(seconds=ttl_s),
+        seq=seq,
+        max_drift_m=max_drift_m,
         issued_from=(float(position["lat"]), float(position["lon"])) if position else None,
     )
     cmd.note("queued", now)
@@ -125,6 +158,7 @@ def check_capability(command_type: str, capabilities: list[str]) -> None:
 
 # ---- acks -----------------------------------------------------------------
 
+
 class AckOutcome(Enum):
     APPLIED = "applied"  # the status moved forward (or progress changed)
     BACKWARD = "backward"  # recorded, ignored
@@ -132,7 +166,11 @@ class AckOutcome(Enum):
 
 
 def apply_ack(
-    cmd: Command, status: str, now: datetime, *, progress: float | None = None,
+    cmd: Command,
+    status: str,
+    now: datetime,
+    *,
+    progress: float | None = None,
     detail: str | None = None,
 ) -> AckOutcome:
     if cmd.final:
@@ -154,6 +192,7 @@ def _join(head: str, tail: str | None) -> str:
 
 
 # ---- expiry, drift, delivery ------------------------------------------------
+
 
 def expire_if_due(cmd: Command, now: datetime) -> bool:
     """A command not acknowledged by ``expires_at`` is expired, handed out or not."""
@@ -202,7 +241,10 @@ def queue_order(cmds: list[Command]) -> list[Command]:
 
 
 def handout(
-    cmds: list[Command], now: datetime, *, ack_timeout_s: float,
+    cmds: list[Command],
+    now: datetime,
+    *,
+    ack_timeout_s: float,
     position: dict[str, Any] | None,
 ) -> tuple[list[Command], list[Command]]:
     """What to hand out now, in order; and what expired on the way (expiry, drift).
@@ -232,8 +274,11 @@ def supersede(cmds: list[Command], stop: Command, now: datetime) -> list[Command
     """A ``stop`` cancels the motion commands queued before it (not yet acknowledged)."""
     gone = []
     for cmd in cmds:
-        if (cmd.type in MOTION_TYPES and cmd.status in UNACKNOWLEDGED
-                and (cmd.issued_at, cmd.seq) <= (stop.issued_at, stop.seq)):
+        if (
+            cmd.type in MOTION_TYPES
+            and cmd.status in UNACKNOWLEDGED
+            and (cmd.issued_at, cmd.seq) <= (stop.issued_at, stop.seq)
+        ):
             cmd.move("cancelled", now, "superseded_by_stop")
             gone.append(cmd)
     return gone

@@ -47,9 +47,16 @@ MAX_ACTIVE_PER_INSTANCE = 256
 
 
 class CommandService:
-    def __init__(self, settings: Settings, repo: CommandsRepo, instances: InstanceService,
-                 control: ControlService, events: EventService, clock: Clock,
-                 planner: Planner | None = None) -> None:
+    def __init__(
+        self,
+        settings: Settings,
+        repo: CommandsRepo,
+        instances: InstanceService,
+        control: ControlService,
+        events: EventService,
+        clock: Clock,
+        planner: Planner | None = None,
+    ) -> None:
         self.settings = settings
         self.repo = repo
         self.instances = instances
@@ -87,30 +94,47 @@ class CommandService:
         made = []
         for _, state in targets:
             self._seq += 1
-            made.append(life.new_command(
-                command_id="c-" + secrets.token_hex(8), instance_id=state.instance_id,
-                vehicle_id=state.vehicle_id, type=body.command.type,
-                args=args_by_instance[state.instance_id], issued_by=principal.name, now=now,
-                ttl_s=body.ttl_s, seq=self._seq, max_drift_m=body.command.max_drift_m,
-                position=state.position,
-            ))
+            made.append(
+                life.new_command(
+                    command_id="c-" + secrets.token_hex(8),
+                    instance_id=state.instance_id,
+                    vehicle_id=state.vehicle_id,
+                    type=body.command.type,
+                    args=args_by_instance[state.instance_id],
+                    issued_by=principal.name,
+                    now=now,
+                    ttl_s=body.ttl_s,
+                    seq=self._seq,
+                    max_drift_m=body.command.max_drift_m,
+                    position=state.position,
+                )
+            )
         if made:
             await self.repo.insert_active([cmd.to_doc() for cmd in made])
         for cmd in made:
             lane = self._lane(cmd.instance_id)
             lane.add(cmd)
             await self.events.record(
-                "command", vehicle_id=cmd.vehicle_id, instance_id=cmd.instance_id,
-                actor=principal, data={"command_id": cmd.command_id, "type": cmd.type,
-                                       "status": "queued", "args": cmd.args},
+                "command",
+                vehicle_id=cmd.vehicle_id,
+                instance_id=cmd.instance_id,
+                actor=principal,
+                data={
+                    "command_id": cmd.command_id,
+                    "type": cmd.type,
+                    "status": "queued",
+                    "args": cmd.args,
+                },
             )
             if cmd.is_stop:
                 others = [c for c in lane.active.values() if c is not cmd]
                 for gone in life.supersede(others, cmd, now):
                     await self._finished(gone)
             self._ready(lane)
-        return [{"instance_id": c.instance_id, "command_id": c.command_id, "status": "queued"}
-                for c in made]
+        return [
+            {"instance_id": c.instance_id, "command_id": c.command_id, "status": "queued"}
+            for c in made
+        ]
 
     async def cancel(self, principal: Principal, command_id: str) -> Command:
         cmd = await self._find(command_id)
@@ -119,9 +143,11 @@ class CommandService:
         if cmd.final:
             return cmd
         lease = self.control.lease(cmd.instance_id)
-        if not (cmd.issued_by == principal.name
-                or arbitration.holds(lease, principal.name, self.clock())
-                or arbitration.may_grant(principal, cmd.vehicle_id)):
+        if not (
+            cmd.issued_by == principal.name
+            or arbitration.holds(lease, principal.name, self.clock())
+            or arbitration.may_grant(principal, cmd.vehicle_id)
+        ):
             raise ControlNotHeld("only its issuer, the control holder or a manager cancels it")
         if life.cancel(cmd, self.clock(), f"by {principal.name}"):
             await self._finished(cmd, actor=principal)
@@ -150,14 +176,16 @@ class CommandService:
         return state.control_mode, mine[:limit]
 
     # ---- vehicles -------------------------------------------------------------
-    async def get_control(self, principal: Principal, instance_id: str,
-                          wait_s: float) -> list[Command]:
+    async def get_control(
+        self, principal: Principal, instance_id: str, wait_s: float
+    ) -> list[Command]:
         """Hand out what is due, waiting up to ``wait_s`` for something to come."""
         state = await self.instances.for_vehicle_caller(principal, instance_id)
         lane = self._lane(state.instance_id)
         if wait_s > 0 and lane.polls >= self.settings.long_poll_max:
-            raise RateLimited(f"{lane.polls} long polls are already open for this vehicle",
-                              retry_after_s=1)
+            raise RateLimited(
+                f"{lane.polls} long polls are already open for this vehicle", retry_after_s=1
+            )
         self.instances.touch(state)
         loop = asyncio.get_running_loop()
         deadline = loop.time() + wait_s
@@ -185,8 +213,10 @@ class CommandService:
             return []
         lane = self._lane(state.instance_id)
         out, ended = life.handout(
-            list(lane.active.values()), self.clock(),
-            ack_timeout_s=self.settings.ack_timeout_s, position=state.position,
+            list(lane.active.values()),
+            self.clock(),
+            ack_timeout_s=self.settings.ack_timeout_s,
+            position=state.position,
         )
         for cmd in ended:
             await self._finished(cmd)
@@ -194,8 +224,9 @@ class CommandService:
             await self.repo.save_active(cmd.to_doc())
         return out
 
-    async def acknowledge(self, principal: Principal, instance_id: str,
-                          control_mode: str | None, acks: list[Any]) -> list[str]:
+    async def acknowledge(
+        self, principal: Principal, instance_id: str, control_mode: str | None, acks: list[Any]
+    ) -> list[str]:
         """Apply the vehicle's acks; returns the ``abort`` list."""
         state = await self.instances.for_vehicle_caller(principal, instance_id)
         self.instances.touch(state)
@@ -208,8 +239,7 @@ class CommandService:
             if cmd is None:
                 abort.append(ack.command_id)  # unknown here: never to be carried out
                 continue
-            outcome = life.apply_ack(cmd, ack.status, now, progress=ack.progress,
-                                     detail=ack.detail)
+            outcome = life.apply_ack(cmd, ack.status, now, progress=ack.progress, detail=ack.detail)
             if outcome is AckOutcome.LATE:
                 if cmd.status in life.ABORT_STATUSES:
                     abort.append(cmd.command_id)
@@ -253,8 +283,11 @@ class CommandService:
         now = self.clock()
         detail = "instance_finished" if reason == "instance_finished" else "lease_ended"
         for cmd in list(lane.active.values()):
-            if (cmd.issued_by == lease.holder and not cmd.is_stop
-                    and cmd.status in life.UNACKNOWLEDGED):
+            if (
+                cmd.issued_by == lease.holder
+                and not cmd.is_stop
+                and cmd.status in life.UNACKNOWLEDGED
+            ):
                 life.cancel(cmd, now, detail)
                 await self._finished(cmd)
 
@@ -273,8 +306,7 @@ class CommandService:
     def _lane(self, instance_id: str) -> Lane:
         lane = self._lanes.get(instance_id)
         if lane is None:
-            lane = self._lanes[instance_id] = Lane(instance_id,
-                                                   self.settings.command_history_limit)
+            lane = self._lanes[instance_id] = Lane(instance_id, self.settings.command_history_limit)
         return lane
 
     def _ready(self, lane: Lane) -> None:
@@ -286,8 +318,11 @@ class CommandService:
         self, principal: Principal, ids: list[str]
     ) -> tuple[list[tuple[int, InstanceState]], list[tuple[int, str, FleetError]]]:
         if ids == ["*"]:
-            live = [s for s in self.instances.live()
-                    if not s.finished and principal.can_see(s.vehicle_id)]
+            live = [
+                s
+                for s in self.instances.live()
+                if not s.finished and principal.can_see(s.vehicle_id)
+            ]
             return list(enumerate(sorted(live, key=lambda s: s.vehicle_id))), []
         targets, refusals = [], []
         for index, instance_id in enumerate(ids):
@@ -297,20 +332,24 @@ class CommandService:
                 refusals.append((index, instance_id, exc))
         return targets, refusals
 
-    def _admit(self, principal: Principal, state: InstanceState,
-               spec: CommandSpec) -> dict[str, Any]:
+    def _admit(
+        self, principal: Principal, state: InstanceState, spec: CommandSpec
+    ) -> dict[str, Any]:
         """Check one instance takes this command; returns its args (planned, if asked)."""
         if not principal.can_see(state.vehicle_id):
             raise Forbidden(f"no access to vehicle {state.vehicle_id}")
         if state.finished:
             raise InstanceFinished(f"instance {state.instance_id} is finished")
         life.check_capability(spec.type, state.capabilities)
-        arbitration.check_submit(principal, command_type=spec.type,
-                                 lease=self.control.lease(state.instance_id),
-                                 control_mode=state.control_mode, now=self.clock())
+        arbitration.check_submit(
+            principal,
+            command_type=spec.type,
+            lease=self.control.lease(state.instance_id),
+            control_mode=state.control_mode,
+            now=self.clock(),
+        )
         lane = self._lanes.get(state.instance_id)
-        if spec.type != "stop" and lane is not None \
-                and len(lane.active) >= MAX_ACTIVE_PER_INSTANCE:
+        if spec.type != "stop" and lane is not None and len(lane.active) >= MAX_ACTIVE_PER_INSTANCE:
             raise RateLimited(f"{MAX_ACTIVE_PER_INSTANCE} commands already wait on this instance")
         args = dict(spec.args)
         if spec.type == "follow_path" and args.get("plan") and self.planner is not None:
@@ -343,9 +382,16 @@ class CommandService:
         await self.repo.finish(cmd.to_doc(), now)
         last = cmd.history[-1] if cmd.history else {}
         await self.events.record(
-            "command", vehicle_id=cmd.vehicle_id, instance_id=cmd.instance_id, actor=actor,
-            data={"command_id": cmd.command_id, "type": cmd.type, "status": cmd.status,
-                  "detail": last.get("detail")},
+            "command",
+            vehicle_id=cmd.vehicle_id,
+            instance_id=cmd.instance_id,
+            actor=actor,
+            data={
+                "command_id": cmd.command_id,
+                "type": cmd.type,
+                "status": cmd.status,
+                "detail": last.get("detail"),
+            },
         )
 
 
@@ -353,10 +399,20 @@ def _refused(refusals: list[tuple[int, str, FleetError]], asked: int) -> FleetEr
     """All or nothing: the first refusal's status, and every refusal in ``details``."""
     refusals.sort(key=lambda r: r[0])
     first = refusals[0][2]
-    details = [{"field": f"instance_ids.{index}", "instance_id": instance_id, "code": exc.code,
-                "message": exc.message} for index, instance_id, exc in refusals]
-    message = (first.message if asked == 1 else
-               f"{len(refusals)} of {asked} instances refused ({first.message}); nothing queued")
+    details = [
+        {
+            "field": f"instance_ids.{index}",
+            "instance_id": instance_id,
+            "code": exc.code,
+            "message": exc.message,
+        }
+        for index, instance_id, exc in refusals
+    ]
+    message = (
+        first.message
+        if asked == 1
+        else f"{len(refusals)} of {asked} instances refused ({first.message}); nothing queued"
+    )
     error = copy.copy(first)  # same class, status and Retry-After
     error.message, error.details, error.args = message, details, (message,)
     return error

@@ -31,8 +31,15 @@ ControlChangeListener = Callable[[str, str, dict[str, Any] | None], None]
 
 
 class ControlService:
-    def __init__(self, settings: Settings, repo: ControlRepo, instances: InstanceService,
-                 auth: AuthService, events: EventService, clock: Clock) -> None:
+    def __init__(
+        self,
+        settings: Settings,
+        repo: ControlRepo,
+        instances: InstanceService,
+        auth: AuthService,
+        events: EventService,
+        clock: Clock,
+    ) -> None:
         self.settings = settings
         self.repo = repo
         self.instances = instances
@@ -53,8 +60,13 @@ class ControlService:
             lease = Lease.from_doc(doc)
             self._leases[lease.instance_id] = lease
         for doc in await self.repo.all_requests():
-            req = ControlRequest(doc["request_id"], doc["username"], doc["instance_id"],
-                                 doc["vehicle_id"], doc["requested_at"])
+            req = ControlRequest(
+                doc["request_id"],
+                doc["username"],
+                doc["instance_id"],
+                doc["vehicle_id"],
+                doc["requested_at"],
+            )
             self._requests.setdefault(req.instance_id, []).append(req)
 
     # ---- reads ----------------------------------------------------------
@@ -70,18 +82,23 @@ class ControlService:
 
     def requests_for(self, principal: Principal, instance_id: str | None) -> list[dict[str, Any]]:
         """The pending requests this caller may answer (a manager of the vehicle, an admin)."""
-        pending = (self._requests.get(instance_id, []) if instance_id is not None
-                   else [r for reqs in self._requests.values() for r in reqs])
+        pending = (
+            self._requests.get(instance_id, [])
+            if instance_id is not None
+            else [r for reqs in self._requests.values() for r in reqs]
+        )
         return [r.wire() for r in pending if rules.may_grant(principal, r.vehicle_id)]
 
     # ---- operators and managers ------------------------------------------
     async def request(self, principal: Principal, instance_id: str) -> dict[str, Any]:
         state = await self._live_for(principal, instance_id)
         now = self.clock()
-        fresh = ControlRequest("r-" + secrets.token_hex(8), principal.name, state.instance_id,
-                               state.vehicle_id, now)
+        fresh = ControlRequest(
+            "r-" + secrets.token_hex(8), principal.name, state.instance_id, state.vehicle_id, now
+        )
         pending, req = rules.add_request(
-            self._requests.get(state.instance_id, []), fresh,
+            self._requests.get(state.instance_id, []),
+            fresh,
             limit=self.settings.max_pending_requests,
         )
         if req is fresh:
@@ -90,8 +107,9 @@ class ControlService:
             await self._audit("control_request", state, principal, {"request_id": req.request_id})
         return req.wire()
 
-    async def grant(self, principal: Principal, instance_id: str, username: str,
-                    duration_s: float) -> Lease:
+    async def grant(
+        self, principal: Principal, instance_id: str, username: str, duration_s: float
+    ) -> Lease:
         state = await self._live_for(principal, instance_id)
         rules.check_granter(principal, state.vehicle_id)
         access = await self.auth.user_access(username)
@@ -99,17 +117,27 @@ class ControlService:
         rules.check_grantee(grantee, username, state.vehicle_id)
         now = self.clock()
         lease, ended = rules.grant(
-            self._leases.get(state.instance_id), instance_id=state.instance_id,
-            vehicle_id=state.vehicle_id, holder=username, granted_by=principal.name, now=now,
+            self._leases.get(state.instance_id),
+            instance_id=state.instance_id,
+            vehicle_id=state.vehicle_id,
+            holder=username,
+            granted_by=principal.name,
+            now=now,
             duration_s=duration_s,
         )
         self._leases[state.instance_id] = lease
         await self.repo.save_lease(lease.to_doc())
         await self._drop_request(state.instance_id, username)
-        await self._audit("control_grant", state, principal, {
-            "holder": username, "expires_at": format_ts(lease.expires_at),
-            "replaces": ended.holder if ended is not None else None,
-        })
+        await self._audit(
+            "control_grant",
+            state,
+            principal,
+            {
+                "holder": username,
+                "expires_at": format_ts(lease.expires_at),
+                "replaces": ended.holder if ended is not None else None,
+            },
+        )
         if ended is not None:
             await self._ended(ended, f"granted to {username}")
         self._changed(lease.instance_id, lease.vehicle_id, lease.info())
@@ -119,8 +147,12 @@ class ControlService:
         state = await self.instances.for_viewer(principal, instance_id)
         rules.check_granter(principal, state.vehicle_id)
         lease = self.lease(state.instance_id)
-        await self._audit("control_revoke", state, principal,
-                          {"holder": lease.holder if lease is not None else None})
+        await self._audit(
+            "control_revoke",
+            state,
+            principal,
+            {"holder": lease.holder if lease is not None else None},
+        )
         if lease is not None:
             await self._end(lease, "revoked")
 
@@ -137,7 +169,9 @@ class ControlService:
         for lease in list(self._leases.values()):
             if not lease.live(now):
                 await self.events.record(
-                    "control_expired", vehicle_id=lease.vehicle_id, instance_id=lease.instance_id,
+                    "control_expired",
+                    vehicle_id=lease.vehicle_id,
+                    instance_id=lease.instance_id,
                     data={"holder": lease.holder},
                 )
                 await self._end(lease, "expired")
@@ -179,7 +213,13 @@ class ControlService:
             self._requests[instance_id] = [r for r in pending if r.username != username]
             await self.repo.drop_requests(instance_id, username)
 
-    async def _audit(self, kind: str, state: InstanceState, principal: Principal,
-                     data: dict[str, Any]) -> None:
-        await self.events.record(kind, vehicle_id=state.vehicle_id,
-                                 instance_id=state.instance_id, actor=principal, data=data)
+    async def _audit(
+        self, kind: str, state: InstanceState, principal: Principal, data: dict[str, Any]
+    ) -> None:
+        await self.events.record(
+            kind,
+            vehicle_id=state.vehicle_id,
+            instance_id=state.instance_id,
+            actor=principal,
+            data=data,
+        )

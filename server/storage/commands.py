@@ -38,9 +38,7 @@ class CommandsRepo:
         await self.active.delete_many({"command_id": doc["command_id"]})
 
     async def get(self, command_id: str) -> Doc | None:
-        docs = await self.finished.find(
-            {"command_id": command_id}, projection={"_id": 0}, limit=1
-        )
+        docs = await self.finished.find({"command_id": command_id}, projection={"_id": 0}, limit=1)
         if docs:
             return docs[0]
         docs = await self.active.find({"command_id": command_id}, projection={"_id": 0}, limit=1)
@@ -48,7 +46,9 @@ class CommandsRepo:
 
     async def recent_finished(self, instance_id: str, limit: int) -> list[Doc]:
         return await self.finished.find(
-            {"instance_id": instance_id}, sort=[("issued_at", -1)], limit=limit,
+            {"instance_id": instance_id},
+            sort=[("issued_at", -1)],
+            limit=limit,
             projection={"_id": 0},
         )
 

@@ -30,12 +30,15 @@ def test_a_manager_of_the_vehicle_or_an_admin_grants() -> None:
             rules.check_granter(who, "usv-1")
 
 
-@pytest.mark.parametrize(("grantee", "why"), [
-    (None, "no such user"),
-    (Grantee("v", "viewer", frozenset({"usv-1"})), "viewer cannot hold"),
-    (Grantee("o", "operator", frozenset({"usv-2"})), "no access"),
-    (Grantee("o", "operator", frozenset({"usv-1"}), disabled=True), "disabled"),
-])
+@pytest.mark.parametrize(
+    ("grantee", "why"),
+    [
+        (None, "no such user"),
+        (Grantee("v", "viewer", frozenset({"usv-1"})), "viewer cannot hold"),
+        (Grantee("o", "operator", frozenset({"usv-2"})), "no access"),
+        (Grantee("o", "operator", frozenset({"usv-1"}), disabled=True), "disabled"),
+    ],
+)
 def test_the_grantee_must_be_an_operator_with_access(grantee: Grantee | None, why: str) -> None:
     with pytest.raises(Invalid) as err:
         rules.check_grantee(grantee, "someone", "usv-1")
@@ -48,35 +51,69 @@ def test_an_admin_grantee_needs_no_assignment() -> None:
 
 
 def test_a_first_grant_makes_a_lease() -> None:
-    lease, ended = rules.grant(None, instance_id="i-1", vehicle_id="usv-1", holder="alice",
-                               granted_by="boss", now=T0, duration_s=60)
+    lease, ended = rules.grant(
+        None,
+        instance_id="i-1",
+        vehicle_id="usv-1",
+        holder="alice",
+        granted_by="boss",
+        now=T0,
+        duration_s=60,
+    )
     assert (lease.holder, lease.expires_at, ended) == ("alice", T0 + timedelta(seconds=60), None)
 
 
 def test_granting_again_to_the_holder_extends_never_shortens() -> None:
     current = lease_for("alice", seconds=600)
-    longer, ended = rules.grant(current, instance_id="i-1", vehicle_id="usv-1", holder="alice",
-                                granted_by="boss", now=T0 + timedelta(seconds=10),
-                                duration_s=3600)
+    longer, ended = rules.grant(
+        current,
+        instance_id="i-1",
+        vehicle_id="usv-1",
+        holder="alice",
+        granted_by="boss",
+        now=T0 + timedelta(seconds=10),
+        duration_s=3600,
+    )
     assert ended is None
     assert longer.expires_at == T0 + timedelta(seconds=3610)
-    shorter, _ = rules.grant(current, instance_id="i-1", vehicle_id="usv-1", holder="alice",
-                             granted_by="boss", now=T0, duration_s=5)
+    shorter, _ = rules.grant(
+        current,
+        instance_id="i-1",
+        vehicle_id="usv-1",
+        holder="alice",
+        granted_by="boss",
+        now=T0,
+        duration_s=5,
+    )
     assert shorter.expires_at == current.expires_at
 
 
 def test_granting_to_someone_else_ends_the_former_lease() -> None:
     current = lease_for("alice")
-    lease, ended = rules.grant(current, instance_id="i-1", vehicle_id="usv-1", holder="bob",
-                               granted_by="boss", now=T0 + timedelta(seconds=1), duration_s=60)
+    lease, ended = rules.grant(
+        current,
+        instance_id="i-1",
+        vehicle_id="usv-1",
+        holder="bob",
+        granted_by="boss",
+        now=T0 + timedelta(seconds=1),
+        duration_s=60,
+    )
     assert lease.holder == "bob"
     assert ended is current
 
 
 def test_an_expired_lease_is_not_ended_again_by_a_new_grant() -> None:
     current = lease_for("alice", seconds=5)
-    _, ended = rules.grant(current, instance_id="i-1", vehicle_id="usv-1", holder="bob",
-                           granted_by="boss", now=T0 + timedelta(seconds=5), duration_s=60)
+    _, ended = rules.grant(
+        current,
+        instance_id="i-1",
+        vehicle_id="usv-1",
+        holder="bob",
+        granted_by="boss",
+        now=T0 + timedelta(seconds=5),
+        duration_s=60,
+    )
     assert ended is None
 
 
@@ -85,11 +122,15 @@ def test_submit_needs_a_live_lease_held_by_the_caller() -> None:
     lease = lease_for("alice", seconds=60)
     rules.check_submit(alice, command_type="go_to", lease=lease, control_mode="remote", now=T0)
     with pytest.raises(ControlNotHeld):
-        rules.check_submit(bob, command_type="go_to", lease=lease, control_mode="remote",
-                           now=T0)
+        rules.check_submit(bob, command_type="go_to", lease=lease, control_mode="remote", now=T0)
     with pytest.raises(ControlNotHeld):
-        rules.check_submit(alice, command_type="go_to", lease=lease, control_mode="remote",
-                           now=T0 + timedelta(seconds=60))
+        rules.check_submit(
+            alice,
+            command_type="go_to",
+            lease=lease,
+            control_mode="remote",
+            now=T0 + timedelta(seconds=60),
+        )
     with pytest.raises(ControlNotHeld):
         rules.check_submit(alice, command_type="go_to", lease=None, control_mode="idle", now=T0)
 
@@ -102,8 +143,9 @@ def test_stop_passes_without_a_lease_and_under_local_control() -> None:
 def test_local_control_refuses_everything_but_stop() -> None:
     alice = user("alice", "operator", "usv-1")
     with pytest.raises(VehicleLocalControl):
-        rules.check_submit(alice, command_type="go_to", lease=lease_for("alice"),
-                           control_mode="local", now=T0)
+        rules.check_submit(
+            alice, command_type="go_to", lease=lease_for("alice"), control_mode="local", now=T0
+        )
 
 
 def test_only_the_holder_releases() -> None:

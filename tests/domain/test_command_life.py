@@ -16,14 +16,28 @@ T0 = datetime(2026, 11, 22, 10, 0, 0, tzinfo=UTC)
 _seq = itertools.count(1)
 
 
-def make_command(type: str = "go_to", *, at: datetime = T0, ttl_s: float = 30,
-                 issued_by: str = "alice", max_drift_m: float | None = None,
-                 position: dict[str, Any] | None = None) -> Command:
+def make_command(
+    type: str = "go_to",
+    *,
+    at: datetime = T0,
+    ttl_s: float = 30,
+    issued_by: str = "alice",
+    max_drift_m: float | None = None,
+    position: dict[str, Any] | None = None,
+) -> Command:
     seq = next(_seq)
     args = {"lat": 43.9, "lon": 15.4} if type == "go_to" else {}
     return life.new_command(
-        command_id=f"c-{seq}", instance_id="i-1", vehicle_id="usv-1", type=type, args=args,
-        issued_by=issued_by, now=at, ttl_s=ttl_s, seq=seq, max_drift_m=max_drift_m,
+        command_id=f"c-{seq}",
+        instance_id="i-1",
+        vehicle_id="usv-1",
+        type=type,
+        args=args,
+        issued_by=issued_by,
+        now=at,
+        ttl_s=ttl_s,
+        seq=seq,
+        max_drift_m=max_drift_m,
         position=position,
     )
 
@@ -32,8 +46,13 @@ def later(seconds: float) -> datetime:
     return T0 + timedelta(seconds=seconds)
 
 
-def hand_out(cmds: list[Command], at: datetime, *, position: dict[str, Any] | None = None,
-             ack_timeout_s: float = 10) -> tuple[list[Command], list[Command]]:
+def hand_out(
+    cmds: list[Command],
+    at: datetime,
+    *,
+    position: dict[str, Any] | None = None,
+    ack_timeout_s: float = 10,
+) -> tuple[list[Command], list[Command]]:
     return life.handout(cmds, at, ack_timeout_s=ack_timeout_s, position=position)
 
 
@@ -51,7 +70,12 @@ def test_acks_move_forward_through_the_cycle() -> None:
         assert life.apply_ack(cmd, status, later(2)) is AckOutcome.APPLIED
     assert cmd.status == "done"
     assert [h["status"] for h in cmd.history] == [
-        "queued", "delivered", "accepted", "executing", "done"]
+        "queued",
+        "delivered",
+        "accepted",
+        "executing",
+        "done",
+    ]
 
 
 def test_a_backward_ack_is_recorded_and_ignored() -> None:

@@ -14,11 +14,7 @@ from typing import Any
 import httpx
 from asgi_lifespan import LifespanManager
 from fastapi import FastAPI
-from starlette.routing import Mount
 
-from server.api import client as client_routes
-from server.api import control as control_routes
-from server.api import upper_control as upper_control_routes
 from server.app import create_app
 from server.settings import Settings
 from tests.factories import ADMIN, FakeClock, make_user, make_vehicle, sample, start_instance
@@ -26,17 +22,6 @@ from tests.factories import ADMIN, FakeClock, make_user, make_vehicle, sample, s
 ALL_CAPABILITIES = ["stop", "go_to", "keep_station", "follow_path"]
 GO_TO = {"type": "go_to", "args": {"lat": 43.95, "lon": 15.45}}
 STOP = {"type": "stop", "args": {}}
-
-
-def _with_command_routes(app: FastAPI) -> FastAPI:
-    """Until ``create_app`` includes these routers itself (then this does nothing)."""
-    paths = {getattr(route, "path", None) for route in app.routes}
-    for module in (client_routes, control_routes, upper_control_routes):
-        if not any(route.path in paths for route in module.router.routes):  # type: ignore[attr-defined]
-            app.include_router(module.router)
-    # The static dashboard is mounted at "/": it must stay last.
-    app.router.routes.sort(key=lambda route: isinstance(route, Mount))
-    return app
 
 
 @dataclass
@@ -61,8 +46,11 @@ class World:
     async def vehicle(self, capabilities: list[str] | None = None) -> Vehicle:
         vehicle_id, headers = await make_vehicle(self.http)
         started = await start_instance(
-            self.http, vehicle_id, headers,
-            capabilities=ALL_CAPABILITIES if capabilities is None else capabilities)
+            self.http,
+            vehicle_id,
+            headers,
+            capabilities=ALL_CAPABILITIES if capabilities is None else capabilities,
+        )
         return Vehicle(vehicle_id, headers, started["instance_id"])
 
     async def person(self, role: str, *vehicles: Vehicle) -> Person:
@@ -75,35 +63,54 @@ class World:
         assert r.status_code == 200, r.text
         return op
 
-    async def grant(self, vehicle: Vehicle, username: str, *, duration_s: int = 600,
-                    by: dict[str, str] = ADMIN) -> httpx.Response:
-        return await self.http.post("/client/grant_control", headers=by, json={
-            "instance_id": vehicle.instance_id, "user": username, "duration_s": duration_s})
+    async def grant(
+        self, vehicle: Vehicle, username: str, *, duration_s: int = 600, by: dict[str, str] = ADMIN
+    ) -> httpx.Response:
+        return await self.http.post(
+            "/client/grant_control",
+            headers=by,
+            json={"instance_id": vehicle.instance_id, "user": username, "duration_s": duration_s},
+        )
 
-    async def submit(self, who: Person | dict[str, str], targets: list[Vehicle] | list[str],
-                     command: dict[str, Any], ttl_s: int = 30) -> httpx.Response:
+    async def submit(
+        self,
+        who: Person | dict[str, str],
+        targets: list[Vehicle] | list[str],
+        command: dict[str, Any],
+        ttl_s: int = 30,
+    ) -> httpx.Response:
         ids = [t.instance_id if isinstance(t, Vehicle) else t for t in targets]
-        return await self.http.post("/client/submit_control", headers=_headers(who), json={
-            "instance_ids": ids, "command": command, "ttl_s": ttl_s})
+        return await self.http.post(
+            "/client/submit_control",
+            headers=_headers(who),
+            json={"instance_ids": ids, "command": command, "ttl_s": ttl_s},
+        )
 
-    async def queued(self, who: Person, vehicle: Vehicle, command: dict[str, Any],
-                     ttl_s: int = 30) -> str:
+    async def queued(
+        self, who: Person, vehicle: Vehicle, command: dict[str, Any], ttl_s: int = 30
+    ) -> str:
         r = await self.submit(who, [vehicle], command, ttl_s=ttl_s)
         assert r.status_code == 202, r.text
         command_id: str = r.json()["commands"][0]["command_id"]
         return command_id
 
     async def poll(self, vehicle: Vehicle, wait_s: float = 0) -> list[dict[str, Any]]:
-        r = await self.http.get("/upper/get_control", headers=vehicle.headers, params={
-            "instance_id": vehicle.instance_id, "wait_s": wait_s})
+        r = await self.http.get(
+            "/upper/get_control",
+            headers=vehicle.headers,
+            params={"instance_id": vehicle.instance_id, "wait_s": wait_s},
+        )
         assert r.status_code == 200, r.text
         commands: list[dict[str, Any]] = r.json()["commands"]
         return commands
 
-    async def ack(self, vehicle: Vehicle, *acks: tuple[str, str],
-                  control_mode: str | None = None) -> dict[str, Any]:
-        body: dict[str, Any] = {"instance_id": vehicle.instance_id,
-                                "acks": [{"command_id": c, "status": s} for c, s in acks]}
+    async def ack(
+        self, vehicle: Vehicle, *acks: tuple[str, str], control_mode: str | None = None
+    ) -> dict[str, Any]:
+        body: dict[str, Any] = {
+            "instance_id": vehicle.instance_id,
+            "acks": [{"command_id": c, "status": s} for c, s in acks],
+        }
         if control_mode is not None:
             body["control_mode"] = control_mode
         r = await self.http.post("/upper/update_fbmessage", headers=vehicle.headers, json=body)
@@ -118,9 +125,14 @@ class World:
         return result
 
     async def move_to(self, vehicle: Vehicle, seq: int, lat: float, lon: float) -> None:
-        r = await self.http.post("/upper/update_param", headers=vehicle.headers, json={
-            "instance_id": vehicle.instance_id,
-            "samples": [sample(seq, ts=self.clock(), lat=lat, lon=lon)]})
+        r = await self.http.post(
+            "/upper/update_param",
+            headers=vehicle.headers,
+            json={
+                "instance_id": vehicle.instance_id,
+                "samples": [sample(seq, ts=self.clock(), lat=lat, lon=lon)],
+            },
+        )
         assert r.status_code == 200, r.text
 
     @property
@@ -135,7 +147,7 @@ def _headers(who: Person | dict[str, str]) -> dict[str, str]:
 @asynccontextmanager
 async def world(settings: Settings, clock: FakeClock | None = None) -> AsyncIterator[World]:
     clock = clock or FakeClock()
-    app = _with_command_routes(create_app(settings, clock=clock))
+    app = create_app(settings, clock=clock)
     async with LifespanManager(app) as manager:
         transport = httpx.ASGITransport(app=manager.app)
         async with httpx.AsyncClient(transport=transport, base_url="http://test") as http:

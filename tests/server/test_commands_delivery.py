@@ -151,8 +151,9 @@ async def test_open_long_polls_per_vehicle_are_bounded(w: World) -> None:
         return bool(state.polling)
 
     await eventually(polling)
-    r = await w.http.get("/upper/get_control", headers=v.headers,
-                         params={"instance_id": v.instance_id, "wait_s": 5})
+    r = await w.http.get(
+        "/upper/get_control", headers=v.headers, params={"instance_id": v.instance_id, "wait_s": 5}
+    )
     assert r.status_code == 429
     assert r.json()["error"]["code"] == "rate_limited"
     assert "retry-after" in r.headers
@@ -163,7 +164,7 @@ async def test_open_long_polls_per_vehicle_are_bounded(w: World) -> None:
 async def test_get_control_refusals(w: World) -> None:
     v, other = await w.vehicle(), await w.vehicle()
     op = await w.person("operator", v)
-    cases = [
+    cases: list[tuple[dict[str, str], dict[str, str | int], int]] = [
         ({}, {"instance_id": v.instance_id}, 401),
         (op.headers, {"instance_id": v.instance_id}, 403),
         (other.headers, {"instance_id": v.instance_id}, 403),
@@ -188,8 +189,11 @@ async def test_update_fbmessage_refusals(w: World) -> None:
         (v.headers, {"instance_id": "i-nope"}, 404),
         (v.headers, {**good, "control_mode": "asleep"}, 422),
         (v.headers, {**good, "acks": [{"command_id": "c-1", "status": "queued"}]}, 422),
-        (v.headers, {**good, "acks": [{"command_id": "c-1", "status": "done",
-                                       "progress": 101}]}, 422),
+        (
+            v.headers,
+            {**good, "acks": [{"command_id": "c-1", "status": "done", "progress": 101}]},
+            422,
+        ),
     ]
     for headers, body, status in cases:
         r = await w.http.post("/upper/update_fbmessage", headers=headers, json=body)
@@ -206,14 +210,16 @@ async def test_finish_instance_cancels_what_is_pending(w: World) -> None:
     v = await w.vehicle()
     op = await w.operator_in_control(v)
     cid = await w.queued(op, v, GO_TO)
-    r = await w.http.post("/upper/finish_instance", headers=v.headers,
-                          json={"instance_id": v.instance_id})
+    r = await w.http.post(
+        "/upper/finish_instance", headers=v.headers, json={"instance_id": v.instance_id}
+    )
     assert r.status_code == 200, r.text
     cmd = await w.command(cid)
     assert cmd["status"] == "cancelled"
     assert cmd["history"][-1]["detail"] == "instance_finished"
-    r = await w.http.get("/upper/get_control", headers=v.headers,
-                         params={"instance_id": v.instance_id})
+    r = await w.http.get(
+        "/upper/get_control", headers=v.headers, params={"instance_id": v.instance_id}
+    )
     assert r.status_code == 409
     assert r.json()["error"]["code"] == "instance_finished"
 
@@ -270,8 +276,9 @@ async def test_get_fbmessage_shows_the_mode_and_recent_commands(w: World) -> Non
     second = await w.queued(op, v, KEEP)
     await w.ack(v, (first, "done"), control_mode="remote")
     viewer = await w.person("viewer", v)
-    r = await w.http.get("/client/get_fbmessage", headers=viewer.headers,
-                         params={"instance_id": v.instance_id})
+    r = await w.http.get(
+        "/client/get_fbmessage", headers=viewer.headers, params={"instance_id": v.instance_id}
+    )
     assert r.status_code == 200, r.text
     body = r.json()
     assert body["control_mode"] == "remote"
@@ -284,11 +291,13 @@ async def test_get_fbmessage_and_get_command_refusals(w: World) -> None:
     op = await w.operator_in_control(v)
     cid = await w.queued(op, v, GO_TO)
     stranger = await w.person("viewer")
-    r = await w.http.get("/client/get_fbmessage", headers=stranger.headers,
-                         params={"instance_id": v.instance_id})
+    r = await w.http.get(
+        "/client/get_fbmessage", headers=stranger.headers, params={"instance_id": v.instance_id}
+    )
     assert r.status_code == 403
-    r = await w.http.get("/client/get_fbmessage", headers=op.headers,
-                         params={"instance_id": "i-nope"})
+    r = await w.http.get(
+        "/client/get_fbmessage", headers=op.headers, params={"instance_id": "i-nope"}
+    )
     assert r.status_code == 404
     r = await w.http.get("/client/get_fbmessage", headers=op.headers)
     assert r.status_code == 422

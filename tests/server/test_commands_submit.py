@@ -116,20 +116,26 @@ async def test_every_vehicle_can_stop_whatever_its_capabilities(w: World) -> Non
     assert (await w.submit(op, [v], STOP)).status_code == 202
 
 
-@pytest.mark.parametrize(("body", "field"), [
-    ({"command": {"type": "go_to", "args": {"lat": 100, "lon": 0}}}, "command.args.lat"),
-    ({"command": {"type": "go_to", "args": {"lat": 1}}}, "command.args.lon"),
-    ({"command": {"type": "fly", "args": {}}}, "command.type"),
-    ({"command": STOP, "ttl_s": 0}, "ttl_s"),
-    ({"command": STOP, "ttl_s": 3601}, "ttl_s"),
-    ({"command": GO_TO, "instance_ids": ["*"]}, "command"),
-    ({"command": STOP, "instance_ids": ["*", "i-1"]}, "instance_ids"),
-    ({"command": STOP, "instance_ids": []}, "instance_ids"),
-    ({"command": {"type": "go_to", "args": {"lat": 1, "lon": 1}, "max_drift_m": -1}},
-     "command.max_drift_m"),
-])
-async def test_bad_input_is_422_naming_the_field(w: World, body: dict[str, object],
-                                                  field: str) -> None:
+@pytest.mark.parametrize(
+    ("body", "field"),
+    [
+        ({"command": {"type": "go_to", "args": {"lat": 100, "lon": 0}}}, "command.args.lat"),
+        ({"command": {"type": "go_to", "args": {"lat": 1}}}, "command.args.lon"),
+        ({"command": {"type": "fly", "args": {}}}, "command.type"),
+        ({"command": STOP, "ttl_s": 0}, "ttl_s"),
+        ({"command": STOP, "ttl_s": 3601}, "ttl_s"),
+        ({"command": GO_TO, "instance_ids": ["*"]}, "command"),
+        ({"command": STOP, "instance_ids": ["*", "i-1"]}, "instance_ids"),
+        ({"command": STOP, "instance_ids": []}, "instance_ids"),
+        (
+            {"command": {"type": "go_to", "args": {"lat": 1, "lon": 1}, "max_drift_m": -1}},
+            "command.max_drift_m",
+        ),
+    ],
+)
+async def test_bad_input_is_422_naming_the_field(
+    w: World, body: dict[str, object], field: str
+) -> None:
     v = await w.vehicle()
     op = await w.operator_in_control(v)
     payload = {"instance_ids": [v.instance_id], **body}
@@ -150,8 +156,9 @@ async def test_an_unknown_instance_is_404(w: World) -> None:
 async def test_a_finished_instance_is_409_instance_finished(w: World) -> None:
     v = await w.vehicle()
     op = await w.person("operator", v)
-    r = await w.http.post("/upper/finish_instance", headers=v.headers,
-                          json={"instance_id": v.instance_id})
+    r = await w.http.post(
+        "/upper/finish_instance", headers=v.headers, json={"instance_id": v.instance_id}
+    )
     assert r.status_code == 200, r.text
     r = await w.submit(op, [v], STOP)
     assert r.status_code == 409
@@ -178,7 +185,9 @@ async def test_one_refusal_among_many_names_which_and_why(w: World) -> None:
     error = r.json()["error"]
     assert error["code"] == "control_not_held"
     assert [(d["instance_id"], d["code"]) for d in error["details"]] == [
-        (b.instance_id, "control_not_held"), (c.instance_id, "capability_missing")]
+        (b.instance_id, "control_not_held"),
+        (c.instance_id, "capability_missing"),
+    ]
     for v in (a, b, c):
         assert await w.poll(v) == []
 
@@ -211,8 +220,9 @@ async def test_every_submit_is_audited(w: World) -> None:
     v = await w.vehicle()
     op = await w.operator_in_control(v)
     command_id = await w.queued(op, v, GO_TO)
-    r = await w.http.get("/api/events", headers=ADMIN,
-                         params={"vehicle_id": v.vehicle_id, "kind": "command"})
+    r = await w.http.get(
+        "/api/events", headers=ADMIN, params={"vehicle_id": v.vehicle_id, "kind": "command"}
+    )
     assert r.status_code == 200, r.text
     mine = [e for e in r.json()["events"] if e["data"].get("command_id") == command_id]
     assert mine and mine[0]["actor"] == op.username

@@ -36,8 +36,9 @@ async def test_a_request_reaches_the_manager_and_a_grant_answers_it(w: World) ->
     again = await post(w, "request_control", op.headers, instance_id=v.instance_id)
     assert again.json()["request_id"] == request["request_id"]
 
-    r = await w.http.get("/client/control_requests", headers=boss.headers,
-                         params={"instance_id": v.instance_id})
+    r = await w.http.get(
+        "/client/control_requests", headers=boss.headers, params={"instance_id": v.instance_id}
+    )
     assert r.status_code == 200
     assert [q["request_id"] for q in r.json()["requests"]] == [request["request_id"]]
     r = await w.http.get("/client/control_requests", headers=op.headers)
@@ -56,8 +57,10 @@ async def test_a_request_reaches_the_manager_and_a_grant_answers_it(w: World) ->
 async def test_pending_requests_are_bounded(w: World) -> None:
     v = await w.vehicle()
     people = [await w.person("operator", v) for _ in range(3)]
-    codes = [(await post(w, "request_control", p.headers, instance_id=v.instance_id)).status_code
-             for p in people]
+    codes = [
+        (await post(w, "request_control", p.headers, instance_id=v.instance_id)).status_code
+        for p in people
+    ]
     assert codes == [200, 200, 429]
 
 
@@ -100,8 +103,9 @@ async def test_grant_refusals(w: World) -> None:
     for headers, body, status, code in cases:
         r = await w.http.post("/client/grant_control", headers=headers, json=body)
         assert (r.status_code, r.json()["error"]["code"]) == (status, code), (body, r.text)
-    r = await w.http.post("/client/grant_control", headers=ADMIN,
-                          json={**good, "user": viewer.username})
+    r = await w.http.post(
+        "/client/grant_control", headers=ADMIN, json={**good, "user": viewer.username}
+    )
     assert r.json()["error"]["details"][0]["field"] == "user"
 
 
@@ -188,22 +192,28 @@ async def test_a_lease_ends_at_its_expiry(w: World) -> None:
 async def test_the_vehicle_and_the_operators_are_told_who_holds_control(w: World) -> None:
     v = await w.vehicle()
     op = await w.operator_in_control(v)
-    r = await w.http.post("/upper/start_instance", headers=v.headers, json={
-        "vehicle_id": v.vehicle_id, "capabilities": ["go_to"]})
+    r = await w.http.post(
+        "/upper/start_instance",
+        headers=v.headers,
+        json={"vehicle_id": v.vehicle_id, "capabilities": ["go_to"]},
+    )
     assert r.json()["resumed"] is True
     assert r.json()["control"]["holder"] == op.username
-    r = await w.http.post("/client/connect_instance", headers=op.headers,
-                          json={"instance_id": v.instance_id})
+    r = await w.http.post(
+        "/client/connect_instance", headers=op.headers, json={"instance_id": v.instance_id}
+    )
     assert r.json()["instance"]["control"]["holder"] == op.username
 
 
 async def test_finish_instance_ends_the_lease(w: World) -> None:
     v = await w.vehicle()
     await w.operator_in_control(v)
-    await w.http.post("/upper/finish_instance", headers=v.headers,
-                      json={"instance_id": v.instance_id})
-    r = await w.http.post("/client/connect_instance", headers=ADMIN,
-                          json={"instance_id": v.instance_id})
+    await w.http.post(
+        "/upper/finish_instance", headers=v.headers, json={"instance_id": v.instance_id}
+    )
+    r = await w.http.post(
+        "/client/connect_instance", headers=ADMIN, json={"instance_id": v.instance_id}
+    )
     assert r.json()["instance"]["control"] is None
     r = await w.grant(v, (await w.person("operator", v)).username)
     assert r.json()["error"]["code"] == "instance_finished"
