@@ -11,7 +11,18 @@ from fastapi.staticfiles import StaticFiles
 
 from fleet_protocol import utcnow
 from server import container
-from server.api import admin, client, control, errors, fleet, health, upper, upper_control, ws
+from server.api import (
+    admin,
+    client,
+    control,
+    errors,
+    fleet,
+    fleet_telemetry,
+    health,
+    upper,
+    upper_control,
+    ws,
+)
 from server.api.limits import BodyLimit
 from server.metrics import Metrics, MetricsMiddleware
 from server.settings import Settings
@@ -45,6 +56,7 @@ def create_app(settings: Settings | None = None, *, clock: container.Clock = utc
     errors.install(app)
     for module in (health, admin, upper, upper_control, client, control, fleet, ws):
         app.include_router(module.router)
+    app.include_router(fleet_telemetry.router)
     if WEB_DIR.is_dir() and any(WEB_DIR.iterdir()):
         app.mount("/", StaticFiles(directory=WEB_DIR, html=True), name="web")
     app.add_middleware(MetricsMiddleware, metrics=metrics)

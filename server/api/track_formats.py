@@ -1,0 +1,74 @@
+"""A track rendered for the wire: JSON points, GeoJSON, GPX 1.1 or CSV. Pure functions."""
+
+from __future__ import annotations
+
+import csv
+import io
+from typing import Any
+from xml.sax.saxutils import escape, quoteattr
+
+from fleet_protocol import format_ts
+from server.services.telemetry import TRACK_FIELDS, TrackResult
+
+CSV_COLUMNS = ("ts", *TRACK_FIELDS)
+MEDIA_TYPES = {
+    "geojson": "application/geo+json",
+    "gpx": "application/gpx+xml",
+    "csv": "text/csv; charset=utf-8",
+}
+
+
+def json_points(track: TrackResult) -> list[dict[str, Any]]:
+    return [{**p, "ts": format_ts(p["ts"])} for p in track.points]
+
+
+def geojson(track: TrackResult) -> dict[str, Any]:
+    """One Feature with a LineString (``[lon, lat]``); times and paging in its properties."""
+    return {
+        "type": "Feature",
+        "geometry": {
+            "type": "LineString",
+            "coordinates": [[p["lon"], p["lat"]] for p in track.points],
+        },
+        "properties": {
+            "vehicle_id": track.vehicle_id,
+            "times": [format_ts(p["ts"]) for p in track.points],
+            "seqs": [p["seq"] for p in track.points],
+            "truncated": track.truncated,
+            "next_from": format_ts(track.next_from) if track.next_from else None,
+        },
+    }
+
+
+def gpx(track: TrackResult) -> str:
+    """GPX 1.1: one ``trk`` with one ``trkseg``; depth as negative elevation."""
+    out = [
+        '<?xml version="1.0" encoding="UTF-8"?>',
+        '<gpx version="1.1" creator="fleet-cloud" xmlns="http://www.topografix.com/GPX/1/1">',
+        f"<trk><name>{escape(track.vehicle_id)}</name><trkseg>",
+    ]
+    for p in track.points:
+        ele = f"<ele>{-p['depth_m']}</ele>" if "depth_m" in p else ""
+        out.append(
+            f"<trkpt lat={quoteattr(repr(p['lat']))} lon={quoteattr(repr(p['lon']))}>"
+            f"{ele}<time>{format_ts(p['ts'])}</time></trkpt>"
+        )
+    out.append("</trkseg></trk></gpx>")
+    return "\n".join(out) + "\n"
+
+
+def csv_text(track: TrackResult) -> str:
+    buf = io.StringIO()
+    writer = csv.writer(buf, lineterminator="\n")
+    writer.writerow(CSV_COLUMNS)
+    for p in track.points:
+        writer.writerow([format_ts(p["ts"]), *(p.get(name, "") for name in TRACK_FIELDS)])
+    return buf.getvalue()
+
+
+def paging_headers(track: TrackResult) -> dict[str, str]:
+    """For the formats without a place for them: whether the track was cut, and where."""
+    headers = {"X-Track-Truncated": "true" if track.truncated else "false"}
+    if track.next_from is not None:
+        headers["X-Track-Next-From"] = format_ts(track.next_from)
+    return headers

@@ -1,0 +1,341 @@
+"""Telemetry: idempotent ingest, bucketed insert-only storage, durability marks, views.
+
+Per vehicle the service keeps the ``seq`` high-water mark, the samples not
+yet written (the open bucket), the latest position and the durable mark.
+
+- A sample at or below the high-water mark is a duplicate: counted, not
+  stored. Batches of one vehicle run one at a time (a lock per vehicle).
+- The open bucket is inserted whole when it holds ``bucket_samples`` (in the
+  ingest call) or is ``bucket_max_age_s`` old (by :meth:`run_writer`).
+- ``acked_through_seq`` is the high-water mark (in memory or stored).
+  ``durable_through_seq`` is the highest ``seq`` in a bucket that survives a
+  crash: on MongoDB once inserted (journaled writes); on the embedded store
+  once a ``store.flush()`` begun after its insert has completed.
+- The latest position is the sample with the greatest ``ts``. A sample older
+  than the latest position, or older than ``offline_after_s`` when it
+  arrives, is flagged ``replayed`` (it came late, from an outbox).
+- -1 stands for "no sample" in ``seq`` marks (a vehicle's first ``seq`` may be 0).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from datetime import datetime, timedelta
+from typing import Any
+
+from fleet_protocol import Sample, utcnow
+from server.domain.track import TRACK_PAGE_CAP, cut_page, simplify
+from server.errors import Unavailable
+from server.settings import Settings
+from server.storage.driver import Doc, Store
+from server.storage.telemetry import TelemetryRepo, aware
+
+log = logging.getLogger("fleet.telemetry")
+Clock = Callable[[], datetime]
+
+#: Points read from the store for one downsampled track; past it the track is paged.
+SIMPLIFY_INPUT_CAP = 500_000
+#: Open buckets kept in memory per vehicle while the store refuses writes.
+MAX_PENDING_BUCKETS = 50
+#: Buckets read per query when paging by ``seq`` on MongoDB.
+PAGE_BUCKETS = 20
+#: Fields of a sample shown in a track (``data`` is left to the telemetry page).
+TRACK_FIELDS = ("seq", "lat", "lon", "depth_m", "heading_deg", "speed_mps", "battery_pct")
+
+
+@dataclass(slots=True)
+class IngestResult:
+    accepted: int
+    duplicates: int
+    acked_through_seq: int
+    durable_through_seq: int
+    #: The vehicle's new latest position when this batch moved it, else None.
+    latest: Sample | None
+    #: The accepted samples, in the order received, and whether each came late.
+    stored: list[Sample] = field(default_factory=list)
+    replayed: list[bool] = field(default_factory=list)
+
+
+@dataclass(slots=True)
+class TrackResult:
+    vehicle_id: str
+    points: list[dict[str, Any]]  # ts as datetime, in ts order
+    truncated: bool
+    next_from: datetime | None
+
+
+@dataclass(slots=True)
+class _Vehicle:
+    lock: asyncio.Lock = field(default_factory=asyncio.Lock)
+    loaded: bool = False
+    high: int = -1
+    durable: int = -1
+    pending: list[Doc] = field(default_factory=list)
+    opened_at: float = 0.0  # monotonic time of the open bucket's first sample
+    unflushed: list[int] = field(default_factory=list)  # max_seq of buckets awaiting a flush
+    latest: Sample | None = None
+
+
+def _stored(sample: Sample) -> Doc:
+    return sample.model_dump(exclude_none=True)
+
+
+def _sample(doc: Doc) -> Sample:
+    return Sample.model_validate({**doc, "ts": aware(doc["ts"])})
+
+
+class TelemetryService:
+    def __init__(self, settings: Settings, store: Store, clock: Clock = utcnow,
+                 repo: TelemetryRepo | None = None) -> None:
+        self.settings = settings
+        self.store = store
+        self.clock = clock
+        self.repo = repo or TelemetryRepo(store)
+        self._vehicles: dict[str, _Vehicle] = {}
+        self._last_flush = time.monotonic()
+
+    async def load(self) -> None:
+        """Indexes and the in-process bucket index (embedded). Once, after ``store.load()``."""
+        await self.repo.ensure_indexes()
+        await self.repo.load()
+
+    # ---- ingest -------------------------------------------------------------
+    def _state(self, vehicle_id: str) -> _Vehicle:
+        state = self._vehicles.get(vehicle_id)
+        if state is None:
+            state = self._vehicles[vehicle_id] = _Vehicle()
+        return state
+
+    async def _load(self, vehicle_id: str, state: _Vehicle) -> None:
+        """High-water mark and latest position from the store, once per vehicle (under its lock)."""
+        if state.loaded:
+            return
+        high = await self.repo.max_seq(vehicle_id)
+        latest = await self.repo.latest_sample(vehicle_id)
+        state.high = max(state.high, high)
+        state.durable = max(state.durable, high)  # what was stored before is durable
+        state.latest = _sample(latest) if latest is not None else None
+        state.loaded = True
+
+    async def ingest(self, vehicle_id: str, instance_id: str,
+                     samples: list[Sample]) -> IngestResult:
+        state = self._state(vehicle_id)
+        async with state.lock:
+            await self._load(vehicle_id, state)
+            cap = self.settings.bucket_samples
+            if samples and len(state.pending) >= cap * MAX_PENDING_BUCKETS:
+                raise Unavailable("telemetry cannot be stored now; send it again shortly")
+            before = state.latest
+            stale_before = self.clock() - timedelta(seconds=self.settings.offline_after_s)
+            result = IngestResult(0, 0, -1, -1, None)
+            for sample in samples:
+                if sample.seq <= state.high:
+                    result.duplicates += 1
+                    continue
+                state.high = sample.seq
+                if not state.pending:
+                    state.opened_at = time.monotonic()
+                state.pending.append(_stored(sample))
+                latest = state.latest
+                result.replayed.append(
+                    (latest is not None and sample.ts < latest.ts) or sample.ts < stale_before
+                )
+                if latest is None or sample.ts >= latest.ts:
+                    state.latest = sample
+                result.stored.append(sample)
+            result.accepted = len(result.stored)
+            while len(state.pending) >= cap:
+                if not await self._write_bucket(vehicle_id, state, best_effort=True):
+                    break
+            result.acked_through_seq = state.high
+            result.durable_through_seq = state.durable
+            result.latest = state.latest if state.latest is not before else None
+            return result
+
+    async def _write_bucket(self, vehicle_id: str, state: _Vehicle, *,
+                            best_effort: bool = False) -> bool:
+        """Insert the oldest ``bucket_samples`` pending samples as one bucket (under the lock)."""
+        chunk = state.pending[: self.settings.bucket_samples]
+        try:
+            meta = await self.repo.insert(self.repo.make_bucket(vehicle_id, chunk))
+        except Unavailable:
+            if not best_effort:
+                raise
+            log.warning("telemetry of %s kept in memory: the store refused the write", vehicle_id)
+            return False
+        del state.pending[: len(chunk)]
+        if state.pending:
+            state.opened_at = time.monotonic()
+        if self.store.durable_on_write:
+            state.durable = max(state.durable, meta.max_seq)
+        else:
+            state.unflushed.append(meta.max_seq)
+        return True
+
+    async def last_seq(self, vehicle_id: str) -> int:
+        """The vehicle's highest ``seq`` the server has (-1: none), for ``start_instance``."""
+        state = self._state(vehicle_id)
+        async with state.lock:
+            await self._load(vehicle_id, state)
+            return state.high
+
+    async def latest(self, vehicle_id: str) -> Sample | None:
+        state = self._state(vehicle_id)
+        async with state.lock:
+            await self._load(vehicle_id, state)
+            return state.latest
+
+    def durable_through_seq(self, vehicle_id: str) -> int:
+        state = self._vehicles.get(vehicle_id)
+        return state.durable if state is not None else -1
+
+    # ---- writer -------------------------------------------------------------
+    async def write_due(self, *, everything: bool = False) -> int:
+        """Insert every open bucket that is full or old (all of them with ``everything``)."""
+        max_age = self.settings.bucket_max_age_s
+        written = 0
+        for vehicle_id, state in list(self._vehicles.items()):
+            if not state.pending:
+                continue
+            async with state.lock:
+                while state.pending and (
+                    everything
+                    or len(state.pending) >= self.settings.bucket_samples
+                    or time.monotonic() - state.opened_at >= max_age
+                ):
+                    await self._write_bucket(vehicle_id, state)
+                    written += 1
+        return written
+
+    async def make_durable(self) -> bool:
+        """Embedded store: flush the journal, then move the durable marks. True if they moved."""
+        if self.store.durable_on_write:
+            return False
+        marks = {v: (len(s.unflushed), s.unflushed[-1])
+                 for v, s in self._vehicles.items() if s.unflushed}
+        if not marks:
+            return False
+        await self.store.flush()  # everything recorded before this call is on disk after it
+        self._last_flush = time.monotonic()
+        for vehicle_id, (count, mark) in marks.items():
+            state = self._vehicles[vehicle_id]
+            state.durable = max(state.durable, mark)
+            del state.unflushed[:count]
+        return True
+
+    async def drop_before(self, before: datetime) -> int:
+        """Retention: drop the buckets whose newest sample is older than ``before``."""
+        dropped = await self.repo.drop_ended_before(before)
+        if dropped:
+            log.info("telemetry retention: %d buckets older than %s dropped", dropped, before)
+        return dropped
+
+    def writer_tick_s(self) -> float:
+        return min(max(self.settings.bucket_max_age_s / 4, 0.05), 0.5)
+
+    async def writer_step(self) -> None:
+        """One pass of the writer: aged buckets inserted, then made durable."""
+        await self.write_due()
+        await self.make_durable()
+
+    async def run_writer(self) -> None:
+        """Background task for the app's lifespan; cancel it, then call :meth:`flush_all`."""
+        tick = self.writer_tick_s()
+        while True:
+            try:
+                await self.writer_step()
+            except asyncio.CancelledError:
+                raise
+            except Exception:
+                log.exception("telemetry writer failed; it goes on")
+            await asyncio.sleep(tick)
+
+    async def flush_all(self) -> None:
+        """Shutdown: write every open bucket and make it durable."""
+        await self.write_due(everything=True)
+        await self.make_durable()
+
+    # ---- views --------------------------------------------------------------
+    def _tail(self, vehicle_id: str) -> list[Doc]:
+        """The samples not yet in a bucket (snapshot, taken before reading buckets)."""
+        state = self._vehicles.get(vehicle_id)
+        return list(state.pending) if state is not None else []
+
+    async def track(self, vehicle_id: str, start: datetime, end: datetime,
+                    max_points: int | None = None, *, cap: int | None = None) -> TrackResult:
+        """Points with ``start <= ts < end`` in ``ts`` order; downsampled to ``max_points``.
+
+        At most ``cap`` points are read (10,000 without ``max_points``); past it the
+        result is ``truncated`` and ``next_from`` starts the next page.
+        """
+        tail = self._tail(vehicle_id)
+        buckets = await self.repo.in_window(vehicle_id, start, end)
+        points: list[dict[str, Any]] = []
+        for bucket in buckets:
+            for s in bucket["samples"]:
+                ts = aware(s["ts"])
+                if start <= ts < end:
+                    points.append(_point(s, ts))
+        # A bucket written since the tail was taken may be in both: its samples count once.
+        stored_high = max((b["max_seq"] for b in buckets), default=-1)
+        for s in tail:
+            ts = s["ts"]
+            if start <= ts < end and s["seq"] > stored_high:
+                points.append(_point(s, ts))
+        points.sort(key=lambda p: (p["ts"], p["seq"]))
+        if cap is None:
+            cap = TRACK_PAGE_CAP if max_points is None else SIMPLIFY_INPUT_CAP
+        count, next_from = cut_page([p["ts"] for p in points], cap)
+        points = points[:count]
+        if max_points is not None:
+            keep = simplify([p["lat"] for p in points], [p["lon"] for p in points], max_points)
+            points = [points[i] for i in keep]
+        return TrackResult(vehicle_id, points, next_from is not None, next_from)
+
+    async def page(self, vehicle_id: str, *, after_seq: int = -1, start: datetime | None = None,
+                   end: datetime | None = None, limit: int = 1000) -> tuple[list[Doc], int | None]:
+        """Stored samples with ``seq > after_seq`` (and ``start <= ts < end``) in ``seq`` order."""
+        tail = self._tail(vehicle_id)
+        out: list[Doc] = []
+
+        def take(s: Doc) -> bool:
+            ts = aware(s["ts"])
+            if (start is None or ts >= start) and (end is None or ts < end):
+                out.append({**s, "ts": ts})
+            return len(out) >= limit
+
+        cursor = after_seq
+        full = False
+        while not full:
+            buckets = await self.repo.after_seq(vehicle_id, cursor, limit=PAGE_BUCKETS,
+                                                start=start, end=end)
+            if not buckets:
+                break
+            for bucket in buckets:
+                for s in bucket["samples"]:
+                    if s["seq"] > cursor and take(s):
+                        full = True
+                        break
+                if full:
+                    break
+                cursor = max(cursor, bucket["max_seq"])
+        if not full:
+            last = out[-1]["seq"] if out else after_seq
+            for s in tail:
+                if s["seq"] > max(last, cursor) and take(s):
+                    break
+        next_after = out[-1]["seq"] if len(out) >= limit else None
+        return out, next_after
+
+
+def _point(sample: Doc, ts: datetime) -> dict[str, Any]:
+    point: dict[str, Any] = {"ts": ts}
+    for name in TRACK_FIELDS:
+        value = sample.get(name)
+        if value is not None:
+            point[name] = value
+    return point

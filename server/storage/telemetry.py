@@ -1,0 +1,259 @@
+"""Telemetry buckets: one document per vehicle per time window, written whole, never updated.
+
+A bucket is ``{vehicle_id, start, end, min_seq, max_seq, n, samples: [...]}``
+where ``start``/``end`` are the earliest and latest sample ``ts`` in it and
+the samples are in ``seq`` order. Buckets of one vehicle hold disjoint,
+rising ``seq`` ranges (the service writes them in order). Index
+``(vehicle_id, start)``; no unique index, no ``$group``, no ``update_one``
+(see ARCHITECTURE.md, Storage).
+
+Real MongoDB answers every query with its indexes. The embedded store
+(mongomock) scans the whole collection on every query, so on it this module
+keeps an in-process index of bucket metadata and reads buckets by ``_id``
+straight from mongomock's document table: a query then costs what it
+returns, not what is stored. The index is rebuilt from the collection on
+:meth:`TelemetryRepo.load`; every insert and delete goes through
+:class:`~server.storage.driver.Collection` or the journal, so it stays
+durable.
+"""
+
+from __future__ import annotations
+
+import bisect
+import logging
+from collections.abc import Mapping
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from typing import Any
+
+from server.storage.driver import Doc, Store
+
+log = logging.getLogger("fleet.storage")
+
+COLLECTION = "telemetry"
+_META = {"samples": 0}
+_MIN = datetime.min.replace(tzinfo=UTC)
+_MAX = datetime.max.replace(tzinfo=UTC)
+
+
+def aware(value: datetime) -> datetime:
+    """Stored datetimes come back naive from the embedded store's table: they are UTC."""
+    return value if value.tzinfo is not None else value.replace(tzinfo=UTC)
+
+
+@dataclass(slots=True)
+class BucketMeta:
+    id: Any
+    vehicle_id: str
+    start: datetime
+    end: datetime
+    min_seq: int
+    max_seq: int
+    n: int
+
+    @classmethod
+    def of(cls, doc: Mapping[str, Any]) -> BucketMeta:
+        return cls(doc["_id"], doc["vehicle_id"], aware(doc["start"]), aware(doc["end"]),
+                   int(doc["min_seq"]), int(doc["max_seq"]), int(doc["n"]))
+
+    def overlaps(self, start: datetime, end: datetime) -> bool:
+        """Whether a sample of this bucket may lie in ``[start, end)``."""
+        return self.start < end and self.end >= start
+
+
+class _VehicleIndex:
+    """One vehicle's buckets in ``seq`` order (so ``max_seq`` rises too)."""
+
+    __slots__ = ("max_seqs", "metas")
+
+    def __init__(self) -> None:
+        self.metas: list[BucketMeta] = []
+        self.max_seqs: list[int] = []
+
+    def add(self, meta: BucketMeta) -> None:
+        if self.max_seqs and meta.min_seq <= self.max_seqs[-1]:
+            # Out of order (never from the service; tolerated for restored data).
+            self.metas.append(meta)
+            self.metas.sort(key=lambda m: m.min_seq)
+            self.max_seqs = [m.max_seq for m in self.metas]
+            return
+        self.metas.append(meta)
+        self.max_seqs.append(meta.max_seq)
+
+    def after_seq(self, after_seq: int) -> list[BucketMeta]:
+        return self.metas[bisect.bisect_right(self.max_seqs, after_seq):]
+
+    def drop(self, ids: set[Any]) -> None:
+        self.metas = [m for m in self.metas if m.id not in ids]
+        self.max_seqs = [m.max_seq for m in self.metas]
+
+
+def _mock_table(store: Store) -> Any | None:
+    """mongomock's document table of the telemetry collection (``_id`` -> doc), if embedded.
+
+    The one place that reaches inside mongomock(-motor); anything unexpected
+    and the repository falls back to ordinary queries.
+    """
+    if not store.embedded:
+        return None
+    raw = getattr(store[COLLECTION], "_raw", None)
+    inner = getattr(raw, "__dict__", {}).get("_AsyncMongoMockCollection__collection")
+    table = getattr(inner, "_store", None)
+    needed = ("documents", "__getitem__", "__delitem__", "__contains__")
+    if table is None or not all(hasattr(table, name) for name in needed):
+        log.warning("embedded store internals not recognised: telemetry queries will scan")
+        return None
+    return table
+
+
+class TelemetryRepo:
+    def __init__(self, store: Store, *, use_index: bool | None = None) -> None:
+        self.store = store
+        self.coll = store[COLLECTION]
+        table = _mock_table(store) if use_index is not False else None
+        self._table = table
+        self._index: dict[str, _VehicleIndex] | None = {} if table is not None else None
+
+    @property
+    def indexed(self) -> bool:
+        return self._index is not None
+
+    async def ensure_indexes(self) -> None:
+        await self.coll.create_index([("vehicle_id", 1), ("start", 1)])
+        await self.coll.create_index([("vehicle_id", 1), ("max_seq", 1)])
+        await self.coll.create_index([("end", 1)])
+
+    async def load(self) -> None:
+        """Build the in-process index from what is stored (embedded store; one pass)."""
+        if self._index is None or self._table is None:
+            return
+        self._index.clear()
+        count = 0
+        for doc in list(self._table.documents):
+            self._vehicle(doc["vehicle_id"]).add(BucketMeta.of(doc))
+            count += 1
+        if count:
+            log.info("telemetry: %d buckets of %d vehicles indexed", count, len(self._index))
+
+    def _vehicle(self, vehicle_id: str) -> _VehicleIndex:
+        assert self._index is not None
+        entry = self._index.get(vehicle_id)
+        if entry is None:
+            entry = self._index[vehicle_id] = _VehicleIndex()
+        return entry
+
+    # ---- writes -------------------------------------------------------------
+    @staticmethod
+    def make_bucket(vehicle_id: str, samples: list[Doc]) -> Doc:
+        """A bucket document for ``samples`` (stored form, ``seq`` order, not empty)."""
+        times = [s["ts"] for s in samples]
+        return {
+            "vehicle_id": vehicle_id,
+            "start": min(times),
+            "end": max(times),
+            "min_seq": samples[0]["seq"],
+            "max_seq": samples[-1]["seq"],
+            "n": len(samples),
+            "samples": samples,
+        }
+
+    async def insert(self, bucket: Doc) -> BucketMeta:
+        await self.coll.insert_one(bucket)  # fills bucket["_id"]
+        meta = BucketMeta.of(bucket)
+        if self._index is not None:
+            self._vehicle(meta.vehicle_id).add(meta)
+        return meta
+
+    async def insert_many(self, buckets: list[Doc]) -> None:
+        """Bulk load (benchmarks, imports): one driver call."""
+        await self.coll.insert_many(buckets)
+        if self._index is not None:
+            for bucket in buckets:
+                self._vehicle(bucket["vehicle_id"]).add(BucketMeta.of(bucket))
+
+    async def drop_ended_before(self, cutoff: datetime) -> int:
+        """Retention: drop every bucket whose newest sample is older than ``cutoff``."""
+        if self._index is None or self._table is None:
+            return await self.coll.delete_many({"end": {"$lt": cutoff}})
+        ids: set[Any] = set()
+        for entry in self._index.values():
+            old = {m.id for m in entry.metas if m.end < cutoff}
+            if old:
+                entry.drop(old)
+                ids |= old
+        for empty in [v for v, e in self._index.items() if not e.metas]:
+            del self._index[empty]
+        if not ids:
+            return 0
+        for _id in ids:
+            if _id in self._table:
+                del self._table[_id]
+        # Journaled like any delete, so a restart does not bring them back.
+        self.store.journal_op("delete", COLLECTION, flt={"_id": {"$in": sorted(ids)}})
+        return len(ids)
+
+    # ---- reads --------------------------------------------------------------
+    def vehicles(self) -> list[str] | None:
+        """Vehicles with stored buckets, when known without a query (embedded store)."""
+        return None if self._index is None else list(self._index)
+
+    async def max_seq(self, vehicle_id: str) -> int:
+        """Highest stored ``seq`` of the vehicle; -1 when none."""
+        if self._index is not None:
+            entry = self._index.get(vehicle_id)
+            return entry.max_seqs[-1] if entry and entry.max_seqs else -1
+        docs = await self.coll.find({"vehicle_id": vehicle_id}, sort=[("max_seq", -1)],
+                                    limit=1, projection=_META)
+        return int(docs[0]["max_seq"]) if docs else -1
+
+    async def latest_sample(self, vehicle_id: str) -> Doc | None:
+        """The stored sample with the greatest ``ts`` (it is in the bucket ending last)."""
+        if self._index is not None:
+            entry = self._index.get(vehicle_id)
+            if not entry or not entry.metas:
+                return None
+            last = max(entry.metas, key=lambda m: m.end)
+            buckets = self._fetch([last])
+        else:
+            buckets = await self.coll.find({"vehicle_id": vehicle_id}, sort=[("end", -1)],
+                                           limit=1)
+        if not buckets:
+            return None
+        return max(buckets[0]["samples"], key=lambda s: (aware(s["ts"]), s["seq"]))
+
+    async def in_window(self, vehicle_id: str, start: datetime, end: datetime) -> list[Doc]:
+        """Buckets that may hold samples with ``start <= ts < end``, in ``seq`` order."""
+        if self._index is not None:
+            entry = self._index.get(vehicle_id)
+            metas = [m for m in entry.metas if m.overlaps(start, end)] if entry else []
+            return self._fetch(metas)
+        return await self.coll.find(
+            {"vehicle_id": vehicle_id, "start": {"$lt": end}, "end": {"$gte": start}},
+            sort=[("min_seq", 1)],
+        )
+
+    async def after_seq(self, vehicle_id: str, after_seq: int, *, limit: int,
+                        start: datetime | None = None,
+                        end: datetime | None = None) -> list[Doc]:
+        """Up to ``limit`` buckets holding samples with ``seq > after_seq``, in ``seq`` order.
+
+        With ``start``/``end``, only buckets that may hold samples with ``start <= ts < end``.
+        """
+        if self._index is not None:
+            entry = self._index.get(vehicle_id)
+            metas = entry.after_seq(after_seq) if entry else []
+            if start is not None or end is not None:
+                lo, hi = start or _MIN, end or _MAX
+                metas = [m for m in metas if m.overlaps(lo, hi)]
+            return self._fetch(metas[:limit])
+        flt: Doc = {"vehicle_id": vehicle_id, "max_seq": {"$gt": after_seq}}
+        if start is not None:
+            flt["end"] = {"$gte": start}
+        if end is not None:
+            flt["start"] = {"$lt": end}
+        return await self.coll.find(flt, sort=[("max_seq", 1)], limit=limit)
+
+    def _fetch(self, metas: list[BucketMeta]) -> list[Doc]:
+        """Stored documents by ``_id``, without a scan. Read-only: buckets never change."""
+        assert self._table is not None
+        return [self._table[m.id] for m in metas if m.id in self._table]
