@@ -54,18 +54,18 @@ def ws_url(base: str, path: str, token: str | None = None) -> str:
     return f"{url}?token={token}" if token else url
 
 
-async def recv_json(ws: Any, timeout: float = 10) -> dict[str, Any]:
-    frame = await asyncio.wait_for(ws.recv(), timeout)
+async def recv_json(ws: Any, within_s: float = 10) -> dict[str, Any]:
+    frame = await asyncio.wait_for(ws.recv(), within_s)
     assert isinstance(frame, str), frame
     result: dict[str, Any] = json.loads(frame)
     return result
 
 
-async def recv_until(ws: Any, predicate: Any, timeout: float = 10) -> dict[str, Any]:
+async def recv_until(ws: Any, predicate: Any, within_s: float = 10) -> dict[str, Any]:
     """The first JSON frame that satisfies ``predicate`` (others are skipped) by a deadline."""
-    async with asyncio.timeout(timeout):
+    async with asyncio.timeout(within_s):
         while True:
-            frame = await recv_json(ws, timeout)
+            frame = await recv_json(ws, within_s)
             if predicate(frame):
                 return frame
 

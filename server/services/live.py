@@ -85,6 +85,7 @@ class LiveHub:
         self._unit_conn: dict[str, Connection] = {}
         self._tasks: set[asyncio.Task[Any]] = set()
         self._last_message: dict[str, Any] | None = None
+        self._routes_due: set[str] = set()
         self._last_frame = ""
         instances.presence_listeners.append(self._on_presence)
         control.change_listeners.append(self._on_control)
@@ -189,27 +190,39 @@ class LiveHub:
                 self.instances.touch(state)
 
     # ---- subscriptions ------------------------------------------------------------
-    async def subscribe(
+    def subscribe(
         self, conn: Connection, unit: UnitRef, topics: list[str], throttle_ms: int
     ) -> None:
+        """Enter the subscription in the routing table (may refuse: too many topics)."""
         self._add_unit(conn, unit)
         changed = self.routing.subscribe(unit.id, topics)
         for topic in topics:
             conn.throttle[topic] = throttle_ms
             conn.topic_units.setdefault(topic, set()).add(unit.id)
-            if ("sub", topic) in conn.subs:
+        self._push_routes(changed)
+
+    async def start_streams(self, conn: Connection, topics: list[str]) -> None:
+        """After the subscribe's ack: each topic's snapshot, then its changes, no gap.
+
+        Messages that arrive while the snapshot is read are held back and
+        sent after it.
+        """
+        for topic in topics:
+            if ("sub", topic) in conn.subs or topic not in conn.topic_units:
                 continue
             conn.buffering[topic] = []
             conn.subs[("sub", topic)] = await self.bus.subscribe(
                 topic, lambda t, m: self._deliver(conn, t, m)
             )
-            snapshot = await self.snapshot(conn.principal, topic)
+            try:
+                snapshot = await self.snapshot(conn.principal, topic)
+            finally:
+                held = conn.buffering.pop(topic, [])
             if snapshot is not None:
                 frame = EventPush(topic=topic, data=snapshot, snapshot=True).frame()
                 conn.outbox.put(frame, topic=topic)
-            for message in conn.buffering.pop(topic, []):
+            for message in held:
                 self._deliver(conn, topic, message)
-        self._push_routes(changed)
 
     async def unsubscribe(self, conn: Connection, unit: UnitRef, topics: list[str]) -> None:
         if unit.id in self.routing:
@@ -322,9 +335,15 @@ class LiveHub:
         conn.units.add(unit.id)
 
     def _push_routes(self, changed: frozenset[str]) -> None:
-        for unit_id in changed:
+        """Note whose part of the table changed; :meth:`flush_routes` tells them."""
+        self._routes_due |= changed
+
+    def flush_routes(self) -> None:
+        """Send ``routes`` to each unit whose part changed (after the op's ack)."""
+        due, self._routes_due = self._routes_due, set()
+        for unit_id in due:
             conn = self._unit_conn.get(unit_id)
-            if conn is not None and not conn.closed:
+            if conn is not None and not conn.closed and unit_id in self.routing:
                 view = self.routing.view(unit_id)
                 conn.outbox.put(RoutesPush(**view.as_dict()).frame())
 
@@ -355,6 +374,7 @@ class LiveHub:
                 changed |= self.routing.remove_unit(unit_id)
                 del self._unit_conn[unit_id]
         self._push_routes(frozenset(changed - conn.units))
+        self.flush_routes()
         for instance_id in conn.instances:
             if self._vehicle_socket.get(instance_id) is conn:
                 del self._vehicle_socket[instance_id]

@@ -104,13 +104,18 @@ class OpRunner:
             result = await self.dispatch(op)
         except FleetError as exc:
             self._reply(op.id, ErrorBody(code=exc.code, message=exc.message, details=exc.details))
+            self.s.live.flush_routes()
             return
         if op.id:
             self.conn.outbox.put(AckPush.success(op.id, result).frame())
+        # After the ack: the pushes the op set off.
+        self.s.live.flush_routes()
         if isinstance(op, StartInstanceOp):
             state = self.s.instances.current(op.vehicle_id)
             if state is not None:
                 await self.s.live.attach_instance(self.conn, state)
+        elif isinstance(op, SubscribeOp):
+            await self.s.live.start_streams(self.conn, op.topics)
 
     async def dispatch(self, op: Any) -> BaseModel | dict[str, Any] | None:
         principal = self.conn.principal
@@ -139,7 +144,7 @@ class OpRunner:
                 return {"topics": op.topics}
             case SubscribeOp():
                 check_read(principal, op.topics)
-                await live.subscribe(
+                live.subscribe(
                     self.conn, unit_for(principal, op.vehicle_id), op.topics, op.throttle_ms
                 )
                 return {"topics": op.topics}

@@ -34,7 +34,7 @@ def token_of(headers: dict[str, str]) -> str:
 
 async def _close_code(ws: websockets.ClientConnection) -> int | None:
     with pytest.raises(websockets.ConnectionClosed):
-        await recv_until(ws, lambda f: False, timeout=10)
+        await recv_until(ws, lambda f: False, within_s=10)
     return ws.close_code
 
 

@@ -1,0 +1,196 @@
+"""/ws/client end to end: live view, topics across units, backpressure, media."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+from collections.abc import AsyncIterator, Callable
+from datetime import UTC, datetime
+
+import httpx
+import pytest
+
+from fleet_protocol.ws import MediaHeader, decode_media_frame, encode_media_frame
+from server.settings import Settings
+from tests.factories import ADMIN, make_user, make_vehicle, sample
+from tests.live import call, connect, recv_until, serve
+
+CAPS = ["stop", "go_to", "keep_station", "follow_path"]
+
+
+@pytest.fixture
+async def base(make_settings: Callable[..., Settings]) -> AsyncIterator[str]:
+    async with serve(make_settings(ws_queue_size=16)) as url:
+        yield url
+
+
+@pytest.fixture
+async def api(base: str) -> AsyncIterator[httpx.AsyncClient]:
+    async with httpx.AsyncClient(base_url=base, timeout=10) as c:
+        yield c
+
+
+def tok(headers: dict[str, str]) -> str:
+    return headers["Authorization"].removeprefix("Bearer ")
+
+
+async def _vehicle_with_instance(api: httpx.AsyncClient) -> tuple[str, dict[str, str], str]:
+    vid, vh = await make_vehicle(api)
+    r = await api.post(
+        "/upper/start_instance", headers=vh, json={"vehicle_id": vid, "capabilities": CAPS}
+    )
+    return vid, vh, r.json()["instance_id"]
+
+
+async def test_telemetry_snapshot_then_live_samples(base: str, api: httpx.AsyncClient) -> None:
+    vid, vh, iid = await _vehicle_with_instance(api)
+    await api.post(
+        "/upper/update_param",
+        headers=vh,
+        json={"instance_id": iid, "samples": [sample(1, lat=43.9001)]},
+    )
+    _, viewer = await make_user(api, "viewer", [vid])
+    async with await connect(base, "/ws/client", tok(viewer)) as ws:
+        ack = await call(ws, "subscribe", "s", topics=[f"vehicle/{vid}/telemetry"])
+        assert ack["ok"] is True
+        snap = await recv_until(ws, lambda f: f["op"] == "event")
+        assert snap["snapshot"] is True and snap["data"]["seq"] == 1
+        await api.post(
+            "/upper/update_param",
+            headers=vh,
+            json={"instance_id": iid, "samples": [sample(2, lat=43.9002)]},
+        )
+        live = await recv_until(ws, lambda f: f["op"] == "event")
+        assert "snapshot" not in live
+        assert live["topic"] == f"vehicle/{vid}/telemetry" and live["data"]["seq"] == 2
+        assert live["data"]["lat"] == 43.9002
+
+
+async def test_fleet_shows_only_visible_vehicles(base: str, api: httpx.AsyncClient) -> None:
+    v1, h1, i1 = await _vehicle_with_instance(api)
+    v2, _, _ = await _vehicle_with_instance(api)
+    _, viewer = await make_user(api, "viewer", [v1])
+    async with await connect(base, "/ws/client", tok(viewer)) as ws:
+        await call(ws, "subscribe", "s", topics=["fleet"])
+        snap = await recv_until(ws, lambda f: f["op"] == "event")
+        assert [v["vehicle_id"] for v in snap["data"]["vehicles"]] == [v1]
+        await api.post("/upper/finish_instance", headers=h1, json={"instance_id": i1})
+        change = await recv_until(ws, lambda f: f["op"] == "event")
+        assert change["data"]["vehicles"][0]["vehicle_id"] == v1
+        assert change["data"]["vehicles"][0]["presence"] == "finished"
+        assert v2 not in json.dumps(change)
+
+
+async def test_reading_another_vehicle_is_refused(base: str, api: httpx.AsyncClient) -> None:
+    v1, _, _ = await _vehicle_with_instance(api)
+    v2, _, _ = await _vehicle_with_instance(api)
+    _, viewer = await make_user(api, "viewer", [v1])
+    async with await connect(base, "/ws/client", tok(viewer)) as ws:
+        nack = await call(ws, "subscribe", "s", topics=[f"vehicle/{v2}/telemetry"])
+        assert nack["ok"] is False and nack["error"]["code"] == "forbidden"
+        bad = await call(ws, "subscribe", "t", topics=["Vehicle/#"])
+        assert bad["ok"] is False and bad["error"]["code"] == "invalid"
+
+
+async def test_commands_and_control_topics(base: str, api: httpx.AsyncClient) -> None:
+    vid, _, iid = await _vehicle_with_instance(api)
+    user, op = await make_user(api, "operator", [vid])
+    async with await connect(base, "/ws/client", tok(op)) as ws:
+        await call(
+            ws, "subscribe", "s", topics=[f"vehicle/{vid}/control", f"vehicle/{vid}/commands"]
+        )
+        r = await api.post(
+            "/client/grant_control",
+            headers=ADMIN,
+            json={"instance_id": iid, "user": user, "duration_s": 60},
+        )
+        assert r.status_code == 200
+        granted = await recv_until(
+            ws, lambda f: f.get("topic", "").endswith("/control") and not f.get("snapshot")
+        )
+        assert granted["data"]["control"]["holder"] == user
+        r = await api.post(
+            "/client/submit_control",
+            headers=op,
+            json={"instance_ids": [iid], "command": {"type": "keep_station", "args": {}}},
+        )
+        command_id = r.json()["commands"][0]["command_id"]
+        seen = await recv_until(
+            ws, lambda f: f.get("topic", "").endswith("/commands") and not f.get("snapshot")
+        )
+        assert seen["data"]["commands"][0]["command_id"] == command_id
+
+
+async def test_units_register_subscribe_and_publish(base: str, api: httpx.AsyncClient) -> None:
+    vid, vh, _ = await _vehicle_with_instance(api)
+    worker, wh = await make_user(api, "viewer", [vid])
+    _, other = await make_user(api, "viewer", [vid])
+    topic = f"vehicle/{vid}/sonar_summary"
+    async with (
+        await connect(base, "/ws/vehicle", tok(vh)) as car,
+        await connect(base, "/ws/client", tok(wh)) as w,
+        await connect(base, "/ws/client", tok(other)) as bystander,
+    ):
+        reg = await call(car, "register", "r", topics=[topic])
+        assert reg["ok"] is True
+        routes = await recv_until(car, lambda f: f["op"] == "routes")
+        assert routes["produces"] == {topic: []}
+        await call(w, "subscribe", "s", topics=[topic])
+        routes = await recv_until(car, lambda f: f["op"] == "routes")
+        assert routes["produces"] == {topic: [f"user:{worker}"]}
+        await call(car, "publish", "p", topic=topic, data={"depth_m": 12.5})
+        got = await recv_until(w, lambda f: f["op"] == "event" and not f.get("snapshot"))
+        assert got["data"] == {"depth_m": 12.5} and got["source"] == f"vehicle:{vid}"
+        # exactly the subscribers: the bystander hears nothing, the publisher no echo
+        await call(bystander, "subscribe", "q", topics=[f"user/{worker}/results"])
+        with pytest.raises(TimeoutError):
+            await recv_until(
+                bystander, lambda f: f["op"] == "event" and not f.get("snapshot"), within_s=0.5
+            )
+        # namespaces: a user writes only under user/<name>/, never into a vehicle's
+        nack = await call(w, "publish", "x", topic=topic, data={})
+        assert nack["ok"] is False and nack["error"]["code"] == "forbidden"
+        ok = await call(w, "publish", "y", topic=f"user/{worker}/results", data={"n": 1})
+        assert ok["ok"] is True
+        got = await recv_until(bystander, lambda f: f["op"] == "event" and not f.get("snapshot"))
+        assert got["data"] == {"n": 1}
+
+
+async def test_slow_subscriber_is_told_it_lags(base: str, api: httpx.AsyncClient) -> None:
+    _, wh = await make_user(api, "viewer")
+    name = (await api.get("/api/users", headers=ADMIN)).json()["users"][-1]["username"]
+    topic = f"user/{name}/bulk"
+    async with (
+        await connect(base, "/ws/client", tok(wh)) as pub,
+        await connect(base, "/ws/client", tok(wh)) as slow,
+    ):
+        await call(slow, "subscribe", "s", topics=[topic])
+        blob = "x" * 60_000
+        for i in range(300):  # ~18 MB: more than the socket buffers hold
+            await pub.send(json.dumps({"op": "publish", "topic": topic, "data": [i, blob]}))
+        lag = await recv_until(slow, lambda f: f["op"] == "lagging", within_s=30)
+        assert lag["dropped"] >= 1
+
+
+async def test_media_frames_are_binary_and_latest_wins(base: str, api: httpx.AsyncClient) -> None:
+    vid, vh, _ = await _vehicle_with_instance(api)
+    _, viewer = await make_user(api, "viewer", [vid])
+    topic = f"vehicle/{vid}/camera"
+    async with (
+        await connect(base, "/ws/vehicle", tok(vh)) as car,
+        await connect(base, "/ws/client", tok(viewer)) as ws,
+    ):
+        await call(ws, "subscribe", "s", topics=[topic])
+        header = MediaHeader(topic=topic, ts=datetime.now(UTC), content_type="image/jpeg")
+        await car.send(encode_media_frame(header, b"\xff\xd8jpeg-bytes"))
+        frame = await asyncio.wait_for(ws.recv(), 10)
+        while isinstance(frame, str):  # skip the ack
+            frame = await asyncio.wait_for(ws.recv(), 10)
+        got, payload = decode_media_frame(frame)
+        assert got.topic == topic and payload == b"\xff\xd8jpeg-bytes"
+        wrong = MediaHeader(
+            topic=f"vehicle/{vid}/notes", ts=datetime.now(UTC), content_type="text/plain"
+        )
+        await car.send(encode_media_frame(wrong, b"hi"))
+        err = await recv_until(car, lambda f: f["op"] == "error")
+        assert err["error"]["code"] == "invalid"
