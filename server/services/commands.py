@@ -12,7 +12,6 @@ redelivery falls due), then call :meth:`take`.
 from __future__ import annotations
 
 import asyncio
-import copy
 import secrets
 from collections.abc import Callable
 from datetime import datetime
@@ -35,12 +34,12 @@ from server.services.control import ControlService
 from server.services.events import EventService
 from server.services.instances import InstanceService, InstanceState
 from server.services.lanes import Lane
+from server.services.planning import Planner, vehicle_planner
 from server.settings import Settings
 from server.storage.commands import CommandsRepo
 
 Clock = Callable[[], datetime]
 ReadyListener = Callable[[str], None]
-Planner = Callable[[InstanceState, dict[str, Any], list[InstanceState]], dict[str, Any]]
 
 #: Motion commands waiting on one instance; ``stop`` is never refused by this bound.
 MAX_ACTIVE_PER_INSTANCE = 256
@@ -63,7 +62,7 @@ class CommandService:
         self.control = control
         self.events = events
         self.clock = clock
-        self.planner = planner
+        self.planner = planner or vehicle_planner(settings.safety_radius_m)
         self._lanes: dict[str, Lane] = {}
         self._seq = 0
         #: Called with an instance id that has commands to hand out (vehicle sockets).
@@ -83,14 +82,18 @@ class CommandService:
     async def submit(self, principal: Principal, body: SubmitControl) -> list[dict[str, Any]]:
         now = self.clock()
         targets, refusals = await self._targets(principal, body.instance_ids)
+        refusals += self._check_all(principal, targets, body.command)
         args_by_instance: dict[str, dict[str, Any]] = {}
-        for index, state in targets:
-            try:
-                args_by_instance[state.instance_id] = self._admit(principal, state, body.command)
-            except FleetError as exc:
-                refusals.append((index, state.instance_id, exc))
+        if not refusals:
+            for index, state in targets:
+                try:
+                    args_by_instance[state.instance_id] = await self._args(state, body.command)
+                except FleetError as exc:
+                    refusals.append((index, state.instance_id, exc))
+            if body.command.type == "follow_path":  # planning yields: check again
+                refusals += self._check_all(principal, targets, body.command)
         if refusals:
-            raise _refused(refusals, len(body.instance_ids))
+            raise life.refused(refusals, len(body.instance_ids))
         made = []
         for _, state in targets:
             self._seq += 1
@@ -114,18 +117,7 @@ class CommandService:
         for cmd in made:
             lane = self._lane(cmd.instance_id)
             lane.add(cmd)
-            await self.events.record(
-                "command",
-                vehicle_id=cmd.vehicle_id,
-                instance_id=cmd.instance_id,
-                actor=principal,
-                data={
-                    "command_id": cmd.command_id,
-                    "type": cmd.type,
-                    "status": "queued",
-                    "args": cmd.args,
-                },
-            )
+            await self._audit(cmd, principal, args=cmd.args)
             if cmd.is_stop:
                 others = [c for c in lane.active.values() if c is not cmd]
                 for gone in life.supersede(others, cmd, now):
@@ -332,10 +324,19 @@ class CommandService:
                 refusals.append((index, instance_id, exc))
         return targets, refusals
 
-    def _admit(
-        self, principal: Principal, state: InstanceState, spec: CommandSpec
-    ) -> dict[str, Any]:
-        """Check one instance takes this command; returns its args (planned, if asked)."""
+    def _check_all(
+        self, principal: Principal, targets: list[tuple[int, InstanceState]], spec: CommandSpec
+    ) -> list[tuple[int, str, FleetError]]:
+        refusals = []
+        for index, state in targets:
+            try:
+                self._admit(principal, state, spec)
+            except FleetError as exc:
+                refusals.append((index, state.instance_id, exc))
+        return refusals
+
+    def _admit(self, principal: Principal, state: InstanceState, spec: CommandSpec) -> None:
+        """Check one instance takes this command from this caller now."""
         if not principal.can_see(state.vehicle_id):
             raise Forbidden(f"no access to vehicle {state.vehicle_id}")
         if state.finished:
@@ -351,10 +352,13 @@ class CommandService:
         lane = self._lanes.get(state.instance_id)
         if spec.type != "stop" and lane is not None and len(lane.active) >= MAX_ACTIVE_PER_INSTANCE:
             raise RateLimited(f"{MAX_ACTIVE_PER_INSTANCE} commands already wait on this instance")
+
+    async def _args(self, state: InstanceState, spec: CommandSpec) -> dict[str, Any]:
+        """The command's args for this instance: planned (off the event loop) if asked."""
         args = dict(spec.args)
-        if spec.type == "follow_path" and args.get("plan") and self.planner is not None:
+        if spec.type == "follow_path" and args.get("plan"):
             others = [s for s in self.instances.live() if s.instance_id != state.instance_id]
-            args = self.planner(state, args, others)
+            args = await asyncio.to_thread(self.planner, state, args, others)
         return args
 
     async def _find(self, command_id: str) -> Command:
@@ -381,38 +385,13 @@ class CommandService:
         now = self.clock()
         await self.repo.finish(cmd.to_doc(), now)
         last = cmd.history[-1] if cmd.history else {}
+        await self._audit(cmd, actor, detail=last.get("detail"))
+
+    async def _audit(self, cmd: Command, actor: Principal | None, **data: Any) -> None:
         await self.events.record(
             "command",
             vehicle_id=cmd.vehicle_id,
             instance_id=cmd.instance_id,
             actor=actor,
-            data={
-                "command_id": cmd.command_id,
-                "type": cmd.type,
-                "status": cmd.status,
-                "detail": last.get("detail"),
-            },
+            data={"command_id": cmd.command_id, "type": cmd.type, "status": cmd.status, **data},
         )
-
-
-def _refused(refusals: list[tuple[int, str, FleetError]], asked: int) -> FleetError:
-    """All or nothing: the first refusal's status, and every refusal in ``details``."""
-    refusals.sort(key=lambda r: r[0])
-    first = refusals[0][2]
-    details = [
-        {
-            "field": f"instance_ids.{index}",
-            "instance_id": instance_id,
-            "code": exc.code,
-            "message": exc.message,
-        }
-        for index, instance_id, exc in refusals
-    ]
-    message = (
-        first.message
-        if asked == 1
-        else f"{len(refusals)} of {asked} instances refused ({first.message}); nothing queued"
-    )
-    error = copy.copy(first)  # same class, status and Retry-After
-    error.message, error.details, error.args = message, details, (message,)
-    return error
