@@ -1,0 +1,32 @@
+"""Hot state survives a clean restart: queued commands, leases, finished history."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+from server.settings import Settings
+from tests.factories import FakeClock
+from tests.server.commanding import GO_TO, statuses, world
+
+
+async def test_queues_and_leases_survive_a_clean_restart(
+    make_settings: Callable[..., Settings],
+) -> None:
+    settings, clock = make_settings(), FakeClock()
+    async with world(settings, clock) as w:
+        v = await w.vehicle()
+        op = await w.operator_in_control(v, duration_s=600)
+        running = await w.queued(op, v, GO_TO, ttl_s=600)
+        await w.poll(v)
+        await w.ack(v, (running, "accepted"))
+        dropped = await w.queued(op, v, GO_TO, ttl_s=600)
+        r = await w.http.post(
+            "/client/cancel_command", headers=op.headers, json={"command_id": dropped}
+        )
+        assert r.status_code == 200, r.text
+        waiting = await w.queued(op, v, GO_TO, ttl_s=600)
+    async with world(settings, clock) as w:
+        assert statuses(await w.command(running)) == ["queued", "delivered", "accepted"]
+        assert (await w.command(dropped))["status"] == "cancelled"
+        assert [c["command_id"] for c in await w.poll(v)] == [waiting]
+        assert (await w.submit(op, [v], GO_TO)).status_code == 202  # the lease is still held
