@@ -50,7 +50,7 @@ class Connection:
     outbox: Outbox
     close: Callable[[int, str], Awaitable[None]]
     kind: str  # "vehicle" (vehicle and gateway tokens) or "client"
-    id: str = field(default_factory=lambda: secrets.token_hex(6))
+    id: str = field(default_factory=lambda: secrets.token_hex(8))
     subs: dict[tuple[str, str], Subscription] = field(default_factory=dict)
     throttle: dict[str, int] = field(default_factory=dict)
     #: topic -> the units of this connection subscribed to it (a gateway serves several)
@@ -251,6 +251,7 @@ class LiveHub:
             "topic": topic,
             "data": data,
             "source": unit.id,
+            "origin": conn.id,
             "ts": format_ts(self.instances.clock()),
         }
         await self.bus.publish(topic, message)
@@ -267,8 +268,7 @@ class LiveHub:
         if isinstance(message, bytes):
             conn.outbox.put(message, topic=topic, latest_wins=True, throttle_ms=throttle)
             return
-        source = message.get("source")
-        if source is not None and self._unit_conn.get(source) is conn:
+        if message.get("origin") == conn.id:
             return  # the publisher's own connection (a gateway delivers to its units itself)
         if topic == "fleet":
             filtered = self._visible_fleet(conn.principal, message)

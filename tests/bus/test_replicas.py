@@ -1,0 +1,110 @@
+"""Two server replicas joined by a real Redis: operator events cross, Redis loss degrades.
+
+Replicas share state only through MongoDB, so the command path across
+replicas runs when FLEET_TEST_MONGO_URL is given; topic traffic between
+users needs no shared state (the bootstrap admin exists on both).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import os
+from collections.abc import Callable
+
+import httpx
+import pytest
+
+from server.settings import Settings
+from tests.bus.conftest import RedisServer
+from tests.factories import ADMIN, ADMIN_TOKEN, make_user, make_vehicle
+from tests.live import call, connect, recv_until, serve
+
+
+async def _get(url: str) -> httpx.Response:
+    async with httpx.AsyncClient(timeout=10) as client:
+        return await client.get(url)
+
+
+async def test_events_published_on_one_replica_reach_the_other(
+    make_settings: Callable[..., Settings], redis_server: RedisServer
+) -> None:
+    a_settings = make_settings(redis_url=redis_server.url)
+    b_settings = make_settings(
+        redis_url=redis_server.url, snapshot_path=a_settings.snapshot_path.with_name("b.snapshot")
+    )
+    async with serve(a_settings) as a, serve(b_settings) as b:
+        for base in (a, b):
+            ready = (await _get(f"{base}/readyz")).json()
+            assert ready["checks"] == {"store": True, "redis": True}
+        async with (
+            await connect(b, "/ws/client", ADMIN_TOKEN) as listener,
+            await connect(a, "/ws/client", ADMIN_TOKEN) as talker,
+        ):
+            assert (await call(listener, "subscribe", "s", topics=["user/admin/notes"]))["ok"]
+            assert (
+                await call(talker, "publish", "p", topic="user/admin/notes", data={"from": "a"})
+            )["ok"]
+            got = await recv_until(listener, lambda f: f["op"] == "event")
+            assert got["data"] == {"from": "a"} and got["topic"] == "user/admin/notes"
+
+
+async def test_redis_going_away_degrades_to_local_and_shows_in_readyz(
+    make_settings: Callable[..., Settings], redis_server: RedisServer
+) -> None:
+    async with serve(make_settings(redis_url=redis_server.url)) as base:
+        redis_server.stop()
+        async with asyncio.timeout(20):
+            while True:
+                r = await _get(f"{base}/readyz")
+                if r.status_code == 503:
+                    break
+                await asyncio.sleep(0.1)
+        assert r.json()["checks"]["redis"] is False and r.json()["checks"]["store"] is True
+        async with (
+            await connect(base, "/ws/client", ADMIN_TOKEN) as one,
+            await connect(base, "/ws/client", ADMIN_TOKEN) as two,
+        ):
+            await call(one, "subscribe", "s", topics=["user/admin/local"])
+            await call(two, "publish", "p", topic="user/admin/local", data=1)
+            got = await recv_until(one, lambda f: f["op"] == "event")
+            assert got["data"] == 1  # this replica's own sockets are still served
+        redis_server.start()
+        async with asyncio.timeout(30):
+            while (await _get(f"{base}/readyz")).status_code != 200:
+                await asyncio.sleep(0.2)
+
+
+@pytest.mark.mongo
+@pytest.mark.skipif(
+    not os.environ.get("FLEET_TEST_MONGO_URL"),
+    reason="FLEET_TEST_MONGO_URL not set: replicas share state only via MongoDB",
+)
+async def test_command_accepted_on_a_reaches_vehicle_on_b(
+    make_settings: Callable[..., Settings], redis_server: RedisServer
+) -> None:
+    mongo = os.environ["FLEET_TEST_MONGO_URL"]
+    db = f"fleet_replicas_{os.getpid()}"
+    common = {"redis_url": redis_server.url, "mongo_url": mongo, "db_name": db}
+    async with serve(make_settings(**common)) as a, serve(make_settings(**common)) as b:
+        async with httpx.AsyncClient(base_url=a, timeout=10) as api_a:
+            vid, vh = await make_vehicle(api_a)
+            user, op = await make_user(api_a, "operator", [vid])
+            async with await connect(b, "/ws/vehicle", vh["Authorization"][7:]) as car:
+                ack = await call(
+                    car, "start_instance", "s", vehicle_id=vid, capabilities=["stop", "go_to"]
+                )
+                iid = ack["instance_id"]
+                r = await api_a.post(
+                    "/client/grant_control",
+                    headers=ADMIN,
+                    json={"instance_id": iid, "user": user, "duration_s": 60},
+                )
+                assert r.status_code == 200
+                r = await api_a.post(
+                    "/client/submit_control",
+                    headers=op,
+                    json={"instance_ids": [iid], "command": {"type": "stop"}},
+                )
+                assert r.status_code == 202
+                pushed = await recv_until(car, lambda f: f["op"] == "command", within_s=15)
+                assert pushed["type"] == "stop"
