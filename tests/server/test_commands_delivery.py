@@ -304,3 +304,16 @@ async def test_get_fbmessage_and_get_command_refusals(w: World) -> None:
     assert (await w.http.get(f"/api/commands/{cid}", headers=stranger.headers)).status_code == 403
     assert (await w.http.get("/api/commands/c-nope", headers=ADMIN)).status_code == 404
     assert (await w.http.get(f"/api/commands/{cid}")).status_code == 401
+
+
+async def test_metrics_count_active_commands_by_status(w: World) -> None:
+    v = await w.vehicle()
+    op = await w.operator_in_control(v)
+    await w.queued(op, v, GO_TO)
+    await w.poll(v)
+    await w.queued(op, v, KEEP)
+    r = await w.http.get("/metrics")
+    assert r.status_code == 200
+    lines = r.text.splitlines()
+    assert 'fleet_commands{status="delivered"} 1.0' in lines
+    assert 'fleet_commands{status="queued"} 1.0' in lines
