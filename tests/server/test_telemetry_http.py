@@ -1,0 +1,180 @@
+"""Telemetry through HTTP: ingest answers, track and telemetry views, formats, refusals."""
+
+from __future__ import annotations
+
+import csv
+import io
+import xml.etree.ElementTree as ET
+from datetime import UTC, datetime, timedelta
+from typing import Any
+
+import httpx
+
+from tests.factories import ADMIN, make_user, make_vehicle, sample, start_instance
+
+T0 = datetime(2026, 11, 22, 10, 0, 0, tzinfo=UTC)  # sample(n) is at T0 + n s
+WINDOW = {"from": "2026-11-22T09:00:00.000Z", "to": "2026-11-22T11:00:00.000Z"}
+
+
+async def vehicle_with_samples(client: httpx.AsyncClient, seqs: range,
+                               **extra: Any) -> tuple[str, dict[str, str], str]:
+    vid, vh = await make_vehicle(client)
+    iid = (await start_instance(client, vid, vh))["instance_id"]
+    r = await client.post("/upper/update_param", headers=vh, json={
+        "instance_id": iid, "samples": [sample(n, **extra) for n in seqs]})
+    assert r.status_code == 200, r.text
+    return vid, vh, iid
+
+
+async def test_update_param_counts_duplicates_and_reports_marks(
+        client: httpx.AsyncClient) -> None:
+    vid, vh, iid = await vehicle_with_samples(client, range(1, 11))
+    r = await client.post("/upper/update_param", headers=vh, json={
+        "instance_id": iid, "samples": [sample(n) for n in range(8, 13)]})
+    body = r.json()
+    assert (body["accepted"], body["duplicates"], body["acked_through_seq"]) == (2, 3, 12)
+    assert body["durable_through_seq"] <= 12
+    again = await start_instance(client, vid, vh)
+    assert again["last_seq"] == 12
+
+
+async def test_track_json(client: httpx.AsyncClient) -> None:
+    vid, _, _ = await vehicle_with_samples(client, range(1, 31), speed_mps=1.5)
+    r = await client.get(f"/api/vehicles/{vid}/track", headers=ADMIN, params={
+        "from": "2026-11-22T10:00:05.000Z", "to": "2026-11-22T10:00:25.000Z"})
+    assert r.status_code == 200, r.text
+    body = r.json()
+    assert body["vehicle_id"] == vid and body["truncated"] is False
+    assert body["next_from"] is None
+    assert [p["seq"] for p in body["points"]] == list(range(5, 25))
+    first = body["points"][0]
+    assert first["ts"] == "2026-11-22T10:00:05.000Z" and first["speed_mps"] == 1.5
+
+
+async def test_track_default_window_ends_now(clocked_client: httpx.AsyncClient) -> None:
+    # The fake clock reads T0: samples after it are outside the default window.
+    vid, _, _ = await vehicle_with_samples(clocked_client, range(1, 5))
+    r = await clocked_client.get(f"/api/vehicles/{vid}/track", headers=ADMIN)
+    assert r.status_code == 200 and r.json()["points"] == []
+
+
+async def test_track_downsampled(client: httpx.AsyncClient) -> None:
+    vid, _, _ = await vehicle_with_samples(client, range(1, 201))
+    r = await client.get(f"/api/vehicles/{vid}/track", headers=ADMIN,
+                         params={**WINDOW, "max_points": 20})
+    points = r.json()["points"]
+    assert len(points) == 20 and (points[0]["seq"], points[-1]["seq"]) == (1, 200)
+
+
+async def test_track_geojson(client: httpx.AsyncClient) -> None:
+    vid, _, _ = await vehicle_with_samples(client, range(1, 4))
+    r = await client.get(f"/api/vehicles/{vid}/track", headers=ADMIN,
+                         params={**WINDOW, "format": "geojson"})
+    assert r.headers["content-type"].startswith("application/geo+json")
+    feature = r.json()
+    assert feature["type"] == "Feature" and feature["geometry"]["type"] == "LineString"
+    assert feature["geometry"]["coordinates"][0] == [15.44, 43.94]  # [lon, lat]
+    assert len(feature["properties"]["times"]) == 3
+
+
+async def test_track_gpx(client: httpx.AsyncClient) -> None:
+    vid, _, _ = await vehicle_with_samples(client, range(1, 4), depth_m=2.5)
+    r = await client.get(f"/api/vehicles/{vid}/track", headers=ADMIN,
+                         params={**WINDOW, "format": "gpx"})
+    assert r.headers["content-type"].startswith("application/gpx+xml")
+    ns = {"g": "http://www.topografix.com/GPX/1/1"}
+    points = ET.fromstring(r.content).findall(".//g:trkpt", ns)
+    assert [(p.get("lat"), p.get("lon")) for p in points] == [("43.94", "15.44")] * 3
+    assert points[0].findtext("g:time", namespaces=ns) == "2026-11-22T10:00:01.000Z"
+    assert points[0].findtext("g:ele", namespaces=ns) == "-2.5"
+
+
+async def test_track_csv(client: httpx.AsyncClient) -> None:
+    vid, _, _ = await vehicle_with_samples(client, range(1, 4))
+    r = await client.get(f"/api/vehicles/{vid}/track", headers=ADMIN,
+                         params={**WINDOW, "format": "csv"})
+    assert r.headers["content-type"].startswith("text/csv")
+    assert r.headers["x-track-truncated"] == "false"
+    rows = list(csv.DictReader(io.StringIO(r.text)))
+    assert [row["seq"] for row in rows] == ["1", "2", "3"]
+    assert rows[0]["ts"] == "2026-11-22T10:00:01.000Z" and rows[0]["lat"] == "43.94"
+
+
+async def test_track_is_cut_at_10000_points_with_next_from(client: httpx.AsyncClient) -> None:
+    vid, vh, iid = await vehicle_with_samples(client, range(1, 5001))  # at most 5000 a call
+    for chunk in (range(5001, 10001), range(10001, 10006)):
+        r = await client.post("/upper/update_param", headers=vh, json={
+            "instance_id": iid, "samples": [sample(n) for n in chunk]})
+        assert r.json()["accepted"] == len(chunk)
+    day = {"from": "2026-11-22T00:00:00.000Z", "to": "2026-11-23T00:00:00.000Z"}
+    r = await client.get(f"/api/vehicles/{vid}/track", headers=ADMIN, params=day)
+    body = r.json()
+    assert len(body["points"]) == 10_000 and body["truncated"] is True
+    assert body["next_from"] == _ts(10_001)
+    rest = await client.get(f"/api/vehicles/{vid}/track", headers=ADMIN, params={
+        "from": body["next_from"], "to": "2026-11-23T00:00:00.000Z"})
+    assert [p["seq"] for p in rest.json()["points"]] == list(range(10_001, 10_006))
+
+
+def _ts(seq: int) -> str:
+    return (T0 + timedelta(seconds=seq)).strftime("%Y-%m-%dT%H:%M:%S.000Z")
+
+
+async def test_telemetry_pages_by_seq(client: httpx.AsyncClient) -> None:
+    vid, _, _ = await vehicle_with_samples(client, range(1, 26), battery_pct=80,
+                                           data={"rpm": 900})
+    url = f"/api/vehicles/{vid}/telemetry"
+    first = (await client.get(url, headers=ADMIN, params={"limit": 10})).json()
+    assert [s["seq"] for s in first["samples"]] == list(range(1, 11))
+    assert first["next_after_seq"] == 10
+    assert first["samples"][0]["data"] == {"rpm": 900}
+    assert first["samples"][0]["ts"] == "2026-11-22T10:00:01.000Z"
+    rest = (await client.get(url, headers=ADMIN,
+                             params={"after_seq": 20, "limit": 10})).json()
+    assert [s["seq"] for s in rest["samples"]] == list(range(21, 26))
+    assert rest["next_after_seq"] is None
+    window = (await client.get(url, headers=ADMIN, params={
+        "from": _ts(3), "to": _ts(6)})).json()
+    assert [s["seq"] for s in window["samples"]] == [3, 4, 5]
+
+
+async def test_bad_query_values_are_422_naming_the_field(client: httpx.AsyncClient) -> None:
+    vid, _, _ = await vehicle_with_samples(client, range(1, 3))
+    cases = [
+        ("track", {"from": "yesterday"}, "from"),
+        ("track", {"to": "2026-13-01T00:00:00Z"}, "to"),
+        ("track", {"max_points": "1"}, "max_points"),
+        ("track", {"max_points": "10001"}, "max_points"),
+        ("track", {"max_points": "many"}, "max_points"),
+        ("track", {"format": "kml"}, "format"),
+        ("track", {"from": _ts(10), "to": _ts(5)}, "from"),
+        ("telemetry", {"limit": "0"}, "limit"),
+        ("telemetry", {"limit": "10001"}, "limit"),
+        ("telemetry", {"after_seq": "-2"}, "after_seq"),
+        ("telemetry", {"after_seq": "x"}, "after_seq"),
+        ("telemetry", {"from": _ts(10), "to": _ts(10)}, "from"),
+    ]
+    for view, params, field in cases:
+        r = await client.get(f"/api/vehicles/{vid}/{view}", headers=ADMIN, params=params)
+        assert r.status_code == 422, (view, params, r.text)
+        error = r.json()["error"]
+        assert error["code"] == "invalid"
+        assert field in [d["field"] for d in error["details"]], (view, params, error)
+
+
+async def test_unknown_vehicle_is_404(client: httpx.AsyncClient) -> None:
+    for view in ("track", "telemetry"):
+        r = await client.get(f"/api/vehicles/no-such-usv/{view}", headers=ADMIN)
+        assert r.status_code == 404 and r.json()["error"]["code"] == "not_found"
+
+
+async def test_who_may_read(client: httpx.AsyncClient) -> None:
+    vid, vh, _ = await vehicle_with_samples(client, range(1, 3))
+    _, allowed = await make_user(client, "viewer", vehicles=[vid])
+    _, other = await make_user(client, "operator", vehicles=[])
+    for view in ("track", "telemetry"):
+        url = f"/api/vehicles/{vid}/{view}"
+        assert (await client.get(url, headers=allowed)).status_code == 200
+        assert (await client.get(url, headers=other)).status_code == 403
+        assert (await client.get(url, headers=vh)).status_code == 403  # a vehicle token
+        assert (await client.get(url)).status_code == 401

@@ -1,0 +1,228 @@
+"""TelemetryService on the embedded store: ingest, durability, restart, retention, views.
+
+Each test runs twice: with the in-process bucket index (the embedded store's
+fast path) and with plain queries (the path real MongoDB takes).
+"""
+
+from __future__ import annotations
+
+from collections.abc import AsyncIterator
+from datetime import UTC, datetime, timedelta
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from fleet_protocol import Sample
+from server.services.telemetry import TelemetryService
+from server.settings import Settings
+from server.storage import Store, open_store
+from server.storage.telemetry import TelemetryRepo
+from tests.factories import FakeClock
+
+T0 = datetime(2026, 11, 22, 10, 0, 0, tzinfo=UTC)
+
+
+def samples(seqs: range | list[int], *, t0: datetime = T0, **extra: Any) -> list[Sample]:
+    """One sample per seq, one second apart (seq n at t0 + n s), on a slow diagonal."""
+    return [
+        Sample(seq=n, ts=t0 + timedelta(seconds=n), lat=43.9 + n * 1e-5, lon=15.4 + n * 1e-5,
+               **extra)
+        for n in seqs
+    ]
+
+
+class World:
+    """A service on an embedded store at one snapshot path; ``restart`` reopens it."""
+
+    def __init__(self, settings: Settings, indexed: bool, clock: FakeClock) -> None:
+        self.settings = settings
+        self.indexed = indexed
+        self.clock = clock
+        self.store: Store
+        self.svc: TelemetryService
+
+    async def open(self) -> TelemetryService:
+        self.store = open_store(self.settings)
+        await self.store.load()
+        repo = TelemetryRepo(self.store, use_index=self.indexed)
+        assert repo.indexed is self.indexed
+        self.svc = TelemetryService(self.settings, self.store, self.clock, repo)
+        await self.svc.load()
+        return self.svc
+
+    async def restart(self) -> TelemetryService:
+        await self.svc.flush_all()
+        await self.store.close()
+        return await self.open()
+
+    async def crash(self) -> TelemetryService:
+        """Reopen from disk without any shutdown work: only what was flushed survives."""
+        return await self.open()
+
+
+@pytest.fixture(params=[True, False], ids=["indexed", "queries"])
+async def world(request: pytest.FixtureRequest, tmp_path: Path) -> AsyncIterator[World]:
+    settings = Settings(_env_file=None, snapshot_path=tmp_path / "store.snapshot",  # type: ignore[call-arg]
+                        bucket_samples=5, bucket_max_age_s=60, retention_s=3600)
+    w = World(settings, request.param, FakeClock(T0 + timedelta(hours=1)))
+    await w.open()
+    yield w
+    await w.store.close()
+
+
+def seqs_of(docs: list[dict[str, Any]]) -> list[int]:
+    return [d["seq"] for d in docs]
+
+
+async def test_ingest_is_idempotent_by_seq(world: World) -> None:
+    first = await world.svc.ingest("usv-1", "i1", samples(range(1, 11)))
+    assert (first.accepted, first.duplicates, first.acked_through_seq) == (10, 0, 10)
+    again = await world.svc.ingest("usv-1", "i1", samples(range(5, 13)))
+    assert (again.accepted, again.duplicates, again.acked_through_seq) == (2, 6, 12)
+    page, _ = await world.svc.page("usv-1", limit=100)
+    assert seqs_of(page) == list(range(1, 13))
+
+
+async def test_gaps_are_allowed_and_lower_seqs_are_duplicates(world: World) -> None:
+    result = await world.svc.ingest("usv-1", "i1", samples([0, 5, 100, 50, 101]))
+    assert (result.accepted, result.duplicates, result.acked_through_seq) == (4, 1, 101)
+    assert [s.seq for s in result.stored] == [0, 5, 100, 101]
+    assert await world.svc.last_seq("usv-1") == 101
+    assert await world.svc.last_seq("usv-unknown") == -1
+
+
+async def test_vehicles_are_numbered_apart(world: World) -> None:
+    await world.svc.ingest("usv-1", "i1", samples(range(1, 4)))
+    other = await world.svc.ingest("usv-2", "i2", samples(range(1, 4)))
+    assert (other.accepted, other.duplicates) == (3, 0)
+
+
+async def test_durable_only_after_a_flush_that_follows_the_insert(world: World) -> None:
+    result = await world.svc.ingest("usv-1", "i1", samples(range(1, 8)))  # one full bucket of 5
+    assert (result.acked_through_seq, result.durable_through_seq) == (7, -1)
+    assert await world.svc.make_durable() is True
+    assert world.svc.durable_through_seq("usv-1") == 5  # the open bucket (6, 7) is not stored
+    assert await world.svc.write_due() == 0  # not old yet (bucket_max_age_s = 60)
+    assert await world.svc.write_due(everything=True) == 1
+    assert world.svc.durable_through_seq("usv-1") == 5
+    await world.svc.make_durable()
+    later = await world.svc.ingest("usv-1", "i1", [])
+    assert (later.acked_through_seq, later.durable_through_seq) == (7, 7)
+
+
+async def test_what_was_durable_survives_a_crash(world: World) -> None:
+    await world.svc.ingest("usv-1", "i1", samples(range(1, 6)))
+    await world.svc.make_durable()
+    assert world.svc.durable_through_seq("usv-1") == 5
+    await world.svc.ingest("usv-1", "i1", samples(range(6, 11)))  # inserted, never flushed
+    svc = await world.crash()
+    page, _ = await svc.page("usv-1", limit=100)
+    assert seqs_of(page) == [1, 2, 3, 4, 5]
+    assert await svc.last_seq("usv-1") == 5
+
+
+async def test_restart_keeps_every_sample_and_the_high_water_mark(world: World) -> None:
+    await world.svc.ingest("usv-1", "i1", samples(range(1, 13)))
+    await world.svc.ingest("usv-2", "i2", samples(range(1, 4)))
+    svc = await world.restart()
+    assert await svc.last_seq("usv-1") == 12
+    assert await svc.last_seq("usv-2") == 3
+    page, _ = await svc.page("usv-1", limit=100)
+    assert seqs_of(page) == list(range(1, 13))
+    again = await svc.ingest("usv-1", "i1", samples(range(10, 14)))
+    assert (again.accepted, again.duplicates, again.durable_through_seq) == (1, 3, 12)
+    latest = await svc.latest("usv-1")
+    assert latest is not None and latest.seq == 13
+
+
+async def test_retention_drops_old_buckets_for_good(world: World) -> None:
+    await world.svc.ingest("usv-1", "i1", samples(range(1, 11), t0=T0 - timedelta(days=2)))
+    await world.svc.ingest("usv-1", "i1", samples(range(11, 16)))
+    await world.svc.make_durable()
+    assert await world.svc.drop_before(T0 - timedelta(days=1)) == 2
+    page, _ = await world.svc.page("usv-1", limit=100)
+    assert seqs_of(page) == list(range(11, 16))
+    svc = await world.restart()
+    page, _ = await svc.page("usv-1", limit=100)
+    assert seqs_of(page) == list(range(11, 16))
+    assert await svc.drop_before(T0 - timedelta(days=1)) == 0
+
+
+async def test_latest_is_the_greatest_ts_and_late_samples_are_replayed(world: World) -> None:
+    world.clock.now = T0 + timedelta(seconds=20)
+    first = await world.svc.ingest("usv-1", "i1", samples(range(10, 13)))
+    assert first.latest is not None and first.latest.seq == 12
+    assert first.replayed == [False, False, False]
+    # seq 13 carries an older ts: stored in place, the latest position stays.
+    late = Sample(seq=13, ts=T0 + timedelta(seconds=3), lat=1.0, lon=2.0)
+    result = await world.svc.ingest("usv-1", "i1", [late])
+    assert (result.accepted, result.latest, result.replayed) == (1, None, [True])
+    # From an outbox, long after: newer than the latest but older than offline_after_s.
+    world.clock.now = T0 + timedelta(minutes=10)
+    drained = await world.svc.ingest("usv-1", "i1", samples(range(14, 16)))
+    assert drained.replayed == [True, True]
+    assert drained.latest is not None and drained.latest.seq == 15
+
+
+async def test_track_window_is_ts_ordered_from_inclusive_to_exclusive(world: World) -> None:
+    await world.svc.ingest("usv-1", "i1", samples(range(1, 13)))  # two buckets + 2 in memory
+    await world.svc.ingest("usv-2", "i2", samples(range(1, 13)))
+    start, end = T0 + timedelta(seconds=3), T0 + timedelta(seconds=12)
+    track = await world.svc.track("usv-1", start, end)
+    assert [p["seq"] for p in track.points] == list(range(3, 12))
+    assert [p["ts"] for p in track.points] == sorted(p["ts"] for p in track.points)
+    assert (track.truncated, track.next_from) == (False, None)
+
+
+async def test_track_pages_with_next_from(world: World) -> None:
+    await world.svc.ingest("usv-1", "i1", samples(range(1, 24)))
+    start, end = T0, T0 + timedelta(hours=1)
+    seen: list[int] = []
+    pages = 0
+    while True:
+        track = await world.svc.track("usv-1", start, end, cap=10)
+        seen += [p["seq"] for p in track.points]
+        pages += 1
+        if not track.truncated:
+            break
+        assert track.next_from is not None
+        start = track.next_from
+    assert seen == list(range(1, 24)) and pages == 3
+
+
+async def test_track_downsamples_to_max_points_keeping_the_ends(world: World) -> None:
+    await world.svc.ingest("usv-1", "i1", samples(range(1, 41)))
+    track = await world.svc.track("usv-1", T0, T0 + timedelta(hours=1), max_points=7)
+    assert len(track.points) == 7
+    assert (track.points[0]["seq"], track.points[-1]["seq"]) == (1, 40)
+
+
+async def test_page_by_seq_across_buckets_and_memory(world: World) -> None:
+    await world.svc.ingest("usv-1", "i1", samples(range(1, 24)))  # 4 buckets + 3 in memory
+    got: list[int] = []
+    after = -1
+    while True:
+        page, next_after = await world.svc.page("usv-1", after_seq=after, limit=6)
+        got += seqs_of(page)
+        if next_after is None:
+            assert len(page) < 6
+            break
+        after = next_after
+    assert got == list(range(1, 24))
+
+
+async def test_page_filters_by_time(world: World) -> None:
+    await world.svc.ingest("usv-1", "i1", samples(range(1, 24)))
+    page, next_after = await world.svc.page(
+        "usv-1", start=T0 + timedelta(seconds=7), end=T0 + timedelta(seconds=19), limit=100)
+    assert (seqs_of(page), next_after) == (list(range(7, 19)), None)
+    assert all(d["ts"].tzinfo is not None for d in page)
+
+
+async def test_a_full_page_gives_the_last_seq(world: World) -> None:
+    await world.svc.ingest("usv-1", "i1", samples(range(1, 11)))
+    page, next_after = await world.svc.page("usv-1", after_seq=2, limit=8)
+    assert (seqs_of(page), next_after) == (list(range(3, 11)), 10)
+    page, next_after = await world.svc.page("usv-1", after_seq=10, limit=8)
+    assert (page, next_after) == ([], None)
