@@ -40,6 +40,8 @@ log = logging.getLogger(__name__)
 MAX_ACKS_PER_CALL = 256
 #: A long poll that comes back empty-handed this fast is not repeated sooner.
 MIN_POLL_GAP_S = 0.2
+#: The server clock is re-read at least this often (heartbeat's server_time).
+CLOCK_SYNC_S = 30.0
 
 
 @dataclass
@@ -49,7 +51,7 @@ class AgentConfig:
     rate_hz: float = 1.0
     batch_size: int = 500
     poll_wait_s: float = 20.0
-    tick_s: float = 0.1
+    tick_s: float = 0.2
 
     def __post_init__(self) -> None:
         if not 0 < self.rate_hz <= 100:
@@ -253,11 +255,20 @@ class VehicleAgent:
 
     async def _heartbeat(self) -> None:
         assert self.instance_id is not None
+        loop = asyncio.get_running_loop()
+        synced = loop.time()
         while True:
             await asyncio.sleep(self._heartbeat_s)
+            now = loop.time()
+            quiet = self.link.last_contact is None or now - self.link.last_contact >= (
+                self._heartbeat_s
+            )
+            if not quiet and now - synced < CLOCK_SYNC_S:
+                continue  # other calls keep last_seen moving; the clock is fresh
             sent = utcnow()
             res = await self.transport.heartbeat(self.instance_id)
             self.clock.observe(res.server_time, sent, utcnow())
+            synced = loop.time()
             self._contact()
 
     # -- always-on loops -------------------------------------------------------

@@ -9,7 +9,7 @@ from vehicle_client.sim.dynamics import Current, VehicleParams
 from vehicle_client.sim.simulator import CAPABILITIES, Simulator, TaskReport
 
 #: How often the physics runs, per second of wall time.
-STEP_HZ = 20.0
+STEP_HZ = 10.0
 
 
 class SimAdapter:
