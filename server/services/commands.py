@@ -222,7 +222,14 @@ class CommandService:
         """Apply the vehicle's acks; returns the ``abort`` list."""
         state = await self.instances.for_vehicle_caller(principal, instance_id)
         self.instances.touch(state)
-        self.instances.set_control_mode(state, control_mode)
+        if self.instances.set_control_mode(state, control_mode):
+            await self.events.record(  # failsafe and local control matter to the operators
+                "control_mode",
+                vehicle_id=state.vehicle_id,
+                instance_id=state.instance_id,
+                actor=principal,
+                data={"control_mode": control_mode},
+            )
         lane = self._lane(state.instance_id)
         now = self.clock()
         abort: list[str] = []

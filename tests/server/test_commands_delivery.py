@@ -317,3 +317,13 @@ async def test_metrics_count_active_commands_by_status(w: World) -> None:
     lines = r.text.splitlines()
     assert 'fleet_commands{status="delivered"} 1.0' in lines
     assert 'fleet_commands{status="queued"} 1.0' in lines
+
+
+async def test_a_change_of_control_mode_is_an_event(w: World) -> None:
+    v = await w.vehicle()
+    await w.ack(v, control_mode="failsafe")
+    await w.ack(v, control_mode="failsafe")
+    r = await w.http.get(
+        "/api/events", headers=ADMIN, params={"vehicle_id": v.vehicle_id, "kind": "control_mode"}
+    )
+    assert [e["data"]["control_mode"] for e in r.json()["events"]] == ["failsafe"]
