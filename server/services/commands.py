@@ -112,17 +112,20 @@ class CommandService:
                     position=state.position,
                 )
             )
+        superseded: list[Command] = []
+        for cmd in made:  # memory first: a poll from now on sees the whole submit
+            lane = self._lane(cmd.instance_id)
+            lane.add(cmd)
+            if cmd.is_stop:
+                others = [c for c in lane.active.values() if c is not cmd]
+                superseded += life.supersede(others, cmd, now)
         if made:
             await self.repo.insert_active([cmd.to_doc() for cmd in made])
         for cmd in made:
-            lane = self._lane(cmd.instance_id)
-            lane.add(cmd)
+            self._ready(self._lane(cmd.instance_id))
             await self._audit(cmd, principal, args=cmd.args)
-            if cmd.is_stop:
-                others = [c for c in lane.active.values() if c is not cmd]
-                for gone in life.supersede(others, cmd, now):
-                    await self._finished(gone)
-            self._ready(lane)
+        for gone in superseded:
+            await self._finished(gone)
         return [
             {"instance_id": c.instance_id, "command_id": c.command_id, "status": "queued"}
             for c in made
@@ -159,11 +162,14 @@ class CommandService:
         mine = [*lane.active.values(), *lane.recent] if lane is not None else []
         if lane is None or not lane.history_loaded:
             seen = {c.command_id for c in mine}
-            for doc in await self.repo.recent_finished(state.instance_id, limit):
-                if doc["command_id"] not in seen:
-                    mine.append(Command.from_doc(doc))
+            stored = [
+                Command.from_doc(doc)
+                for doc in await self.repo.recent_finished(state.instance_id, limit)
+                if doc["command_id"] not in seen
+            ]
+            mine += stored
             if lane is not None:
-                lane.history_loaded = True
+                lane.remember(stored)
         mine.sort(key=lambda c: (c.issued_at, c.seq), reverse=True)
         return state.control_mode, mine[:limit]
 

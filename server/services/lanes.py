@@ -46,6 +46,15 @@ class Lane:
             return self.recent.popleft()
         return None
 
+    def remember(self, older: list[Command]) -> None:
+        """Finished commands read back from the store: older than those in ``recent``."""
+        self.history_loaded = True
+        known = {c.command_id for c in self.recent}
+        fresh = sorted((c for c in older if c.command_id not in known), key=lambda c: c.seq)
+        self.recent.extendleft(reversed(fresh))
+        while len(self.recent) > self.recent_limit:
+            self.recent.popleft()
+
     def take_aborts(self) -> list[str]:
         out, self.aborts = self.aborts, []
         return out

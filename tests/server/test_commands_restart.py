@@ -30,3 +30,9 @@ async def test_queues_and_leases_survive_a_clean_restart(
         assert (await w.command(dropped))["status"] == "cancelled"
         assert [c["command_id"] for c in await w.poll(v)] == [waiting]
         assert (await w.submit(op, [v], GO_TO)).status_code == 202  # the lease is still held
+        for _ in range(2):  # read back from the store once, then kept in memory
+            r = await w.http.get(
+                "/client/get_fbmessage", headers=op.headers, params={"instance_id": v.instance_id}
+            )
+            assert dropped in [c["command_id"] for c in r.json()["commands"]]
+            assert len(r.json()["commands"]) == 4
