@@ -1,0 +1,34 @@
+"""The server for the HTTP bench, in its own process: ``python -m bench._serve PORT DIR TOKEN``.
+
+The real app (embedded store in DIR) plus one hidden trivial route,
+``GET /_bench/trivial``, served by the same process as the baseline.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import uvicorn
+
+from server.app import create_app
+from server.settings import Settings
+
+
+def main() -> None:
+    port, directory, token = int(sys.argv[1]), Path(sys.argv[2]), sys.argv[3]
+    settings = Settings(_env_file=None, snapshot_path=directory / "bench.snapshot",  # type: ignore[call-arg]
+                        admin_token=token, rate_limit_per_s=1e9, rate_limit_burst=10**9,
+                        port=port, log_level="warning")
+    app = create_app(settings)
+
+    async def trivial() -> dict[str, bool]:
+        return {"ok": True}
+
+    app.add_api_route("/_bench/trivial", trivial, methods=["GET"], include_in_schema=False)
+    app.router.routes.insert(0, app.router.routes.pop())  # before the dashboard's "/" mount
+    uvicorn.run(app, host="127.0.0.1", port=port, log_level="warning", access_log=False)
+
+
+if __name__ == "__main__":
+    main()

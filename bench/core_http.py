@@ -1,0 +1,221 @@
+"""Core server figures (issue 2).
+
+(a) ``POST /upper/update_param`` (10 samples a call) and ``GET /upper/get_control``
+    (``wait_s=0``) throughput as a ratio to a trivial route of the same app in
+    the same process: a real uvicorn in a subprocess, loaded over keep-alive
+    connections from this process. Goal: ratio >= 0.6.
+(b) Embedded-store ingest through ``TelemetryService.ingest`` (batches of 10,
+    20 vehicles, the writer task inserting and flushing meanwhile) with
+    1,000,000 samples already stored; the rate over the first and the last
+    50,000 samples of each 200,000 ingested. Goal: >= 10,000 samples/s, flat.
+(c) A one-hour track of one vehicle among 20 at that size, rendered as the
+    JSON answer. Goal: <= 250 ms. Also shown: the same query without the
+    in-process bucket index (plain mongomock queries), for reference.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import os
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+from datetime import UTC, datetime, timedelta
+from pathlib import Path
+
+import httpx
+
+from bench import Metric
+from bench._load import get, hammer, post_json
+from fleet_protocol import Sample, Track
+from server.api.track_formats import json_points
+from server.services.telemetry import TelemetryService
+from server.settings import Settings
+from server.storage import open_store
+from server.storage.telemetry import TelemetryRepo
+
+TITLE = "HTTP throughput ratios, embedded-store ingest and track query at 1 M samples"
+TOKEN = "fct_bench-admin-token-0123456789"
+CONNECTIONS = 8
+SECONDS = 3.0
+VEHICLES = 20
+STORED = 1_000_000
+BUCKET = 200
+INGEST = 200_000
+WINDOW = 50_000
+T0 = datetime(2026, 1, 1, tzinfo=UTC)
+
+
+# ---- (a) HTTP ---------------------------------------------------------------
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def _wait_ready(port: int, proc: subprocess.Popen[bytes], deadline_s: float = 60) -> None:
+    deadline = time.monotonic() + deadline_s
+    while time.monotonic() < deadline:
+        if proc.poll() is not None:
+            raise RuntimeError("the bench server exited at start-up")
+        try:
+            if httpx.get(f"http://127.0.0.1:{port}/healthz", timeout=1).status_code == 200:
+                return
+        except httpx.HTTPError:
+            pass
+        time.sleep(0.1)
+    raise RuntimeError("the bench server did not become ready")
+
+
+def _vehicles(port: int, count: int) -> list[tuple[str, str]]:
+    """(instance_id, vehicle token) for ``count`` fresh vehicles."""
+    out = []
+    with httpx.Client(base_url=f"http://127.0.0.1:{port}", timeout=10) as c:
+        admin = {"Authorization": f"Bearer {TOKEN}"}
+        for i in range(count):
+            vid = f"bench-{i}"
+            r = c.post("/api/vehicles", headers=admin,
+                       json={"vehicle_id": vid, "name": vid, "vehicle_type": "usv"})
+            r.raise_for_status()
+            token = r.json()["token"]
+            r = c.post("/upper/start_instance", headers={"Authorization": f"Bearer {token}"},
+                       json={"vehicle_id": vid, "capabilities": ["stop"]})
+            r.raise_for_status()
+            out.append((r.json()["instance_id"], token))
+    return out
+
+
+def _http(runs: int) -> list[Metric]:
+    trivial = Metric("trivial route", "req/s")
+    update = Metric("update_param (10 samples)", "req/s")
+    control = Metric("get_control (wait_s=0)", "req/s")
+    update_ratio = Metric("update_param / trivial", "ratio", goal=("min", 0.6))
+    control_ratio = Metric("get_control / trivial", "ratio", goal=("min", 0.6))
+    port = _free_port()
+    with tempfile.TemporaryDirectory() as tmp:
+        proc = subprocess.Popen([sys.executable, "-m", "bench._serve", str(port), tmp, TOKEN],
+                                env={**os.environ, "PYTHONUNBUFFERED": "1"})
+        try:
+            _wait_ready(port, proc)
+            units = _vehicles(port, CONNECTIONS)
+            seqs = [0] * CONNECTIONS
+            t_req = get("/_bench/trivial")
+            c_req = [get(f"/upper/get_control?instance_id={iid}&wait_s=0",
+                         {"Authorization": f"Bearer {tok}"}) for iid, tok in units]
+
+            def update_req(i: int, _: int) -> bytes:
+                iid, tok = units[i]
+                first = seqs[i] + 1
+                seqs[i] += 10
+                now = datetime.now(UTC)
+                samples = [{"seq": first + k, "ts": now.isoformat(), "lat": 43.9, "lon": 15.4,
+                            "speed_mps": 1.2, "heading_deg": 90.0} for k in range(10)]
+                body = json.dumps({"instance_id": iid, "params": {"mode": "auto"},
+                                   "samples": samples}).encode()
+                return post_json("/upper/update_param", body, {"Authorization": f"Bearer {tok}"})
+
+            async def measure() -> None:
+                await hammer(port, lambda i, n: t_req, connections=CONNECTIONS, seconds=1.0)
+                for _ in range(runs):
+                    base, e0 = await hammer(port, lambda i, n: t_req,
+                                            connections=CONNECTIONS, seconds=SECONDS)
+                    up, e1 = await hammer(port, update_req, connections=CONNECTIONS,
+                                          seconds=SECONDS)
+                    ctl, e2 = await hammer(port, lambda i, n: c_req[i],
+                                           connections=CONNECTIONS, seconds=SECONDS)
+                    if e0 or e1 or e2:
+                        raise RuntimeError(f"bench requests failed: {e0 + e1 + e2}")
+                    trivial.values.append(base)
+                    update.values.append(up)
+                    control.values.append(ctl)
+                    update_ratio.values.append(up / base)
+                    control_ratio.values.append(ctl / base)
+
+            asyncio.run(measure())
+        finally:
+            proc.terminate()
+            proc.wait(timeout=30)
+    return [trivial, update, control, update_ratio, control_ratio]
+
+
+# ---- (b), (c) embedded store --------------------------------------------------
+def _prefill_buckets(vehicle: str, index: int, per_vehicle: int) -> list[dict[str, object]]:
+    """``per_vehicle`` samples at 1 Hz in full buckets, a slow loop around a point."""
+    out = []
+    for b in range(per_vehicle // BUCKET):
+        samples = []
+        for k in range(BUCKET):
+            seq = b * BUCKET + k + 1
+            samples.append({"seq": seq, "ts": T0 + timedelta(seconds=seq),
+                            "lat": 43.9 + 0.01 * index + 1e-6 * (seq % 977),
+                            "lon": 15.4 + 1e-6 * (seq % 1291), "heading_deg": 90.0,
+                            "speed_mps": 1.5})
+        out.append(TelemetryRepo.make_bucket(vehicle, samples))
+    return out
+
+
+async def _store_bench(runs: int) -> list[Metric]:
+    first = Metric(f"ingest, first {WINDOW // 1000}k of {INGEST // 1000}k", "samples/s",
+                   goal=("min", 10_000))
+    last = Metric(f"ingest, last {WINDOW // 1000}k of {INGEST // 1000}k", "samples/s",
+                  goal=("min", 10_000))
+    track = Metric("track 1 h of 1 vehicle / 20", "ms", goal=("max", 250))
+    scan = Metric("same, without the bucket index", "ms")
+    fill = Metric(f"pre-fill {STORED // 1_000_000} M samples", "s")
+    with tempfile.TemporaryDirectory() as tmp:
+        settings = Settings(_env_file=None, snapshot_path=Path(tmp) / "s.snapshot")  # type: ignore[call-arg]
+        store = open_store(settings)
+        repo = TelemetryRepo(store)
+        await repo.ensure_indexes()
+        per_vehicle = STORED // VEHICLES
+        started = time.perf_counter()
+        for v in range(VEHICLES):
+            buckets = _prefill_buckets(f"v{v}", v, per_vehicle)
+            for i in range(0, len(buckets), 50):
+                await repo.insert_many(buckets[i:i + 50])
+        await store.flush()
+        fill.values.append(time.perf_counter() - started)
+        svc = TelemetryService(settings, store, repo=repo)
+        await svc.load()
+        plain = TelemetryService(settings, store, repo=TelemetryRepo(store, use_index=False))
+
+        start = T0 + timedelta(hours=5)
+        for _ in range(max(runs, 3)):
+            for service, metric in ((svc, track), (plain, scan)):
+                t = time.perf_counter()
+                result = await service.track("v7", start, start + timedelta(hours=1))
+                Track(vehicle_id="v7", points=json_points(result), truncated=result.truncated,
+                      next_from=result.next_from).model_dump_json()
+                metric.values.append((time.perf_counter() - t) * 1000)
+                assert len(result.points) == 3600, len(result.points)
+
+        writer = asyncio.create_task(svc.run_writer())
+        next_seq = [per_vehicle + 1] * VEHICLES
+        for _ in range(runs):
+            batches = []
+            for n in range(INGEST // 10):
+                v = n % VEHICLES
+                s0 = next_seq[v]
+                next_seq[v] += 10
+                batches.append((f"v{v}", [Sample(seq=s, ts=T0 + timedelta(seconds=s),
+                                                 lat=43.9, lon=15.4) for s in range(s0, s0 + 10)]))
+            marks = []
+            t = time.perf_counter()
+            for n, (vid, batch) in enumerate(batches):
+                await svc.ingest(vid, "i", batch)
+                await asyncio.sleep(0)  # let the writer run, as the event loop would
+                if (n + 1) * 10 in (WINDOW, INGEST - WINDOW, INGEST):
+                    marks.append(time.perf_counter())
+            first.values.append(WINDOW / (marks[0] - t))
+            last.values.append(WINDOW / (marks[2] - marks[1]))
+        writer.cancel()
+        await asyncio.gather(writer, return_exceptions=True)
+        await svc.flush_all()
+    return [fill, first, last, track, scan]
+
+
+def run(runs: int) -> list[Metric]:
+    return _http(runs) + asyncio.run(_store_bench(runs))
