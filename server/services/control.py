@@ -116,6 +116,9 @@ class ControlService:
         grantee = Grantee(username, access[0], access[1]) if access is not None else None
         rules.check_grantee(grantee, username, state.vehicle_id)
         now = self.clock()
+        current = self._leases.get(state.instance_id)
+        if current is not None and not current.live(now):
+            await self._expire(current)  # not swept yet: its queue goes first
         lease, ended = rules.grant(
             self._leases.get(state.instance_id),
             instance_id=state.instance_id,
@@ -168,13 +171,16 @@ class ControlService:
         now = now or self.clock()
         for lease in list(self._leases.values()):
             if not lease.live(now):
-                await self.events.record(
-                    "control_expired",
-                    vehicle_id=lease.vehicle_id,
-                    instance_id=lease.instance_id,
-                    data={"holder": lease.holder},
-                )
-                await self._end(lease, "expired")
+                await self._expire(lease)
+
+    async def _expire(self, lease: Lease) -> None:
+        if await self._end(lease, "expired"):
+            await self.events.record(
+                "control_expired",
+                vehicle_id=lease.vehicle_id,
+                instance_id=lease.instance_id,
+                data={"holder": lease.holder},
+            )
 
     async def _on_finish(self, state: InstanceState, principal: Principal | None) -> None:
         self._requests.pop(state.instance_id, None)
@@ -192,12 +198,15 @@ class ControlService:
             raise InstanceFinished(f"instance {instance_id} is finished")
         return state
 
-    async def _end(self, lease: Lease, reason: str) -> None:
-        if self._leases.get(lease.instance_id) is lease:
-            del self._leases[lease.instance_id]
-            await self.repo.drop_lease(lease.instance_id)
-            self._changed(lease.instance_id, lease.vehicle_id, None)
+    async def _end(self, lease: Lease, reason: str) -> bool:
+        """End the instance's current lease (once: False if it already ended)."""
+        if self._leases.get(lease.instance_id) is not lease:
+            return False
+        del self._leases[lease.instance_id]
+        self._changed(lease.instance_id, lease.vehicle_id, None)
+        await self.repo.drop_lease(lease.instance_id)
         await self._ended(lease, reason)
+        return True
 
     async def _ended(self, lease: Lease, reason: str) -> None:
         for listener in self.lease_end_listeners:

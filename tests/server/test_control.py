@@ -228,3 +228,15 @@ async def test_grants_revokes_and_releases_are_audited(w: World) -> None:
     r = await w.http.get("/api/events", headers=ADMIN, params={"vehicle_id": v.vehicle_id})
     kinds = [e["kind"] for e in r.json()["events"] if e["kind"].startswith("control_")]
     assert kinds == ["control_grant", "control_release", "control_grant", "control_revoke"]
+
+
+async def test_a_grant_after_expiry_still_cancels_the_former_queue(w: World) -> None:
+    v = await w.vehicle()
+    first = await w.operator_in_control(v, duration_s=60)
+    go = await w.queued(first, v, GO_TO, ttl_s=600)
+    w.clock.advance(61)
+    second = await w.person("operator", v)
+    assert (await w.grant(v, second.username)).status_code == 200
+    cmd = await w.command(go)
+    assert cmd["status"] == "cancelled"
+    assert cmd["history"][-1]["detail"] == "lease_ended"
