@@ -323,7 +323,7 @@ class VehicleAgent:
                 self._acks.append(effect)
             elif isinstance(effect, Execute):
                 try:
-                    self.adapter.execute(effect.kind, effect.args)
+                    self.adapter.execute(effect.kind, effect.args, effect.command_id)
                 except (ValueError, KeyError) as exc:
                     failed = TaskReport(effect.kind, "failed", detail=f"vehicle refused: {exc}")
                     self._acks.extend(

@@ -15,8 +15,8 @@ class Adapter(Protocol):
     def telemetry(self) -> dict[str, Any] | None:
         """The latest state as sample fields (``lat``, ``lon``, ...); ``None`` without a fix."""
 
-    def execute(self, kind: str, args: dict[str, Any]) -> None:
-        """Start a task, replacing the current one."""
+    def execute(self, kind: str, args: dict[str, Any], command_id: str | None = None) -> None:
+        """Start a task, replacing the current one (``ValueError`` if it cannot)."""
 
     def halt(self) -> None:
         """Drop the current task at once."""

@@ -37,7 +37,7 @@ class SimAdapter:
     def telemetry(self) -> dict[str, Any]:
         return self.sim.telemetry()
 
-    def execute(self, kind: str, args: dict[str, Any]) -> None:
+    def execute(self, kind: str, args: dict[str, Any], command_id: str | None = None) -> None:
         self.sim.start(self.sim.task_for(kind, args))
 
     def halt(self) -> None:
