@@ -67,27 +67,54 @@ def _server(workdir: Path) -> tuple[subprocess.Popen, str]:
         "FLEET_LOG_LEVEL": "warning",
     }
     log = (workdir / "server.log").open("w")
-    proc = subprocess.Popen([sys.executable, "-m", "server.cli"], cwd=workdir, env=env,
-                            stdout=log, stderr=subprocess.STDOUT)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "server.cli"],
+        cwd=workdir,
+        env=env,
+        stdout=log,
+        stderr=subprocess.STDOUT,
+    )
     url = f"http://127.0.0.1:{port}"
     _until(lambda: httpx.get(f"{url}/healthz", timeout=2).status_code == 200, "the server")
     return proc, url
 
 
 def _vehicle(url: str, vehicle_id: str) -> str:
-    r = httpx.post(f"{url}/api/vehicles", headers={"Authorization": f"Bearer {ADMIN}"},
-                   json={"vehicle_id": vehicle_id, "name": vehicle_id}, timeout=10)
+    r = httpx.post(
+        f"{url}/api/vehicles",
+        headers={"Authorization": f"Bearer {ADMIN}"},
+        json={"vehicle_id": vehicle_id, "name": vehicle_id},
+        timeout=10,
+    )
     r.raise_for_status()
     return r.json()["token"]
 
 
 def _agent(url: str, token: str, vehicle_id: str, outbox: Path) -> subprocess.Popen:
-    args = [sys.executable, "-m", "vehicle_client.cli", "run", "--server", url,
-            "--vehicle-id", vehicle_id, "--outbox", str(outbox), "--rate-hz", "5",
-            "--log-level", "WARNING"]
+    args = [
+        sys.executable,
+        "-m",
+        "vehicle_client.cli",
+        "run",
+        "--server",
+        url,
+        "--vehicle-id",
+        vehicle_id,
+        "--outbox",
+        str(outbox),
+        "--rate-hz",
+        "5",
+        "--log-level",
+        "WARNING",
+    ]
     log = outbox.with_suffix(".log").open("w")
-    return subprocess.Popen(args, cwd=ROOT, env={**os.environ, "FLEET_AGENT_TOKEN": token},
-                            stdout=log, stderr=subprocess.STDOUT)
+    return subprocess.Popen(
+        args,
+        cwd=ROOT,
+        env={**os.environ, "FLEET_AGENT_TOKEN": token},
+        stdout=log,
+        stderr=subprocess.STDOUT,
+    )
 
 
 def _rows(outbox: Path) -> int:
@@ -141,8 +168,14 @@ def drain(url: str, workdir: Path, outage_s: int = 600, rate_hz: int = 5) -> dic
     start = datetime.now(UTC) - timedelta(seconds=outage_s)
     for i in range(n):
         ts = start + timedelta(seconds=i / rate_hz)
-        outbox.append({"ts": ts.strftime("%Y-%m-%dT%H:%M:%S.%f")[:-3] + "Z",
-                       "lat": 43.94 + i * 1e-7, "lon": 15.44, "speed_mps": 0.3})
+        outbox.append(
+            {
+                "ts": ts.strftime("%Y-%m-%dT%H:%M:%S.%f")[:-3] + "Z",
+                "lat": 43.94 + i * 1e-7,
+                "lon": 15.44,
+                "speed_mps": 0.3,
+            }
+        )
     outbox.close()
     agent = _agent(url, _vehicle(url, "bench-drain"), "bench-drain", outbox_path)
     try:
@@ -175,10 +208,14 @@ def main() -> None:
         print(json.dumps(result))
         return
     f, d = result["footprint"], result["drain_after_10_min_outage"]
-    print(f"agent at 5 Hz: RSS {f['rss_mb']} MB (goal <= 60), CPU {f['cpu_pct']} % of a core "
-          f"(goal <= 3) over {f['measured_s']} s")
-    print(f"outbox drain after a 10-min outage: {d['backlog']} samples in {d['drained_s']} s "
-          f"= {d['samples_per_s']} samples/s")
+    print(
+        f"agent at 5 Hz: RSS {f['rss_mb']} MB (goal <= 60), CPU {f['cpu_pct']} % of a core "
+        f"(goal <= 3) over {f['measured_s']} s"
+    )
+    print(
+        f"outbox drain after a 10-min outage: {d['backlog']} samples in {d['drained_s']} s "
+        f"= {d['samples_per_s']} samples/s"
+    )
 
 
 if __name__ == "__main__":

@@ -160,7 +160,7 @@ class VehicleAgent:
             vehicle_id=self.config.vehicle_id,
             name=self.config.name or self.config.vehicle_id,
             vehicle_type=self.adapter.vehicle_type,
-            capabilities=sorted(self.pilot.capabilities),  # type: ignore[arg-type]
+            capabilities=sorted(self.pilot.capabilities),
             params=self.adapter.describe(),
         )
         sent = utcnow()

@@ -86,7 +86,7 @@ class Pilot:
 
     def _ack(self, command_id: str, status: str, **extra: Any) -> FbAck:
         self.seen[command_id] = status
-        return FbAck(command_id=command_id, status=status, **extra)  # type: ignore[arg-type]
+        return FbAck(command_id=command_id, status=status, **extra)
 
     def _one(self, command: CommandObject, server_now: datetime) -> list[Effect]:
         cid = command.command_id
@@ -94,7 +94,7 @@ class Pilot:
         if previous is not None:
             if previous == "aborted" or (cid == self.active_id and previous == "executing"):
                 return []  # aborted: never again; executing: progress acks follow
-            return [FbAck(command_id=cid, status=previous)]  # type: ignore[arg-type]
+            return [FbAck(command_id=cid, status=previous)]
         if command.expires_at <= server_now:
             return [self._ack(cid, "rejected", detail="expired before the vehicle got it")]
         if command.type not in self.capabilities and command.type != "stop":

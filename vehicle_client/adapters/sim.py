@@ -14,7 +14,7 @@ STEP_HZ = 10.0
 
 class SimAdapter:
     vehicle_type = "usv"
-    capabilities = CAPABILITIES
+    capabilities: tuple[str, ...] = CAPABILITIES
 
     def __init__(
         self,

@@ -21,7 +21,7 @@ RECONNECT_S = 1.0
 
 class RosAdapter:
     vehicle_type = "usv"
-    capabilities = ("stop", "go_to", "keep_station", "follow_path")
+    capabilities: tuple[str, ...] = ("stop", "go_to", "keep_station", "follow_path")
 
     def __init__(self, address: str) -> None:
         host, _, port = address.rpartition(":")
