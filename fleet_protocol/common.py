@@ -85,7 +85,7 @@ def _bounded_data(value: dict[str, Any] | None) -> dict[str, Any] | None:
 class Sample(WireModel):
     """One telemetry sample. ``seq`` rises strictly per vehicle."""
 
-    seq: int = Field(ge=0, le=2**62)
+    seq: int = Field(ge=1, le=2**62, description="per vehicle, rising; 0 means none yet")
     ts: Timestamp
     lat: Latitude
     lon: Longitude

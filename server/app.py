@@ -54,7 +54,8 @@ def create_app(settings: Settings | None = None, *, clock: container.Clock = utc
     )
     metrics = Metrics()  # not bound to a loop: built here so the middleware can hold it
     errors.install(app)
-    for module in (health, admin, upper, upper_control, client, control, fleet, ws):
+    # Vehicles call most often: their routes are matched first.
+    for module in (upper, upper_control, client, control, fleet, health, admin, ws):
         app.include_router(module.router)
     app.include_router(fleet_telemetry.router)
     if WEB_DIR.is_dir() and any(WEB_DIR.iterdir()):

@@ -51,6 +51,8 @@ def run(settings: Settings) -> None:
         log_level=settings.log_level,
         access_log=False,
         ws_per_message_deflate=False,
+        # Open long polls (up to 30 s) must not hold a stop up: they are cut after this.
+        timeout_graceful_shutdown=3,
     )
 
 

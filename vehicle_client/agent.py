@@ -24,7 +24,14 @@ from typing import Any
 
 from pydantic import ValidationError
 
-from fleet_protocol import FbAck, Sample, StartInstance, UpdateFbMessage, UpdateParam
+from fleet_protocol import (
+    ControlInfo,
+    FbAck,
+    Sample,
+    StartInstance,
+    UpdateFbMessage,
+    UpdateParam,
+)
 from fleet_protocol.common import format_ts, utcnow
 from vehicle_client.adapters.base import Adapter
 from vehicle_client.backoff import Backoff
@@ -110,6 +117,8 @@ class VehicleAgent:
         self.link = LinkMonitor(after_s=self.pilot.failsafe.after_s)
         self.stats = AgentStats()
         self.instance_id: str | None = None
+        #: Who holds remote control (``start_instance``'s answer, then ``control`` pushes).
+        self.control: ControlInfo | None = None
         self._acks: list[FbAck] = []
         self._params: dict[str, Any] = {}
         self._sent_mode: str | None = None
@@ -167,6 +176,7 @@ class VehicleAgent:
         res = await self.transport.start_instance(body)
         self.clock.observe(res.server_time, sent, utcnow())
         self.instance_id = res.instance_id
+        self.on_control(res.control)
         self.pilot.failsafe = res.failsafe
         self.link.after_s = res.failsafe.after_s
         self._heartbeat_s = res.heartbeat_interval_s
@@ -178,15 +188,28 @@ class VehicleAgent:
         self.stats.connected = True
         self._contact()
         log.info(
-            "%s: instance %s %s, server has seq <= %d, %d samples waiting",
+            "%s: instance %s %s over %s, server has seq <= %d, %d samples waiting",
             self.config.vehicle_id,
             res.instance_id,
             "resumed" if res.resumed else "started",
+            self.link_kind,
             res.last_seq,
             self.outbox.pending,
         )
         self._fb_wake.set()
         self._uplink_wake.set()
+
+    @property
+    def link_kind(self) -> str:
+        """``ws`` (WebSocket) or ``http`` (long poll): what the session runs on."""
+        return str(getattr(self.transport, "kind", "http"))
+
+    def on_control(self, control: ControlInfo | None) -> None:
+        """Who holds remote control now (logged when it changes)."""
+        if control != self.control:
+            holder = control.holder if control else "nobody"
+            log.info("%s: remote control held by %s", self.config.vehicle_id, holder)
+        self.control = control
 
     def _contact(self) -> None:
         if self.link.contact(asyncio.get_running_loop().time()) == "restored":
@@ -281,7 +304,7 @@ class VehicleAgent:
             if fields is not None:
                 sample = {**fields, "ts": format_ts(utcnow())}
                 try:
-                    Sample.model_validate({**sample, "seq": 0})
+                    Sample.model_validate({**sample, "seq": 1})  # any valid seq: checks the rest
                 except ValidationError as exc:
                     log.error("%s: sample not stored: %s", self.config.vehicle_id, exc)
                 else:

@@ -13,7 +13,7 @@ if TYPE_CHECKING:
     from server.container import Services
 
 
-def get_services(request: Request) -> Services:
+async def get_services(request: Request) -> Services:
     services: Services = request.app.state.services
     return services
 
@@ -21,7 +21,7 @@ def get_services(request: Request) -> Services:
 ServicesDep = Annotated["Services", Depends(get_services)]
 
 
-def bearer_token(request: Request) -> str | None:
+def _bearer(request: Request) -> str | None:
     header = request.headers.get("authorization", "")
     scheme, _, value = header.partition(" ")
     if scheme.lower() == "bearer" and value.strip():
@@ -30,8 +30,8 @@ def bearer_token(request: Request) -> str | None:
 
 
 async def get_principal(request: Request) -> Principal:
-    services = get_services(request)
-    principal = await services.auth.authenticate(bearer_token(request))
+    services: Services = request.app.state.services
+    principal = await services.auth.authenticate(_bearer(request))
     services.auth.check_rate(principal)
     request.state.principal = principal
     return principal

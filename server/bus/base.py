@@ -100,6 +100,16 @@ class Bus(ABC):
     async def close(self) -> None:  # noqa: B027 - optional hook
         """Disconnect; no handler is called afterwards."""
 
+    _router: LocalRouter
+
+    def has_local(self, topic: str) -> bool:
+        """Whether a connection of this process listens on ``topic``."""
+        return self._router.has(topic)
+
+    def deliver_local(self, topic: str, message: Message) -> int:
+        """Deliver to this process's handlers only, at once (no await)."""
+        return self._router.deliver(topic, message)
+
     @abstractmethod
     async def publish(self, topic: str, message: Message) -> None:
         """Deliver to every subscriber of ``topic``, here at once and on the other replicas."""

@@ -100,13 +100,18 @@ class LiveHub:
 
     def emit(self, topic: str, data: Any) -> None:
         """An event on a topic the server writes, to every subscriber on every replica."""
+        if not self.bus.remote and not self.bus.has_local(topic):
+            return  # one process and nobody listening: nothing to build
         message = {
             "op": "event",
             "topic": topic,
-            "data": data,
+            "data": data() if callable(data) else data,
             "ts": format_ts(self.instances.clock()),
         }
-        self._fire(self.bus.publish(topic, message))
+        if self.bus.remote:
+            self._fire(self.bus.publish(topic, message))
+        else:
+            self.bus.deliver_local(topic, message)
 
     def _on_presence(self, state: InstanceState, presence: str) -> None:
         view = self.views.live_view(state).model_dump(mode="json")
@@ -127,10 +132,16 @@ class LiveHub:
 
     def telemetry(self, vehicle_id: str, samples: list[Any], replayed: list[bool]) -> None:
         topic = f"vehicle/{vehicle_id}/telemetry"
+        if not self.bus.remote and not self.bus.has_local(topic):
+            return
         for sample, late in zip(samples, replayed, strict=True):
-            data = sample.model_dump(mode="json", exclude_none=True)
-            if late:
-                data["replayed"] = True
+
+            def data(sample: Any = sample, late: bool = late) -> dict[str, Any]:
+                out: dict[str, Any] = sample.model_dump(mode="json", exclude_none=True)
+                if late:
+                    out["replayed"] = True
+                return out
+
             self.emit(topic, data)
 
     # ---- commands to vehicle sockets ------------------------------------------

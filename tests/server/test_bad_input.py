@@ -114,3 +114,18 @@ async def test_garbage_at_every_route_never_500(client: httpx.AsyncClient, seed:
                     assert r.status_code < 500, (method, path, body, r.text)
                     if r.status_code >= 400:
                         assert "error" in r.json(), (method, path, r.text)
+
+
+async def test_seq_starts_at_one(client: httpx.AsyncClient) -> None:
+    vid, vh = await make_vehicle(client)
+    iid = (await start_instance(client, vid, vh))["instance_id"]
+    r = await client.post(
+        "/upper/update_param",
+        headers=vh,
+        json={
+            "instance_id": iid,
+            "samples": [{"seq": 0, "ts": "2026-11-22T10:00:00Z", "lat": 1, "lon": 2}],
+        },
+    )
+    assert r.status_code == 422
+    assert r.json()["error"]["details"][0]["field"] == "samples.0.seq"

@@ -85,9 +85,9 @@ async def test_ingest_is_idempotent_by_seq(world: World) -> None:
 
 
 async def test_gaps_are_allowed_and_lower_seqs_are_duplicates(world: World) -> None:
-    result = await world.svc.ingest("usv-1", "i1", samples([0, 5, 100, 50, 101]))
+    result = await world.svc.ingest("usv-1", "i1", samples([1, 5, 100, 50, 101]))
     assert (result.accepted, result.duplicates, result.acked_through_seq) == (4, 1, 101)
-    assert [s.seq for s in result.stored] == [0, 5, 100, 101]
+    assert [s.seq for s in result.stored] == [1, 5, 100, 101]
     assert await world.svc.last_seq("usv-1") == 101
     assert await world.svc.last_seq("usv-unknown") == -1
 
