@@ -1,0 +1,145 @@
+"""Compute offload (the multilayer paper's cloud segmentation): a processing worker.
+
+It runs anywhere with a user token, subscribes to a vehicle's camera topic
+(binary media frames: a JSON header line, then a PGM image), segments each
+frame (Otsu threshold: the bright foreground against the water), and
+publishes the result under ``user/<its username>/segmentation/<vehicle>``,
+where the vehicle (or an operator) subscribes to it. The result carries the
+frame's ``ts`` so the vehicle can measure the round trip.
+
+    python examples/segmentation_worker.py --server http://127.0.0.1:8000 \\
+        --token "$WORKER_TOKEN" --user worker --vehicle usv-1
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import logging
+from typing import Any
+
+import websockets
+
+from fleet_protocol.ws import decode_media_frame
+
+log = logging.getLogger("segmentation-worker")
+
+
+def parse_pgm(data: bytes) -> tuple[int, int, bytes]:
+    """Width, height and pixels of a binary PGM (P5, 8 bit)."""
+    fields: list[bytes] = []
+    pos = 0
+    while len(fields) < 4:
+        while data[pos : pos + 1].isspace():
+            pos += 1
+        if data[pos : pos + 1] == b"#":
+            pos = data.index(b"\n", pos) + 1
+            continue
+        end = pos
+        while not data[end : end + 1].isspace():
+            end += 1
+        fields.append(data[pos:end])
+        pos = end
+    magic, width, height, maxval = fields[0], int(fields[1]), int(fields[2]), int(fields[3])
+    if magic != b"P5" or maxval > 255:
+        raise ValueError("only 8-bit binary PGM (P5) frames are segmented")
+    pixels = data[pos + 1 : pos + 1 + width * height]
+    if len(pixels) != width * height:
+        raise ValueError("the PGM frame is truncated")
+    return width, height, pixels
+
+
+def otsu_threshold(pixels: bytes) -> int:
+    """The grey level that best splits the histogram into two classes."""
+    histogram = [0] * 256
+    for value in pixels:
+        histogram[value] += 1
+    total = len(pixels)
+    weighted_sum = sum(i * n for i, n in enumerate(histogram))
+    background = background_sum = 0
+    best, best_variance = 0, -1.0
+    for level in range(256):
+        background += histogram[level]
+        if background == 0:
+            continue
+        foreground = total - background
+        if foreground == 0:
+            break
+        background_sum += level * histogram[level]
+        mean_b = background_sum / background
+        mean_f = (weighted_sum - background_sum) / foreground
+        variance = background * foreground * (mean_b - mean_f) ** 2
+        if variance > best_variance:
+            best, best_variance = level, variance
+    return best
+
+
+def segment(frame: bytes) -> dict[str, Any]:
+    """Threshold, foreground share and bounding box of one PGM frame."""
+    width, height, pixels = parse_pgm(frame)
+    threshold = otsu_threshold(pixels)
+    xs: list[int] = []
+    ys: list[int] = []
+    for index, value in enumerate(pixels):
+        if value > threshold:
+            ys.append(index // width)
+            xs.append(index % width)
+    bbox = [min(xs), min(ys), max(xs), max(ys)] if xs else None
+    return {
+        "width": width,
+        "height": height,
+        "threshold": threshold,
+        "foreground_ratio": len(xs) / (width * height),
+        "bbox": bbox,
+    }
+
+
+async def run(
+    server: str, token: str, user: str, vehicle: str, stop: asyncio.Event | None = None
+) -> None:
+    url = server.replace("http", "ws", 1).rstrip("/") + "/ws/client"
+    source = f"vehicle/{vehicle}/camera"
+    target = f"user/{user}/segmentation/{vehicle}"
+    async with websockets.connect(
+        url,
+        compression=None,
+        max_size=16 * 2**20,
+        additional_headers={"Authorization": f"Bearer {token}"},
+    ) as ws:
+        await ws.send(json.dumps({"op": "register", "id": "r", "topics": [target]}))
+        await ws.send(json.dumps({"op": "subscribe", "id": "s", "topics": [source]}))
+        log.info("segmenting %s into %s", source, target)
+        while stop is None or not stop.is_set():
+            try:
+                frame = await asyncio.wait_for(ws.recv(), 0.5)
+            except TimeoutError:
+                continue
+            if isinstance(frame, str):
+                message = json.loads(frame)
+                if message.get("op") in ("error", "ack") and message.get("ok") is False:
+                    log.error("server refused: %s", message)
+                continue
+            header, image = decode_media_frame(frame)
+            try:
+                result = segment(image)
+            except ValueError as exc:
+                log.warning("frame skipped: %s", exc)
+                continue
+            result["frame_ts"] = header.ts.isoformat().replace("+00:00", "Z")
+            await ws.send(json.dumps({"op": "publish", "topic": target, "data": result}))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--server", default="http://127.0.0.1:8000")
+    parser.add_argument("--token", required=True, help="a user token (viewer of the vehicle)")
+    parser.add_argument("--user", required=True, help="the token's username")
+    parser.add_argument("--vehicle", required=True)
+    args = parser.parse_args()
+    logging.basicConfig(level=logging.INFO)
+    asyncio.run(run(args.server, args.token, args.user, args.vehicle))
+
+
+if __name__ == "__main__":
+    main()
