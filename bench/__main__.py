@@ -22,8 +22,7 @@ from bench import Metric
 
 def modules(only: list[str] | None) -> list[str]:
     here = Path(__file__).parent
-    names = sorted(m.name for m in pkgutil.iter_modules([str(here)])
-                   if not m.name.startswith("_"))
+    names = sorted(m.name for m in pkgutil.iter_modules([str(here)]) if not m.name.startswith("_"))
     return [n for n in names if not only or n in only]
 
 
@@ -42,11 +41,23 @@ def table(rows: list[tuple[str, Metric]]) -> str:
         med = statistics.median(m.values)
         goal = "" if m.goal is None else ("≥ " if m.goal[0] == "min" else "≤ ") + fmt(m.goal[1])
         met = m.met(med)
-        lines.append((module, m.name, m.unit, fmt(min(m.values)), fmt(med), fmt(max(m.values)),
-                      goal, "" if met is None else ("yes" if met else "NO")))
+        lines.append(
+            (
+                module,
+                m.name,
+                m.unit,
+                fmt(min(m.values)),
+                fmt(med),
+                fmt(max(m.values)),
+                goal,
+                "" if met is None else ("yes" if met else "NO"),
+            )
+        )
     widths = [max(len(str(r[i])) for r in lines) for i in range(len(head))]
-    out = ["| " + " | ".join(str(c).ljust(w) for c, w in zip(r, widths, strict=True)) + " |"
-           for r in lines]
+    out = [
+        "| " + " | ".join(str(c).ljust(w) for c, w in zip(r, widths, strict=True)) + " |"
+        for r in lines
+    ]
     out.insert(1, "|" + "|".join("-" * (w + 2) for w in widths) + "|")
     return "\n".join(out)
 
@@ -70,11 +81,14 @@ def main() -> int:
         elif hasattr(module, "main"):
             # A bench with its own command line: run once, its report shown as it prints it.
             print(f"# {name} (own report) ...", file=sys.stderr, flush=True)
-            done = subprocess.run([sys.executable, "-m", f"bench.{name}"], capture_output=True,
-                                  text=True, check=False)
+            done = subprocess.run(
+                [sys.executable, "-m", f"bench.{name}"], capture_output=True, text=True, check=False
+            )
             others.append((name, (done.stdout + done.stderr[-2000:]).strip()))
-    print(f"python {platform.python_version()}, {args.runs} runs, "
-          f"{time.perf_counter() - started:.0f} s in all")
+    print(
+        f"python {platform.python_version()}, {args.runs} runs, "
+        f"{time.perf_counter() - started:.0f} s in all"
+    )
     print(table(rows))
     for name, report in others:
         print(f"\n## {name}\n{report}")

@@ -16,14 +16,19 @@ def get(path: str, headers: dict[str, str] | None = None) -> bytes:
 
 
 def post_json(path: str, body: bytes, headers: dict[str, str] | None = None) -> bytes:
-    lines = [f"POST {path} HTTP/1.1", "Host: bench", "Content-Type: application/json",
-             f"Content-Length: {len(body)}"]
+    lines = [
+        f"POST {path} HTTP/1.1",
+        "Host: bench",
+        "Content-Type: application/json",
+        f"Content-Length: {len(body)}",
+    ]
     lines += [f"{k}: {v}" for k, v in (headers or {}).items()]
     return ("\r\n".join(lines) + "\r\n\r\n").encode() + body
 
 
-async def _one_connection(port: int, index: int, make: RequestMaker, deadline: float,
-                          counts: list[int], errors: list[str]) -> None:
+async def _one_connection(
+    port: int, index: int, make: RequestMaker, deadline: float, counts: list[int], errors: list[str]
+) -> None:
     reader, writer = await asyncio.open_connection("127.0.0.1", port)
     n = 0
     try:
@@ -44,14 +49,16 @@ async def _one_connection(port: int, index: int, make: RequestMaker, deadline: f
         writer.close()
 
 
-async def hammer(port: int, make: RequestMaker, *, connections: int,
-                 seconds: float) -> tuple[float, list[str]]:
+async def hammer(
+    port: int, make: RequestMaker, *, connections: int, seconds: float
+) -> tuple[float, list[str]]:
     """Requests per second over ``seconds`` with ``connections`` keep-alive connections."""
     counts = [0] * connections
     errors: list[str] = []
     started = time.perf_counter()
     deadline = started + seconds
-    await asyncio.gather(*(
-        _one_connection(port, i, make, deadline, counts, errors) for i in range(connections)))
+    await asyncio.gather(
+        *(_one_connection(port, i, make, deadline, counts, errors) for i in range(connections))
+    )
     elapsed = time.perf_counter() - started
     return sum(counts) / elapsed, errors

@@ -17,9 +17,15 @@ from server.settings import Settings
 
 def main() -> None:
     port, directory, token = int(sys.argv[1]), Path(sys.argv[2]), sys.argv[3]
-    settings = Settings(_env_file=None, snapshot_path=directory / "bench.snapshot",  # type: ignore[call-arg]
-                        admin_token=token, rate_limit_per_s=1e9, rate_limit_burst=10**9,
-                        port=port, log_level="warning")
+    settings = Settings(
+        _env_file=None,
+        snapshot_path=directory / "bench.snapshot",  # type: ignore[call-arg]
+        admin_token=token,
+        rate_limit_per_s=1e9,
+        rate_limit_burst=10**9,
+        port=port,
+        log_level="warning",
+    )
     app = create_app(settings)
 
     async def trivial() -> dict[str, bool]:

@@ -77,12 +77,18 @@ def _vehicles(port: int, count: int) -> list[tuple[str, str]]:
         admin = {"Authorization": f"Bearer {TOKEN}"}
         for i in range(count):
             vid = f"bench-{i}"
-            r = c.post("/api/vehicles", headers=admin,
-                       json={"vehicle_id": vid, "name": vid, "vehicle_type": "usv"})
+            r = c.post(
+                "/api/vehicles",
+                headers=admin,
+                json={"vehicle_id": vid, "name": vid, "vehicle_type": "usv"},
+            )
             r.raise_for_status()
             token = r.json()["token"]
-            r = c.post("/upper/start_instance", headers={"Authorization": f"Bearer {token}"},
-                       json={"vehicle_id": vid, "capabilities": ["stop"]})
+            r = c.post(
+                "/upper/start_instance",
+                headers={"Authorization": f"Bearer {token}"},
+                json={"vehicle_id": vid, "capabilities": ["stop"]},
+            )
             r.raise_for_status()
             out.append((r.json()["instance_id"], token))
     return out
@@ -96,36 +102,56 @@ def _http(runs: int) -> list[Metric]:
     control_ratio = Metric("get_control / trivial", "ratio", goal=("min", 0.6))
     port = _free_port()
     with tempfile.TemporaryDirectory() as tmp:
-        proc = subprocess.Popen([sys.executable, "-m", "bench._serve", str(port), tmp, TOKEN],
-                                env={**os.environ, "PYTHONUNBUFFERED": "1"})
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "bench._serve", str(port), tmp, TOKEN],
+            env={**os.environ, "PYTHONUNBUFFERED": "1"},
+        )
         try:
             _wait_ready(port, proc)
             units = _vehicles(port, CONNECTIONS)
             seqs = [0] * CONNECTIONS
             t_req = get("/_bench/trivial")
-            c_req = [get(f"/upper/get_control?instance_id={iid}&wait_s=0",
-                         {"Authorization": f"Bearer {tok}"}) for iid, tok in units]
+            c_req = [
+                get(
+                    f"/upper/get_control?instance_id={iid}&wait_s=0",
+                    {"Authorization": f"Bearer {tok}"},
+                )
+                for iid, tok in units
+            ]
 
             def update_req(i: int, _: int) -> bytes:
                 iid, tok = units[i]
                 first = seqs[i] + 1
                 seqs[i] += 10
                 now = datetime.now(UTC)
-                samples = [{"seq": first + k, "ts": now.isoformat(), "lat": 43.9, "lon": 15.4,
-                            "speed_mps": 1.2, "heading_deg": 90.0} for k in range(10)]
-                body = json.dumps({"instance_id": iid, "params": {"mode": "auto"},
-                                   "samples": samples}).encode()
+                samples = [
+                    {
+                        "seq": first + k,
+                        "ts": now.isoformat(),
+                        "lat": 43.9,
+                        "lon": 15.4,
+                        "speed_mps": 1.2,
+                        "heading_deg": 90.0,
+                    }
+                    for k in range(10)
+                ]
+                body = json.dumps(
+                    {"instance_id": iid, "params": {"mode": "auto"}, "samples": samples}
+                ).encode()
                 return post_json("/upper/update_param", body, {"Authorization": f"Bearer {tok}"})
 
             async def measure() -> None:
                 await hammer(port, lambda i, n: t_req, connections=CONNECTIONS, seconds=1.0)
                 for _ in range(runs):
-                    base, e0 = await hammer(port, lambda i, n: t_req,
-                                            connections=CONNECTIONS, seconds=SECONDS)
-                    up, e1 = await hammer(port, update_req, connections=CONNECTIONS,
-                                          seconds=SECONDS)
-                    ctl, e2 = await hammer(port, lambda i, n: c_req[i],
-                                           connections=CONNECTIONS, seconds=SECONDS)
+                    base, e0 = await hammer(
+                        port, lambda i, n: t_req, connections=CONNECTIONS, seconds=SECONDS
+                    )
+                    up, e1 = await hammer(
+                        port, update_req, connections=CONNECTIONS, seconds=SECONDS
+                    )
+                    ctl, e2 = await hammer(
+                        port, lambda i, n: c_req[i], connections=CONNECTIONS, seconds=SECONDS
+                    )
                     if e0 or e1 or e2:
                         raise RuntimeError(f"bench requests failed: {e0 + e1 + e2}")
                     trivial.values.append(base)
@@ -149,19 +175,27 @@ def _prefill_buckets(vehicle: str, index: int, per_vehicle: int) -> list[dict[st
         samples = []
         for k in range(BUCKET):
             seq = b * BUCKET + k + 1
-            samples.append({"seq": seq, "ts": T0 + timedelta(seconds=seq),
-                            "lat": 43.9 + 0.01 * index + 1e-6 * (seq % 977),
-                            "lon": 15.4 + 1e-6 * (seq % 1291), "heading_deg": 90.0,
-                            "speed_mps": 1.5})
+            samples.append(
+                {
+                    "seq": seq,
+                    "ts": T0 + timedelta(seconds=seq),
+                    "lat": 43.9 + 0.01 * index + 1e-6 * (seq % 977),
+                    "lon": 15.4 + 1e-6 * (seq % 1291),
+                    "heading_deg": 90.0,
+                    "speed_mps": 1.5,
+                }
+            )
         out.append(TelemetryRepo.make_bucket(vehicle, samples))
     return out
 
 
 async def _store_bench(runs: int) -> list[Metric]:
-    first = Metric(f"ingest, first {WINDOW // 1000}k of {INGEST // 1000}k", "samples/s",
-                   goal=("min", 10_000))
-    last = Metric(f"ingest, last {WINDOW // 1000}k of {INGEST // 1000}k", "samples/s",
-                  goal=("min", 10_000))
+    first = Metric(
+        f"ingest, first {WINDOW // 1000}k of {INGEST // 1000}k", "samples/s", goal=("min", 10_000)
+    )
+    last = Metric(
+        f"ingest, last {WINDOW // 1000}k of {INGEST // 1000}k", "samples/s", goal=("min", 10_000)
+    )
     track = Metric("track 1 h of 1 vehicle / 20", "ms", goal=("max", 250))
     scan = Metric("same, without the bucket index", "ms")
     fill = Metric(f"pre-fill {STORED // 1_000_000} M samples", "s")
@@ -175,7 +209,7 @@ async def _store_bench(runs: int) -> list[Metric]:
         for v in range(VEHICLES):
             buckets = _prefill_buckets(f"v{v}", v, per_vehicle)
             for i in range(0, len(buckets), 50):
-                await repo.insert_many(buckets[i:i + 50])
+                await repo.insert_many(buckets[i : i + 50])
         await store.flush()
         fill.values.append(time.perf_counter() - started)
         svc = TelemetryService(settings, store, repo=repo)
@@ -187,8 +221,12 @@ async def _store_bench(runs: int) -> list[Metric]:
             for service, metric in ((svc, track), (plain, scan)):
                 t = time.perf_counter()
                 result = await service.track("v7", start, start + timedelta(hours=1))
-                Track(vehicle_id="v7", points=json_points(result), truncated=result.truncated,
-                      next_from=result.next_from).model_dump_json()
+                Track(
+                    vehicle_id="v7",
+                    points=json_points(result),
+                    truncated=result.truncated,
+                    next_from=result.next_from,
+                ).model_dump_json()
                 metric.values.append((time.perf_counter() - t) * 1000)
                 assert len(result.points) == 3600, len(result.points)
 
@@ -200,8 +238,15 @@ async def _store_bench(runs: int) -> list[Metric]:
                 v = n % VEHICLES
                 s0 = next_seq[v]
                 next_seq[v] += 10
-                batches.append((f"v{v}", [Sample(seq=s, ts=T0 + timedelta(seconds=s),
-                                                 lat=43.9, lon=15.4) for s in range(s0, s0 + 10)]))
+                batches.append(
+                    (
+                        f"v{v}",
+                        [
+                            Sample(seq=s, ts=T0 + timedelta(seconds=s), lat=43.9, lon=15.4)
+                            for s in range(s0, s0 + 10)
+                        ],
+                    )
+                )
             marks = []
             t = time.perf_counter()
             for n, (vid, batch) in enumerate(batches):

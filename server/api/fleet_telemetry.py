@@ -30,7 +30,8 @@ DEFAULT_WINDOW = timedelta(hours=24)
 
 
 async def _visible_vehicle(
-    vehicle_id: Annotated[str, Path(min_length=1, max_length=64)], user: CurrentUser,
+    vehicle_id: Annotated[str, Path(min_length=1, max_length=64)],
+    user: CurrentUser,
     s: ServicesDep,
 ) -> str:
     await s.views.visible_vehicle(user, vehicle_id)  # 404 unknown, 403 not for this caller
@@ -42,19 +43,25 @@ From = Annotated[Timestamp | None, Query(alias="from")]
 To = Annotated[Timestamp | None, Query(alias="to")]
 
 
-def _window(start: datetime | None, end: datetime | None,
-            now: datetime) -> tuple[datetime, datetime]:
+def _window(
+    start: datetime | None, end: datetime | None, now: datetime
+) -> tuple[datetime, datetime]:
     end = end or now
     start = start or end - DEFAULT_WINDOW
     if start >= end:
-        raise Invalid("from must come before to",
-                      details=[{"field": "from", "message": "must be earlier than to"}])
+        raise Invalid(
+            "from must come before to",
+            details=[{"field": "from", "message": "must be earlier than to"}],
+        )
     return start, end
 
 
 @router.get("/api/vehicles/{vehicle_id}/track", response_model=Track)
 async def track(
-    vehicle_id: VisibleVehicle, s: ServicesDep, start: From = None, end: To = None,
+    vehicle_id: VisibleVehicle,
+    s: ServicesDep,
+    start: From = None,
+    end: To = None,
     max_points: Annotated[int | None, Query(ge=2, le=TRACK_PAGE_CAP)] = None,
     fmt: Annotated[Literal["json", "geojson", "gpx", "csv"], Query(alias="format")] = "json",
 ) -> Response:
@@ -68,20 +75,29 @@ async def track(
         return Response(track_formats.gpx(result), media_type=media, headers=headers)
     if fmt == "csv":
         return Response(track_formats.csv_text(result), media_type=media, headers=headers)
-    body = Track(vehicle_id=vehicle_id, points=track_formats.json_points(result),
-                 truncated=result.truncated, next_from=result.next_from)
+    body = Track(
+        vehicle_id=vehicle_id,
+        points=track_formats.json_points(result),
+        truncated=result.truncated,
+        next_from=result.next_from,
+    )
     return JSONResponse(body.model_dump(mode="json"))
 
 
 @router.get("/api/vehicles/{vehicle_id}/telemetry")
 async def telemetry(
-    vehicle_id: VisibleVehicle, s: ServicesDep, start: From = None, end: To = None,
+    vehicle_id: VisibleVehicle,
+    s: ServicesDep,
+    start: From = None,
+    end: To = None,
     after_seq: Annotated[int, Query(ge=-1, le=2**62)] = -1,
     limit: Annotated[int, Query(ge=1, le=MAX_PAGE)] = 1000,
 ) -> TelemetryPage:
     if start is not None and end is not None and start >= end:
         _window(start, end, s.clock())
-    samples, next_after = await s.telemetry.page(vehicle_id, after_seq=after_seq, start=start,
-                                                 end=end, limit=limit)
-    return TelemetryPage(samples=[{**d, "ts": format_ts(d["ts"])} for d in samples],
-                         next_after_seq=next_after)
+    samples, next_after = await s.telemetry.page(
+        vehicle_id, after_seq=after_seq, start=start, end=end, limit=limit
+    )
+    return TelemetryPage(
+        samples=[{**d, "ts": format_ts(d["ts"])} for d in samples], next_after_seq=next_after
+    )

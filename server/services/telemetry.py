@@ -89,8 +89,13 @@ def _sample(doc: Doc) -> Sample:
 
 
 class TelemetryService:
-    def __init__(self, settings: Settings, store: Store, clock: Clock = utcnow,
-                 repo: TelemetryRepo | None = None) -> None:
+    def __init__(
+        self,
+        settings: Settings,
+        store: Store,
+        clock: Clock = utcnow,
+        repo: TelemetryRepo | None = None,
+    ) -> None:
         self.settings = settings
         self.store = store
         self.clock = clock
@@ -121,8 +126,9 @@ class TelemetryService:
         state.latest = _sample(latest) if latest is not None else None
         state.loaded = True
 
-    async def ingest(self, vehicle_id: str, instance_id: str,
-                     samples: list[Sample]) -> IngestResult:
+    async def ingest(
+        self, vehicle_id: str, instance_id: str, samples: list[Sample]
+    ) -> IngestResult:
         state = self._state(vehicle_id)
         async with state.lock:
             await self._load(vehicle_id, state)
@@ -156,8 +162,9 @@ class TelemetryService:
             result.latest = state.latest if state.latest is not before else None
             return result
 
-    async def _write_bucket(self, vehicle_id: str, state: _Vehicle, *,
-                            best_effort: bool = False) -> bool:
+    async def _write_bucket(
+        self, vehicle_id: str, state: _Vehicle, *, best_effort: bool = False
+    ) -> bool:
         """Insert the oldest ``bucket_samples`` pending samples as one bucket (under the lock)."""
         chunk = state.pending[: self.settings.bucket_samples]
         try:
@@ -215,8 +222,9 @@ class TelemetryService:
         """Embedded store: flush the journal, then move the durable marks. True if they moved."""
         if self.store.durable_on_write:
             return False
-        marks = {v: (len(s.unflushed), s.unflushed[-1])
-                 for v, s in self._vehicles.items() if s.unflushed}
+        marks = {
+            v: (len(s.unflushed), s.unflushed[-1]) for v, s in self._vehicles.items() if s.unflushed
+        }
         if not marks:
             return False
         await self.store.flush()  # everything recorded before this call is on disk after it
@@ -265,8 +273,15 @@ class TelemetryService:
         state = self._vehicles.get(vehicle_id)
         return list(state.pending) if state is not None else []
 
-    async def track(self, vehicle_id: str, start: datetime, end: datetime,
-                    max_points: int | None = None, *, cap: int | None = None) -> TrackResult:
+    async def track(
+        self,
+        vehicle_id: str,
+        start: datetime,
+        end: datetime,
+        max_points: int | None = None,
+        *,
+        cap: int | None = None,
+    ) -> TrackResult:
         """Points with ``start <= ts < end`` in ``ts`` order; downsampled to ``max_points``.
 
         At most ``cap`` points are read (10,000 without ``max_points``); past it the
@@ -296,8 +311,15 @@ class TelemetryService:
             points = [points[i] for i in keep]
         return TrackResult(vehicle_id, points, next_from is not None, next_from)
 
-    async def page(self, vehicle_id: str, *, after_seq: int = -1, start: datetime | None = None,
-                   end: datetime | None = None, limit: int = 1000) -> tuple[list[Doc], int | None]:
+    async def page(
+        self,
+        vehicle_id: str,
+        *,
+        after_seq: int = -1,
+        start: datetime | None = None,
+        end: datetime | None = None,
+        limit: int = 1000,
+    ) -> tuple[list[Doc], int | None]:
         """Stored samples with ``seq > after_seq`` (and ``start <= ts < end``) in ``seq`` order."""
         tail = self._tail(vehicle_id)
         out: list[Doc] = []
@@ -311,8 +333,9 @@ class TelemetryService:
         cursor = after_seq
         full = False
         while not full:
-            buckets = await self.repo.after_seq(vehicle_id, cursor, limit=PAGE_BUCKETS,
-                                                start=start, end=end)
+            buckets = await self.repo.after_seq(
+                vehicle_id, cursor, limit=PAGE_BUCKETS, start=start, end=end
+            )
             if not buckets:
                 break
             for bucket in buckets:

@@ -53,8 +53,15 @@ class BucketMeta:
 
     @classmethod
     def of(cls, doc: Mapping[str, Any]) -> BucketMeta:
-        return cls(doc["_id"], doc["vehicle_id"], aware(doc["start"]), aware(doc["end"]),
-                   int(doc["min_seq"]), int(doc["max_seq"]), int(doc["n"]))
+        return cls(
+            doc["_id"],
+            doc["vehicle_id"],
+            aware(doc["start"]),
+            aware(doc["end"]),
+            int(doc["min_seq"]),
+            int(doc["max_seq"]),
+            int(doc["n"]),
+        )
 
     def overlaps(self, start: datetime, end: datetime) -> bool:
         """Whether a sample of this bucket may lie in ``[start, end)``."""
@@ -81,7 +88,7 @@ class _VehicleIndex:
         self.max_seqs.append(meta.max_seq)
 
     def after_seq(self, after_seq: int) -> list[BucketMeta]:
-        return self.metas[bisect.bisect_right(self.max_seqs, after_seq):]
+        return self.metas[bisect.bisect_right(self.max_seqs, after_seq) :]
 
     def drop(self, ids: set[Any]) -> None:
         self.metas = [m for m in self.metas if m.id not in ids]
@@ -202,8 +209,9 @@ class TelemetryRepo:
         if self._index is not None:
             entry = self._index.get(vehicle_id)
             return entry.max_seqs[-1] if entry and entry.max_seqs else -1
-        docs = await self.coll.find({"vehicle_id": vehicle_id}, sort=[("max_seq", -1)],
-                                    limit=1, projection=_META)
+        docs = await self.coll.find(
+            {"vehicle_id": vehicle_id}, sort=[("max_seq", -1)], limit=1, projection=_META
+        )
         return int(docs[0]["max_seq"]) if docs else -1
 
     async def latest_sample(self, vehicle_id: str) -> Doc | None:
@@ -215,8 +223,7 @@ class TelemetryRepo:
             last = max(entry.metas, key=lambda m: m.end)
             buckets = self._fetch([last])
         else:
-            buckets = await self.coll.find({"vehicle_id": vehicle_id}, sort=[("end", -1)],
-                                           limit=1)
+            buckets = await self.coll.find({"vehicle_id": vehicle_id}, sort=[("end", -1)], limit=1)
         if not buckets:
             return None
         return max(buckets[0]["samples"], key=lambda s: (aware(s["ts"]), s["seq"]))
@@ -232,9 +239,15 @@ class TelemetryRepo:
             sort=[("min_seq", 1)],
         )
 
-    async def after_seq(self, vehicle_id: str, after_seq: int, *, limit: int,
-                        start: datetime | None = None,
-                        end: datetime | None = None) -> list[Doc]:
+    async def after_seq(
+        self,
+        vehicle_id: str,
+        after_seq: int,
+        *,
+        limit: int,
+        start: datetime | None = None,
+        end: datetime | None = None,
+    ) -> list[Doc]:
         """Up to ``limit`` buckets holding samples with ``seq > after_seq``, in ``seq`` order.
 
         With ``start``/``end``, only buckets that may hold samples with ``start <= ts < end``.

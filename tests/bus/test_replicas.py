@@ -70,7 +70,7 @@ async def test_redis_going_away_degrades_to_local_and_shows_in_readyz(
             assert got["data"] == 1  # this replica's own sockets are still served
         redis_server.start()
         async with asyncio.timeout(30):
-            while (await _get(f"{base}/readyz")).status_code != 200:
+            while (await _get(f"{base}/readyz")).status_code != 200:  # noqa: ASYNC110 (deadline poll)
                 await asyncio.sleep(0.2)
 
 

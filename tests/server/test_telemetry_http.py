@@ -16,21 +16,27 @@ T0 = datetime(2026, 11, 22, 10, 0, 0, tzinfo=UTC)  # sample(n) is at T0 + n s
 WINDOW = {"from": "2026-11-22T09:00:00.000Z", "to": "2026-11-22T11:00:00.000Z"}
 
 
-async def vehicle_with_samples(client: httpx.AsyncClient, seqs: range,
-                               **extra: Any) -> tuple[str, dict[str, str], str]:
+async def vehicle_with_samples(
+    client: httpx.AsyncClient, seqs: range, **extra: Any
+) -> tuple[str, dict[str, str], str]:
     vid, vh = await make_vehicle(client)
     iid = (await start_instance(client, vid, vh))["instance_id"]
-    r = await client.post("/upper/update_param", headers=vh, json={
-        "instance_id": iid, "samples": [sample(n, **extra) for n in seqs]})
+    r = await client.post(
+        "/upper/update_param",
+        headers=vh,
+        json={"instance_id": iid, "samples": [sample(n, **extra) for n in seqs]},
+    )
     assert r.status_code == 200, r.text
     return vid, vh, iid
 
 
-async def test_update_param_counts_duplicates_and_reports_marks(
-        client: httpx.AsyncClient) -> None:
+async def test_update_param_counts_duplicates_and_reports_marks(client: httpx.AsyncClient) -> None:
     vid, vh, iid = await vehicle_with_samples(client, range(1, 11))
-    r = await client.post("/upper/update_param", headers=vh, json={
-        "instance_id": iid, "samples": [sample(n) for n in range(8, 13)]})
+    r = await client.post(
+        "/upper/update_param",
+        headers=vh,
+        json={"instance_id": iid, "samples": [sample(n) for n in range(8, 13)]},
+    )
     body = r.json()
     assert (body["accepted"], body["duplicates"], body["acked_through_seq"]) == (2, 3, 12)
     assert body["durable_through_seq"] <= 12
@@ -40,8 +46,11 @@ async def test_update_param_counts_duplicates_and_reports_marks(
 
 async def test_track_json(client: httpx.AsyncClient) -> None:
     vid, _, _ = await vehicle_with_samples(client, range(1, 31), speed_mps=1.5)
-    r = await client.get(f"/api/vehicles/{vid}/track", headers=ADMIN, params={
-        "from": "2026-11-22T10:00:05.000Z", "to": "2026-11-22T10:00:25.000Z"})
+    r = await client.get(
+        f"/api/vehicles/{vid}/track",
+        headers=ADMIN,
+        params={"from": "2026-11-22T10:00:05.000Z", "to": "2026-11-22T10:00:25.000Z"},
+    )
     assert r.status_code == 200, r.text
     body = r.json()
     assert body["vehicle_id"] == vid and body["truncated"] is False
@@ -60,16 +69,18 @@ async def test_track_default_window_ends_now(clocked_client: httpx.AsyncClient) 
 
 async def test_track_downsampled(client: httpx.AsyncClient) -> None:
     vid, _, _ = await vehicle_with_samples(client, range(1, 201))
-    r = await client.get(f"/api/vehicles/{vid}/track", headers=ADMIN,
-                         params={**WINDOW, "max_points": 20})
+    r = await client.get(
+        f"/api/vehicles/{vid}/track", headers=ADMIN, params={**WINDOW, "max_points": 20}
+    )
     points = r.json()["points"]
     assert len(points) == 20 and (points[0]["seq"], points[-1]["seq"]) == (1, 200)
 
 
 async def test_track_geojson(client: httpx.AsyncClient) -> None:
     vid, _, _ = await vehicle_with_samples(client, range(1, 4))
-    r = await client.get(f"/api/vehicles/{vid}/track", headers=ADMIN,
-                         params={**WINDOW, "format": "geojson"})
+    r = await client.get(
+        f"/api/vehicles/{vid}/track", headers=ADMIN, params={**WINDOW, "format": "geojson"}
+    )
     assert r.headers["content-type"].startswith("application/geo+json")
     feature = r.json()
     assert feature["type"] == "Feature" and feature["geometry"]["type"] == "LineString"
@@ -79,8 +90,9 @@ async def test_track_geojson(client: httpx.AsyncClient) -> None:
 
 async def test_track_gpx(client: httpx.AsyncClient) -> None:
     vid, _, _ = await vehicle_with_samples(client, range(1, 4), depth_m=2.5)
-    r = await client.get(f"/api/vehicles/{vid}/track", headers=ADMIN,
-                         params={**WINDOW, "format": "gpx"})
+    r = await client.get(
+        f"/api/vehicles/{vid}/track", headers=ADMIN, params={**WINDOW, "format": "gpx"}
+    )
     assert r.headers["content-type"].startswith("application/gpx+xml")
     ns = {"g": "http://www.topografix.com/GPX/1/1"}
     points = ET.fromstring(r.content).findall(".//g:trkpt", ns)
@@ -91,8 +103,9 @@ async def test_track_gpx(client: httpx.AsyncClient) -> None:
 
 async def test_track_csv(client: httpx.AsyncClient) -> None:
     vid, _, _ = await vehicle_with_samples(client, range(1, 4))
-    r = await client.get(f"/api/vehicles/{vid}/track", headers=ADMIN,
-                         params={**WINDOW, "format": "csv"})
+    r = await client.get(
+        f"/api/vehicles/{vid}/track", headers=ADMIN, params={**WINDOW, "format": "csv"}
+    )
     assert r.headers["content-type"].startswith("text/csv")
     assert r.headers["x-track-truncated"] == "false"
     rows = list(csv.DictReader(io.StringIO(r.text)))
@@ -103,16 +116,22 @@ async def test_track_csv(client: httpx.AsyncClient) -> None:
 async def test_track_is_cut_at_10000_points_with_next_from(client: httpx.AsyncClient) -> None:
     vid, vh, iid = await vehicle_with_samples(client, range(1, 5001))  # at most 5000 a call
     for chunk in (range(5001, 10001), range(10001, 10006)):
-        r = await client.post("/upper/update_param", headers=vh, json={
-            "instance_id": iid, "samples": [sample(n) for n in chunk]})
+        r = await client.post(
+            "/upper/update_param",
+            headers=vh,
+            json={"instance_id": iid, "samples": [sample(n) for n in chunk]},
+        )
         assert r.json()["accepted"] == len(chunk)
     day = {"from": "2026-11-22T00:00:00.000Z", "to": "2026-11-23T00:00:00.000Z"}
     r = await client.get(f"/api/vehicles/{vid}/track", headers=ADMIN, params=day)
     body = r.json()
     assert len(body["points"]) == 10_000 and body["truncated"] is True
     assert body["next_from"] == _ts(10_001)
-    rest = await client.get(f"/api/vehicles/{vid}/track", headers=ADMIN, params={
-        "from": body["next_from"], "to": "2026-11-23T00:00:00.000Z"})
+    rest = await client.get(
+        f"/api/vehicles/{vid}/track",
+        headers=ADMIN,
+        params={"from": body["next_from"], "to": "2026-11-23T00:00:00.000Z"},
+    )
     assert [p["seq"] for p in rest.json()["points"]] == list(range(10_001, 10_006))
 
 
@@ -121,20 +140,17 @@ def _ts(seq: int) -> str:
 
 
 async def test_telemetry_pages_by_seq(client: httpx.AsyncClient) -> None:
-    vid, _, _ = await vehicle_with_samples(client, range(1, 26), battery_pct=80,
-                                           data={"rpm": 900})
+    vid, _, _ = await vehicle_with_samples(client, range(1, 26), battery_pct=80, data={"rpm": 900})
     url = f"/api/vehicles/{vid}/telemetry"
     first = (await client.get(url, headers=ADMIN, params={"limit": 10})).json()
     assert [s["seq"] for s in first["samples"]] == list(range(1, 11))
     assert first["next_after_seq"] == 10
     assert first["samples"][0]["data"] == {"rpm": 900}
     assert first["samples"][0]["ts"] == "2026-11-22T10:00:01.000Z"
-    rest = (await client.get(url, headers=ADMIN,
-                             params={"after_seq": 20, "limit": 10})).json()
+    rest = (await client.get(url, headers=ADMIN, params={"after_seq": 20, "limit": 10})).json()
     assert [s["seq"] for s in rest["samples"]] == list(range(21, 26))
     assert rest["next_after_seq"] is None
-    window = (await client.get(url, headers=ADMIN, params={
-        "from": _ts(3), "to": _ts(6)})).json()
+    window = (await client.get(url, headers=ADMIN, params={"from": _ts(3), "to": _ts(6)})).json()
     assert [s["seq"] for s in window["samples"]] == [3, 4, 5]
 
 

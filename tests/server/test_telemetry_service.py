@@ -26,8 +26,9 @@ T0 = datetime(2026, 11, 22, 10, 0, 0, tzinfo=UTC)
 def samples(seqs: range | list[int], *, t0: datetime = T0, **extra: Any) -> list[Sample]:
     """One sample per seq, one second apart (seq n at t0 + n s), on a slow diagonal."""
     return [
-        Sample(seq=n, ts=t0 + timedelta(seconds=n), lat=43.9 + n * 1e-5, lon=15.4 + n * 1e-5,
-               **extra)
+        Sample(
+            seq=n, ts=t0 + timedelta(seconds=n), lat=43.9 + n * 1e-5, lon=15.4 + n * 1e-5, **extra
+        )
         for n in seqs
     ]
 
@@ -63,8 +64,13 @@ class World:
 
 @pytest.fixture(params=[True, False], ids=["indexed", "queries"])
 async def world(request: pytest.FixtureRequest, tmp_path: Path) -> AsyncIterator[World]:
-    settings = Settings(_env_file=None, snapshot_path=tmp_path / "store.snapshot",  # type: ignore[call-arg]
-                        bucket_samples=5, bucket_max_age_s=60, retention_s=3600)
+    settings = Settings(
+        _env_file=None,
+        snapshot_path=tmp_path / "store.snapshot",  # type: ignore[call-arg]
+        bucket_samples=5,
+        bucket_max_age_s=60,
+        retention_s=3600,
+    )
     w = World(settings, request.param, FakeClock(T0 + timedelta(hours=1)))
     await w.open()
     yield w
@@ -215,7 +221,8 @@ async def test_page_by_seq_across_buckets_and_memory(world: World) -> None:
 async def test_page_filters_by_time(world: World) -> None:
     await world.svc.ingest("usv-1", "i1", samples(range(1, 24)))
     page, next_after = await world.svc.page(
-        "usv-1", start=T0 + timedelta(seconds=7), end=T0 + timedelta(seconds=19), limit=100)
+        "usv-1", start=T0 + timedelta(seconds=7), end=T0 + timedelta(seconds=19), limit=100
+    )
     assert (seqs_of(page), next_after) == (list(range(7, 19)), None)
     assert all(d["ts"].tzinfo is not None for d in page)
 
