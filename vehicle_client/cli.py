@@ -35,6 +35,7 @@ def _logging(level: str) -> None:
     )
     logging.getLogger("httpx").setLevel(logging.WARNING)
     logging.getLogger("httpcore").setLevel(logging.WARNING)
+    logging.getLogger("websockets").setLevel(logging.WARNING)
 
 
 def _fail(message: str) -> typer.Exit:
@@ -57,6 +58,7 @@ def run(
     max_samples: Annotated[int | None, Opt(help="outbox bound; past it the oldest go")] = None,
     ros_bridge: Annotated[str | None, Opt(help="ROS bridge HOST:PORT (adapter ros)")] = None,
     log_level: Annotated[str | None, Opt(help="DEBUG, INFO, WARNING")] = None,
+    transport: Annotated[str | None, Opt(help="auto (WebSocket, else HTTP) | ws | http")] = None,
     config: Annotated[Path | None, Opt(help="TOML file with the same settings")] = None,
 ) -> None:
     """Run the agent for one vehicle (options also from FLEET_AGENT_* or --config)."""
@@ -79,6 +81,7 @@ def run(
             max_samples=max_samples,
             ros_bridge=ros_bridge,
             log_level=log_level,
+            transport=transport,
         )
         if not settings.vehicle_id:
             raise FatalError("no vehicle: give --vehicle-id (or FLEET_AGENT_VEHICLE_ID)")
@@ -95,18 +98,32 @@ def gateway(
     server: Annotated[str | None, Opt(help="server URL")] = None,
     token: Annotated[str | None, Opt(help="gateway token (better: FLEET_AGENT_TOKEN)")] = None,
     time_scale: Annotated[float | None, Opt(help="simulators run this much faster")] = None,
+    transport: Annotated[str | None, Opt(help="auto (WebSocket, else HTTP) | ws | http")] = None,
+    listen: Annotated[str | None, Opt(help="HOST:PORT of the WebSocket for local units")] = None,
 ) -> None:
     """Run several vehicles over one link with a gateway token."""
     from vehicle_client.runner import run_agents
 
     try:
-        settings = load(GatewaySettings, config, server=server, token=token, time_scale=time_scale)
+        settings = load(
+            GatewaySettings,
+            config,
+            server=server,
+            token=token,
+            time_scale=time_scale,
+            transport=transport,
+            listen=listen,
+        )
         ids = [v.vehicle_id for v in settings.vehicles]
         if len(set(ids)) != len(ids):
             raise FatalError("a vehicle_id appears twice in the gateway's vehicles")
         _logging(settings.log_level)
         vehicles = [(v, settings.outbox_dir / f"{v.vehicle_id}.db") for v in settings.vehicles]
-        code = asyncio.run(run_agents(settings, vehicles))
+        code = asyncio.run(
+            run_agents(
+                settings, vehicles, batch_tick_s=settings.batch_tick_s, listen=settings.listen
+            )
+        )
     except FatalError as exc:
         raise _fail(str(exc)) from None
     raise typer.Exit(code)

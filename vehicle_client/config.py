@@ -86,6 +86,10 @@ class LinkOptions(BaseSettings):
     batch_size: int = Field(default=500, ge=1, le=5000)
     max_samples: int = Field(default=DEFAULT_MAX_SAMPLES, ge=1)
     log_level: str = "INFO"
+    #: ``auto``: WebSocket, HTTP long-poll while the WebSocket cannot be opened.
+    transport: Literal["auto", "ws", "http"] = "auto"
+    #: Seconds on HTTP (``auto``) before the WebSocket is tried again.
+    retry_ws_s: float = Field(default=60.0, gt=0, le=3600)
 
 
 class AgentSettings(LinkOptions, VehicleOptions):
@@ -95,6 +99,10 @@ class AgentSettings(LinkOptions, VehicleOptions):
 
 class GatewaySettings(LinkOptions):
     outbox_dir: Path = Path("fleet-gateway-outbox")
+    #: The ops of every vehicle queued during one tick leave as one ``batch`` frame.
+    batch_tick_s: float = Field(default=0.1, ge=0, le=5)
+    #: "HOST:PORT" of the gateway's own WebSocket for its local units (none if unset).
+    listen: str | None = None
     vehicles: list[VehicleOptions] = Field(min_length=1, max_length=1000)
 
 

@@ -15,7 +15,10 @@ from vehicle_client.config import LinkOptions, VehicleOptions
 from vehicle_client.errors import FatalError
 from vehicle_client.outbox import Outbox
 from vehicle_client.sim.dynamics import VehicleParams
+from vehicle_client.transport.auto import AutoTransport, LinkChoice
+from vehicle_client.transport.base import Transport
 from vehicle_client.transport.http import HttpTransport
+from vehicle_client.transport.ws import WsLink
 
 log = logging.getLogger("fleet-agent")
 
@@ -36,12 +39,41 @@ def build_adapter(options: VehicleOptions, time_scale: float) -> Adapter:
     )
 
 
-async def run_agents(link: LinkOptions, vehicles: list[tuple[VehicleOptions, Path]]) -> int:
+def build_links(
+    link: LinkOptions, vehicle_ids: list[str], *, batch_tick_s: float = 0.0
+) -> tuple[list[Transport], WsLink | None, list[Transport]]:
+    """Each vehicle's transport, the shared WebSocket link (if any) and what to close."""
+    token = link.token.get_secret_value()
+    http = HttpTransport(link.server, token) if link.transport != "ws" else None
+    ws = WsLink(link.server, token, batch_tick_s=batch_tick_s) if link.transport != "http" else None
+    choice = LinkChoice(retry_ws_s=link.retry_ws_s)
+    per_vehicle: list[Transport] = []
+    for vehicle_id in vehicle_ids:
+        if ws is None:
+            assert http is not None
+            per_vehicle.append(http)
+        elif http is None:
+            per_vehicle.append(ws.vehicle(vehicle_id))
+        else:
+            per_vehicle.append(AutoTransport(ws.vehicle(vehicle_id), http, choice))
+    closers: list[Transport] = [t for t in (http,) if t is not None]
+    return per_vehicle, ws, closers
+
+
+async def run_agents(
+    link: LinkOptions,
+    vehicles: list[tuple[VehicleOptions, Path]],
+    *,
+    batch_tick_s: float = 0.0,
+    listen: str | None = None,
+) -> int:
     """Run one agent per vehicle over one shared link; the exit code."""
-    transport = HttpTransport(link.server, link.token.get_secret_value())
+    ids = [options.vehicle_id for options, _ in vehicles]
+    transports, ws, closers = build_links(link, ids, batch_tick_s=batch_tick_s)
     agents: list[VehicleAgent] = []
+    units = None
     try:
-        for options, outbox_path in vehicles:
+        for (options, outbox_path), transport in zip(vehicles, transports, strict=True):
             config = AgentConfig(
                 vehicle_id=options.vehicle_id,
                 name=options.name,
@@ -51,12 +83,27 @@ async def run_agents(link: LinkOptions, vehicles: list[tuple[VehicleOptions, Pat
             )
             adapter = build_adapter(options, link.time_scale)
             outbox = Outbox(outbox_path, max_samples=link.max_samples)
-            agents.append(VehicleAgent(config, adapter, transport, outbox))
+            agent = VehicleAgent(config, adapter, transport, outbox)
+            if ws is not None:
+                ws.vehicle(options.vehicle_id).on_control = agent.on_control
+            agents.append(agent)
+        if listen is not None:
+            if ws is None:
+                raise FatalError("listen (local units) needs the WebSocket: transport auto or ws")
+            from vehicle_client.gateway.units import UnitServer
+
+            units = UnitServer(ws, listen)
+            await units.start()
         return await _run(agents)
     finally:
+        if units is not None:
+            await units.stop()
         for agent in agents:
             agent.outbox.close()
-        await transport.aclose()
+        for transport in closers:
+            await transport.aclose()
+        if ws is not None:
+            await ws.aclose()
 
 
 async def _run(agents: list[VehicleAgent]) -> int:
@@ -89,10 +136,11 @@ async def _status(agents: list[VehicleAgent]) -> None:
         await asyncio.sleep(STATUS_EVERY_S)
         for a in agents:
             log.info(
-                "%s: %s, mode %s, outbox %d waiting (%d dropped), %d sent",
+                "%s: %s, mode %s, control %s, outbox %d waiting (%d dropped), %d sent",
                 a.config.vehicle_id,
-                "connected" if a.stats.connected else "link down",
+                f"connected over {a.link_kind}" if a.stats.connected else "link down",
                 a.pilot.control_mode,
+                a.control.holder if a.control else "nobody",
                 a.outbox.pending,
                 a.outbox.dropped,
                 a.stats.samples_sent,

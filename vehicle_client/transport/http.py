@@ -46,6 +46,8 @@ def _retry_after(response: httpx.Response) -> float | None:
 class HttpTransport:
     """One ``httpx.AsyncClient`` for all calls; shared by a gateway's vehicles."""
 
+    kind = "http"
+
     def __init__(
         self,
         server: str,

@@ -1,0 +1,125 @@
+"""WebSocket first, HTTP long-poll when the WebSocket cannot be opened.
+
+``LinkChoice`` is the decision, shared by every vehicle of a link: a
+session starts over the WebSocket unless it was refused less than
+``retry_ws_s`` ago (a proxy that will not upgrade, a path that answers
+404); then over HTTP. A session on HTTP ends itself once the retry time has
+come (``get_control`` raises ``RetryableError``), so the next one tries the
+WebSocket again. Anything else (refused connection, 401...) is the same
+error on both and goes to the agent as it is.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+from fleet_protocol import (
+    GetControlResult,
+    HeartbeatResult,
+    StartInstance,
+    StartInstanceResult,
+    UpdateFbMessage,
+    UpdateFbMessageResult,
+    UpdateParam,
+    UpdateParamResult,
+)
+from vehicle_client.errors import RetryableError
+from vehicle_client.transport.base import Transport
+from vehicle_client.transport.ws import WsTransport, WsUnavailable
+
+log = logging.getLogger(__name__)
+
+#: Seconds on HTTP before the WebSocket is tried again.
+RETRY_WS_S = 60.0
+
+
+@dataclass
+class LinkChoice:
+    """Which way the link goes now (pure: the caller gives the clock)."""
+
+    retry_ws_s: float = RETRY_WS_S
+    clock: Callable[[], float] = time.monotonic
+    refused_at: float | None = None
+    reason: str = ""
+    fallbacks: int = field(default=0)
+
+    @property
+    def mode(self) -> str:
+        return "http" if self.refused_at is not None else "ws"
+
+    def use_ws(self) -> bool:
+        """Whether a session starting now tries the WebSocket."""
+        if self.refused_at is None:
+            return True
+        return self.clock() - self.refused_at >= self.retry_ws_s
+
+    def refused(self, reason: str) -> None:
+        if self.refused_at is None:
+            self.fallbacks += 1
+            log.warning(
+                "the WebSocket cannot be opened (%s): falling back to HTTP long-poll,"
+                " trying the WebSocket again in %.0f s",
+                reason,
+                self.retry_ws_s,
+            )
+        self.refused_at, self.reason = self.clock(), reason
+
+    def opened(self) -> None:
+        if self.refused_at is not None:
+            log.warning("the WebSocket is open again: leaving HTTP long-poll")
+        self.refused_at, self.reason = None, ""
+
+
+class AutoTransport:
+    """One vehicle's transport: its ``WsTransport`` or the shared ``HttpTransport``."""
+
+    def __init__(self, ws: WsTransport, http: Transport, choice: LinkChoice) -> None:
+        self.ws = ws
+        self.http = http
+        self.choice = choice
+        self._now: Transport = ws
+
+    @property
+    def kind(self) -> str:
+        return "ws" if self._now is self.ws else "http"
+
+    async def start_instance(self, body: StartInstance) -> StartInstanceResult:
+        if self.choice.use_ws():
+            try:
+                res = await self.ws.start_instance(body)
+            except WsUnavailable as exc:
+                self.choice.refused(str(exc))
+            else:
+                self.choice.opened()
+                self._now = self.ws
+                return res
+        self._now = self.http
+        return await self.http.start_instance(body)
+
+    async def finish_instance(self, instance_id: str) -> None:
+        await self._now.finish_instance(instance_id)
+
+    async def heartbeat(self, instance_id: str) -> HeartbeatResult:
+        return await self._now.heartbeat(instance_id)
+
+    async def update_param(self, body: UpdateParam) -> UpdateParamResult:
+        return await self._now.update_param(body)
+
+    async def update_fbmessage(self, body: UpdateFbMessage) -> UpdateFbMessageResult:
+        return await self._now.update_fbmessage(body)
+
+    async def get_control(self, instance_id: str, wait_s: float) -> GetControlResult:
+        if self._now is self.http and self.choice.use_ws():
+            raise RetryableError("time to try the WebSocket again")
+        if self._now is self.http:
+            # The long poll ends no later than the WebSocket's retry time.
+            left = self.choice.retry_ws_s - (self.choice.clock() - (self.choice.refused_at or 0))
+            wait_s = max(0.0, min(wait_s, left))
+        return await self._now.get_control(instance_id, wait_s)
+
+    async def aclose(self) -> None:
+        await self.ws.aclose()
+        await self.http.aclose()

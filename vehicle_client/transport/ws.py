@@ -1,0 +1,365 @@
+"""``/ws/vehicle`` with the ``websockets`` asyncio client: one link, one or many vehicles.
+
+``WsLink`` holds the socket: ops go out with an ``id`` and wait for their
+``ack`` (with a timeout); one reader task sorts what comes in: acks to their
+waiters, ``command`` and ``control`` pushes to the vehicle they are for,
+``event`` and ``routes`` to the gateway's topic layer. With ``batch_tick_s``
+(gateways), the ops queued during a tick leave as one ``batch`` frame.
+
+``WsTransport`` is one vehicle's view of the link and implements
+``Transport``: the agent cannot tell it from ``HttpTransport``, except that
+``get_control`` answers from the pushes instead of a long poll.
+
+The link opens lazily (on the first op after it closed). A close with
+4401/4403/4409 is fatal for good; any other close, a refused connection or
+an op not acked in time fails the waiting calls with ``RetryableError``, and
+the agent's reconnect loop (backoff and jitter) takes over. A socket the
+server would not upgrade raises ``WsUnavailable``: HTTP may still work.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import secrets
+from collections.abc import Awaitable, Callable
+from dataclasses import dataclass, field
+from typing import Any, TypeVar
+
+import websockets
+from pydantic import BaseModel, ValidationError
+from websockets.asyncio.client import ClientConnection
+from websockets.exceptions import ConnectionClosed, InvalidHandshake, InvalidURI
+
+from fleet_protocol import (
+    CommandObject,
+    ControlInfo,
+    GetControlResult,
+    HeartbeatResult,
+    StartInstance,
+    StartInstanceResult,
+    UpdateFbMessage,
+    UpdateFbMessageResult,
+    UpdateParam,
+    UpdateParamResult,
+)
+from fleet_protocol.ws import AckPush, CommandPush, ControlPush, EventPush, RoutesPush
+from vehicle_client.errors import AgentError, FatalError, RetryableError
+from vehicle_client.transport.wire import (
+    IdSource,
+    PushError,
+    ack_error,
+    batches,
+    close_error,
+    op_frame,
+    parse_push,
+    ws_url,
+)
+
+log = logging.getLogger(__name__)
+M = TypeVar("M", bound=BaseModel)
+
+#: Seconds an op may wait for its ack before the link counts as broken.
+ACK_TIMEOUT_S = 10.0
+OPEN_TIMEOUT_S = 10.0
+
+
+class WsUnavailable(RetryableError):
+    """The server (or a proxy before it) would not open a WebSocket; HTTP may work."""
+
+
+@dataclass
+class _Socket:
+    ws: ClientConnection
+    error: AgentError | None = None  # set once closed: what the waiters raise
+    closed: asyncio.Event = field(default_factory=asyncio.Event)
+
+
+class WsLink:
+    """One upstream WebSocket, shared by every vehicle of an agent or gateway."""
+
+    def __init__(
+        self,
+        server: str,
+        token: str,
+        *,
+        batch_tick_s: float = 0.0,
+        ack_timeout_s: float = ACK_TIMEOUT_S,
+        ping_interval_s: float = 10.0,
+    ) -> None:
+        if not token:
+            raise FatalError("no token: give --token (or FLEET_AGENT_TOKEN)")
+        self.url = ws_url(server)
+        self._headers = {"Authorization": f"Bearer {token}"}
+        self.batch_tick_s = batch_tick_s
+        self.ack_timeout_s = ack_timeout_s
+        self.ping_interval_s = ping_interval_s
+        self._ids = IdSource(secrets.token_hex(2) + "-")
+        self._sock: _Socket | None = None
+        self._opening = asyncio.Lock()
+        self._fatal: FatalError | None = None
+        self._pending: dict[str, tuple[asyncio.Future[AckPush], dict[str, Any]]] = {}
+        self._queue: list[dict[str, Any]] = []
+        self._flusher: asyncio.Task[None] | None = None
+        self._reader: asyncio.Task[None] | None = None
+        self._vehicles: dict[str, WsTransport] = {}
+        self._vehicle_of: dict[str, str] = {}  # instance_id -> vehicle_id
+        self.opened = 0
+        self.frames_out = 0
+        #: Gateways' topic layer: events and routes from above, and a hook run
+        #: after each (re)connection, to register and subscribe again.
+        self.on_event: Callable[[EventPush], None] | None = None
+        self.on_routes: Callable[[RoutesPush], None] | None = None
+        self.on_open: Callable[[], Awaitable[None]] | None = None
+
+    @property
+    def connected(self) -> bool:
+        return self._sock is not None and self._sock.error is None
+
+    def vehicle(self, vehicle_id: str) -> WsTransport:
+        """The ``Transport`` for one vehicle on this link."""
+        return self._vehicles.setdefault(vehicle_id, WsTransport(self, vehicle_id))
+
+    # -- connection -----------------------------------------------------------
+    async def _open(self) -> _Socket:
+        if self._fatal is not None:
+            raise self._fatal
+        sock = self._sock
+        if sock is not None and sock.error is None:
+            return sock
+        async with self._opening:
+            if self._sock is not None and self._sock.error is None:
+                return self._sock
+            try:
+                ws = await websockets.connect(
+                    self.url,
+                    additional_headers=self._headers,
+                    compression=None,
+                    open_timeout=OPEN_TIMEOUT_S,
+                    ping_interval=self.ping_interval_s,
+                    ping_timeout=self.ping_interval_s,
+                    max_size=4 * 2**20,
+                )
+            except (InvalidHandshake, InvalidURI) as exc:
+                raise WsUnavailable(f"{self.url}: no WebSocket: {exc}") from exc
+            except (OSError, TimeoutError) as exc:
+                raise RetryableError(f"{self.url}: {type(exc).__name__}: {exc}") from exc
+            self._sock = _Socket(ws)
+            self.opened += 1
+            self._reader = asyncio.create_task(self._read(self._sock), name="ws-reader")
+            log.info("WebSocket open: %s", self.url)
+        if self.on_open is not None:
+            await self.on_open()
+        return self._sock
+
+    async def aclose(self) -> None:
+        for task in (self._flusher, self._reader):
+            if task is not None:
+                task.cancel()
+        sock, self._sock = self._sock, None
+        if sock is not None:
+            with contextlib.suppress(Exception):
+                await sock.ws.close()
+            self._closed(sock, RetryableError("the link was closed"))
+
+    def _closed(self, sock: _Socket, error: AgentError) -> None:
+        if sock.error is not None:
+            return
+        sock.error = error
+        sock.closed.set()
+        if isinstance(error, FatalError):
+            self._fatal = error
+        for fut, _ in self._pending.values():
+            if not fut.done():
+                fut.set_exception(error)
+        self._pending.clear()
+        self._queue.clear()
+        for vehicle in self._vehicles.values():
+            vehicle.wake.set()
+
+    # -- ops ------------------------------------------------------------------
+    async def call(self, op: dict[str, Any], what: str | None = None) -> AckPush:
+        """Send ``op`` with a fresh id; its ack (``ok: true``), or the matching error."""
+        sock = await self._open()
+        op = {**op, "id": self._ids.next()}
+        fut: asyncio.Future[AckPush] = asyncio.get_running_loop().create_future()
+        self._pending[op["id"]] = (fut, op)
+        try:
+            await self._send(sock, op)
+            ack = await asyncio.wait_for(fut, self.ack_timeout_s)
+        except TimeoutError:
+            error = RetryableError(f"{op['op']}: no ack within {self.ack_timeout_s:g} s")
+            self._closed(sock, error)  # a link that does not answer is broken
+            self._fire_close(sock)
+            raise error from None
+        finally:
+            self._pending.pop(op["id"], None)
+        if not ack.ok:
+            raise ack_error(ack, what or op["op"])
+        return ack
+
+    async def send(self, op: dict[str, Any]) -> None:
+        """Send an op without an id (no ack; a failure comes back as an ``error`` push)."""
+        await self._send(await self._open(), op)
+
+    async def _send(self, sock: _Socket, op: dict[str, Any]) -> None:
+        if self.batch_tick_s <= 0:
+            await self._write(sock, op_frame(op))
+            return
+        self._queue.append(op)
+        if self._flusher is None or self._flusher.done():
+            self._flusher = asyncio.create_task(self._flush(), name="ws-batch")
+
+    async def _flush(self) -> None:
+        """Once per tick: the ops queued during it, as ``batch`` frames."""
+        await asyncio.sleep(self.batch_tick_s)
+        queued, self._queue = self._queue, []
+        sock = self._sock
+        try:
+            if sock is None:
+                raise RetryableError("the link closed before the batch left")
+            for frame in batches(queued):
+                await self._write(sock, frame)
+        except AgentError as exc:
+            for op in queued:  # their waiters hear it now, not at their timeout
+                entry = self._pending.get(op.get("id", ""))
+                if entry is not None and not entry[0].done():
+                    entry[0].set_exception(exc)
+
+    async def _write(self, sock: _Socket, frame: str) -> None:
+        if sock.error is not None:
+            raise sock.error
+        try:
+            await sock.ws.send(frame)
+        except ConnectionClosed as exc:
+            error = close_error(exc.rcvd.code if exc.rcvd else None, None)
+            self._closed(sock, error)
+            raise error from None
+        self.frames_out += 1
+
+    def _fire_close(self, sock: _Socket) -> None:
+        task = asyncio.ensure_future(sock.ws.close(1001, "no ack"))
+        task.add_done_callback(lambda t: t.cancelled() or t.exception())
+
+    # -- pushes -----------------------------------------------------------------
+    async def _read(self, sock: _Socket) -> None:
+        error: AgentError
+        try:
+            async for frame in sock.ws:
+                self._dispatch(frame)
+            error = close_error(sock.ws.close_code, sock.ws.close_reason)
+        except ConnectionClosed:
+            error = close_error(sock.ws.close_code, sock.ws.close_reason)
+        except Exception as exc:  # a bug here must not leave waiters hanging
+            log.exception("WebSocket reader failed")
+            error = RetryableError(f"WebSocket reader failed: {exc!r}")
+        log.warning("WebSocket closed: %s", error)
+        self._closed(sock, error)
+
+    def _dispatch(self, frame: str | bytes) -> None:
+        if isinstance(frame, bytes):
+            return  # media frames: not for this agent (yet)
+        try:
+            push = parse_push(frame)
+        except PushError as exc:
+            log.warning("%s: %s", self.url, exc)
+            return
+        match push:
+            case AckPush():
+                entry = self._pending.get(push.id)
+                if entry is None:
+                    return  # its waiter gave up
+                fut, op = entry
+                if push.ok and op["op"] == "start_instance":
+                    # Before any push for the instance is read: route them.
+                    self._vehicle_of[str(getattr(push, "instance_id", ""))] = op["vehicle_id"]
+                if not fut.done():
+                    fut.set_result(push)
+            case CommandPush():
+                vehicle = self._for_instance(push.instance_id)
+                if vehicle is not None:
+                    vehicle.inbox.append(push)
+                    vehicle.wake.set()
+            case ControlPush():
+                vehicle = self._for_instance(push.instance_id)
+                if vehicle is not None:
+                    vehicle.set_control(push.control)
+            case EventPush():
+                if self.on_event is not None:
+                    self.on_event(push)
+            case RoutesPush():
+                if self.on_routes is not None:
+                    self.on_routes(push)
+            case _:
+                log.warning("%s: %s", self.url, frame[:300])
+
+    def _for_instance(self, instance_id: str) -> WsTransport | None:
+        vehicle_id = self._vehicle_of.get(instance_id)
+        return self._vehicles.get(vehicle_id) if vehicle_id else None
+
+
+class WsTransport:
+    """One vehicle on a ``WsLink``: the ``Transport`` the agent uses."""
+
+    kind = "ws"
+
+    def __init__(self, link: WsLink, vehicle_id: str) -> None:
+        self.link = link
+        self.vehicle_id = vehicle_id
+        self.inbox: list[CommandObject] = []
+        self.wake = asyncio.Event()
+        self.control: ControlInfo | None = None
+        self.on_control: Callable[[ControlInfo | None], None] | None = None
+
+    def set_control(self, control: ControlInfo | None) -> None:
+        changed = control != self.control
+        self.control = control
+        if changed and self.on_control is not None:
+            self.on_control(control)
+
+    async def _op(self, name: str, body: BaseModel | dict[str, Any], answer: type[M]) -> M:
+        fields = (
+            body.model_dump(mode="json", exclude_none=True) if isinstance(body, BaseModel) else body
+        )
+        ack = await self.link.call({"op": name, **fields}, f"{self.vehicle_id}: {name}")
+        try:
+            return answer.model_validate(ack.model_dump(exclude={"op", "id", "ok", "error"}))
+        except ValidationError as exc:
+            raise RetryableError(f"{name}: unreadable ack: {exc}") from exc
+
+    async def start_instance(self, body: StartInstance) -> StartInstanceResult:
+        self.inbox.clear()
+        res = await self._op("start_instance", body, StartInstanceResult)
+        self.set_control(res.control)
+        return res
+
+    async def finish_instance(self, instance_id: str) -> None:
+        await self.link.call({"op": "finish_instance", "instance_id": instance_id})
+
+    async def heartbeat(self, instance_id: str) -> HeartbeatResult:
+        return await self._op("heartbeat", {"instance_id": instance_id}, HeartbeatResult)
+
+    async def update_param(self, body: UpdateParam) -> UpdateParamResult:
+        return await self._op("update_param", body, UpdateParamResult)
+
+    async def update_fbmessage(self, body: UpdateFbMessage) -> UpdateFbMessageResult:
+        return await self._op("update_fbmessage", body, UpdateFbMessageResult)
+
+    async def get_control(self, instance_id: str, wait_s: float) -> GetControlResult:
+        """The commands pushed since the last call; waits for one (or the link's end).
+
+        ``wait_s`` does not apply: an empty answer would claim contact with
+        the server that the socket has not shown.
+        """
+        sock = await self.link._open()
+        while not self.inbox:
+            if sock.error is not None:
+                raise sock.error
+            self.wake.clear()
+            await self.wake.wait()
+        commands, self.inbox = self.inbox, []
+        return GetControlResult.model_construct(commands=commands)
+
+    async def aclose(self) -> None:
+        await self.link.aclose()
