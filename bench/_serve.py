@@ -11,6 +11,7 @@ from pathlib import Path
 
 import uvicorn
 
+from fleet_protocol import UpdateParam, UpdateParamResult
 from server.app import create_app
 from server.settings import Settings
 
@@ -31,8 +32,16 @@ def main() -> None:
     async def trivial() -> dict[str, bool]:
         return {"ok": True}
 
+    async def parse_only(body: UpdateParam) -> UpdateParamResult:
+        """The floor: update_param's body parsed and an answer written, nothing done."""
+        return UpdateParamResult(
+            accepted=len(body.samples), duplicates=0, acked_through_seq=0, durable_through_seq=0
+        )
+
     app.add_api_route("/_bench/trivial", trivial, methods=["GET"], include_in_schema=False)
     app.router.routes.insert(0, app.router.routes.pop())  # before the dashboard's "/" mount
+    app.add_api_route("/_bench/parse_only", parse_only, methods=["POST"], include_in_schema=False)
+    app.router.routes.insert(0, app.router.routes.pop())
     uvicorn.run(app, host="127.0.0.1", port=port, log_level="warning", access_log=False)
 
 

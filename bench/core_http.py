@@ -99,6 +99,7 @@ def _http(runs: int) -> list[Metric]:
     update = Metric("update_param (10 samples)", "req/s")
     control = Metric("get_control (wait_s=0)", "req/s")
     update_ratio = Metric("update_param / trivial", "ratio", goal=("min", 0.6))
+    floor_ratio = Metric("parse-only floor / trivial", "ratio")
     control_ratio = Metric("get_control / trivial", "ratio", goal=("min", 0.6))
     port = _free_port()
     with tempfile.TemporaryDirectory() as tmp:
@@ -119,25 +120,16 @@ def _http(runs: int) -> list[Metric]:
                 for iid, tok in units
             ]
 
+            floor_body = _update_body("i-floor", 1)
+
+            def floor_req(i: int, _: int) -> bytes:
+                return post_json("/_bench/parse_only", floor_body, {})
+
             def update_req(i: int, _: int) -> bytes:
                 iid, tok = units[i]
                 first = seqs[i] + 1
                 seqs[i] += 10
-                now = datetime.now(UTC)
-                samples = [
-                    {
-                        "seq": first + k,
-                        "ts": now.isoformat(),
-                        "lat": 43.9,
-                        "lon": 15.4,
-                        "speed_mps": 1.2,
-                        "heading_deg": 90.0,
-                    }
-                    for k in range(10)
-                ]
-                body = json.dumps(
-                    {"instance_id": iid, "params": {"mode": "auto"}, "samples": samples}
-                ).encode()
+                body = _update_body(iid, first)
                 return post_json("/upper/update_param", body, {"Authorization": f"Bearer {tok}"})
 
             async def measure() -> None:
@@ -152,8 +144,12 @@ def _http(runs: int) -> list[Metric]:
                     ctl, e2 = await hammer(
                         port, lambda i, n: c_req[i], connections=CONNECTIONS, seconds=SECONDS
                     )
-                    if e0 or e1 or e2:
-                        raise RuntimeError(f"bench requests failed: {e0 + e1 + e2}")
+                    floor, e3 = await hammer(
+                        port, floor_req, connections=CONNECTIONS, seconds=SECONDS
+                    )
+                    if e0 or e1 or e2 or e3:
+                        raise RuntimeError(f"bench requests failed: {e0 + e1 + e2 + e3}")
+                    floor_ratio.values.append(floor / base)
                     trivial.values.append(base)
                     update.values.append(up)
                     control.values.append(ctl)
@@ -164,7 +160,26 @@ def _http(runs: int) -> list[Metric]:
         finally:
             proc.terminate()
             proc.wait(timeout=30)
-    return [trivial, update, control, update_ratio, control_ratio]
+    return [trivial, update, control, update_ratio, control_ratio, floor_ratio]
+
+
+def _update_body(instance_id: str, first_seq: int) -> bytes:
+    """An update_param body with 10 samples numbered from ``first_seq``."""
+    now = datetime.now(UTC).isoformat()
+    samples = [
+        {
+            "seq": first_seq + k,
+            "ts": now,
+            "lat": 43.9,
+            "lon": 15.4,
+            "speed_mps": 1.2,
+            "heading_deg": 90.0,
+        }
+        for k in range(10)
+    ]
+    return json.dumps(
+        {"instance_id": instance_id, "params": {"mode": "auto"}, "samples": samples}
+    ).encode()
 
 
 # ---- (b), (c) embedded store --------------------------------------------------
