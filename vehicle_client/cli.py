@@ -59,6 +59,7 @@ def run(
     ros_bridge: Annotated[str | None, Opt(help="ROS bridge HOST:PORT (adapter ros)")] = None,
     log_level: Annotated[str | None, Opt(help="DEBUG, INFO, WARNING")] = None,
     transport: Annotated[str | None, Opt(help="auto (WebSocket, else HTTP) | ws | http")] = None,
+    retry_ws_s: Annotated[float | None, Opt(help="auto: seconds on HTTP before WS again")] = None,
     config: Annotated[Path | None, Opt(help="TOML file with the same settings")] = None,
 ) -> None:
     """Run the agent for one vehicle (options also from FLEET_AGENT_* or --config)."""
@@ -82,6 +83,7 @@ def run(
             ros_bridge=ros_bridge,
             log_level=log_level,
             transport=transport,
+            retry_ws_s=retry_ws_s,
         )
         if not settings.vehicle_id:
             raise FatalError("no vehicle: give --vehicle-id (or FLEET_AGENT_VEHICLE_ID)")

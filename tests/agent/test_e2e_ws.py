@@ -1,0 +1,172 @@
+"""fleet-agent over the WebSocket (/ws/vehicle) against a real fleet-server process.
+
+Which link the agent uses is read from the server's ``fleet_ws_connections``
+gauge (``/metrics``) and the agent's own log ("started over ws"). Every wait
+is a deadline on a condition.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from pathlib import Path
+
+import httpx
+import pytest
+
+from tests.agent.procs import AgentProcess, Fleet, ServerProcess, wait_until
+from tests.agent.refusing_proxy import RefusingProxy
+from tests.agent.test_e2e import (
+    START,
+    assert_every_seq_once,
+    commanded_vehicle,
+    final_command,
+    latlon,
+    require_telemetry_route,
+)
+from vehicle_client.geo import distance_m
+
+pytestmark = pytest.mark.slow
+
+
+@pytest.fixture
+def server(tmp_path: Path) -> Iterator[ServerProcess]:
+    proc = ServerProcess(tmp_path)
+    proc.start()
+    yield proc
+    proc.stop(grace_s=2.0)
+
+
+@pytest.fixture
+def fleet(server: ServerProcess) -> Fleet:
+    return Fleet(server)
+
+
+def ws_connections(server: ServerProcess) -> float:
+    for line in httpx.get(f"{server.url}/metrics", timeout=5).text.splitlines():
+        if line.startswith("fleet_ws_connections"):
+            return float(line.split()[-1])
+    raise AssertionError("the server's /metrics has no fleet_ws_connections")
+
+
+def logged(agent: AgentProcess, text: str) -> bool:
+    return text in agent.log.read_text()
+
+
+def test_go_to_over_the_websocket_reaches_the_waypoint(
+    tmp_path: Path, server: ServerProcess, fleet: Fleet
+) -> None:
+    agent, instance_id, operator = commanded_vehicle(
+        tmp_path, server, fleet, "usv-ws", transport="ws"
+    )
+    try:
+        assert ws_connections(server) == 1
+        wait_until(lambda: logged(agent, "started over ws"), "the agent's log: over ws")
+        target = latlon(30.0, 20.0)
+        command = final_command(fleet, fleet.submit(operator, instance_id, "go_to", target))
+        assert command["status"] == "done", command
+        assert [h["status"] for h in command["history"]][-3:] == ["accepted", "executing", "done"]
+
+        def arrived() -> bool:
+            p = fleet.position(instance_id)
+            return distance_m(p["lat"], p["lon"], target["lat"], target["lon"]) <= 1.5
+
+        wait_until(arrived, "the reported position at the waypoint")
+        assert not logged(agent, "HTTP long-poll")
+    finally:
+        agent.stop()
+
+
+def test_a_server_down_for_ten_seconds_over_the_websocket_loses_no_sample(
+    tmp_path: Path, server: ServerProcess, fleet: Fleet
+) -> None:
+    require_telemetry_route(fleet)
+    token = fleet.create_vehicle("usv-ws-outage")
+    agent = AgentProcess(
+        server, token, "usv-ws-outage", tmp_path / "outage.db", rate_hz=5, transport="ws"
+    )
+    agent.start()
+    try:
+        wait_until(lambda: len(fleet.telemetry("usv-ws-outage")) >= 10, "first samples stored")
+        assert ws_connections(server) == 1
+        server.kill()  # no clean shutdown: what was not durable is gone from the server
+        killed_at = agent.next_seq()
+        wait_until(lambda: agent.next_seq() >= killed_at + 50, "10 s of samples (5 Hz) while down")
+        server.start()
+        target = agent.next_seq() - 1
+        wait_until(
+            lambda: max(s["seq"] for s in fleet.telemetry("usv-ws-outage")) >= target,
+            "the outage's samples delivered",
+            within_s=60,
+        )
+        assert ws_connections(server) == 1  # back on the WebSocket, not on HTTP
+    finally:
+        agent.stop()
+    assert_every_seq_once(fleet.telemetry("usv-ws-outage"), target)
+
+
+def test_a_gateway_over_one_websocket_runs_its_vehicles(
+    tmp_path: Path, server: ServerProcess, fleet: Fleet
+) -> None:
+    vehicles = ["gws-a", "gws-b", "gws-c"]
+    for vid in vehicles:
+        fleet.create_vehicle(vid)
+    token = fleet.call("POST", "/api/gateways", json={"gateway_id": "gws", "vehicles": vehicles})[
+        "token"
+    ]
+    operator = fleet.create_operator("op-gws", vehicles)
+    config = tmp_path / "gateway.toml"
+    config.write_text(
+        f'server = "{server.url}"\nrate_hz = 5\ntime_scale = 20\ntransport = "ws"\n'
+        f'outbox_dir = "{tmp_path / "gw"}"\n'
+        + "".join(
+            f'[[vehicles]]\nvehicle_id = "{vid}"\nstart = "{START[0]},{START[1] + i * 1e-3}"\n'
+            for i, vid in enumerate(vehicles)
+        )
+    )
+    agent = AgentProcess(server, token, "unused", tmp_path / "gw.db")
+    agent.args = [*agent.args[:3], "gateway", "--config", str(config)]
+    agent.start()
+    try:
+        instances = [fleet.online_instance(vid) for vid in vehicles]
+        assert len(set(instances)) == 3
+        assert ws_connections(server) == 1  # one upstream link for the three
+        fleet.grant(instances[1], "op-gws")
+        p = fleet.position(instances[1])
+        target = {"lat": p["lat"] + 1e-4, "lon": p["lon"]}
+        command = final_command(fleet, fleet.submit(operator, instances[1], "go_to", target))
+        assert command["status"] == "done", command
+        for vid in vehicles:
+            assert len(fleet.telemetry(vid)) >= 5, vid
+    finally:
+        agent.stop()
+
+
+def test_falls_back_to_http_when_the_upgrade_is_refused_and_returns_to_the_websocket(
+    tmp_path: Path, server: ServerProcess, fleet: Fleet
+) -> None:
+    with RefusingProxy(server.port).running() as proxy:
+        token = fleet.create_vehicle("usv-fallback")
+        agent = AgentProcess(
+            server, token, "usv-fallback", tmp_path / "fallback.db",
+            rate_hz=5, time_scale=20, retry_ws_s=3,
+        )  # fmt: skip
+        agent.args[agent.args.index("--server") + 1] = proxy.url
+        agent.start()
+        try:
+            instance_id = fleet.online_instance("usv-fallback")
+            assert proxy.refused >= 1
+            wait_until(lambda: logged(agent, "falling back to HTTP long-poll"), "the fallback log")
+            assert ws_connections(server) == 0
+            operator = fleet.create_operator("op-fb2", ["usv-fallback"])
+            fleet.grant(instance_id, "op-fb2")
+            target = latlon(10.0, 5.0)
+            command = final_command(fleet, fleet.submit(operator, instance_id, "go_to", target))
+            assert command["status"] == "done", command  # the long poll carried it
+
+            proxy.refuse_upgrades = False  # the proxy lets WebSockets through now
+            wait_until(lambda: ws_connections(server) == 1, "the agent back on the WebSocket")
+            wait_until(lambda: logged(agent, "leaving HTTP long-poll"), "the return log")
+            back = fleet.submit(operator, instance_id, "go_to", latlon(0.0, 0.0))
+            assert final_command(fleet, back)["status"] == "done"
+        finally:
+            agent.stop()
