@@ -211,3 +211,39 @@ async def test_gateway_batches_ops_for_its_vehicles(base: str, api: httpx.AsyncC
         assert acks["a"]["ok"] and acks["b"]["ok"]
         assert acks["c"]["ok"] is False and acks["c"]["error"]["code"] == "forbidden"
         assert acks["b1"]["ok"] is True
+
+
+GARBAGE_FRAMES = [
+    "",
+    "null",
+    "[]",
+    "42",
+    '"op"',
+    "{}",
+    '{"op": null}',
+    '{"op": "batch", "ops": "x"}',
+    '{"op": "batch", "id": "b", "ops": [{"op": "batch", "ops": []}]}',
+    '{"op": "update_param", "id": "' + "x" * 100 + '"}',
+    '{"op": "update_param", "id": "u", "instance_id": {"$gt": ""}, "samples": [{}]}',
+    '{"op": "subscribe", "id": "s", "topics": ["a//b", "UPPER", "' + "a/" * 20 + 'a"]}',
+    '{"op": "publish", "id": "p", "topic": "fleet", "data": 1}',
+    '{"op": "register", "id": "r", "topics": ["vehicle/someone-else/x"]}',
+    '{"op": "update_fbmessage", "id": "f", "instance_id": "i-x", "acks": [{"status": "won"}]}',
+    '{"op": "heartbeat", "id": 7, "instance_id": 5}',
+]
+
+
+async def test_garbage_frames_are_answered_and_the_socket_survives(
+    base: str, api: httpx.AsyncClient
+) -> None:
+    vid, vh = await make_vehicle(api)
+    async with await connect(base, "/ws/vehicle", token_of(vh)) as ws:
+        for frame in GARBAGE_FRAMES:
+            await ws.send(frame)
+            reply = await recv_until(ws, lambda f: f["op"] in ("ack", "error"))
+            assert reply.get("ok") is not True, (frame, reply)
+            assert reply["error"]["code"] in ("invalid", "forbidden", "not_found"), reply
+        await ws.send(b"\x00\x01 not a media frame")
+        reply = await recv_until(ws, lambda f: f["op"] == "error")
+        assert reply["error"]["code"] == "invalid"
+        assert await _start(ws, vid)  # still serving
