@@ -7,13 +7,16 @@ is a deadline on a condition.
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+import asyncio
+import json
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import httpx
 import pytest
+import websockets
 
-from tests.agent.procs import AgentProcess, Fleet, ServerProcess, wait_until
+from tests.agent.procs import AgentProcess, Fleet, ServerProcess, free_port, wait_until
 from tests.agent.refusing_proxy import RefusingProxy
 from tests.agent.test_e2e import (
     START,
@@ -170,3 +173,79 @@ def test_falls_back_to_http_when_the_upgrade_is_refused_and_returns_to_the_webso
             assert final_command(fleet, back)["status"] == "done"
         finally:
             agent.stop()
+
+
+async def _recv(ws: websockets.ClientConnection, want: Callable[[dict], bool]) -> dict:
+    """The first frame ``want`` accepts, within a deadline."""
+    async with asyncio.timeout(20):
+        while True:
+            frame = json.loads(await ws.recv())
+            if want(frame):
+                return frame
+
+
+def _event_on(topic: str) -> Callable[[dict], bool]:
+    return lambda f: f["op"] == "event" and f["topic"] == topic and not f.get("snapshot")
+
+
+def test_gateway_forwards_its_units_topics_on_demand(
+    tmp_path: Path, server: ServerProcess, fleet: Fleet
+) -> None:
+    vehicles = ["gwu-a", "gwu-b", "gwu-sim"]
+    for vid in vehicles:
+        fleet.create_vehicle(vid)
+    token = fleet.call("POST", "/api/gateways", json={"gateway_id": "gwu", "vehicles": vehicles})[
+        "token"
+    ]
+    viewer = fleet.create_operator("op-gwu", vehicles)
+    port = free_port()
+    config = tmp_path / "gateway.toml"
+    config.write_text(
+        f'server = "{server.url}"\nlisten = "127.0.0.1:{port}"\n'
+        f'outbox_dir = "{tmp_path / "gw"}"\n[[vehicles]]\nvehicle_id = "gwu-sim"\n'
+    )
+    agent = AgentProcess(server, token, "unused", tmp_path / "gw.db")
+    agent.args = [*agent.args[:3], "gateway", "--config", str(config)]
+    agent.start()
+    sonar, plan = "vehicle/gwu-a/sonar_depth", "user/op-gwu/plan"
+
+    async def scenario() -> None:
+        unit = f"ws://127.0.0.1:{port}/?vehicle_id="
+        async with (
+            websockets.connect(unit + "gwu-a", compression=None) as a,
+            websockets.connect(unit + "gwu-b", compression=None) as b,
+        ):
+            await a.send(json.dumps({"op": "register", "id": "r", "topics": [sonar]}))
+            assert (await _recv(a, lambda f: f["op"] == "ack"))["ok"] is True
+            await b.send(json.dumps({"op": "subscribe", "id": "s", "topics": [sonar, plan]}))
+            assert (await _recv(b, lambda f: f["op"] == "ack"))["ok"] is True
+            # Only a local unit consumes it: delivered by the gateway itself.
+            await a.send(json.dumps({"op": "publish", "topic": sonar, "data": {"m": 1}}))
+            assert (await _recv(b, _event_on(sonar)))["data"] == {"m": 1}
+
+            op_url = server.url.replace("http", "ws", 1) + "/ws/client"
+            headers = {"Authorization": f"Bearer {viewer}"}
+            async with websockets.connect(op_url, additional_headers=headers) as op:
+                await op.send(json.dumps({"op": "subscribe", "id": "o", "topics": [sonar]}))
+                await _recv(op, lambda f: f["op"] == "ack")
+                # The unit hears of its new consumer upstream (its routes, relayed).
+                await _recv(
+                    a, lambda f: f["op"] == "routes" and "user:op-gwu" in f["produces"][sonar]
+                )
+                await a.send(json.dumps({"op": "publish", "topic": sonar, "data": {"m": 2}}))
+                assert (await _recv(op, _event_on(sonar)))["data"] == {"m": 2}
+                assert (await _recv(b, _event_on(sonar)))["data"] == {"m": 2}
+                # Downward: what the unit subscribed to, from above.
+                await op.send(json.dumps({"op": "publish", "topic": plan, "data": [1, 2]}))
+                assert (await _recv(b, _event_on(plan)))["data"] == [1, 2]
+            # Outside its namespace: refused by the gateway, even kept local.
+            await b.send(json.dumps({"op": "publish", "id": "p", "topic": sonar, "data": 0}))
+            refused = await _recv(b, lambda f: f["op"] == "ack" and f["id"] == "p")
+            assert refused["ok"] is False and refused["error"]["code"] == "forbidden"
+
+    try:
+        fleet.online_instance("gwu-sim")
+        wait_until(lambda: logged(agent, "local units: ws://"), "the gateway's unit server")
+        asyncio.run(scenario())
+    finally:
+        agent.stop()

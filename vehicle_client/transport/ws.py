@@ -179,8 +179,11 @@ class WsLink:
             vehicle.wake.set()
 
     # -- ops ------------------------------------------------------------------
-    async def call(self, op: dict[str, Any], what: str | None = None) -> AckPush:
-        """Send ``op`` with a fresh id; its ack (``ok: true``), or the matching error."""
+    async def call(
+        self, op: dict[str, Any], what: str | None = None, *, check: bool = True
+    ) -> AckPush:
+        """Send ``op`` with a fresh id; its ack (``ok: true``), or the matching error
+        (``check=False``: the ack as it came, ``ok: false`` included)."""
         sock = await self._open()
         op = {**op, "id": self._ids.next()}
         fut: asyncio.Future[AckPush] = asyncio.get_running_loop().create_future()
@@ -195,7 +198,7 @@ class WsLink:
             raise error from None
         finally:
             self._pending.pop(op["id"], None)
-        if not ack.ok:
+        if check and not ack.ok:
             raise ack_error(ack, what or op["op"])
         return ack
 

@@ -1,0 +1,1 @@
+"""Gateway mode: local units behind one upstream link, and their topics."""

@@ -1,0 +1,113 @@
+"""What a gateway does with its local units' topics (the multilayer paper). Pure.
+
+Local units (vehicles on the gateway's own WebSocket) register what they
+produce and subscribe to what they need. The gateway:
+
+- delivers a unit's publish to the other local units subscribed to it,
+  at once, without the cloud;
+- sends it **up** only if the topic is in its ``forward_up`` (the server's
+  ``routes`` push to the gateway unit: topics produced under the gateway
+  that a unit outside it consumes; demand-driven, so nothing travels up
+  that nobody above asked for, and nothing its own units alone consume);
+- delivers **down** an event from above to the local units subscribed to
+  its topic (the server sends the gateway what is in its ``forward_down``).
+
+Registrations and subscriptions are repeated upstream on the units' behalf
+(ops with ``vehicle_id``), so the server's table holds them, and again after
+every reconnection (:meth:`TopicRouter.replay`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from fleet_protocol.topics import SERVER_ONLY_VEHICLE_TOPICS, topic_owner
+
+
+@dataclass
+class _Unit:
+    produces: set[str] = field(default_factory=set)
+    consumes: set[str] = field(default_factory=set)
+
+
+@dataclass
+class Delivery:
+    """Where a publish goes: these local units, and up or not."""
+
+    local: list[str]
+    up: bool
+
+
+@dataclass
+class TopicRouter:
+    units: dict[str, _Unit] = field(default_factory=dict)
+    forward_up: frozenset[str] = frozenset()
+    forward_down: frozenset[str] = frozenset()
+    sent_up: int = 0
+    kept_local: int = 0
+
+    def add(self, vehicle_id: str) -> None:
+        self.units.setdefault(vehicle_id, _Unit())
+
+    def drop(self, vehicle_id: str) -> _Unit | None:
+        """Forget a unit; what it had (to unregister upstream)."""
+        return self.units.pop(vehicle_id, None)
+
+    def register(self, vehicle_id: str, topics: list[str]) -> None:
+        self.units[vehicle_id].produces.update(topics)
+
+    def subscribe(self, vehicle_id: str, topics: list[str]) -> None:
+        self.units[vehicle_id].consumes.update(topics)
+
+    def unsubscribe(self, vehicle_id: str, topics: list[str]) -> None:
+        self.units[vehicle_id].consumes.difference_update(topics)
+
+    def subscribers(self, topic: str, *, but: str | None = None) -> list[str]:
+        return sorted(v for v, u in self.units.items() if topic in u.consumes and v != but)
+
+    def publish(self, vehicle_id: str, topic: str) -> Delivery:
+        """A local unit published on ``topic``: to whom (the caller checked the right)."""
+        up = topic in self.forward_up
+        if up:
+            self.sent_up += 1
+        else:
+            self.kept_local += 1
+        return Delivery(self.subscribers(topic, but=vehicle_id), up)
+
+    def from_above(self, topic: str) -> list[str]:
+        """An event came down from the cloud: the local units subscribed to it."""
+        return self.subscribers(topic)
+
+    def routes(self, unit: str, forward_up: list[str], forward_down: list[str]) -> str | None:
+        """A ``routes`` push: the gateway's own updates forwarding (``None`` back);
+        a local unit's (``vehicle:<id>``) is for that unit: its vehicle id back."""
+        if unit.startswith("gateway:"):
+            self.forward_up, self.forward_down = frozenset(forward_up), frozenset(forward_down)
+            return None
+        kind, _, vehicle_id = unit.partition(":")
+        return vehicle_id if kind == "vehicle" and vehicle_id in self.units else None
+
+    def replay(self) -> list[tuple[str, str, list[str]]]:
+        """``(vehicle_id, "register" | "subscribe", topics)`` to send after a reconnection."""
+        ops: list[tuple[str, str, list[str]]] = []
+        for vehicle_id, unit in sorted(self.units.items()):
+            if unit.produces:
+                ops.append((vehicle_id, "register", sorted(unit.produces)))
+            if unit.consumes:
+                ops.append((vehicle_id, "subscribe", sorted(unit.consumes)))
+        return ops
+
+
+def write_refusal(vehicle_id: str, topic: str) -> str | None:
+    """Why the local unit ``vehicle_id`` may not publish or register ``topic`` (``None``: it may).
+
+    The same rule the server applies upstream, checked here too because a
+    publish kept local never reaches the server.
+    """
+    namespace, owner = topic_owner(topic)
+    parts = topic.split("/")
+    if namespace != "vehicle" or owner != vehicle_id or len(parts) < 3:
+        return f"unit {vehicle_id} writes only under vehicle/{vehicle_id}/ (not {topic})"
+    if parts[2] in SERVER_ONLY_VEHICLE_TOPICS:
+        return f"{topic} is written by the server alone"
+    return None
