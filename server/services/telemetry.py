@@ -32,7 +32,7 @@ from server.domain.track import TRACK_PAGE_CAP, cut_page, simplify
 from server.errors import Unavailable
 from server.settings import Settings
 from server.storage.driver import Doc, Store
-from server.storage.telemetry import TelemetryRepo, aware
+from server.storage.telemetry import TelemetryRepo, aware, samples_of
 
 log = logging.getLogger("fleet.telemetry")
 Clock = Callable[[], datetime]
@@ -291,7 +291,7 @@ class TelemetryService:
         buckets = await self.repo.in_window(vehicle_id, start, end)
         points: list[dict[str, Any]] = []
         for bucket in buckets:
-            for s in bucket["samples"]:
+            for s in samples_of(bucket):
                 ts = aware(s["ts"])
                 if start <= ts < end:
                     points.append(_point(s, ts))
@@ -339,7 +339,7 @@ class TelemetryService:
             if not buckets:
                 break
             for bucket in buckets:
-                for s in bucket["samples"]:
+                for s in samples_of(bucket):
                     if s["seq"] > cursor and take(s):
                         full = True
                         break
