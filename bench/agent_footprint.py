@@ -3,7 +3,8 @@
 Runs a real fleet-server and a real fleet-agent (simulator adapter) on
 loopback, as processes:
 
-1. footprint: the agent at 5 Hz for ``--measure-s`` seconds after a warm-up;
+1. footprint: the agent at 5 Hz for ``--measure-s`` seconds after a warm-up,
+   once over HTTP long-poll and once over the WebSocket (``--transport``);
    its resident memory (RSS) and CPU share of one core (psutil). Goals
    from issue 4: at most 60 MB RSS, at most 3 % of one core.
 2. drain: an outbox holding 10 minutes of 5 Hz samples (3,000) taken while
@@ -90,7 +91,9 @@ def _vehicle(url: str, vehicle_id: str) -> str:
     return r.json()["token"]
 
 
-def _agent(url: str, token: str, vehicle_id: str, outbox: Path) -> subprocess.Popen:
+def _agent(
+    url: str, token: str, vehicle_id: str, outbox: Path, transport: str = "http"
+) -> subprocess.Popen:
     args = [
         sys.executable,
         "-m",
@@ -106,6 +109,8 @@ def _agent(url: str, token: str, vehicle_id: str, outbox: Path) -> subprocess.Po
         "5",
         "--log-level",
         "WARNING",
+        "--transport",
+        transport,
     ]
     log = outbox.with_suffix(".log").open("w")
     return subprocess.Popen(
@@ -134,9 +139,12 @@ def _stop(proc: subprocess.Popen) -> None:
         proc.wait()
 
 
-def footprint(url: str, workdir: Path, warmup_s: float, measure_s: float) -> dict:
-    outbox = workdir / "footprint.db"
-    agent = _agent(url, _vehicle(url, "bench-foot"), "bench-foot", outbox)
+def footprint(
+    url: str, workdir: Path, warmup_s: float, measure_s: float, transport: str = "http"
+) -> dict:
+    vehicle_id = f"bench-foot-{transport}"
+    outbox = workdir / f"{vehicle_id}.db"
+    agent = _agent(url, _vehicle(url, vehicle_id), vehicle_id, outbox, transport)
     try:
         _until(lambda: _rows(outbox) >= 0 and agent.poll() is None, "the agent")
         time.sleep(warmup_s)  # a benchmark's measuring window, not a test wait
@@ -149,6 +157,7 @@ def footprint(url: str, workdir: Path, warmup_s: float, measure_s: float) -> dic
         cpu1, t1 = p.cpu_times(), time.monotonic()
         used = (cpu1.user + cpu1.system) - (cpu0.user + cpu0.system)
         return {
+            "transport": transport,
             "rate_hz": 5,
             "rss_mb": round(peak / 2**20, 1),
             "cpu_pct": round(100 * used / (t1 - t0), 2),
@@ -199,6 +208,7 @@ def main() -> None:
         try:
             result = {
                 "footprint": footprint(url, workdir, args.warmup_s, args.measure_s),
+                "footprint_ws": footprint(url, workdir, args.warmup_s, args.measure_s, "ws"),
                 "drain_after_10_min_outage": drain(url, workdir),
                 "goals": GOALS,
             }
@@ -207,11 +217,12 @@ def main() -> None:
     if args.json:
         print(json.dumps(result))
         return
-    f, d = result["footprint"], result["drain_after_10_min_outage"]
-    print(
-        f"agent at 5 Hz: RSS {f['rss_mb']} MB (goal <= 60), CPU {f['cpu_pct']} % of a core "
-        f"(goal <= 3) over {f['measured_s']} s"
-    )
+    d = result["drain_after_10_min_outage"]
+    for f in (result["footprint"], result["footprint_ws"]):
+        print(
+            f"agent at 5 Hz over {f['transport']}: RSS {f['rss_mb']} MB (goal <= 60), "
+            f"CPU {f['cpu_pct']} % of a core (goal <= 3) over {f['measured_s']} s"
+        )
     print(
         f"outbox drain after a 10-min outage: {d['backlog']} samples in {d['drained_s']} s "
         f"= {d['samples_per_s']} samples/s"

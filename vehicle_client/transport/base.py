@@ -1,9 +1,9 @@
 """The calls the agent makes, whatever carries them.
 
-``HttpTransport`` carries them over ``/upper/*`` (long poll for commands).
-A WebSocket transport (``/ws/vehicle``, ops with the same bodies) can take
-its place without the agent changing: it implements the same methods, and
-``get_control`` answers from the ``command`` pushes it has received.
+``HttpTransport`` carries them over ``/upper/*`` (long poll for commands);
+``WsTransport`` over ``/ws/vehicle`` (ops with the same bodies, acked; its
+``get_control`` answers from the ``command`` pushes it has received);
+``AutoTransport`` picks the WebSocket and falls back to HTTP.
 Every method raises ``FatalError``, ``SessionLost`` or ``RetryableError``
 (``vehicle_client.errors``) and nothing else.
 """
