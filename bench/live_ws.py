@@ -887,8 +887,9 @@ class LoadGenerator:
     def take_window(self) -> dict[str, Any]:
         latencies, self.latencies = self.latencies, []
         lags, self.tick_lag_ms = self.tick_lag_ms, []
-        counts = {"sent": self.sent, "acked": self.acked, "nacks": self.nacks,
-                  "closed": self.closed, "late": self.late}  # fmt: skip
+        counts: dict[str, float] = {"sent": self.sent, "acked": self.acked,
+                                    "nacks": self.nacks, "closed": self.closed,
+                                    "late": self.late}  # fmt: skip
         self.sent = self.acked = self.nacks = self.late = 0
         counts["max_tick_lag_ms"] = max(lags, default=0.0)
         return {"latencies": latencies, **counts}
