@@ -195,7 +195,7 @@ async def shutdown(services: Services) -> None:
     with contextlib.suppress(Exception):
         await services.bus.close()
     with contextlib.suppress(Exception):
-        await services.instances.sweep()
+        await services.instances.sweep(everything=True)
     with contextlib.suppress(Exception):
         await services.telemetry.flush_all()
     await services.store.close()

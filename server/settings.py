@@ -67,6 +67,9 @@ class Settings(BaseSettings):
     bucket_max_age_s: float = Field(
         default=2.0, gt=0, description="a partly filled telemetry bucket is written after this"
     )
+    persist_interval_s: float = Field(
+        default=10.0, gt=0, description="how often vehicles' last contact and position are saved"
+    )
     long_poll_max: int = Field(default=4, ge=1, description="open long polls per vehicle")
     max_pending_requests: int = Field(
         default=50, ge=1, description="pending control requests per instance"

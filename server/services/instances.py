@@ -9,6 +9,7 @@ rather than on each call.
 from __future__ import annotations
 
 import secrets
+import time
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field
 from datetime import datetime
@@ -44,7 +45,9 @@ class InstanceState:
     finished_at: datetime | None = None
     presence: Presence = "offline"
     polling: int = 0  # open long polls: contact while open
-    dirty: bool = False
+    dirty: bool = False  # params or control mode changed: written at the next sweep
+    moved: bool = False  # last_seen or position moved: written every persist_interval_s
+    saved_at: float = 0.0  # monotonic time of the last write
 
     @property
     def finished(self) -> bool:
@@ -224,7 +227,7 @@ class InstanceService:
     def touch(self, state: InstanceState) -> None:
         """Contact from the vehicle: any request, frame, or open long poll."""
         state.last_seen = self.clock()
-        state.dirty = True
+        state.moved = True
 
     def merge_params(self, state: InstanceState, params: dict[str, Any]) -> None:
         """Shallow merge; ``null`` deletes a key."""
@@ -244,7 +247,7 @@ class InstanceService:
         if current is not None and current["ts"] >= sample.ts:
             return False
         state.position = sample.model_dump(exclude_none=True)
-        state.dirty = True
+        state.moved = True
         return True
 
     def set_control_mode(self, state: InstanceState, mode: str | None) -> bool:
@@ -277,9 +280,16 @@ class InstanceService:
         for listener in self.presence_listeners:
             listener(state, presence)
 
-    async def sweep(self) -> None:
-        """Presence changes by age, and write back what moved since the last sweep."""
+    async def sweep(self, *, everything: bool = False) -> None:
+        """Presence changes by age, and write back what changed.
+
+        Contact and position move with every frame of every vehicle: they are
+        written at most every ``persist_interval_s`` (and on shutdown), the
+        rest at once.
+        """
         now = self.clock()
+        tick = time.monotonic()
+        every = self.settings.persist_interval_s
         for state in list(self._by_id.values()):
             presence = self._presence(state, now)
             if presence != state.presence:
@@ -290,8 +300,10 @@ class InstanceService:
                     instance_id=state.instance_id,
                     data={"presence": presence},
                 )
-            if state.dirty:
-                state.dirty = False
+            due = state.moved and (everything or tick - state.saved_at >= every)
+            if state.dirty or due:
+                state.dirty = state.moved = False
+                state.saved_at = tick
                 await self.repo.save(state.instance_id, state.to_doc())
 
     async def drop_finished_before(self, before: datetime) -> int:

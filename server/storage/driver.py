@@ -16,6 +16,7 @@ from pymongo.errors import ConnectionFailure, OperationFailure, PyMongoError
 
 from server.errors import Unavailable
 from server.settings import Settings
+from server.storage import mock_table
 from server.storage.journal import Journal
 
 log = logging.getLogger("fleet.storage")
@@ -30,6 +31,17 @@ class Collection:
         self._raw = raw
         self._store = store
         self.name: str = raw.name
+        #: The embedded store's table (``_id`` -> document), for keyed writes.
+        self.table: Any | None = mock_table.table_of(raw) if store.embedded else None
+
+    async def set_fields(self, _id: Any, fields: Mapping[str, Any]) -> bool:
+        """``$set`` on the document with this ``_id``: no scan on the embedded store."""
+        if self.table is None:
+            return await self.update_one({"_id": _id}, {"$set": dict(fields)}) > 0
+        if not mock_table.set_fields(self.table, _id, dict(fields)):
+            return False
+        self._store.journal_op("update", self.name, flt={"_id": _id}, update={"$set": fields})
+        return True
 
     async def insert_one(self, doc: Doc) -> None:
         async with self._store.guard():

@@ -32,10 +32,13 @@ class InstancesRepo:
         return docs[0] if docs else None
 
     async def insert(self, doc: Doc) -> None:
-        await self.instances.insert_one(dict(doc))
+        # Keyed by the instance id, so a save is a keyed write (no scan on the embedded store).
+        await self.instances.insert_one({**doc, "_id": doc["instance_id"]})
 
     async def save(self, instance_id: str, fields: dict[str, Any]) -> None:
-        await self.instances.update_one({"instance_id": instance_id}, {"$set": fields})
+        if not await self.instances.set_fields(instance_id, fields):
+            # An instance stored before ids were keys.
+            await self.instances.update_one({"instance_id": instance_id}, {"$set": fields})
 
     async def drop_finished_before(self, before: datetime) -> int:
         return await self.instances.delete_many({"finished_at": {"$lt": before}})

@@ -20,6 +20,8 @@ from typing import Any
 
 import bson
 
+from server.storage import mock_table
+
 log = logging.getLogger("fleet.storage")
 
 
@@ -93,6 +95,16 @@ class Journal:
     async def _replay(db: Any, entry: dict[str, Any]) -> None:
         coll = db[entry["c"]]
         op = entry["o"]
+        flt = entry.get("f")
+        if (
+            op == "update"
+            and flt is not None
+            and list(flt) == ["_id"]
+            and list(entry["u"]) == ["$set"]
+        ):
+            table = mock_table.table_of(coll)  # keyed: no scan (thousands per restart)
+            if table is not None and mock_table.set_fields(table, flt["_id"], entry["u"]["$set"]):
+                return
         if op == "insert":
             await coll.insert_many(entry["d"])
         elif op == "update":

@@ -49,6 +49,10 @@ async def test_embedded_store_survives_a_clean_restart(
         again = await start_instance(c, vid, vh)  # the vehicle's token survived too
         assert again["resumed"] is True and again["instance_id"] == iid
         assert again["last_seq"] == 50
+        params = (
+            await c.get("/client/get_param", headers=ADMIN, params={"instance_id": iid})
+        ).json()
+        assert params["position"]["seq"] == 50  # written through the keyed path, replayed
         page = (
             await c.get(
                 f"/api/vehicles/{vid}/telemetry",
