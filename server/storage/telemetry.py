@@ -116,29 +116,11 @@ class _VehicleIndex:
         self.max_seqs = [m.max_seq for m in self.metas]
 
 
-def _mock_table(store: Store) -> Any | None:
-    """mongomock's document table of the telemetry collection (``_id`` -> doc), if embedded.
-
-    The one place that reaches inside mongomock(-motor); anything unexpected
-    and the repository falls back to ordinary queries.
-    """
-    if not store.embedded:
-        return None
-    raw = getattr(store[COLLECTION], "_raw", None)
-    inner = getattr(raw, "__dict__", {}).get("_AsyncMongoMockCollection__collection")
-    table = getattr(inner, "_store", None)
-    needed = ("documents", "__getitem__", "__delitem__", "__contains__")
-    if table is None or not all(hasattr(table, name) for name in needed):
-        log.warning("embedded store internals not recognised: telemetry queries will scan")
-        return None
-    return table
-
-
 class TelemetryRepo:
     def __init__(self, store: Store, *, use_index: bool | None = None) -> None:
         self.store = store
         self.coll = store[COLLECTION]
-        table = _mock_table(store) if use_index is not False else None
+        table = self.coll.table if use_index is not False else None
         self._table = table
         self._index: dict[str, _VehicleIndex] | None = {} if table is not None else None
 
