@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Annotated, Any
+from urllib.parse import parse_qs
 
-from fastapi import APIRouter
+from fastapi import APIRouter, Depends, Request
+from fastapi.exceptions import RequestValidationError
+from pydantic import ValidationError
 
 from fleet_protocol import (
     CreateGateway,
@@ -83,7 +86,30 @@ async def revoke_user_tokens(username: str, _: Admin, s: ServicesDep) -> dict[st
     return {"ok": True}
 
 
-@router.post("/auth/token", tags=["auth"])
-async def login(body: LoginRequest, s: ServicesDep) -> TokenResult:
+async def _login_body(request: Request) -> LoginRequest:
+    """JSON as the contract says, or an OAuth2-style form (what many clients send)."""
+    raw = await request.body()
+    try:
+        if request.headers.get("content-type", "").startswith("application/x-www-form-urlencoded"):
+            form = {k: v[0] for k, v in parse_qs(raw.decode("utf-8", "replace")).items()}
+            return LoginRequest.model_validate(form)
+        return LoginRequest.model_validate_json(raw)
+    except ValidationError as exc:
+        raise RequestValidationError(exc.errors()) from None
+
+
+_LOGIN_SCHEMA = {
+    "requestBody": {
+        "required": True,
+        "content": {
+            "application/json": {"schema": LoginRequest.model_json_schema()},
+            "application/x-www-form-urlencoded": {"schema": LoginRequest.model_json_schema()},
+        },
+    }
+}
+
+
+@router.post("/auth/token", tags=["auth"], openapi_extra=_LOGIN_SCHEMA)
+async def login(body: Annotated[LoginRequest, Depends(_login_body)], s: ServicesDep) -> TokenResult:
     token, ttl = await s.auth.login(body.username, body.password)
     return TokenResult(access_token=token, expires_in=ttl)

@@ -155,3 +155,14 @@ async def test_gateway_acts_for_its_vehicles_only(client: httpx.AsyncClient) -> 
     assert (
         await client.post("/upper/start_instance", headers=gw, json={"vehicle_id": v2})
     ).status_code == 403
+
+
+async def test_password_login_as_a_form_too(client: httpx.AsyncClient) -> None:
+    name, _ = await make_user(client, "viewer", password="correct horse battery")
+    r = await client.post(
+        "/auth/token", data={"username": name, "password": "correct horse battery"}
+    )
+    assert r.status_code == 200 and r.json()["token_type"] == "bearer"
+    missing = await client.post("/auth/token", json={"username": name})
+    assert missing.status_code == 422
+    assert missing.json()["error"]["details"][0]["field"] == "password"
