@@ -20,7 +20,7 @@ def main() -> None:
     port, directory, token = int(sys.argv[1]), Path(sys.argv[2]), sys.argv[3]
     settings = Settings(
         _env_file=None,
-        snapshot_path=directory / "bench.snapshot",  # type: ignore[call-arg]
+        snapshot_path=directory / "bench.snapshot",
         admin_token=token,
         rate_limit_per_s=1e9,
         rate_limit_burst=10**9,

@@ -215,7 +215,7 @@ async def _store_bench(runs: int) -> list[Metric]:
     scan = Metric("same, without the bucket index", "ms")
     fill = Metric(f"pre-fill {STORED // 1_000_000} M samples", "s")
     with tempfile.TemporaryDirectory() as tmp:
-        settings = Settings(_env_file=None, snapshot_path=Path(tmp) / "s.snapshot")  # type: ignore[call-arg]
+        settings = Settings(_env_file=None, snapshot_path=Path(tmp) / "s.snapshot")
         store = open_store(settings)
         repo = TelemetryRepo(store)
         await repo.ensure_indexes()

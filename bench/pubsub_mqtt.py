@@ -21,11 +21,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
-import select
-import shutil
-import socket
 import statistics
-import subprocess
 import tempfile
 import threading
 import time
@@ -34,6 +30,9 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import paho.mqtt.client as mqtt
+
+from bench._mosquitto import MqttPump, mosquitto
+from bench._stats import percentile
 
 __all__ = [
     "SIZES",
@@ -64,13 +63,12 @@ class LatencyResult:
         ordered = sorted(samples_ns)
         if not ordered:
             raise ValueError("no samples")
-        p99_index = min(len(ordered) - 1, max(0, round(0.99 * len(ordered)) - 1))
         return cls(
             path=path,
             size=size,
             count=len(ordered),
             median_ms=statistics.median(ordered) / 1e6,
-            p99_ms=ordered[p99_index] / 1e6,
+            p99_ms=percentile(ordered, 0.99) / 1e6,
             mean_ms=statistics.fmean(ordered) / 1e6,
             max_ms=ordered[-1] / 1e6,
         )
@@ -87,99 +85,14 @@ def compare(candidate: LatencyResult, baseline: LatencyResult) -> dict[str, floa
     }
 
 
-def _free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return int(sock.getsockname()[1])
-
-
 @contextlib.contextmanager
 def mosquitto_broker(binary: str | None = None) -> Iterator[int]:
     """A mosquitto broker on a free loopback port, for the duration; yields the port."""
-    binary = binary or shutil.which("mosquitto") or "/usr/sbin/mosquitto"
-    if not Path(binary).exists():
-        raise RuntimeError("mosquitto is not installed (apt-get install mosquitto)")
-    with tempfile.TemporaryDirectory(prefix="bench-mosquitto-") as tmp:
-        port = _free_port()
-        config = Path(tmp) / "mosquitto.conf"
-        config.write_text(
-            f"listener {port} 127.0.0.1\n"
-            "allow_anonymous true\n"
-            "persistence false\n"
-            "set_tcp_nodelay true\n"
-            "max_packet_size 1048576\n"
-            "log_dest none\n"
-        )
-        process = subprocess.Popen(
-            [binary, "-c", str(config)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE
-        )
-        try:
-            _wait_for_port(port, process)
-            yield port
-        finally:
-            process.terminate()
-            try:
-                process.wait(timeout=5)
-            except subprocess.TimeoutExpired:
-                process.kill()
-                process.wait()
-
-
-def _wait_for_port(port: int, process: subprocess.Popen[bytes]) -> None:
-    deadline = time.monotonic() + TIMEOUT_S
-    while time.monotonic() < deadline:
-        if process.poll() is not None:
-            error = process.stderr.read().decode() if process.stderr else ""
-            raise RuntimeError(f"mosquitto exited: {error.strip()}")
-        with contextlib.suppress(OSError), socket.create_connection(("127.0.0.1", port), 0.2):
-            return
-        time.sleep(0.02)
-    raise RuntimeError(f"mosquitto did not listen on {port} within {TIMEOUT_S}s")
-
-
-class _Pump:
-    """Drives paho clients from this thread (no loop threads): ``select`` on their sockets.
-
-    One thread for both ends, as the server's bench clients are: the figures
-    then hold no thread switching of the measuring side.
-    """
-
-    def __init__(self) -> None:
-        self.clients: list[mqtt.Client] = []
-
-    def connect(self, port: int, name: str) -> mqtt.Client:
-        client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, client_id=name)
-        connected = threading.Event()
-        client.on_connect = lambda *args: connected.set()
-        client.connect("127.0.0.1", port)
-        sock = client.socket()
-        assert isinstance(sock, socket.socket)
-        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-        self.clients.append(client)
-        self.until(connected, f"{name} could not connect to mosquitto on {port}")
-        return client
-
-    def until(self, event: threading.Event, failure: str) -> None:
-        """Read and write the clients' sockets until ``event`` is set."""
-        deadline = time.monotonic() + TIMEOUT_S
-        while not event.is_set():
-            if time.monotonic() > deadline:
-                raise RuntimeError(failure)
-            for client in self.clients:
-                if client.want_write():
-                    client.loop_write()
-            sockets = {c.socket(): c for c in self.clients if c.socket() is not None}
-            readable, _, _ = select.select(list(sockets), [], [], 0.05)  # type: ignore[type-var]
-            for sock in readable:
-                sockets[sock].loop_read()
-            for client in self.clients:
-                client.loop_misc()
-
-    def close(self) -> None:
-        for client in self.clients:
-            client.disconnect()
-            if client.want_write():
-                client.loop_write()
+    with (
+        tempfile.TemporaryDirectory(prefix="bench-mosquitto-") as tmp,
+        mosquitto(Path(tmp), binary=binary) as port,
+    ):
+        yield port
 
 
 def mqtt_one_hop(port: int, size: int, count: int = 2000, warmup: int = 200) -> LatencyResult:
@@ -195,21 +108,18 @@ def mqtt_one_hop(port: int, size: int, count: int = 2000, warmup: int = 200) -> 
         latency_ns.append(now - int.from_bytes(message.payload[:STAMP_BYTES], "big"))
         arrived.set()
 
-    pump = _Pump()
+    pump = MqttPump()
     try:
         subscriber = pump.connect(port, f"bench-sub-{size}")
         publisher = pump.connect(port, f"bench-pub-{size}")
-        subscribed = threading.Event()
         subscriber.on_message = on_message
-        subscriber.on_subscribe = lambda *args: subscribed.set()
-        subscriber.subscribe(topic, qos=0)
-        pump.until(subscribed, "mosquitto did not confirm the subscription")
+        pump.subscribe(subscriber, topic)
         padding = bytes(size - STAMP_BYTES)
         for _ in range(warmup + count):
             arrived.clear()
             stamp = time.perf_counter_ns().to_bytes(STAMP_BYTES, "big")
             publisher.publish(topic, stamp + padding, qos=0)
-            pump.until(arrived, "a message did not arrive within the timeout")
+            pump.until(arrived.is_set, "a message did not arrive within the timeout", TIMEOUT_S)
     finally:
         pump.close()
     return LatencyResult.from_samples("mosquitto-qos0", size, latency_ns[warmup:])

@@ -1,0 +1,144 @@
+"""Section 1, pub-sub: one-hop latency and 1 -> 1 throughput, /ws/client against Mosquitto."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from bench._live.clients import close_all, next_event, run_async, ws_call, ws_connect
+from bench._live.config import WINDOW, Config
+from bench._live.world import World
+from bench._mosquitto import MqttPump, mosquitto
+from bench._stats import fmt3
+from bench.pubsub_mqtt import SIZES, LatencyResult, mqtt_one_hop
+
+
+async def fleet_one_hop(world: World, size: int, count: int, warmup: int) -> LatencyResult:
+    ws = world.server.ws
+    sub = await ws_connect(f"{ws}/ws/client", world.tokens["sub"])
+    pub = await ws_connect(f"{ws}/ws/client", world.tokens["pub"])
+    try:
+        topic = "user/bench-pub/x"
+        ack = await ws_call(sub, "subscribe", "s", topics=[topic])
+        assert ack["ok"], ack
+        frame = json.dumps({"op": "publish", "topic": topic, "data": "x" * size})
+        samples: list[int] = []
+        async with asyncio.timeout(300):
+            for _ in range(warmup + count):
+                t0 = time.perf_counter_ns()
+                await pub.send(frame)
+                await next_event(sub)
+                samples.append(time.perf_counter_ns() - t0)
+        return LatencyResult.from_samples("fleet-ws", size, samples[warmup:])
+    finally:
+        await close_all([pub, sub])
+
+
+async def fleet_throughput(world: World, size: int, count: int) -> dict[str, float]:
+    ws = world.server.ws
+    sub = await ws_connect(f"{ws}/ws/client", world.tokens["sub"])
+    pub = await ws_connect(f"{ws}/ws/client", world.tokens["pub"])
+    try:
+        topic = "user/bench-pub/t"
+        ack = await ws_call(sub, "subscribe", "s", topics=[topic])
+        assert ack["ok"], ack
+        frame = json.dumps({"op": "publish", "topic": topic, "data": "x" * size})
+        state = {"sent": 0, "received": 0, "dropped": 0}
+        room = asyncio.Event()
+
+        async def reader() -> None:
+            async for got in sub:
+                if not isinstance(got, str):
+                    continue
+                if got.startswith('{"op":"event"'):
+                    state["received"] += 1
+                elif got.startswith('{"op":"lagging"'):
+                    state["dropped"] += int(json.loads(got)["dropped"])
+                if state["sent"] - state["received"] - state["dropped"] <= WINDOW // 2:
+                    room.set()
+                if state["received"] + state["dropped"] >= count:
+                    return
+
+        task = asyncio.create_task(reader())
+        started = time.perf_counter()
+        async with asyncio.timeout(300):
+            while state["sent"] < count:
+                if state["sent"] - state["received"] - state["dropped"] >= WINDOW:
+                    room.clear()
+                    await room.wait()
+                    continue
+                await pub.send(frame)
+                state["sent"] += 1
+            await task
+        elapsed = time.perf_counter() - started
+        return {
+            "msgs_per_s": state["received"] / elapsed,
+            "received": state["received"],
+            "dropped": state["dropped"],
+        }
+    finally:
+        await close_all([pub, sub])
+
+
+def mqtt_throughput(port: int, size: int, count: int) -> dict[str, float]:
+    pump = MqttPump()
+    try:
+        sub = pump.connect(port, "bench-tp-sub")
+        pub = pump.connect(port, "bench-tp-pub")
+        topic = "bench/tp"
+        received = [0]
+        sub.on_message = lambda *args: received.__setitem__(0, received[0] + 1)
+        pump.subscribe(sub, topic)
+        payload = bytes(size)
+        sent = 0
+        started = time.perf_counter()
+        deadline = time.monotonic() + 300
+        while received[0] < count:
+            if time.monotonic() > deadline:
+                raise RuntimeError("mosquitto throughput: timed out")
+            while sent < count and sent - received[0] < WINDOW:
+                pub.publish(topic, payload, qos=0)
+                sent += 1
+            pump.once(0.05)
+        elapsed = time.perf_counter() - started
+        return {"msgs_per_s": received[0] / elapsed, "received": received[0], "dropped": 0}
+    finally:
+        pump.close()
+
+
+def section_pubsub(
+    cfg: Config, world: World, workdir: Path, core: int | None, report: Callable[[str], None]
+) -> dict[str, Any]:
+    result: dict[str, Any] = {"latency": {}, "throughput": {}}
+    with mosquitto(workdir, core, name="hop") as port:
+        for size in SIZES:
+            fleet_runs: list[dict[str, float]] = []
+            mqtt_runs: list[dict[str, float]] = []
+            for _ in range(cfg.runs):  # interleaved, so both see the same machine
+                ours = run_async(fleet_one_hop(world, size, cfg.count, cfg.warmup))
+                theirs = mqtt_one_hop(port, size, cfg.count, cfg.warmup)
+                fleet_runs.append({"median_ms": ours.median_ms, "p99_ms": ours.p99_ms})
+                mqtt_runs.append({"median_ms": theirs.median_ms, "p99_ms": theirs.p99_ms})
+            result["latency"][size] = {"fleet": fleet_runs, "mosquitto": mqtt_runs}
+            report(
+                f"  pub-sub {size:>6} B: fleet median {fmt3([r['median_ms'] for r in fleet_runs])}"
+                f" p99 {fmt3([r['p99_ms'] for r in fleet_runs])};"
+                f" mosquitto median {fmt3([r['median_ms'] for r in mqtt_runs])}"
+                f" p99 {fmt3([r['p99_ms'] for r in mqtt_runs])} ms"
+            )
+        size = SIZES[0]
+        fleet_tp = []
+        mqtt_tp = []
+        for _ in range(cfg.runs):
+            fleet_tp.append(run_async(fleet_throughput(world, size, cfg.tp_count)))
+            mqtt_tp.append(mqtt_throughput(port, size, cfg.tp_count))
+        result["throughput"] = {"size": size, "fleet": fleet_tp, "mosquitto": mqtt_tp}
+        report(
+            f"  throughput {size} B: fleet {fmt3([r['msgs_per_s'] for r in fleet_tp], 0)} msg/s,"
+            f" mosquitto {fmt3([r['msgs_per_s'] for r in mqtt_tp], 0)} msg/s"
+        )
+    return result
