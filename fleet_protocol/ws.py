@@ -222,6 +222,13 @@ class AckPush(_Push):
         fields = {k: v for k, v in (fields or {}).items() if k not in ("op", "id", "ok", "error")}
         return cls(id=op_id, ok=True, **fields)
 
+    @staticmethod
+    def success_frame(op_id: str, result: BaseModel | dict[str, Any] | None = None) -> str:
+        """``success(...).frame()`` without building the model (the hot path of every op)."""
+        fields = result.model_dump(mode="json") if isinstance(result, BaseModel) else result
+        body = {k: v for k, v in (fields or {}).items() if k not in ("op", "id", "ok", "error")}
+        return json.dumps({"op": "ack", "id": op_id, "ok": True, **body}, separators=(",", ":"))
+
     @classmethod
     def failure(cls, op_id: str, error: ErrorBody) -> AckPush:
         return cls(id=op_id, ok=False, error=error)

@@ -65,7 +65,7 @@ class Settings(BaseSettings):
         default=200, ge=1, le=10_000, description="telemetry samples per stored bucket"
     )
     bucket_max_age_s: float = Field(
-        default=2.0, gt=0, description="a partly filled telemetry bucket is written after this"
+        default=10.0, gt=0, description="a partly filled telemetry bucket is written after this"
     )
     persist_interval_s: float = Field(
         default=10.0, gt=0, description="how often vehicles' last contact and position are saved"

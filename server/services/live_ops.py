@@ -92,22 +92,29 @@ class OpRunner:
         except FleetError as exc:
             self._reply(None, ErrorBody(code=exc.code, message=exc.message, details=exc.details))
 
-    async def run(self, op: Any) -> None:
+    async def run(self, op: Any, *, counted: bool = False) -> None:
+        """Run one op; a batch counts once against the rate (a gateway's tick is one frame)."""
         if isinstance(op, BatchOp):
+            try:
+                self._rate()
+            except FleetError as exc:
+                self._reply(op.id, ErrorBody(code=exc.code, message=exc.message))
+                return
             for inner in op.ops:
-                await self.run(inner)
+                await self.run(inner, counted=True)
             if op.id:
                 self.conn.outbox.put(AckPush.success(op.id, {"count": len(op.ops)}).frame())
             return
         try:
-            self._rate()
+            if not counted:
+                self._rate()
             result = await self.dispatch(op)
         except FleetError as exc:
             self._reply(op.id, ErrorBody(code=exc.code, message=exc.message, details=exc.details))
             self.s.live.flush_routes()
             return
         if op.id:
-            self.conn.outbox.put(AckPush.success(op.id, result).frame())
+            self.conn.outbox.put(AckPush.success_frame(op.id, result))
         # After the ack: the pushes the op set off.
         self.s.live.flush_routes()
         if isinstance(op, StartInstanceOp):

@@ -204,10 +204,14 @@ class TelemetryService:
     async def write_due(self, *, everything: bool = False) -> int:
         """Insert every open bucket that is full or old (all of them with ``everything``)."""
         max_age = self.settings.bucket_max_age_s
+        cap = self.settings.bucket_samples
         written = 0
+        now = time.monotonic()
         for vehicle_id, state in list(self._vehicles.items()):
             if not state.pending:
                 continue
+            if not everything and len(state.pending) < cap and now - state.opened_at < max_age:
+                continue  # decided without the lock: most vehicles, most ticks
             async with state.lock:
                 while state.pending and (
                     everything
