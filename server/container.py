@@ -103,7 +103,7 @@ async def build(settings: Settings, metrics: Metrics, clock: Clock = utcnow) -> 
     bus = make_bus(settings)
     await bus.start()
     live = LiveHub(settings, bus, instances, commands, control, events, views)
-    link.sample_listeners.append(live.telemetry)
+    link.sample_listeners.append(live.topics.telemetry)
     auth.on_revoke(live.revoked)
     services = Services(
         settings,

@@ -15,7 +15,6 @@ import logging
 import secrets
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field
-from datetime import datetime
 from typing import Any
 
 from fleet_protocol import format_ts
@@ -31,6 +30,7 @@ from server.services.control import ControlService
 from server.services.events import EventService
 from server.services.fleet import FleetViews
 from server.services.instances import InstanceService, InstanceState
+from server.services.live_topics import ServerTopics
 from server.settings import Settings
 
 log = logging.getLogger("fleet.live")
@@ -38,7 +38,6 @@ log = logging.getLogger("fleet.live")
 CLOSE_UNAUTHORIZED = 4401
 CLOSE_FORBIDDEN = 4403
 CLOSE_REPLACED = 4409
-RECENT_EVENTS = 20
 
 
 @dataclass(eq=False)
@@ -87,62 +86,14 @@ class LiveHub:
         self._last_message: dict[str, Any] | None = None
         self._routes_due: set[str] = set()
         self._last_frame = ""
-        instances.presence_listeners.append(self._on_presence)
-        control.change_listeners.append(self._on_control)
+        #: The topics the server writes (presence, control, commands, events, telemetry).
+        self.topics = ServerTopics(bus, instances, commands, control, events, views, self._fire)
         commands.ready_listeners.append(self._on_ready)
-        events.subscribe(self._on_event)
 
-    # ---- server topics ------------------------------------------------------
     def _fire(self, coro: Awaitable[Any]) -> None:
         task = asyncio.ensure_future(coro)
         self._tasks.add(task)
         task.add_done_callback(self._tasks.discard)
-
-    def emit(self, topic: str, data: Any) -> None:
-        """An event on a topic the server writes, to every subscriber on every replica."""
-        if not self.bus.remote and not self.bus.has_local(topic):
-            return  # one process and nobody listening: nothing to build
-        message = {
-            "op": "event",
-            "topic": topic,
-            "data": data() if callable(data) else data,
-            "ts": format_ts(self.instances.clock()),
-        }
-        if self.bus.remote:
-            self._fire(self.bus.publish(topic, message))
-        else:
-            self.bus.deliver_local(topic, message)
-
-    def _on_presence(self, state: InstanceState, presence: str) -> None:
-        view = self.views.live_view(state).model_dump(mode="json")
-        self.emit("fleet", {"vehicles": [view]})
-
-    def _on_control(self, instance_id: str, vehicle_id: str, info: dict[str, Any] | None) -> None:
-        data = {"instance_id": instance_id, "control": _jsonable(info)}
-        self.emit(f"vehicle/{vehicle_id}/control", data)
-
-    def _on_event(self, doc: dict[str, Any]) -> None:
-        vehicle_id = doc.get("vehicle_id")
-        if not vehicle_id:
-            return
-        event = _jsonable(doc)
-        self.emit(f"vehicle/{vehicle_id}/events", {"events": [event]})
-        if doc["kind"] == "command":
-            self.emit(f"vehicle/{vehicle_id}/commands", {"commands": [event["data"]]})
-
-    def telemetry(self, vehicle_id: str, samples: list[Any], replayed: list[bool]) -> None:
-        topic = f"vehicle/{vehicle_id}/telemetry"
-        if not self.bus.remote and not self.bus.has_local(topic):
-            return
-        for sample, late in zip(samples, replayed, strict=True):
-
-            def data(sample: Any = sample, late: bool = late) -> dict[str, Any]:
-                out: dict[str, Any] = sample.model_dump(mode="json", exclude_none=True)
-                if late:
-                    out["replayed"] = True
-                return out
-
-            self.emit(topic, data)
 
     # ---- commands to vehicle sockets ------------------------------------------
     def _on_ready(self, instance_id: str) -> None:
@@ -226,7 +177,7 @@ class LiveHub:
                 topic, lambda t, m: self._deliver(conn, t, m)
             )
             try:
-                snapshot = await self.snapshot(conn.principal, topic)
+                snapshot = await self.topics.snapshot(conn.principal, topic)
             finally:
                 held = conn.buffering.pop(topic, [])
             if snapshot is not None:
@@ -304,36 +255,6 @@ class LiveHub:
             return None
         return {**message, "data": {"vehicles": vehicles}}
 
-    async def snapshot(self, principal: Principal, topic: str) -> Any:
-        """The current state of a server topic, sent first after a subscribe."""
-        if topic == "fleet":
-            views = await self.views.vehicles(principal)
-            return {"vehicles": [v.model_dump(mode="json") for v in views]}
-        parts = topic.split("/")
-        if len(parts) != 3 or parts[0] != "vehicle":
-            return None
-        vehicle_id, kind = parts[1], parts[2]
-        state = await self.instances.current_or_latest(vehicle_id)
-        if kind == "telemetry":
-            return state.position_json() if state is not None and state.position else None
-        if kind == "control":
-            info = self.control.lease_info(state.instance_id) if state is not None else None
-            return {
-                "instance_id": state.instance_id if state else None,
-                "control": info.model_dump(mode="json") if info else None,
-            }
-        if kind == "commands":
-            if state is None:
-                return {"commands": []}
-            _, recent = await self.commands.recent(principal, state.instance_id)
-            return {"commands": [_jsonable(c.wire()) for c in recent]}
-        if kind == "events":
-            docs = await self.events.query(
-                principal, vehicle_id=vehicle_id, kind=None, start=None, end=None, limit=10_000
-            )
-            return {"events": [_jsonable(d) for d in docs[-RECENT_EVENTS:]]}
-        return None
-
     # ---- routing table ------------------------------------------------------------
     def _add_unit(self, conn: Connection, unit: UnitRef) -> None:
         if unit.parent is not None and unit.parent not in self.routing:
@@ -401,14 +322,3 @@ class LiveHub:
             await self.close(conn, 1001, "the server is shutting down")
         for task in list(self._tasks):
             task.cancel()
-
-
-def _jsonable(value: Any) -> Any:
-    """Datetimes in the contract's format, recursively; the rest as it is."""
-    if isinstance(value, datetime):
-        return format_ts(value)
-    if isinstance(value, dict):
-        return {k: _jsonable(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [_jsonable(v) for v in value]
-    return value
