@@ -191,8 +191,11 @@ class AuthService:
         if given is not None:
             token = given.get_secret_value()
             doc = await self.repo.token(digest(token))
-            if doc is None or doc.get("revoked_at") is not None:
+            if doc is None:
                 await self._issue("user", BOOTSTRAP_ADMIN, purpose="bootstrap-env", token=token)
+            elif doc.get("revoked_at") is not None or doc["subject"] != BOOTSTRAP_ADMIN:
+                # The operator set this token for the admin: it is the admin's again.
+                await self.repo.reinstate_token(doc["digest"], BOOTSTRAP_ADMIN)
             return None
         # No token given: each start revokes the former printed one and prints a new one.
         await self._revoke({"subject": BOOTSTRAP_ADMIN, "purpose": "bootstrap"})
@@ -216,8 +219,7 @@ class AuthService:
     async def create_vehicle(self, body: CreateVehicle) -> str:
         if await self.repo.vehicle(body.vehicle_id) is not None:
             raise Conflict(f"vehicle {body.vehicle_id} exists already", code="exists")
-        await self.repo.upsert_vehicle(
-            body.vehicle_id,
+        await self.repo.insert_vehicle(
             {
                 "vehicle_id": body.vehicle_id,
                 "name": body.name or body.vehicle_id,
@@ -237,8 +239,7 @@ class AuthService:
         if await self.repo.gateway(body.gateway_id) is not None:
             raise Conflict(f"gateway {body.gateway_id} exists already", code="exists")
         await self._require_vehicles(body.vehicles)
-        await self.repo.upsert_gateway(
-            body.gateway_id,
+        await self.repo.insert_gateway(
             {
                 "gateway_id": body.gateway_id,
                 "vehicles": sorted(set(body.vehicles)),

@@ -1,4 +1,10 @@
-"""Users, vehicles, gateways and API tokens (as digests)."""
+"""Users, vehicles, gateways and API tokens (as digests).
+
+Each document's ``_id`` is its key (username, vehicle id, gateway id, token
+digest), so a lookup is a keyed read: no scan on the embedded store, where a
+fleet reconnecting after a restart would otherwise cost the square of its
+size.
+"""
 
 from __future__ import annotations
 
@@ -23,48 +29,51 @@ class AccountsRepo:
 
     # users
     async def user(self, username: str) -> Doc | None:
-        return await self.users.find_one({"username": username})
+        return await self.users.get(username)
 
     async def all_users(self) -> list[Doc]:
         return await self.users.find({}, sort=[("username", 1)], projection={"password_hash": 0})
 
     async def insert_user(self, doc: Doc) -> None:
-        await self.users.insert_one(doc)
+        await self.users.insert_one({**doc, "_id": doc["username"]})
 
     async def update_user(self, username: str, fields: dict[str, Any]) -> None:
-        await self.users.update_one({"username": username}, {"$set": fields})
+        await self.users.set_fields(username, fields)
 
     # vehicles and gateways
     async def vehicle(self, vehicle_id: str) -> Doc | None:
-        return await self.vehicles.find_one({"vehicle_id": vehicle_id})
+        return await self.vehicles.get(vehicle_id)
 
     async def all_vehicles(self) -> list[Doc]:
         return await self.vehicles.find({}, sort=[("vehicle_id", 1)])
 
-    async def upsert_vehicle(self, vehicle_id: str, fields: dict[str, Any]) -> None:
-        await self.vehicles.update_one({"vehicle_id": vehicle_id}, {"$set": fields}, upsert=True)
+    async def insert_vehicle(self, doc: Doc) -> None:
+        await self.vehicles.insert_one({**doc, "_id": doc["vehicle_id"]})
 
     async def gateway(self, gateway_id: str) -> Doc | None:
-        return await self.gateways.find_one({"gateway_id": gateway_id})
+        return await self.gateways.get(gateway_id)
 
-    async def upsert_gateway(self, gateway_id: str, fields: dict[str, Any]) -> None:
-        await self.gateways.update_one({"gateway_id": gateway_id}, {"$set": fields}, upsert=True)
+    async def insert_gateway(self, doc: Doc) -> None:
+        await self.gateways.insert_one({**doc, "_id": doc["gateway_id"]})
 
     # tokens
     async def token(self, digest: str) -> Doc | None:
-        return await self.tokens.find_one({"digest": digest})
+        return await self.tokens.get(digest)
 
     async def insert_token(self, doc: Doc) -> None:
-        await self.tokens.insert_one(doc)
+        await self.tokens.insert_one({**doc, "_id": doc["digest"]})
 
     async def revoke_tokens(self, flt: dict[str, Any], at: datetime) -> list[Doc]:
         """Revoke the live tokens matching ``flt``; returns them (as they were)."""
         live = await self.tokens.find({**flt, "revoked_at": None})
         for doc in live:
-            await self.tokens.update_one(
-                {"token_id": doc["token_id"]}, {"$set": {"revoked_at": at}}
-            )
+            await self.tokens.set_fields(doc["_id"], {"revoked_at": at})
         return live
+
+    async def reinstate_token(self, digest: str, username: str) -> None:
+        await self.tokens.set_fields(
+            digest, {"revoked_at": None, "kind": "user", "subject": username, "expires_at": None}
+        )
 
     async def drop_expired_tokens(self, before: datetime) -> int:
         return await self.tokens.delete_many({"expires_at": {"$lt": before}})

@@ -34,6 +34,12 @@ class Collection:
         #: The embedded store's table (``_id`` -> document), for keyed writes.
         self.table: Any | None = mock_table.table_of(raw) if store.embedded else None
 
+    async def get(self, _id: Any) -> Doc | None:
+        """The document with this ``_id``: no scan on the embedded store."""
+        if self.table is None:
+            return await self.find_one({"_id": _id})
+        return mock_table.read(self.table, _id)
+
     async def set_fields(self, _id: Any, fields: Mapping[str, Any]) -> bool:
         """``$set`` on the document with this ``_id``: no scan on the embedded store."""
         if self.table is None:

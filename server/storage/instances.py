@@ -20,10 +20,10 @@ class InstancesRepo:
         return await self.instances.find({"finished_at": None}, projection={"_id": 0})
 
     async def get(self, instance_id: str) -> Doc | None:
-        docs = await self.instances.find(
-            {"instance_id": instance_id}, projection={"_id": 0}, limit=1
-        )
-        return docs[0] if docs else None
+        doc = await self.instances.get(instance_id)
+        if doc is not None:
+            doc.pop("_id", None)
+        return doc
 
     async def latest_for_vehicle(self, vehicle_id: str) -> Doc | None:
         docs = await self.instances.find(
@@ -36,9 +36,7 @@ class InstancesRepo:
         await self.instances.insert_one({**doc, "_id": doc["instance_id"]})
 
     async def save(self, instance_id: str, fields: dict[str, Any]) -> None:
-        if not await self.instances.set_fields(instance_id, fields):
-            # An instance stored before ids were keys.
-            await self.instances.update_one({"instance_id": instance_id}, {"$set": fields})
+        await self.instances.set_fields(instance_id, fields)
 
     async def drop_finished_before(self, before: datetime) -> int:
         return await self.instances.delete_many({"finished_at": {"$lt": before}})

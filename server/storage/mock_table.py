@@ -9,7 +9,9 @@ Anything unexpected and the caller falls back to ordinary queries.
 
 from __future__ import annotations
 
+import copy
 import logging
+from datetime import UTC, datetime
 from typing import Any
 
 from mongomock.helpers import patch_datetime_awareness_in_document
@@ -35,3 +37,21 @@ def set_fields(table: Any, _id: Any, fields: dict[str, Any]) -> bool:
     # Stored the way mongomock stores them: datetimes naive UTC, millisecond precision.
     table[_id].update(patch_datetime_awareness_in_document(fields))
     return True
+
+
+def read(table: Any, _id: Any) -> dict[str, Any] | None:
+    """A copy of the document ``_id`` as the driver would return it (UTC-aware datetimes)."""
+    if _id not in table:
+        return None
+    doc: dict[str, Any] = _aware(copy.deepcopy(table[_id]))
+    return doc
+
+
+def _aware(value: Any) -> Any:
+    if isinstance(value, datetime):
+        return value.replace(tzinfo=UTC) if value.tzinfo is None else value
+    if isinstance(value, dict):
+        return {k: _aware(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_aware(v) for v in value]
+    return value

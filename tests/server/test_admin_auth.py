@@ -166,3 +166,23 @@ async def test_password_login_as_a_form_too(client: httpx.AsyncClient) -> None:
     missing = await client.post("/auth/token", json={"username": name})
     assert missing.status_code == 422
     assert missing.json()["error"]["details"][0]["field"] == "password"
+
+
+async def test_admin_token_from_the_environment_survives_revocation_and_restart(
+    make_settings: object,
+) -> None:
+    from asgi_lifespan import LifespanManager
+
+    from server.app import create_app
+
+    settings = make_settings()  # type: ignore[operator]
+    for _ in range(2):
+        app = create_app(settings)
+        async with (
+            LifespanManager(app) as m,
+            httpx.AsyncClient(transport=httpx.ASGITransport(app=m.app), base_url="http://t") as c,
+        ):
+            assert (await c.get("/api/users", headers=ADMIN)).status_code == 200
+            r = await c.post("/api/users/admin/revoke_tokens", headers=ADMIN)
+            assert r.status_code == 200
+            assert (await c.get("/api/users", headers=ADMIN)).status_code == 401
