@@ -75,7 +75,9 @@ async def test_redis_going_away_degrades_to_local_and_shows_in_readyz(
 
 
 @pytest.mark.mongo
-@pytest.mark.xfail(reason="hot state (command queues, leases) is per replica: docs/live.md", strict=False)
+@pytest.mark.xfail(
+    reason="hot state (command queues, leases) is per replica: docs/live.md", strict=False
+)
 @pytest.mark.skipif(
     not os.environ.get("FLEET_TEST_MONGO_URL"),
     reason="FLEET_TEST_MONGO_URL not set: replicas share state only via MongoDB",
