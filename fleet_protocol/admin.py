@@ -53,7 +53,7 @@ class CreateUser(WireModel):
     username: Identifier
     role: Role
     vehicles: list[Identifier] = Field(default_factory=list, max_length=10000)
-    password: str | None = Field(default=None, min_length=8, max_length=256)
+    password: str | None = Field(default=None, min_length=1, max_length=256)
 
 
 class UserCreated(WireModel):
@@ -79,7 +79,7 @@ class PatchUser(WireModel):
     role: Role | None = None
     vehicles: list[Identifier] | None = Field(default=None, max_length=10000)
     disabled: bool | None = None
-    password: str | None = Field(default=None, min_length=8, max_length=256)
+    password: str | None = Field(default=None, min_length=1, max_length=256)
 
 
 class LoginRequest(WireModel):
