@@ -15,6 +15,7 @@ from fleet_protocol import (
     UpdateParamResult,
 )
 from server.api.deps import ServicesDep, VehicleCaller
+from server.api.responses import ModelResponse
 
 router = APIRouter(prefix="/upper", tags=["vehicle"])
 
@@ -38,8 +39,6 @@ async def heartbeat(body: Heartbeat, caller: VehicleCaller, s: ServicesDep) -> H
     return await s.link.heartbeat(caller, body.instance_id)
 
 
-@router.post("/update_param")
-async def update_param(
-    body: UpdateParam, caller: VehicleCaller, s: ServicesDep
-) -> UpdateParamResult:
-    return await s.link.update_param(caller, body)
+@router.post("/update_param", response_model=UpdateParamResult)
+async def update_param(body: UpdateParam, caller: VehicleCaller, s: ServicesDep) -> ModelResponse:
+    return ModelResponse(await s.link.update_param(caller, body))

@@ -8,19 +8,22 @@ from fastapi import APIRouter, Query
 
 from fleet_protocol import GetControlResult, UpdateFbMessage, UpdateFbMessageResult
 from server.api.deps import ServicesDep, VehicleCaller
+from server.api.responses import ModelResponse
 
 router = APIRouter(prefix="/upper", tags=["vehicle"])
 
 
-@router.get("/get_control")
+@router.get("/get_control", response_model=GetControlResult)
 async def get_control(
     instance_id: Annotated[str, Query(min_length=1, max_length=64)],
     caller: VehicleCaller,
     s: ServicesDep,
     wait_s: Annotated[float, Query(ge=0, le=30, allow_inf_nan=False)] = 0,
-) -> GetControlResult:
+) -> ModelResponse:
     commands = await s.commands.get_control(caller, instance_id, wait_s)
-    return GetControlResult.model_validate({"commands": [c.wire() for c in commands]})
+    return ModelResponse(
+        GetControlResult.model_validate({"commands": [c.wire() for c in commands]})
+    )
 
 
 @router.post("/update_fbmessage")
