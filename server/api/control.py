@@ -31,7 +31,7 @@ async def control_requests(
     instance_id: Annotated[str | None, Query(min_length=1, max_length=64)] = None,
 ) -> ControlRequestList:
     return ControlRequestList.model_validate(
-        {"requests": s.control.requests_for(user, instance_id)}
+        {"requests": await s.control.requests_for(user, instance_id)}
     )
 
 

@@ -80,8 +80,12 @@ class ControlService:
         lease = self.lease(instance_id)
         return ControlInfo(**lease.info()) if lease is not None else None
 
-    def requests_for(self, principal: Principal, instance_id: str | None) -> list[dict[str, Any]]:
+    async def requests_for(
+        self, principal: Principal, instance_id: str | None
+    ) -> list[dict[str, Any]]:
         """The pending requests this caller may answer (a manager of the vehicle, an admin)."""
+        if instance_id is not None:
+            await self.instances.find(instance_id)  # an unknown instance is a 404
         pending = (
             self._requests.get(instance_id, [])
             if instance_id is not None

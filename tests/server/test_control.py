@@ -43,6 +43,10 @@ async def test_a_request_reaches_the_manager_and_a_grant_answers_it(w: World) ->
     assert [q["request_id"] for q in r.json()["requests"]] == [request["request_id"]]
     r = await w.http.get("/client/control_requests", headers=op.headers)
     assert r.json()["requests"] == []  # an operator answers none
+    r = await w.http.get(
+        "/client/control_requests", headers=boss.headers, params={"instance_id": "i-none"}
+    )
+    assert r.status_code == 404
 
     r = await w.grant(v, op.username, duration_s=60, by=boss.headers)
     assert r.status_code == 200, r.text
