@@ -74,6 +74,9 @@ class Settings(BaseSettings):
     max_pending_requests: int = Field(
         default=50, ge=1, description="pending control requests per instance"
     )
+    control_request_ttl_s: float = Field(
+        default=600.0, gt=0, description="an unanswered control request is dropped after this"
+    )
     command_history_limit: int = Field(
         default=50, ge=1, description="recent commands shown by get_fbmessage"
     )

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import secrets
 from collections.abc import Awaitable, Callable
-from datetime import datetime
+from datetime import datetime, timedelta
 from typing import Any
 
 from fleet_protocol import ControlInfo, format_ts
@@ -171,11 +171,15 @@ class ControlService:
 
     # ---- background and hooks -------------------------------------------------
     async def sweep(self, now: datetime | None = None) -> None:
-        """End the leases past their expiry."""
+        """End the leases past their expiry; forget requests nobody answered in time."""
         now = now or self.clock()
         for lease in list(self._leases.values()):
             if not lease.live(now):
                 await self._expire(lease)
+        too_old = now - timedelta(seconds=self.settings.control_request_ttl_s)
+        for pending in list(self._requests.values()):
+            for request in [r for r in pending if r.requested_at < too_old]:
+                await self._drop_request(request.instance_id, request.username)
 
     async def _expire(self, lease: Lease) -> None:
         if await self._end(lease, "expired"):

@@ -244,3 +244,23 @@ async def test_a_grant_after_expiry_still_cancels_the_former_queue(w: World) -> 
     cmd = await w.command(go)
     assert cmd["status"] == "cancelled"
     assert cmd["history"][-1]["detail"] == "lease_ended"
+
+
+async def test_an_unanswered_request_is_dropped_after_its_time(w: World) -> None:
+    v = await w.vehicle()
+    op = await w.person("operator", v)
+    boss = await w.person("manager", v)
+    assert (await post(w, "request_control", op.headers, instance_id=v.instance_id)).is_success
+
+    async def pending() -> list[Any]:
+        r = await w.http.get("/client/control_requests", headers=boss.headers)
+        requests: list[Any] = r.json()["requests"]
+        return requests
+
+    assert len(await pending()) == 1
+    w.clock.advance(601)  # FLEET_CONTROL_REQUEST_TTL_S is 600 by default
+
+    async def dropped() -> bool:
+        return await pending() == []
+
+    await eventually(dropped)  # the control sweeper, on its own beat
