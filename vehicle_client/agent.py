@@ -80,20 +80,32 @@ class AgentStats:
     extra: dict[str, Any] = field(default_factory=dict)
 
 
-def _first_error(group: BaseExceptionGroup) -> BaseException:
+def _first_error(errors: list[BaseException]) -> BaseException:
     """The error that decides: a fatal one first, then the rest in order."""
-    flat: list[BaseException] = []
-
-    def walk(g: BaseExceptionGroup) -> None:
-        for e in g.exceptions:
-            walk(e) if isinstance(e, BaseExceptionGroup) else flat.append(e)
-
-    walk(group)
     for kind in (FatalError, SessionLost, RetryableError):
-        for e in flat:
+        for e in errors:
             if isinstance(e, kind):
                 return e
-    return flat[0]
+    return errors[0]
+
+
+async def _run_together(coros: dict[str, Any]) -> None:
+    """Run the coroutines until one fails; then stop the others and raise its error.
+
+    Like a TaskGroup, except that a cancellation from outside is never lost:
+    Python 3.11's TaskGroup drops it when a child fails at the same moment,
+    which left the agent retrying after it was told to stop.
+    """
+    tasks = [asyncio.create_task(coro, name=name) for name, coro in coros.items()]
+    try:
+        done, _ = await asyncio.wait(tasks, return_when=asyncio.FIRST_EXCEPTION)
+    finally:
+        for task in tasks:
+            task.cancel()
+        await asyncio.gather(*tasks, return_exceptions=True)
+    errors = [t.exception() for t in done if not t.cancelled() and t.exception() is not None]
+    if errors:
+        raise _first_error([e for e in errors if e is not None])
 
 
 class VehicleAgent:
@@ -131,14 +143,14 @@ class VehicleAgent:
     async def run(self) -> None:
         """Run until cancelled; raises ``FatalError`` when retrying cannot help."""
         self._apply(self.pilot.on_restart(self.outbox.seen.unfinished()))
-        try:
-            async with asyncio.TaskGroup() as tg:
-                tg.create_task(self.adapter.run(), name="adapter")
-                tg.create_task(self._sample_loop(), name="sample")
-                tg.create_task(self._pilot_loop(), name="pilot")
-                tg.create_task(self._link_loop(), name="link")
-        except BaseExceptionGroup as group:
-            raise _first_error(group) from None
+        await _run_together(
+            {
+                "adapter": self.adapter.run(),
+                "sample": self._sample_loop(),
+                "pilot": self._pilot_loop(),
+                "link": self._link_loop(),
+            }
+        )
 
     async def _link_loop(self) -> None:
         while True:
@@ -155,19 +167,19 @@ class VehicleAgent:
 
     async def _session(self) -> None:
         await self._start()
-        try:
-            async with asyncio.TaskGroup() as tg:
-                tg.create_task(self._uplink(), name="uplink")
-                tg.create_task(self._downlink(), name="downlink")
-                tg.create_task(self._feedback(), name="feedback")
-                tg.create_task(self._heartbeat(), name="heartbeat")
-        except BaseExceptionGroup as group:
-            raise _first_error(group) from None
+        await _run_together(
+            {
+                "uplink": self._uplink(),
+                "downlink": self._downlink(),
+                "feedback": self._feedback(),
+                "heartbeat": self._heartbeat(),
+            }
+        )
 
     async def _start(self) -> None:
         body = StartInstance(
             vehicle_id=self.config.vehicle_id,
-            name=self.config.name or self.config.vehicle_id,
+            name=self.config.name or "",  # empty: the server keeps the registered name
             vehicle_type=self.adapter.vehicle_type,
             capabilities=sorted(self.pilot.capabilities),
             params=self.adapter.describe(),
@@ -361,8 +373,11 @@ class VehicleAgent:
 
     @staticmethod
     async def _wait(event: asyncio.Event, within_s: float) -> None:
+        # asyncio.timeout, not wait_for: on 3.11 wait_for can swallow a cancellation
+        # that arrives as the event is set, and the loop then never stops.
         try:
-            await asyncio.wait_for(event.wait(), within_s)
+            async with asyncio.timeout(within_s):
+                await event.wait()
         except TimeoutError:
             pass
         event.clear()

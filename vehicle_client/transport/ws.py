@@ -190,7 +190,8 @@ class WsLink:
         self._pending[op["id"]] = (fut, op)
         try:
             await self._send(sock, op)
-            ack = await asyncio.wait_for(fut, self.ack_timeout_s)
+            async with asyncio.timeout(self.ack_timeout_s):  # never swallows a cancel
+                ack = await fut
         except TimeoutError:
             error = RetryableError(f"{op['op']}: no ack within {self.ack_timeout_s:g} s")
             self._closed(sock, error)  # a link that does not answer is broken
