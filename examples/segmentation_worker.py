@@ -21,7 +21,7 @@ from typing import Any
 
 import websockets
 
-from fleet_protocol.ws import decode_media_frame
+from fleet_protocol.media import decode_media_frame
 
 log = logging.getLogger("segmentation-worker")
 

@@ -17,8 +17,7 @@ Pushes out: ``ack``, ``error``, ``command``, ``control``, ``event``,
 :meth:`FrameError.reply` is the push to send back (an ``ack`` with
 ``ok: false`` when the frame carried a usable ``id``, else an ``error``).
 
-Binary frames (media topics) are a one-line JSON :class:`MediaHeader`, a
-``\\n``, then the bytes: :func:`encode_media_frame`, :func:`decode_media_frame`.
+Binary frames (media topics) are in :mod:`fleet_protocol.media`.
 """
 
 from __future__ import annotations
@@ -65,7 +64,6 @@ __all__ = [
     "FrameError",
     "HeartbeatOp",
     "LaggingPush",
-    "MediaHeader",
     "PublishOp",
     "Push",
     "RegisterOp",
@@ -76,8 +74,6 @@ __all__ = [
     "UpdateFbMessageOp",
     "UpdateParamOp",
     "VehicleOp",
-    "decode_media_frame",
-    "encode_media_frame",
     "parse_client_op",
     "parse_vehicle_op",
 ]
@@ -396,35 +392,3 @@ def _salvage_id(frame: str | bytes) -> str | None:
     if isinstance(op_id, str) and 0 < len(op_id) <= MAX_OP_ID_CHARS:
         return op_id
     return None
-
-
-# -- binary media frames ------------------------------------------------------
-
-
-class MediaHeader(WireModel):
-    topic: Topic
-    ts: Timestamp
-    content_type: str = Field(min_length=1, max_length=128)
-
-
-def encode_media_frame(header: MediaHeader, payload: bytes) -> bytes:
-    """A binary frame: the header as one JSON line, ``\\n``, then the bytes."""
-    return header.model_dump_json().encode() + b"\n" + payload
-
-
-def decode_media_frame(frame: bytes) -> tuple[MediaHeader, bytes]:
-    """Header and payload of a binary frame, or :class:`FrameError`."""
-    end = frame.find(b"\n", 0, MAX_MEDIA_HEADER_BYTES + 1)
-    if end < 0:
-        raise FrameError(
-            ErrorBody(
-                code="invalid",
-                message="a binary frame starts with a JSON header line of at most"
-                f" {MAX_MEDIA_HEADER_BYTES} bytes ending in a newline",
-            )
-        )
-    try:
-        header = MediaHeader.model_validate_json(frame[:end])
-    except ValidationError as exc:
-        raise FrameError(_error_body(exc)) from None
-    return header, frame[end + 1 :]

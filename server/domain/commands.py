@@ -316,3 +316,14 @@ def refused(refusals: list[tuple[int, str, FleetError]], asked: int) -> FleetErr
     error = copy.copy(first)  # same class, status and Retry-After
     error.message, error.details, error.args = message, details, (message,)
     return error
+
+
+def lost_with_lease(cmds: list[Command], holder: str) -> list[Command]:
+    """The former holder's commands not yet acknowledged when a lease ends.
+
+    They are cancelled so that one operator's orders never reach the vehicle
+    under the next one's control; a ``stop`` is never among them.
+    """
+    return [
+        c for c in cmds if c.issued_by == holder and not c.is_stop and c.status in UNACKNOWLEDGED
+    ]

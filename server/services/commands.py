@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import asyncio
 import secrets
+from collections import Counter
 from collections.abc import Callable
 from datetime import datetime
 from typing import Any
@@ -257,11 +258,9 @@ class CommandService:
 
     def counts_by_status(self) -> dict[str, int]:
         """Active commands by status (for /metrics)."""
-        counts: dict[str, int] = {}
-        for lane in self._lanes.values():
-            for cmd in lane.active.values():
-                counts[cmd.status] = counts.get(cmd.status, 0) + 1
-        return counts
+        return dict(
+            Counter(c.status for lane in self._lanes.values() for c in lane.active.values())
+        )
 
     # ---- background and hooks ----------------------------------------------------
     async def sweep(self, now: datetime | None = None) -> None:
@@ -282,23 +281,16 @@ class CommandService:
         return await self.repo.drop_finished_before(before)
 
     async def _on_lease_end(self, lease: arbitration.Lease, reason: str) -> None:
-        lane = self._lanes.get(lease.instance_id)
-        if lane is None:
+        if (lane := self._lanes.get(lease.instance_id)) is None:
             return
         now = self.clock()
         detail = "instance_finished" if reason == "instance_finished" else "lease_ended"
-        for cmd in list(lane.active.values()):
-            if (
-                cmd.issued_by == lease.holder
-                and not cmd.is_stop
-                and cmd.status in life.UNACKNOWLEDGED
-            ):
-                life.cancel(cmd, now, detail)
-                await self._finished(cmd)
+        for cmd in life.lost_with_lease(list(lane.active.values()), lease.holder):
+            life.cancel(cmd, now, detail)
+            await self._finished(cmd)
 
     async def _on_finish(self, state: InstanceState, principal: Principal | None) -> None:
-        lane = self._lanes.get(state.instance_id)
-        if lane is None:
+        if (lane := self._lanes.get(state.instance_id)) is None:
             return
         now = self.clock()
         for cmd in list(lane.active.values()):
@@ -309,8 +301,7 @@ class CommandService:
 
     # ---- internals ------------------------------------------------------------
     def _lane(self, instance_id: str) -> Lane:
-        lane = self._lanes.get(instance_id)
-        if lane is None:
+        if (lane := self._lanes.get(instance_id)) is None:
             lane = self._lanes[instance_id] = Lane(instance_id, self.settings.command_history_limit)
         return lane
 
@@ -376,17 +367,16 @@ class CommandService:
 
     async def _find(self, command_id: str) -> Command:
         for lane in self._lanes.values():
-            cmd = lane.get(command_id)
-            if cmd is not None:
+            if (cmd := lane.get(command_id)) is not None:
                 return cmd
-        doc = await self.repo.get(command_id)
-        if doc is None:
+        if (cmd := await self._stored(command_id)) is None:
             raise NotFound(f"no command {command_id}")
-        return Command.from_doc(doc)
+        return cmd
 
-    async def _stored(self, command_id: str, state: InstanceState) -> Command | None:
+    async def _stored(self, command_id: str, state: InstanceState | None = None) -> Command | None:
+        """A command from the store (of ``state``'s instance, when given)."""
         doc = await self.repo.get(command_id)
-        if doc is None or doc["instance_id"] != state.instance_id:
+        if doc is None or (state is not None and doc["instance_id"] != state.instance_id):
             return None
         return Command.from_doc(doc)
 

@@ -8,6 +8,7 @@ from typing import TYPE_CHECKING, Any
 from pydantic import BaseModel
 
 from fleet_protocol import ErrorBody, UpdateFbMessageResult
+from fleet_protocol.media import decode_media_frame
 from fleet_protocol.topics import is_media_topic
 from fleet_protocol.ws import (
     AckPush,
@@ -23,7 +24,6 @@ from fleet_protocol.ws import (
     UnsubscribeOp,
     UpdateFbMessageOp,
     UpdateParamOp,
-    decode_media_frame,
     parse_client_op,
     parse_vehicle_op,
 )

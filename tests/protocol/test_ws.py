@@ -9,6 +9,7 @@ import pytest
 
 from fleet_protocol import upper
 from fleet_protocol.errors import ErrorBody
+from fleet_protocol.media import MediaHeader, decode_media_frame, encode_media_frame
 from fleet_protocol.ws import (
     AckPush,
     BatchOp,
@@ -19,15 +20,12 @@ from fleet_protocol.ws import (
     FrameError,
     HeartbeatOp,
     LaggingPush,
-    MediaHeader,
     PublishOp,
     RegisterOp,
     RoutesPush,
     StartInstanceOp,
     SubscribeOp,
     UpdateParamOp,
-    decode_media_frame,
-    encode_media_frame,
     parse_client_op,
     parse_vehicle_op,
 )

@@ -11,7 +11,7 @@ from datetime import UTC, datetime
 import httpx
 
 from examples.segmentation_worker import otsu_threshold, run, segment
-from fleet_protocol.ws import MediaHeader, encode_media_frame
+from fleet_protocol.media import MediaHeader, encode_media_frame
 from server.settings import Settings
 from tests.factories import make_user, make_vehicle
 from tests.live import call, connect, recv_until, serve

@@ -10,7 +10,7 @@ from datetime import UTC, datetime
 import httpx
 import pytest
 
-from fleet_protocol.ws import MediaHeader, decode_media_frame, encode_media_frame
+from fleet_protocol.media import MediaHeader, decode_media_frame, encode_media_frame
 from server.settings import Settings
 from tests.factories import ADMIN, make_user, make_vehicle, sample
 from tests.live import call, connect, recv_until, serve
