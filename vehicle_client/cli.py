@@ -123,7 +123,14 @@ def gateway(
         vehicles = [(v, settings.outbox_dir / f"{v.vehicle_id}.db") for v in settings.vehicles]
         code = asyncio.run(
             run_agents(
-                settings, vehicles, batch_tick_s=settings.batch_tick_s, listen=settings.listen
+                settings,
+                vehicles,
+                batch_tick_s=settings.batch_tick_s,
+                listen=settings.listen,
+                unit_options={
+                    "max_media_bytes": settings.max_media_bytes,
+                    "media_up_per_s": settings.media_up_per_s,
+                },
             )
         )
     except FatalError as exc:

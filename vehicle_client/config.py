@@ -103,6 +103,10 @@ class GatewaySettings(LinkOptions):
     batch_tick_s: float = Field(default=0.1, ge=0, le=5)
     #: "HOST:PORT" of the gateway's own WebSocket for its local units (none if unset).
     listen: str | None = None
+    #: The largest media frame (header and bytes) a local unit may send.
+    max_media_bytes: int = Field(default=4 * 2**20, ge=1024, le=64 * 2**20)
+    #: Media frames per second sent up to the server, all topics together (latest wins).
+    media_up_per_s: float = Field(default=100.0, gt=0, le=1000)
     vehicles: list[VehicleOptions] = Field(min_length=1, max_length=1000)
 
 

@@ -7,6 +7,7 @@ import contextlib
 import logging
 import signal
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 from vehicle_client.adapters.base import Adapter
 from vehicle_client.adapters.sim import SimAdapter
@@ -19,6 +20,9 @@ from vehicle_client.transport.auto import AutoTransport, LinkChoice
 from vehicle_client.transport.base import Transport
 from vehicle_client.transport.http import HttpTransport
 from vehicle_client.transport.ws import WsLink
+
+if TYPE_CHECKING:
+    from vehicle_client.gateway.units import UnitServer
 
 log = logging.getLogger("fleet-agent")
 
@@ -66,8 +70,12 @@ async def run_agents(
     *,
     batch_tick_s: float = 0.0,
     listen: str | None = None,
+    unit_options: dict[str, Any] | None = None,
 ) -> int:
-    """Run one agent per vehicle over one shared link; the exit code."""
+    """Run one agent per vehicle over one shared link; the exit code.
+
+    With ``listen``, a gateway's WebSocket for local units too
+    (``unit_options``: ``UnitServer``'s keyword arguments)."""
     ids = [options.vehicle_id for options, _ in vehicles]
     transports, ws, closers = build_links(link, ids, batch_tick_s=batch_tick_s)
     agents: list[VehicleAgent] = []
@@ -92,9 +100,9 @@ async def run_agents(
                 raise FatalError("listen (local units) needs the WebSocket: transport auto or ws")
             from vehicle_client.gateway.units import UnitServer
 
-            units = UnitServer(ws, listen)
+            units = UnitServer(ws, listen, **(unit_options or {}))
             await units.start()
-        return await _run(agents)
+        return await _run(agents, units)
     finally:
         if units is not None:
             await units.stop()
@@ -106,13 +114,13 @@ async def run_agents(
             await ws.aclose()
 
 
-async def _run(agents: list[VehicleAgent]) -> int:
+async def _run(agents: list[VehicleAgent], units: UnitServer | None = None) -> int:
     main = asyncio.current_task()
     loop = asyncio.get_running_loop()
     for sig in (signal.SIGINT, signal.SIGTERM):
         with contextlib.suppress(NotImplementedError, RuntimeError):
             loop.add_signal_handler(sig, main.cancel)  # type: ignore[union-attr]
-    status = asyncio.create_task(_status(agents))
+    status = asyncio.create_task(_status(agents, units))
     try:
         results = await asyncio.gather(*(a.run() for a in agents), return_exceptions=True)
     except asyncio.CancelledError:
@@ -131,7 +139,7 @@ async def _run(agents: list[VehicleAgent]) -> int:
     return code
 
 
-async def _status(agents: list[VehicleAgent]) -> None:
+async def _status(agents: list[VehicleAgent], units: UnitServer | None) -> None:
     while True:
         await asyncio.sleep(STATUS_EVERY_S)
         for a in agents:
@@ -145,3 +153,5 @@ async def _status(agents: list[VehicleAgent]) -> None:
                 a.outbox.dropped,
                 a.stats.samples_sent,
             )
+        if units is not None:
+            log.info("local units: %s", units.describe())

@@ -12,6 +12,10 @@ produce and subscribe to what they need. The gateway:
 - delivers **down** an event from above to the local units subscribed to
   its topic (the server sends the gateway what is in its ``forward_down``).
 
+Media frames (binary, on media topics) take the same routes; they are
+counted apart (``media_up``, ``media_kept``) so that what a camera costs the
+uplink can be read off the gateway.
+
 Registrations and subscriptions are repeated upstream on the units' behalf
 (ops with ``vehicle_id``), so the server's table holds them, and again after
 every reconnection (:meth:`TopicRouter.replay`).
@@ -45,6 +49,8 @@ class TopicRouter:
     forward_down: frozenset[str] = frozenset()
     sent_up: int = 0
     kept_local: int = 0
+    media_up: int = 0
+    media_kept: int = 0
 
     def add(self, vehicle_id: str) -> None:
         self.units.setdefault(vehicle_id, _Unit())
@@ -65,17 +71,29 @@ class TopicRouter:
     def subscribers(self, topic: str, *, but: str | None = None) -> list[str]:
         return sorted(v for v, u in self.units.items() if topic in u.consumes and v != but)
 
-    def publish(self, vehicle_id: str, topic: str) -> Delivery:
+    def publish(self, vehicle_id: str, topic: str, *, media: bool = False) -> Delivery:
         """A local unit published on ``topic``: to whom (the caller checked the right)."""
         up = topic in self.forward_up
-        if up:
+        if media and up:
+            self.media_up += 1
+        elif media:
+            self.media_kept += 1
+        elif up:
             self.sent_up += 1
         else:
             self.kept_local += 1
         return Delivery(self.subscribers(topic, but=vehicle_id), up)
 
-    def from_above(self, topic: str) -> list[str]:
-        """An event came down from the cloud: the local units subscribed to it."""
+    def from_above(self, topic: str, *, media: bool = False) -> list[str]:
+        """An event came down from the cloud: the local units subscribed to it.
+
+        The server filters a JSON event by the connection it came from, not a
+        media frame: one on a topic of a unit connected here is this gateway's
+        own frame coming back, which its units had already (none, then).
+        """
+        namespace, owner = topic_owner(topic)
+        if media and namespace == "vehicle" and owner in self.units:
+            return []
         return self.subscribers(topic)
 
     def routes(self, unit: str, forward_up: list[str], forward_down: list[str]) -> str | None:

@@ -8,15 +8,23 @@ upstream with ``vehicle_id`` and relays the server's ack; ``publish`` goes
 where ``TopicRouter`` says (local subscribers, up only on demand). Events
 from above and each unit's ``routes`` are passed down as they came. A second
 connection for the same vehicle replaces the first (closed with 4409).
+
+Media frames (binary: a JSON header line, a newline, the bytes; see
+``fleet_protocol.media``) on media topics follow the same rules as a
+``publish``: a unit sends only under ``vehicle/<its id>/``; the frame goes to
+the local units subscribed to its topic and up only when its topic is in
+``forward_up``, through :class:`MediaUplink` (latest wins, paced); frames
+from above go to the units subscribed. A frame over ``max_media_bytes`` is
+refused with a ``too_large`` error (the socket itself reads up to twice
+that; past it, it closes with 1009). What goes to a unit waits in its own
+:class:`UnitQueue`, where media is latest-wins per topic too.
 """
 
 from __future__ import annotations
 
-import asyncio
 import contextlib
 import logging
 import re
-from typing import Any
 from urllib.parse import parse_qs, urlsplit
 
 from websockets.asyncio.server import Server, ServerConnection, serve
@@ -24,8 +32,11 @@ from websockets.exceptions import ConnectionClosed
 
 from fleet_protocol import ErrorBody
 from fleet_protocol.common import ID_PATTERN
+from fleet_protocol.media import decode_media_frame
+from fleet_protocol.topics import is_media_topic
 from fleet_protocol.ws import (
     AckPush,
+    ErrorPush,
     EventPush,
     FrameError,
     PublishOp,
@@ -37,12 +48,19 @@ from fleet_protocol.ws import (
 )
 from vehicle_client.errors import AgentError, FatalError
 from vehicle_client.gateway.forwarding import TopicRouter, write_refusal
+from vehicle_client.gateway.unit_queue import DEFAULT_UNIT_QUEUE, UnitQueue
+from vehicle_client.gateway.uplink import DEFAULT_MEDIA_UP_PER_S, MediaUplink
 from vehicle_client.transport.ws import WsLink
 
 log = logging.getLogger(__name__)
 
 CLOSE_BAD_REQUEST = 4400
 CLOSE_REPLACED = 4409
+#: The largest media frame (header and bytes) a unit may send; the server's default
+#: ``FLEET_WS_MAX_BINARY_BYTES``.
+DEFAULT_MAX_MEDIA_BYTES = 4 * 2**20
+#: The largest JSON frame a unit may send (the server's default ``FLEET_WS_MAX_TEXT_BYTES``).
+MAX_TEXT_BYTES = 2**20
 
 
 def _listen_address(listen: str) -> tuple[str, int]:
@@ -54,19 +72,37 @@ def _listen_address(listen: str) -> tuple[str, int]:
 
 
 class UnitServer:
-    def __init__(self, link: WsLink, listen: str) -> None:
+    def __init__(
+        self,
+        link: WsLink,
+        listen: str,
+        *,
+        max_media_bytes: int = DEFAULT_MAX_MEDIA_BYTES,
+        media_up_per_s: float = DEFAULT_MEDIA_UP_PER_S,
+        queue_size: int = DEFAULT_UNIT_QUEUE,
+    ) -> None:
         self.link = link
         self.host, self.port = _listen_address(listen)
+        self.max_media_bytes = max_media_bytes
+        self.queue_size = queue_size
         self.router = TopicRouter()
-        self._conns: dict[str, ServerConnection] = {}
+        self.uplink = MediaUplink(link, media_up_per_s)
+        self._queues: dict[str, UnitQueue] = {}
         self._server: Server | None = None
         link.on_event = self._from_above
+        link.on_media = self._media_from_above
         link.on_routes = self._routes
         link.on_open = self._replay
 
     async def start(self) -> None:
         try:
-            self._server = await serve(self._serve, self.host, self.port, compression=None)
+            self._server = await serve(
+                self._serve,
+                self.host,
+                self.port,
+                compression=None,
+                max_size=max(2 * self.max_media_bytes, MAX_TEXT_BYTES),
+            )
         except OSError as exc:
             raise FatalError(f"cannot listen on {self.host}:{self.port}: {exc}") from exc
         self.port = self._server.sockets[0].getsockname()[1] if self.port == 0 else self.port
@@ -76,6 +112,17 @@ class UnitServer:
         if self._server is not None:
             self._server.close()
             await self._server.wait_closed()
+        await self.uplink.aclose()
+        log.info("local units: %s", self.describe())
+
+    def describe(self) -> str:
+        """The forwarding counters, for the status log."""
+        r, up = self.router, self.uplink
+        return (
+            f"{len(self._queues)} connected; publishes {r.sent_up} up, {r.kept_local} kept local;"
+            f" media {r.media_up} up ({up.sent} sent, {up.replaced} replaced by newer,"
+            f" {up.dropped} dropped), {r.media_kept} kept local"
+        )
 
     # -- one unit -------------------------------------------------------------
     async def _serve(self, conn: ServerConnection) -> None:
@@ -84,21 +131,26 @@ class UnitServer:
         if not re.fullmatch(ID_PATTERN, vehicle_id):
             await conn.close(CLOSE_BAD_REQUEST, "connect with ?vehicle_id=<the unit's vehicle>")
             return
-        former = self._conns.get(vehicle_id)
-        self._conns[vehicle_id] = conn
+        queue = UnitQueue(conn, self.queue_size)
+        former = self._queues.get(vehicle_id)
+        self._queues[vehicle_id] = queue
         if former is not None:
-            await former.close(CLOSE_REPLACED, "another connection took this unit")
+            await former.close()
+            await former.conn.close(CLOSE_REPLACED, "another connection took this unit")
         self.router.add(vehicle_id)
         log.info("local unit %s connected", vehicle_id)
         try:
             async for frame in conn:
                 if isinstance(frame, str):
-                    await self._op(vehicle_id, conn, frame)
+                    await self._op(vehicle_id, queue, frame)
+                else:
+                    self._media(vehicle_id, queue, frame)
         except ConnectionClosed:
             pass
         finally:
-            if self._conns.get(vehicle_id) is conn:
-                del self._conns[vehicle_id]
+            await queue.close()
+            if self._queues.get(vehicle_id) is queue:
+                del self._queues[vehicle_id]
                 await self._gone(vehicle_id)
 
     async def _gone(self, vehicle_id: str) -> None:
@@ -108,22 +160,28 @@ class UnitServer:
                 op = {"op": "unsubscribe", "vehicle_id": vehicle_id}
                 await self.link.send({**op, "topics": sorted(unit.consumes)})
 
-    async def _op(self, vehicle_id: str, conn: ServerConnection, frame: str) -> None:
+    async def _op(self, vehicle_id: str, queue: UnitQueue, frame: str) -> None:
+        if len(frame) > MAX_TEXT_BYTES:
+            error = ErrorBody(
+                code="too_large", message=f"a JSON frame has at most {MAX_TEXT_BYTES} bytes"
+            )
+            _answer(queue, None, error)
+            return
         try:
             op = parse_client_op(frame)
         except FrameError as exc:
-            await _send(conn, exc.reply().frame())
+            queue.put(exc.reply().frame())
             return
         if isinstance(op, PublishOp | RegisterOp):
             topics = [op.topic] if isinstance(op, PublishOp) else op.topics
             refusal = next((r for t in topics if (r := write_refusal(vehicle_id, t))), None)
             if refusal is not None:
-                await self._answer(conn, op.id, ErrorBody(code="forbidden", message=refusal))
+                _answer(queue, op.id, ErrorBody(code="forbidden", message=refusal))
                 return
         if isinstance(op, PublishOp):
             await self._publish(vehicle_id, op)
             if op.id:
-                await _send(conn, AckPush.success(op.id).frame())
+                queue.put(AckPush.success(op.id).frame())
             return
         if isinstance(op, RegisterOp):
             self.router.register(vehicle_id, op.topics)
@@ -136,38 +194,67 @@ class UnitServer:
             ack = await self.link.call({**upstream, "vehicle_id": vehicle_id}, check=False)
         except AgentError as exc:
             error = ErrorBody(code="unavailable", message=f"the cloud link is down: {exc}")
-            await self._answer(conn, op.id, error)
+            _answer(queue, op.id, error)
             return
         if op.id:
-            await _send(conn, ack.model_copy(update={"id": op.id}).frame())
+            queue.put(ack.model_copy(update={"id": op.id}).frame())
 
     async def _publish(self, vehicle_id: str, op: PublishOp) -> None:
         delivery = self.router.publish(vehicle_id, op.topic)
         frame = EventPush(topic=op.topic, data=op.data).model_dump_json()
         for other in delivery.local:
-            await _send(self._conns.get(other), frame)
+            self._put(other, frame)
         if delivery.up and self.link.connected:
             with contextlib.suppress(AgentError):
                 await self.link.send(
                     {"op": "publish", "vehicle_id": vehicle_id, "topic": op.topic, "data": op.data}
                 )
 
-    async def _answer(self, conn: ServerConnection, op_id: str | None, error: ErrorBody) -> None:
-        if op_id:
-            await _send(conn, AckPush.failure(op_id, error).frame())
-        else:
-            await _send(conn, '{"op":"error","error":' + error.model_dump_json() + "}")
+    def _media(self, vehicle_id: str, queue: UnitQueue, frame: bytes) -> None:
+        """A unit's media frame: checked like a publish, then to local units and up on demand."""
+        if len(frame) > self.max_media_bytes:
+            message = f"a media frame has at most {self.max_media_bytes} bytes, not {len(frame)}"
+            _answer(queue, None, ErrorBody(code="too_large", message=message))
+            return
+        try:
+            header, _ = decode_media_frame(frame)
+        except FrameError as exc:
+            queue.put(exc.reply().frame())
+            return
+        topic = header.topic
+        if not is_media_topic(topic):
+            message = f"{topic} is not a media topic: publish JSON on it"
+            _answer(queue, None, ErrorBody(code="invalid", message=message))
+            return
+        refusal = write_refusal(vehicle_id, topic)
+        if refusal is not None:
+            _answer(queue, None, ErrorBody(code="forbidden", message=refusal))
+            return
+        delivery = self.router.publish(vehicle_id, topic, media=True)
+        for other in delivery.local:
+            self._put_media(other, topic, frame)
+        if delivery.up and self.link.connected:
+            self.uplink.put(topic, frame)
 
     # -- from above -------------------------------------------------------------
     def _from_above(self, push: EventPush) -> None:
         frame = push.frame()
         for vehicle_id in self.router.from_above(push.topic):
-            self._spawn(_send(self._conns.get(vehicle_id), frame))
+            self._put(vehicle_id, frame)
+
+    def _media_from_above(self, frame: bytes) -> None:
+        try:
+            header, _ = decode_media_frame(frame)
+        except FrameError as exc:
+            log.warning("a media frame from the server without a header: %s", exc)
+            return
+        for vehicle_id in self.router.from_above(header.topic, media=True):
+            self._put_media(vehicle_id, header.topic, frame)
 
     def _routes(self, push: RoutesPush) -> None:
         vehicle_id = self.router.routes(push.unit, push.forward_up, push.forward_down)
         if vehicle_id is not None:
-            self._spawn(_send(self._conns.get(vehicle_id), push.frame()))
+            self._put(vehicle_id, push.frame())
 
     async def _replay(self) -> None:
         """After a (re)connection: the units' registrations and subscriptions again."""
@@ -175,13 +262,17 @@ class UnitServer:
             with contextlib.suppress(AgentError):
                 await self.link.send({"op": kind, "vehicle_id": vehicle_id, "topics": topics})
 
-    def _spawn(self, coro: Any) -> None:
-        task = asyncio.ensure_future(coro)
-        task.add_done_callback(lambda t: t.cancelled() or t.exception())
+    def _put(self, vehicle_id: str, frame: str) -> None:
+        queue = self._queues.get(vehicle_id)
+        if queue is not None:
+            queue.put(frame)
+
+    def _put_media(self, vehicle_id: str, topic: str, frame: bytes) -> None:
+        queue = self._queues.get(vehicle_id)
+        if queue is not None:
+            queue.put_media(topic, frame)
 
 
-async def _send(conn: ServerConnection | None, frame: str) -> None:
-    if conn is None:
-        return
-    with contextlib.suppress(ConnectionClosed):
-        await conn.send(frame)
+def _answer(queue: UnitQueue, op_id: str | None, error: ErrorBody) -> None:
+    push = AckPush.failure(op_id, error) if op_id else ErrorPush(error=error)
+    queue.put(push.frame())

@@ -3,7 +3,8 @@
 ``WsLink`` holds the socket: ops go out with an ``id`` and wait for their
 ``ack`` (with a timeout); one reader task sorts what comes in: acks to their
 waiters, ``command`` and ``control`` pushes to the vehicle they are for,
-``event`` and ``routes`` to the gateway's topic layer. With ``batch_tick_s``
+``event`` and ``routes`` (and binary media frames) to the gateway's topic
+layer. With ``batch_tick_s``
 (gateways), the ops queued during a tick leave as one ``batch`` frame.
 
 ``WsTransport`` is one vehicle's view of the link and implements
@@ -111,6 +112,8 @@ class WsLink:
         #: after each (re)connection, to register and subscribe again.
         self.on_event: Callable[[EventPush], None] | None = None
         self.on_routes: Callable[[RoutesPush], None] | None = None
+        #: Binary (media) frames from above, as they came.
+        self.on_media: Callable[[bytes], None] | None = None
         self.on_open: Callable[[], Awaitable[None]] | None = None
 
     @property
@@ -207,6 +210,14 @@ class WsLink:
         """Send an op without an id (no ack; a failure comes back as an ``error`` push)."""
         await self._send(await self._open(), op)
 
+    async def send_media(self, frame: bytes) -> None:
+        """A binary frame on the open socket; never opens one (a media frame is not
+        worth a reconnection: the next one will do)."""
+        sock = self._sock
+        if sock is None or sock.error is not None:
+            raise RetryableError("the link is down")
+        await self._write(sock, frame)
+
     async def _send(self, sock: _Socket, op: dict[str, Any]) -> None:
         if self.batch_tick_s <= 0:
             await self._write(sock, op_frame(op))
@@ -231,7 +242,7 @@ class WsLink:
                 if entry is not None and not entry[0].done():
                     entry[0].set_exception(exc)
 
-    async def _write(self, sock: _Socket, frame: str) -> None:
+    async def _write(self, sock: _Socket, frame: str | bytes) -> None:
         if sock.error is not None:
             raise sock.error
         try:
@@ -263,7 +274,9 @@ class WsLink:
 
     def _dispatch(self, frame: str | bytes) -> None:
         if isinstance(frame, bytes):
-            return  # media frames: not for this agent (yet)
+            if self.on_media is not None:
+                self.on_media(frame)
+            return
         try:
             push = parse_push(frame)
         except PushError as exc:
