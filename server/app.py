@@ -26,16 +26,25 @@ from server.api import (
 from server.api.limits import BodyLimit
 from server.metrics import Metrics, MetricsMiddleware
 from server.settings import Settings
+from server.storage import Store
 
 WEB_DIR = Path(__file__).parent / "web"
 
 
-def create_app(settings: Settings | None = None, *, clock: container.Clock = utcnow) -> FastAPI:
+def create_app(
+    settings: Settings | None = None,
+    *,
+    clock: container.Clock = utcnow,
+    store: Store | None = None,
+) -> FastAPI:
+    """The app. ``store``: an open store to use instead of the one the settings name; its
+    opener loads and closes it (tests hand two apps one embedded store, as two replicas
+    share one MongoDB)."""
     settings = settings or Settings()
 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
-        services = await container.build(settings, metrics, clock)
+        services = await container.build(settings, metrics, clock, store)
         app.state.services = services
         if services.admin_token:
             # Shown once on the console for a new user; never logged.

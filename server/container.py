@@ -21,6 +21,7 @@ from server.services.fleet import FleetViews
 from server.services.instances import InstanceService
 from server.services.link import VehicleLink
 from server.services.live import LiveHub
+from server.services.replicas import ReplicaSync
 from server.services.telemetry import TelemetryService
 from server.settings import Settings
 from server.storage import Store, open_store
@@ -53,6 +54,10 @@ class Services:
     extra: dict[str, Any] = field(default_factory=dict)
     tasks: list[asyncio.Task[None]] = field(default_factory=list)
     admin_token: str | None = None
+    #: Several replicas (``FLEET_REDIS_URL``): what keeps this one's copies in step.
+    replicas: ReplicaSync | None = None
+    #: False when the store was handed in (``create_app(store=...)``): its owner closes it.
+    owns_store: bool = True
 
     def spawn(self, name: str, fn: Callable[[], Awaitable[None]], every_s: float) -> None:
         """Run ``fn`` every ``every_s`` seconds until shutdown; failures are logged, not fatal."""
@@ -78,9 +83,13 @@ class Services:
         self.tasks.clear()
 
 
-async def build(settings: Settings, metrics: Metrics, clock: Clock = utcnow) -> Services:
-    store = open_store(settings)
-    if store.embedded:
+async def build(
+    settings: Settings, metrics: Metrics, clock: Clock = utcnow, store: Store | None = None
+) -> Services:
+    """The services; on ``store`` when given (the caller opened it and closes it)."""
+    owns_store = store is None
+    store = store or open_store(settings)
+    if store.embedded and owns_store:
         log.warning(
             "embedded store (mongomock, in process), kept in %s; set FLEET_MONGO_URL for MongoDB",
             settings.snapshot_path,
@@ -120,7 +129,11 @@ async def build(settings: Settings, metrics: Metrics, clock: Clock = utcnow) -> 
         views=views,
         bus=bus,
         live=live,
+        owns_store=owns_store,
     )
+    if settings.shared_state:
+        services.replicas = ReplicaSync(bus, instances, control, commands)
+        await services.replicas.start()
     if await store.ping():
         await instances.load()
         await control.load()
@@ -164,7 +177,7 @@ def start_background(services: Services) -> None:
     services.spawn("leases", services.control.sweep, 0.2)
     services.spawn("commands", services.commands.sweep, 0.2)
     services.tasks.append(asyncio.create_task(services.telemetry.run_writer(), name="telemetry"))
-    if services.store.embedded:
+    if services.store.embedded and services.owns_store:
         services.spawn("journal", _flush(services), settings.snapshot_interval_s)
     services.spawn("retention", _retention(services), 60.0)
 
@@ -192,10 +205,14 @@ async def shutdown(services: Services) -> None:
     with contextlib.suppress(Exception):
         await services.live.stop()
     await services.stop_tasks()
+    if services.replicas is not None:
+        with contextlib.suppress(Exception):
+            await services.replicas.stop()
     with contextlib.suppress(Exception):
         await services.bus.close()
     with contextlib.suppress(Exception):
         await services.instances.sweep(everything=True)
     with contextlib.suppress(Exception):
         await services.telemetry.flush_all()
-    await services.store.close()
+    if services.owns_store:
+        await services.store.close()

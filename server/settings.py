@@ -107,3 +107,19 @@ class Settings(BaseSettings):
     @property
     def embedded(self) -> bool:
         return self.mongo_url is None
+
+    @property
+    def shared_state(self) -> bool:
+        """Several replicas (``FLEET_REDIS_URL`` set): the store is the truth, memory a cache."""
+        return self.redis_url is not None
+
+    @property
+    def contact_write_s(self) -> float:
+        """How often a vehicle's last contact is written to the store.
+
+        One replica: ``persist_interval_s``. Several: often enough that another
+        replica reading it back never takes a vehicle in contact for stale.
+        """
+        if self.shared_state:
+            return min(self.persist_interval_s, self.stale_after_s / 3)
+        return self.persist_interval_s

@@ -15,6 +15,7 @@ import websockets
 
 from server.app import create_app
 from server.settings import Settings
+from server.storage import Store
 
 
 def free_port() -> int:
@@ -24,11 +25,12 @@ def free_port() -> int:
 
 
 @asynccontextmanager
-async def serve(settings: Settings) -> AsyncIterator[str]:
-    """Yields the base URL (``http://127.0.0.1:PORT``) while the server runs."""
+async def serve(settings: Settings, store: Store | None = None) -> AsyncIterator[str]:
+    """Yields the base URL (``http://127.0.0.1:PORT``) while the server runs (on ``store``
+    when given: the caller's open store, which it closes)."""
     port = free_port()
     config = uvicorn.Config(
-        create_app(settings),
+        create_app(settings, store=store),
         host="127.0.0.1",
         port=port,
         log_level="warning",

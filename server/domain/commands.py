@@ -67,6 +67,18 @@ class Command:
         self.status = status
         self.note(status, at, detail)
 
+    def catch_up(self, stored: Command) -> bool:
+        """Take the store's copy when it has moved further (another replica moved it).
+
+        History only grows, so the longer history is the later state; whether it moved.
+        """
+        if len(stored.history) <= len(self.history) and not stored.final:
+            return False
+        self.status, self.progress = stored.status, stored.progress
+        self.history = [dict(h) for h in stored.history]
+        self.delivered_at, self.deliveries = stored.delivered_at, stored.deliveries
+        return True
+
     def wire(self) -> dict[str, Any]:
         """The contract's command object (times as datetimes; the wire model formats them)."""
         return {

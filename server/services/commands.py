@@ -7,6 +7,12 @@ Delivery has one path, :meth:`CommandService.take`, used by the long poll
 and by vehicle sockets alike: sockets register in ``ready_listeners`` and
 are told an instance has something to hand out (on submit, and when a
 redelivery falls due), then call :meth:`take`.
+
+On several replicas (``FLEET_REDIS_URL``) the lanes are a cache of the
+store: a replica reads an instance's active commands back before it hands
+them out, cancels them or takes acks, records a command's end only if it
+is the one that took it out of ``commands_active``, and announces what it
+wrote (server/services/replicas.py).
 """
 
 from __future__ import annotations
@@ -18,32 +24,26 @@ from collections.abc import Callable
 from datetime import datetime
 from typing import Any
 
-from fleet_protocol import CommandSpec, SubmitControl
+from fleet_protocol import SubmitControl
 from server.domain import arbitration
 from server.domain import commands as life
 from server.domain.access import Principal
 from server.domain.commands import AckOutcome, Command
-from server.errors import (
-    ControlNotHeld,
-    FleetError,
-    Forbidden,
-    InstanceFinished,
-    NotFound,
-    RateLimited,
-)
+from server.errors import ControlNotHeld, FleetError, Forbidden, NotFound, RateLimited
+from server.services.command_admission import MAX_ACTIVE_PER_INSTANCE, Admission
 from server.services.control import ControlService
 from server.services.events import EventService
 from server.services.instances import InstanceService, InstanceState
-from server.services.lanes import Lane
+from server.services.lanes import Lane, StoredLanes
 from server.services.planning import Planner, vehicle_planner
+from server.services.replicas import Announce, no_announce
 from server.settings import Settings
 from server.storage.commands import CommandsRepo
 
 Clock = Callable[[], datetime]
 ReadyListener = Callable[[str], None]
 
-#: Motion commands waiting on one instance; ``stop`` is never refused by this bound.
-MAX_ACTIVE_PER_INSTANCE = 256
+__all__ = ["MAX_ACTIVE_PER_INSTANCE", "CommandService"]
 
 
 class CommandService:
@@ -68,6 +68,12 @@ class CommandService:
         self._seq = 0
         #: Called with an instance id that has commands to hand out (vehicle sockets).
         self.ready_listeners: list[ReadyListener] = []
+        #: Several replicas: the store is the truth (see server/services/replicas.py).
+        self.shared = settings.shared_state
+        self.announce: Announce = no_announce
+        self.admission = Admission(instances, control, self.planner, self._lanes, clock)
+        self.stored = StoredLanes(repo, self._lanes, self._lane)
+        self._sync = self.stored.sync
         control.lease_end_listeners.append(self._on_lease_end)
         instances.finish_hooks.append(self._on_finish)
 
@@ -82,17 +88,18 @@ class CommandService:
     # ---- operators ------------------------------------------------------------
     async def submit(self, principal: Principal, body: SubmitControl) -> list[dict[str, Any]]:
         now = self.clock()
-        targets, refusals = await self._targets(principal, body.instance_ids)
-        refusals += self._check_all(principal, targets, body.command)
+        admission = self.admission
+        targets, refusals = await admission.targets(principal, body.instance_ids)
+        refusals += admission.check_all(principal, targets, body.command)
         args_by_instance: dict[str, dict[str, Any]] = {}
         if not refusals:
             for index, state in targets:
                 try:
-                    args_by_instance[state.instance_id] = await self._args(state, body.command)
+                    args_by_instance[state.instance_id] = await admission.args(state, body.command)
                 except FleetError as exc:
                     refusals.append((index, state.instance_id, exc))
             if body.command.type == "follow_path":  # planning yields: check again
-                refusals += self._check_all(principal, targets, body.command)
+                refusals += admission.check_all(principal, targets, body.command)
         if refusals:
             raise life.refused(refusals, len(body.instance_ids))
         made = []
@@ -113,6 +120,9 @@ class CommandService:
                     position=state.position,
                 )
             )
+        if self.shared and body.command.type == "stop":  # what it supersedes, wherever queued
+            for cmd in made:
+                await self._sync(cmd.instance_id)
         superseded: list[Command] = []
         for cmd in made:  # memory first: a poll from now on sees the whole submit
             lane = self._lane(cmd.instance_id)
@@ -123,6 +133,7 @@ class CommandService:
         if made:
             await self.repo.insert_active([cmd.to_doc() for cmd in made])
         for cmd in made:
+            self.announce(cmd.instance_id, "commands")
             self._ready(self._lane(cmd.instance_id))
             await self._audit(cmd, principal, args=cmd.args)
         for gone in superseded:
@@ -150,7 +161,7 @@ class CommandService:
         return cmd
 
     async def get(self, principal: Principal, command_id: str) -> Command:
-        cmd = await self._find(command_id)
+        cmd = await self._find(command_id, read_only=True)
         if not principal.can_see(cmd.vehicle_id):
             raise Forbidden(f"no access to vehicle {cmd.vehicle_id}")
         return cmd
@@ -159,6 +170,8 @@ class CommandService:
         """The instance's control mode and its recent commands, newest first."""
         state = await self.instances.for_viewer(principal, instance_id)
         limit = self.settings.command_history_limit
+        if self.shared:
+            return state.control_mode, await self.stored.recent(state.instance_id, limit)
         lane = self._lanes.get(state.instance_id)
         mine = [*lane.active.values(), *lane.recent] if lane is not None else []
         if lane is None or not lane.history_loaded:
@@ -210,7 +223,7 @@ class CommandService:
         """The commands to hand out now, in order (``stop`` first), marked delivered."""
         if state.finished:
             return []
-        lane = self._lane(state.instance_id)
+        lane = await self._sync(state.instance_id) if self.shared else self._lane(state.instance_id)
         out, ended = life.handout(
             list(lane.active.values()),
             self.clock(),
@@ -221,6 +234,8 @@ class CommandService:
             await self._finished(cmd)
         for cmd in out:
             await self.repo.save_active(cmd.to_doc())
+        if out:
+            self.announce(state.instance_id, "commands")
         return out
 
     async def acknowledge(
@@ -237,7 +252,9 @@ class CommandService:
                 actor=principal,
                 data={"control_mode": control_mode},
             )
-        lane = self._lane(state.instance_id)
+            await self.instances.save_now(state)
+        shared = self.shared and bool(acks)
+        lane = await self._sync(state.instance_id) if shared else self._lane(state.instance_id)
         now = self.clock()
         abort: list[str] = []
         for ack in acks:
@@ -253,6 +270,8 @@ class CommandService:
                 await self._finished(cmd)
             elif cmd.command_id in lane.active:
                 await self.repo.save_active(cmd.to_doc())
+        if shared:
+            self.announce(state.instance_id, "commands")
         abort.extend(lane.take_aborts())
         return list(dict.fromkeys(abort))
 
@@ -281,6 +300,8 @@ class CommandService:
         return await self.repo.drop_finished_before(before)
 
     async def _on_lease_end(self, lease: arbitration.Lease, reason: str) -> None:
+        if self.shared:
+            await self._sync(lease.instance_id)
         if (lane := self._lanes.get(lease.instance_id)) is None:
             return
         now = self.clock()
@@ -290,6 +311,8 @@ class CommandService:
             await self._finished(cmd)
 
     async def _on_finish(self, state: InstanceState, principal: Principal | None) -> None:
+        if self.shared:
+            await self._sync(state.instance_id)
         if (lane := self._lanes.get(state.instance_id)) is None:
             return
         now = self.clock()
@@ -298,6 +321,18 @@ class CommandService:
             await self._finished(cmd)
         lane.wake()
         del self._lanes[state.instance_id]
+
+    # ---- several replicas -----------------------------------------------------
+    async def refresh(self, instance_id: str) -> None:
+        """Another replica moved the instance's commands: catch up, wake the long polls."""
+        if (lane := self._lanes.get(instance_id)) is not None:
+            await self._sync(instance_id)
+            lane.wake()
+
+    def forget(self, instance_id: str) -> None:
+        """The instance finished on another replica (which ended its commands)."""
+        if (lane := self._lanes.pop(instance_id, None)) is not None:
+            lane.wake()
 
     # ---- internals ------------------------------------------------------------
     def _lane(self, instance_id: str) -> Lane:
@@ -310,62 +345,9 @@ class CommandService:
         for listener in self.ready_listeners:
             listener(lane.instance_id)
 
-    async def _targets(
-        self, principal: Principal, ids: list[str]
-    ) -> tuple[list[tuple[int, InstanceState]], list[tuple[int, str, FleetError]]]:
-        if ids == ["*"]:
-            live = [
-                s
-                for s in self.instances.live()
-                if not s.finished and principal.can_see(s.vehicle_id)
-            ]
-            return list(enumerate(sorted(live, key=lambda s: s.vehicle_id))), []
-        targets, refusals = [], []
-        for index, instance_id in enumerate(ids):
-            try:
-                targets.append((index, await self.instances.find(instance_id)))
-            except FleetError as exc:
-                refusals.append((index, instance_id, exc))
-        return targets, refusals
-
-    def _check_all(
-        self, principal: Principal, targets: list[tuple[int, InstanceState]], spec: CommandSpec
-    ) -> list[tuple[int, str, FleetError]]:
-        refusals = []
-        for index, state in targets:
-            try:
-                self._admit(principal, state, spec)
-            except FleetError as exc:
-                refusals.append((index, state.instance_id, exc))
-        return refusals
-
-    def _admit(self, principal: Principal, state: InstanceState, spec: CommandSpec) -> None:
-        """Check one instance takes this command from this caller now."""
-        if not principal.can_see(state.vehicle_id):
-            raise Forbidden(f"no access to vehicle {state.vehicle_id}")
-        if state.finished:
-            raise InstanceFinished(f"instance {state.instance_id} is finished")
-        life.check_capability(spec.type, state.capabilities)
-        arbitration.check_submit(
-            principal,
-            command_type=spec.type,
-            lease=self.control.lease(state.instance_id),
-            control_mode=state.control_mode,
-            now=self.clock(),
-        )
-        lane = self._lanes.get(state.instance_id)
-        if spec.type != "stop" and lane is not None and len(lane.active) >= MAX_ACTIVE_PER_INSTANCE:
-            raise RateLimited(f"{MAX_ACTIVE_PER_INSTANCE} commands already wait on this instance")
-
-    async def _args(self, state: InstanceState, spec: CommandSpec) -> dict[str, Any]:
-        """The command's args for this instance: planned (off the event loop) if asked."""
-        args = dict(spec.args)
-        if spec.type == "follow_path" and args.get("plan"):
-            others = [s for s in self.instances.live() if s.instance_id != state.instance_id]
-            args = await asyncio.to_thread(self.planner, state, args, others)
-        return args
-
-    async def _find(self, command_id: str) -> Command:
+    async def _find(self, command_id: str, *, read_only: bool = False) -> Command:
+        if self.shared:
+            return await self.stored.find(command_id, read_only)
         for lane in self._lanes.values():
             if (cmd := lane.get(command_id)) is not None:
                 return cmd
@@ -386,7 +368,13 @@ class CommandService:
         if lane is not None:
             lane.retire(cmd)
         now = self.clock()
-        await self.repo.finish(cmd.to_doc(), now)
+        if self.shared:
+            if not await self.repo.claim_finish(cmd.to_doc(), now):
+                await self.stored.catch_up(cmd)  # another replica recorded its end first
+                return
+            self.announce(cmd.instance_id, "commands")
+        else:
+            await self.repo.finish(cmd.to_doc(), now)
         last = cmd.history[-1] if cmd.history else {}
         await self._audit(cmd, actor, detail=last.get("detail"))
 

@@ -22,6 +22,7 @@ from server.errors import Forbidden, InstanceFinished
 from server.services.auth import AuthService
 from server.services.events import EventService
 from server.services.instances import InstanceService, InstanceState
+from server.services.replicas import Announce, no_announce
 from server.settings import Settings
 from server.storage.control import ControlRepo
 
@@ -52,6 +53,9 @@ class ControlService:
         self.lease_end_listeners: list[LeaseEndListener] = []
         #: Called as ``listener(instance_id, vehicle_id, control_info_or_None)``.
         self.change_listeners: list[ControlChangeListener] = []
+        #: Several replicas: the store is the truth (see server/services/replicas.py).
+        self.shared = settings.shared_state
+        self.announce: Announce = no_announce
         instances.finish_hooks.append(self._on_finish)
 
     async def load(self) -> None:
@@ -60,13 +64,7 @@ class ControlService:
             lease = Lease.from_doc(doc)
             self._leases[lease.instance_id] = lease
         for doc in await self.repo.all_requests():
-            req = ControlRequest(
-                doc["request_id"],
-                doc["username"],
-                doc["instance_id"],
-                doc["vehicle_id"],
-                doc["requested_at"],
-            )
+            req = _request(doc)
             self._requests.setdefault(req.instance_id, []).append(req)
 
     # ---- reads ----------------------------------------------------------
@@ -86,6 +84,13 @@ class ControlService:
         """The pending requests this caller may answer (a manager of the vehicle, an admin)."""
         if instance_id is not None:
             await self.instances.find(instance_id)  # an unknown instance is a 404
+        if self.shared:  # requests made on every replica
+            pending_docs = await self.repo.requests_of(instance_id)
+            return [
+                _request(d).wire()
+                for d in pending_docs
+                if rules.may_grant(principal, d["vehicle_id"])
+            ]
         pending = (
             self._requests.get(instance_id, [])
             if instance_id is not None
@@ -96,6 +101,7 @@ class ControlService:
     # ---- operators and managers ------------------------------------------
     async def request(self, principal: Principal, instance_id: str) -> dict[str, Any]:
         state = await self._live_for(principal, instance_id)
+        await self.refresh(state.instance_id)
         now = self.clock()
         fresh = ControlRequest(
             "r-" + secrets.token_hex(8), principal.name, state.instance_id, state.vehicle_id, now
@@ -116,6 +122,7 @@ class ControlService:
     ) -> Lease:
         state = await self._live_for(principal, instance_id)
         rules.check_granter(principal, state.vehicle_id)
+        await self.refresh(state.instance_id)
         access = await self.auth.user_access(username)
         grantee = Grantee(username, access[0], access[1]) if access is not None else None
         rules.check_grantee(grantee, username, state.vehicle_id)
@@ -134,6 +141,7 @@ class ControlService:
         )
         self._leases[state.instance_id] = lease
         await self.repo.save_lease(lease.to_doc())
+        self.announce(state.instance_id, "lease")
         await self._drop_request(state.instance_id, username)
         await self._audit(
             "control_grant",
@@ -153,6 +161,7 @@ class ControlService:
     async def revoke(self, principal: Principal, instance_id: str) -> None:
         state = await self.instances.for_viewer(principal, instance_id)
         rules.check_granter(principal, state.vehicle_id)
+        await self.refresh(state.instance_id)
         lease = self.lease(state.instance_id)
         await self._audit(
             "control_revoke",
@@ -165,6 +174,7 @@ class ControlService:
 
     async def release(self, principal: Principal, instance_id: str) -> None:
         state = await self.instances.for_viewer(principal, instance_id)
+        await self.refresh(state.instance_id)
         lease = rules.check_release(self.lease(state.instance_id), principal, self.clock())
         await self._audit("control_release", state, principal, {"holder": lease.holder})
         await self._end(lease, "released")
@@ -191,6 +201,7 @@ class ControlService:
             )
 
     async def _on_finish(self, state: InstanceState, principal: Principal | None) -> None:
+        await self.refresh(state.instance_id)
         self._requests.pop(state.instance_id, None)
         await self.repo.drop_requests(state.instance_id)
         lease = self._leases.get(state.instance_id)
@@ -210,11 +221,55 @@ class ControlService:
         """End the instance's current lease (once: False if it already ended)."""
         if self._leases.get(lease.instance_id) is not lease:
             return False
+        if self.shared and not await self._claim_end(lease, reason):
+            return False
         del self._leases[lease.instance_id]
         self._changed(lease.instance_id, lease.vehicle_id, None)
-        await self.repo.drop_lease(lease.instance_id)
+        if not self.shared:
+            await self.repo.drop_lease(lease.instance_id)
         await self._ended(lease, reason)
+        self.announce(lease.instance_id, "lease")
         return True
+
+    # ---- several replicas -------------------------------------------------
+    async def _claim_end(self, lease: Lease, reason: str) -> bool:
+        """Several replicas: whether this one ends the lease (it dropped it from the store).
+
+        An expiry drops only a lease still expired there (another replica may
+        have extended it); if another replica ended or changed it, this copy
+        catches up instead.
+        """
+        expired_by = self.clock() if reason == "expired" else None
+        dropped = await self.repo.drop_lease(
+            lease.instance_id, holder=lease.holder, expired_by=expired_by
+        )
+        if not dropped:
+            await self.refresh(lease.instance_id)
+        return dropped > 0
+
+    async def refresh(self, instance_id: str, *, only_cached: bool = False) -> None:
+        """Several replicas: take the instance's lease and requests as the store has them."""
+        if not self.shared or (
+            only_cached
+            and instance_id not in self._leases
+            and self.instances.current_by_id(instance_id) is None
+        ):
+            return
+        doc = await self.repo.lease_of(instance_id)
+        if doc is None:
+            self._leases.pop(instance_id, None)
+        elif (stored := Lease.from_doc(doc)) != self._leases.get(instance_id):
+            self._leases[instance_id] = stored
+        pending = [_request(d) for d in await self.repo.requests_of(instance_id)]
+        if pending:
+            self._requests[instance_id] = pending
+        else:
+            self._requests.pop(instance_id, None)
+
+    def forget(self, instance_id: str) -> None:
+        """The instance finished on another replica (which ended its lease)."""
+        self._leases.pop(instance_id, None)
+        self._requests.pop(instance_id, None)
 
     async def _ended(self, lease: Lease, reason: str) -> None:
         for listener in self.lease_end_listeners:
@@ -240,3 +295,13 @@ class ControlService:
             actor=principal,
             data=data,
         )
+
+
+def _request(doc: dict[str, Any]) -> ControlRequest:
+    return ControlRequest(
+        doc["request_id"],
+        doc["username"],
+        doc["instance_id"],
+        doc["vehicle_id"],
+        doc["requested_at"],
+    )

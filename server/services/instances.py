@@ -11,7 +11,6 @@ from __future__ import annotations
 import secrets
 import time
 from collections.abc import Awaitable, Callable
-from dataclasses import dataclass, field
 from datetime import datetime
 from typing import Any
 
@@ -21,82 +20,16 @@ from server.domain.presence import Presence, presence_of
 from server.errors import Forbidden, InstanceFinished, NotFound
 from server.services.auth import AuthService
 from server.services.events import EventService
+from server.services.instance_state import InstanceState
+from server.services.replicas import Announce, no_announce
 from server.settings import Settings
 from server.storage.instances import InstancesRepo
 
 Clock = Callable[[], datetime]
-FinishHook = Callable[["InstanceState", Principal | None], Awaitable[None]]
-PresenceListener = Callable[["InstanceState", Presence], None]
+FinishHook = Callable[[InstanceState, Principal | None], Awaitable[None]]
+PresenceListener = Callable[[InstanceState, Presence], None]
 
-
-@dataclass
-class InstanceState:
-    instance_id: str
-    vehicle_id: str
-    name: str
-    vehicle_type: str
-    capabilities: list[str]
-    started_at: datetime
-    params: dict[str, Any] = field(default_factory=dict)
-    params_updated_at: datetime | None = None
-    last_seen: datetime | None = None
-    control_mode: str = "idle"
-    position: dict[str, Any] | None = None
-    finished_at: datetime | None = None
-    presence: Presence = "offline"
-    polling: int = 0  # open long polls: contact while open
-    dirty: bool = False  # params or control mode changed: written at the next sweep
-    moved: bool = False  # last_seen or position moved: written every persist_interval_s
-    saved_at: float = 0.0  # monotonic time of the last write
-
-    @property
-    def finished(self) -> bool:
-        return self.finished_at is not None
-
-    def position_json(self) -> dict[str, Any] | None:
-        if self.position is None:
-            return None
-        return Sample.model_validate(self.position).model_dump(mode="json", exclude_none=True)
-
-    def to_doc(self) -> dict[str, Any]:
-        return {
-            "instance_id": self.instance_id,
-            "vehicle_id": self.vehicle_id,
-            "name": self.name,
-            "vehicle_type": self.vehicle_type,
-            "capabilities": self.capabilities,
-            "started_at": self.started_at,
-            "params": self.params,
-            "params_updated_at": self.params_updated_at,
-            "last_seen": self.last_seen,
-            "control_mode": self.control_mode,
-            "position": self.position,
-            "finished_at": self.finished_at,
-        }
-
-    @classmethod
-    def from_doc(cls, doc: dict[str, Any]) -> InstanceState:
-        fields: dict[str, Any] = {
-            k: doc.get(k)
-            for k in (
-                "instance_id",
-                "vehicle_id",
-                "name",
-                "vehicle_type",
-                "capabilities",
-                "started_at",
-                "params",
-                "params_updated_at",
-                "last_seen",
-                "control_mode",
-                "position",
-                "finished_at",
-            )
-        }
-        fields["params"] = fields["params"] or {}
-        fields["capabilities"] = fields["capabilities"] or []
-        fields["control_mode"] = fields["control_mode"] or "idle"
-        return cls(**fields)
+__all__ = ["InstanceService", "InstanceState"]
 
 
 class InstanceService:
@@ -117,6 +50,9 @@ class InstanceService:
         self._by_vehicle: dict[str, InstanceState] = {}
         self.finish_hooks: list[FinishHook] = []
         self.presence_listeners: list[PresenceListener] = []
+        #: Several replicas: the store is the truth (see server/services/replicas.py).
+        self.shared = settings.shared_state
+        self.announce: Announce = no_announce
 
     async def load(self) -> None:
         for doc in await self.repo.unfinished():
@@ -135,8 +71,17 @@ class InstanceService:
             doc = await self.repo.get(instance_id)
             if doc is None:
                 raise NotFound(f"no instance {instance_id}")
-            state = InstanceState.from_doc(doc)  # a finished one: read-only
+            state = self._adopt(doc) if self.shared else InstanceState.from_doc(doc)
         return state
+
+    async def fresh(self, instance_id: str) -> InstanceState:
+        """:meth:`find`; on several replicas, merged with the store's copy first."""
+        if not self.shared:
+            return await self.find(instance_id)
+        doc = await self.repo.get(instance_id)
+        if doc is None:
+            raise NotFound(f"no instance {instance_id}")
+        return self._adopt(doc)
 
     async def for_vehicle_caller(self, principal: Principal, instance_id: str) -> InstanceState:
         """The instance a vehicle (or its gateway) calls about; it must be live."""
@@ -148,7 +93,7 @@ class InstanceService:
         return state
 
     async def for_viewer(self, principal: Principal, instance_id: str) -> InstanceState:
-        state = await self.find(instance_id)
+        state = await self.fresh(instance_id)
         if not principal.can_see(state.vehicle_id):
             raise Forbidden(f"no access to vehicle {state.vehicle_id}")
         return state
@@ -169,6 +114,12 @@ class InstanceService:
 
     def live(self) -> list[InstanceState]:
         return list(self._by_id.values())
+
+    async def everyone(self) -> list[InstanceState]:
+        """Every live instance: this replica's, or on several replicas the store's."""
+        if not self.shared:
+            return self.live()
+        return [s for doc in await self.repo.unfinished() if not (s := self._adopt(doc)).finished]
 
     def presence(self, state: InstanceState) -> Presence:
         return self._presence(state, self.clock())
@@ -191,6 +142,8 @@ class InstanceService:
         if meta is None:
             raise NotFound(f"no vehicle {body.vehicle_id}; an admin registers it first")
         now = self.clock()
+        if self.shared:  # its unfinished instance may have been started on another replica
+            await self._adopt_vehicle(body.vehicle_id)
         state = self._by_vehicle.get(body.vehicle_id)
         resumed = state is not None
         if state is None:
@@ -214,6 +167,7 @@ class InstanceService:
             state.capabilities = list(body.capabilities)
             self.merge_params(state, body.params)
             await self.repo.save(state.instance_id, state.to_doc())
+        self.announce(state.instance_id, "instance")
         await self.events.record(
             "instance",
             vehicle_id=state.vehicle_id,
@@ -261,9 +215,8 @@ class InstanceService:
         state.finished_at = self.clock()
         self._set_presence(state, "finished")
         await self.repo.save(state.instance_id, state.to_doc())
-        self._by_id.pop(state.instance_id, None)
-        if self._by_vehicle.get(state.vehicle_id) is state:
-            self._by_vehicle.pop(state.vehicle_id)
+        self._unindex(state)
+        self.announce(state.instance_id, "instance")
         for hook in self.finish_hooks:
             await hook(state, principal)
         await self.events.record(
@@ -275,10 +228,11 @@ class InstanceService:
         )
 
     # ---- background -----------------------------------------------------
-    def _set_presence(self, state: InstanceState, presence: Presence) -> None:
+    def _set_presence(self, state: InstanceState, presence: Presence, *, tell: bool = True) -> None:
         state.presence = presence
-        for listener in self.presence_listeners:
-            listener(state, presence)
+        if tell:
+            for listener in self.presence_listeners:
+                listener(state, presence)
 
     async def sweep(self, *, everything: bool = False) -> None:
         """Presence changes by age, and write back what changed.
@@ -289,22 +243,103 @@ class InstanceService:
         """
         now = self.clock()
         tick = time.monotonic()
-        every = self.settings.persist_interval_s
-        for state in list(self._by_id.values()):
-            presence = self._presence(state, now)
-            if presence != state.presence:
-                self._set_presence(state, presence)
+        every = self.settings.contact_write_s
+        states = list(self._by_id.values())
+        changes = [(s, p) for s in states if (p := self._presence(s, now)) != s.presence]
+        if self.shared and changes:  # the vehicle may be in contact with another replica
+            changes = await self._recheck(changes, now)
+        for state, presence in changes:
+            told = not self.shared or await self.repo.claim_presence(state.instance_id, presence)
+            self._set_presence(state, presence, tell=told)
+            if told:  # several replicas: the one whose claim matched tells everyone
                 await self.events.record(
                     "presence",
                     vehicle_id=state.vehicle_id,
                     instance_id=state.instance_id,
                     data={"presence": presence},
                 )
+                self.announce(state.instance_id, "instance")
+        for state in states:
             due = state.moved and (everything or tick - state.saved_at >= every)
             if state.dirty or due:
-                state.dirty = state.moved = False
-                state.saved_at = tick
-                await self.repo.save(state.instance_id, state.to_doc())
+                await self._write(state, tick)
+
+    async def save_now(self, state: InstanceState) -> None:
+        """Several replicas: write a changed record at once (control mode decides submits)."""
+        if self.shared and state.dirty:
+            await self._write(state, state.saved_at)
+
+    async def _write(self, state: InstanceState, tick: float) -> None:
+        changed = state.dirty
+        state.dirty = state.moved = False
+        state.saved_at = tick
+        if not self.shared:
+            await self.repo.save(state.instance_id, state.to_doc())
+            return
+        await self.repo.save_shared(state.instance_id, state.to_doc())
+        if changed:
+            self.announce(state.instance_id, "instance")
+
+    # ---- several replicas -------------------------------------------------
+    def _unindex(self, state: InstanceState) -> None:
+        self._by_id.pop(state.instance_id, None)
+        if self._by_vehicle.get(state.vehicle_id) is state:
+            self._by_vehicle.pop(state.vehicle_id)
+
+    def _adopt(self, doc: dict[str, Any]) -> InstanceState:
+        """This replica's copy of a stored instance, caught up with ``doc``; an
+        unfinished one is kept (another replica may have started it)."""
+        state = self._by_id.get(doc["instance_id"])
+        if state is None:
+            state = InstanceState.from_doc(doc)
+            if state.finished:
+                return state  # read-only
+            state.presence = self._presence(state, self.clock())
+            former = self._by_vehicle.get(state.vehicle_id)
+            if former is not None:
+                self._unindex(former)  # finished elsewhere: the store has the newer one
+            self._index(state)
+            return state
+        state.merge(doc)
+        if state.finished:
+            self._unindex(state)
+        return state
+
+    async def _adopt_vehicle(self, vehicle_id: str) -> None:
+        """Catch up with the vehicle's unfinished instance in the store, wherever it began."""
+        doc = await self.repo.unfinished_for_vehicle(vehicle_id)
+        cached = self._by_vehicle.get(vehicle_id)
+        if cached is not None and (doc is None or doc["instance_id"] != cached.instance_id):
+            self._unindex(cached)  # finished on another replica
+        if doc is not None:
+            self._adopt(doc)
+
+    async def refresh(self, instance_id: str) -> bool:
+        """Another replica changed the instance: catch up. Whether it is finished."""
+        doc = await self.repo.get(instance_id)
+        if doc is None:
+            if (gone := self._by_id.get(instance_id)) is not None:
+                self._unindex(gone)
+            return True
+        if instance_id in self._by_id:
+            self._adopt(doc)
+        return doc.get("finished_at") is not None
+
+    async def _recheck(
+        self, changes: list[tuple[InstanceState, Presence]], now: datetime
+    ) -> list[tuple[InstanceState, Presence]]:
+        """Before a presence change: the contact other replicas wrote (one read for all)."""
+        stored = {
+            d["instance_id"]: d
+            for d in await self.repo.contacts([s.instance_id for s, _ in changes])
+        }
+        out = []
+        for state, _ in changes:
+            if (doc := stored.get(state.instance_id)) is not None:
+                state.merge_contact(doc)
+            if (presence := self._presence(state, now)) != state.presence:
+                out.append((state, presence))
+        return out
 
     async def drop_finished_before(self, before: datetime) -> int:
         return await self.repo.drop_finished_before(before)

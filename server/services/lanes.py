@@ -1,14 +1,19 @@
 """One command lane per instance: its active commands, recent finished ones, waiters.
 
-In-memory hot state of :mod:`server.services.commands`; no I/O here.
+In-memory hot state of :mod:`server.services.commands`. :class:`Lane` does no
+I/O; :class:`StoredLanes` reads the lanes back from the store when several
+replicas share it (the store is the truth, the lanes a cache).
 """
 
 from __future__ import annotations
 
 import asyncio
 from collections import deque
+from collections.abc import Callable, Mapping
 
 from server.domain.commands import ABORT_STATUSES, Command
+from server.errors import NotFound
+from server.storage.commands import CommandsRepo
 
 
 class Lane:
@@ -55,6 +60,20 @@ class Lane:
         while len(self.recent) > self.recent_limit:
             self.recent.popleft()
 
+    def merge(self, stored: list[Command]) -> list[Command]:
+        """Fold in the active commands as the store holds them (several replicas: another
+        may have queued or moved some). Returns the active ones the store no longer lists:
+        ended elsewhere, or still being written here."""
+        listed = set()
+        for fresh in stored:
+            listed.add(fresh.command_id)
+            mine = self.get(fresh.command_id)
+            if mine is None:
+                self.active[fresh.command_id] = fresh
+            elif fresh.command_id in self.active:
+                mine.catch_up(fresh)
+        return [c for c in self.active.values() if c.command_id not in listed]
+
     def take_aborts(self) -> list[str]:
         out, self.aborts = self.aborts, []
         return out
@@ -67,3 +86,51 @@ class Lane:
             if old.command_id == command_id:
                 return old
         return None
+
+
+class StoredLanes:
+    """Several replicas: catch the lanes up with the store, and read commands from it."""
+
+    def __init__(
+        self, repo: CommandsRepo, lanes: Mapping[str, Lane], lane: Callable[[str], Lane]
+    ) -> None:
+        self.repo = repo
+        self.lanes = lanes
+        self.lane = lane
+
+    async def sync(self, instance_id: str) -> Lane:
+        """The instance's lane, caught up with its active commands in the store."""
+        lane = self.lane(instance_id)
+        stored = [Command.from_doc(d) for d in await self.repo.active_for(instance_id)]
+        for gone in lane.merge(stored):
+            doc = await self.repo.get(gone.command_id)
+            if doc is not None and gone.catch_up(Command.from_doc(doc)) and gone.final:
+                lane.retire(gone)  # ended on another replica
+        return lane
+
+    async def find(self, command_id: str, read_only: bool) -> Command:
+        """A command as the store has it; to act on, this replica's copy caught up."""
+        doc = await self.repo.get(command_id)
+        if doc is None:  # not written yet (a submit on its way here), or none
+            for lane in self.lanes.values():
+                if (cmd := lane.get(command_id)) is not None:
+                    return cmd
+            raise NotFound(f"no command {command_id}")
+        stored = Command.from_doc(doc)
+        if read_only or stored.final:
+            return stored
+        lane = await self.sync(stored.instance_id)
+        return lane.get(command_id) or stored
+
+    async def recent(self, instance_id: str, limit: int) -> list[Command]:
+        """The instance's active and recently ended commands, newest first."""
+        docs = await self.repo.active_for(instance_id)
+        docs += await self.repo.recent_finished(instance_id, limit)
+        recent = [Command.from_doc(d) for d in docs]
+        recent.sort(key=lambda c: (c.issued_at, c.seq), reverse=True)
+        return recent[:limit]
+
+    async def catch_up(self, cmd: Command) -> None:
+        """Take the stored copy's word on a command (another replica moved it)."""
+        if (doc := await self.repo.get(cmd.command_id)) is not None:
+            cmd.catch_up(Command.from_doc(doc))

@@ -20,12 +20,18 @@ class CommandsRepo:
 
     async def ensure_indexes(self) -> None:
         await self.active.create_index([("command_id", 1)])
+        await self.active.create_index([("instance_id", 1)])
         await self.finished.create_index([("command_id", 1)])
         await self.finished.create_index([("instance_id", 1), ("issued_at", -1)])
         await self.finished.create_index([("ended_at", 1)])
 
     async def all_active(self) -> list[Doc]:
         return await self.active.find({}, sort=[("seq", 1)], projection={"_id": 0})
+
+    async def active_for(self, instance_id: str) -> list[Doc]:
+        return await self.active.find(
+            {"instance_id": instance_id}, sort=[("seq", 1)], projection={"_id": 0}
+        )
 
     async def insert_active(self, docs: list[Doc]) -> None:
         await self.active.insert_many([dict(doc) for doc in docs])
@@ -36,6 +42,14 @@ class CommandsRepo:
     async def finish(self, doc: Doc, ended_at: datetime) -> None:
         await self.finished.insert_one({**doc, "ended_at": ended_at})
         await self.active.delete_many({"command_id": doc["command_id"]})
+
+    async def claim_finish(self, doc: Doc, ended_at: datetime) -> bool:
+        """Several replicas: the one that takes the command out of the active ones records
+        its end (once); False if another already did."""
+        if not await self.active.delete_many({"command_id": doc["command_id"]}):
+            return False
+        await self.finished.insert_one({**doc, "ended_at": ended_at})
+        return True
 
     async def get(self, command_id: str) -> Doc | None:
         docs = await self.finished.find({"command_id": command_id}, projection={"_id": 0}, limit=1)

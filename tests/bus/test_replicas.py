@@ -3,6 +3,8 @@
 Replicas share state only through MongoDB, so the command path across
 replicas runs when FLEET_TEST_MONGO_URL is given; topic traffic between
 users needs no shared state (the bootstrap admin exists on both).
+test_replicas_shared_store.py runs the command path on one shared embedded
+store in one process.
 """
 
 from __future__ import annotations
@@ -75,9 +77,6 @@ async def test_redis_going_away_degrades_to_local_and_shows_in_readyz(
 
 
 @pytest.mark.mongo
-@pytest.mark.xfail(
-    reason="hot state (command queues, leases) is per replica: docs/live.md", strict=False
-)
 @pytest.mark.skipif(
     not os.environ.get("FLEET_TEST_MONGO_URL"),
     reason="FLEET_TEST_MONGO_URL not set: replicas share state only via MongoDB",
@@ -111,3 +110,14 @@ async def test_command_accepted_on_a_reaches_vehicle_on_b(
                 assert r.status_code == 202
                 pushed = await recv_until(car, lambda f: f["op"] == "command", within_s=15)
                 assert pushed["type"] == "stop"
+                command_id = pushed["command_id"]
+                done = await call(
+                    car,
+                    "update_fbmessage",
+                    "f",
+                    instance_id=iid,
+                    acks=[{"command_id": command_id, "status": "accepted"}],
+                )
+                assert done["ok"], done
+                r = await api_a.get(f"/api/commands/{command_id}", headers=op)
+                assert r.status_code == 200 and r.json()["status"] == "accepted", r.text

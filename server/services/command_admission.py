@@ -1,0 +1,106 @@
+"""Whether a submit is taken, instance by instance: the checks before anything is queued.
+
+``submit_control`` is all or nothing: every target is checked (access,
+finished, capability, lease, local control, queue bound) and its args
+worked out (a planned path) before one command is made. On several replicas
+each target's record and lease are read from the store first.
+"""
+
+from __future__ import annotations
+
+import asyncio
+from collections.abc import Callable, Mapping
+from datetime import datetime
+from typing import Any
+
+from fleet_protocol import CommandSpec
+from server.domain import arbitration
+from server.domain import commands as life
+from server.domain.access import Principal
+from server.errors import FleetError, Forbidden, InstanceFinished, RateLimited
+from server.services.control import ControlService
+from server.services.instances import InstanceService, InstanceState
+from server.services.lanes import Lane
+from server.services.planning import Planner
+
+#: Motion commands waiting on one instance; ``stop`` is never refused by this bound.
+MAX_ACTIVE_PER_INSTANCE = 256
+
+Refusal = tuple[int, str, FleetError]
+Target = tuple[int, InstanceState]
+
+
+class Admission:
+    def __init__(
+        self,
+        instances: InstanceService,
+        control: ControlService,
+        planner: Planner,
+        lanes: Mapping[str, Lane],
+        clock: Callable[[], datetime],
+    ) -> None:
+        self.instances = instances
+        self.control = control
+        self.planner = planner
+        self.lanes = lanes
+        self.clock = clock
+
+    async def targets(
+        self, principal: Principal, ids: list[str]
+    ) -> tuple[list[Target], list[Refusal]]:
+        if ids == ["*"]:
+            live = [
+                s
+                for s in await self.instances.everyone()
+                if not s.finished and principal.can_see(s.vehicle_id)
+            ]
+            targets = list(enumerate(sorted(live, key=lambda s: s.vehicle_id)))
+            refusals: list[Refusal] = []
+        else:
+            targets, refusals = [], []
+            for index, instance_id in enumerate(ids):
+                try:
+                    targets.append((index, await self.instances.fresh(instance_id)))
+                except FleetError as exc:
+                    refusals.append((index, instance_id, exc))
+        if self.control.shared:  # a lease granted or ended on another replica counts here
+            for _, state in targets:
+                await self.control.refresh(state.instance_id)
+        return targets, refusals
+
+    def check_all(
+        self, principal: Principal, targets: list[Target], spec: CommandSpec
+    ) -> list[Refusal]:
+        refusals = []
+        for index, state in targets:
+            try:
+                self.admit(principal, state, spec)
+            except FleetError as exc:
+                refusals.append((index, state.instance_id, exc))
+        return refusals
+
+    def admit(self, principal: Principal, state: InstanceState, spec: CommandSpec) -> None:
+        """Check one instance takes this command from this caller now."""
+        if not principal.can_see(state.vehicle_id):
+            raise Forbidden(f"no access to vehicle {state.vehicle_id}")
+        if state.finished:
+            raise InstanceFinished(f"instance {state.instance_id} is finished")
+        life.check_capability(spec.type, state.capabilities)
+        arbitration.check_submit(
+            principal,
+            command_type=spec.type,
+            lease=self.control.lease(state.instance_id),
+            control_mode=state.control_mode,
+            now=self.clock(),
+        )
+        lane = self.lanes.get(state.instance_id)
+        if spec.type != "stop" and lane is not None and len(lane.active) >= MAX_ACTIVE_PER_INSTANCE:
+            raise RateLimited(f"{MAX_ACTIVE_PER_INSTANCE} commands already wait on this instance")
+
+    async def args(self, state: InstanceState, spec: CommandSpec) -> dict[str, Any]:
+        """The command's args for this instance: planned (off the event loop) if asked."""
+        args = dict(spec.args)
+        if spec.type == "follow_path" and args.get("plan"):
+            others = [s for s in self.instances.live() if s.instance_id != state.instance_id]
+            args = await asyncio.to_thread(self.planner, state, args, others)
+        return args

@@ -1,0 +1,107 @@
+"""One instance as a replica holds it in memory, and how it maps to its stored document."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from datetime import datetime
+from typing import Any
+
+from fleet_protocol import Sample
+from server.domain.presence import Presence
+
+
+@dataclass
+class InstanceState:
+    instance_id: str
+    vehicle_id: str
+    name: str
+    vehicle_type: str
+    capabilities: list[str]
+    started_at: datetime
+    params: dict[str, Any] = field(default_factory=dict)
+    params_updated_at: datetime | None = None
+    last_seen: datetime | None = None
+    control_mode: str = "idle"
+    position: dict[str, Any] | None = None
+    finished_at: datetime | None = None
+    presence: Presence = "offline"
+    polling: int = 0  # open long polls: contact while open
+    dirty: bool = False  # params or control mode changed: written at the next sweep
+    moved: bool = False  # last_seen or position moved: written every persist_interval_s
+    saved_at: float = 0.0  # monotonic time of the last write
+
+    @property
+    def finished(self) -> bool:
+        return self.finished_at is not None
+
+    def position_json(self) -> dict[str, Any] | None:
+        if self.position is None:
+            return None
+        return Sample.model_validate(self.position).model_dump(mode="json", exclude_none=True)
+
+    def to_doc(self) -> dict[str, Any]:
+        return {
+            "instance_id": self.instance_id,
+            "vehicle_id": self.vehicle_id,
+            "name": self.name,
+            "vehicle_type": self.vehicle_type,
+            "capabilities": self.capabilities,
+            "started_at": self.started_at,
+            "params": self.params,
+            "params_updated_at": self.params_updated_at,
+            "last_seen": self.last_seen,
+            "control_mode": self.control_mode,
+            "position": self.position,
+            "finished_at": self.finished_at,
+        }
+
+    @classmethod
+    def from_doc(cls, doc: dict[str, Any]) -> InstanceState:
+        fields: dict[str, Any] = {
+            k: doc.get(k)
+            for k in (
+                "instance_id",
+                "vehicle_id",
+                "name",
+                "vehicle_type",
+                "capabilities",
+                "started_at",
+                "params",
+                "params_updated_at",
+                "last_seen",
+                "control_mode",
+                "position",
+                "finished_at",
+            )
+        }
+        fields["params"] = fields["params"] or {}
+        fields["capabilities"] = fields["capabilities"] or []
+        fields["control_mode"] = fields["control_mode"] or "idle"
+        return cls(**fields)
+
+    def merge_contact(self, doc: dict[str, Any]) -> None:
+        """Take the later contact and position of a stored copy (several replicas)."""
+        seen = doc.get("last_seen")
+        if seen is not None and (self.last_seen is None or seen > self.last_seen):
+            self.last_seen = seen
+        stored = doc.get("position")
+        if stored is not None and (self.position is None or stored["ts"] > self.position["ts"]):
+            self.position = stored
+
+    def merge(self, doc: dict[str, Any]) -> None:
+        """Catch up with the store's copy, written by another replica (several replicas).
+
+        What this replica changed and has not written yet (``dirty``) stays.
+        """
+        if not self.dirty:
+            stored = InstanceState.from_doc(doc)
+            self.name, self.vehicle_type = stored.name, stored.vehicle_type
+            self.capabilities, self.params = stored.capabilities, stored.params
+            self.params_updated_at, self.control_mode = (
+                stored.params_updated_at,
+                stored.control_mode,
+            )
+        self.merge_contact(doc)
+        if doc.get("finished_at") is not None and self.finished_at is None:
+            self.finished_at = doc["finished_at"]
+            self.presence = "finished"

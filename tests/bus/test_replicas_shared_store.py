@@ -1,0 +1,203 @@
+"""Two replicas in one process, sharing one store object and a real redis-server.
+
+Each replica is a full server app on its own uvicorn, with its own services,
+memory, sweepers and Redis bus; they are built on ONE embedded store object
+(``create_app(store=...)``), as two replicas share one MongoDB. What they
+share is exactly what real replicas share: the store and Redis. What this
+does not prove is MongoDB itself (its timing, millisecond datetimes,
+concurrency between processes): the embedded store answers both replicas
+from one event loop, so no two writes ever interleave inside one call.
+``test_replicas.py::test_command_accepted_on_a_reaches_vehicle_on_b`` runs
+on a real MongoDB when FLEET_TEST_MONGO_URL is given.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+from collections.abc import AsyncIterator, Callable
+from contextlib import asynccontextmanager
+from datetime import datetime
+from typing import Any
+
+import httpx
+import pytest
+
+from server.settings import Settings
+from server.storage import open_store
+from tests.bus.conftest import RedisServer
+from tests.factories import ADMIN, make_user, make_vehicle
+from tests.live import call, connect, recv_until, serve
+
+STALE_S = 1.5
+OFFLINE_S = 3.0
+
+Replicas = tuple[httpx.AsyncClient, httpx.AsyncClient, str]
+
+
+@asynccontextmanager
+async def two_replicas(
+    make_settings: Callable[..., Settings], redis_server: RedisServer
+) -> AsyncIterator[Replicas]:
+    """Replicas A and B on one store; yields an HTTP client to each and B's base URL."""
+    settings = make_settings(
+        redis_url=redis_server.url, stale_after_s=STALE_S, offline_after_s=OFFLINE_S
+    )
+    store = open_store(settings)
+    try:
+        async with (
+            serve(settings, store) as a,
+            serve(settings, store) as b,
+            httpx.AsyncClient(base_url=a, timeout=10) as api_a,
+            httpx.AsyncClient(base_url=b, timeout=10) as api_b,
+        ):
+            yield api_a, api_b, b
+    finally:
+        await store.close()
+
+
+async def _heartbeats(api: httpx.AsyncClient, headers: dict[str, str], instance_id: str) -> None:
+    """The vehicle's agent: a heartbeat to its replica every 0.3 s (its cadence, not a wait)."""
+    while True:
+        r = await api.post("/upper/heartbeat", headers=headers, json={"instance_id": instance_id})
+        assert r.status_code == 200, r.text
+        await asyncio.sleep(0.3)
+
+
+async def _presence_events(api: httpx.AsyncClient, vehicle_id: str) -> list[str]:
+    r = await api.get(
+        "/api/events", headers=ADMIN, params={"vehicle_id": vehicle_id, "kind": "presence"}
+    )
+    assert r.status_code == 200, r.text
+    return [e["data"]["presence"] for e in r.json()["events"]]
+
+
+async def _until(probe: Callable[[], Any], within_s: float) -> Any:
+    """Poll ``probe`` until it returns something true, by a deadline."""
+    async with asyncio.timeout(within_s):
+        while not (got := await probe()):  # noqa: ASYNC110 (deadline poll)
+            await asyncio.sleep(0.05)
+    return got
+
+
+async def test_commands_acks_leases_and_presence_cross_replicas(
+    make_settings: Callable[..., Settings], redis_server: RedisServer
+) -> None:
+    async with two_replicas(make_settings, redis_server) as (api_a, api_b, b):
+        vid, vehicle = await make_vehicle(api_a)
+        user, operator = await make_user(api_a, "operator", [vid])
+        async with await connect(b, "/ws/vehicle", vehicle["Authorization"][7:]) as car:
+            ack = await call(
+                car, "start_instance", "s", vehicle_id=vid, capabilities=["stop", "go_to"]
+            )
+            iid = ack["instance_id"]
+            started = datetime.fromisoformat(ack["server_time"])
+            beating = asyncio.create_task(_heartbeats(api_b, vehicle, iid))
+            try:
+                # A lease granted on A is honoured by a submit on B.
+                r = await api_a.post(
+                    "/client/grant_control",
+                    headers=ADMIN,
+                    json={"instance_id": iid, "user": user, "duration_s": 60},
+                )
+                assert r.status_code == 200, r.text
+                go_to = {"type": "go_to", "args": {"lat": 63.4, "lon": 10.4}}
+                r = await api_b.post(
+                    "/client/submit_control",
+                    headers=operator,
+                    json={"instance_ids": [iid], "command": go_to},
+                )
+                assert r.status_code == 202, r.text
+                pushed = await recv_until(car, lambda f: f["op"] == "command")
+                assert pushed["type"] == "go_to"
+
+                # A command accepted on A reaches the vehicle's socket on B, stop first.
+                r = await api_a.post(
+                    "/client/submit_control",
+                    headers=operator,
+                    json={"instance_ids": [iid], "command": {"type": "stop"}},
+                )
+                assert r.status_code == 202, r.text
+                stop_id = r.json()["commands"][0]["command_id"]
+                pushed = await recv_until(car, lambda f: f["op"] == "command", within_s=10)
+                assert (pushed["type"], pushed["command_id"]) == ("stop", stop_id)
+
+                # The vehicle's ack on B is the command's status read on A.
+                done = await call(
+                    car,
+                    "update_fbmessage",
+                    "f",
+                    instance_id=iid,
+                    control_mode="remote",
+                    acks=[{"command_id": stop_id, "status": "accepted"}],
+                )
+                assert done["ok"], done
+                r = await api_a.get(f"/api/commands/{stop_id}", headers=operator)
+                assert r.status_code == 200 and r.json()["status"] == "accepted", r.text
+                r = await api_a.get(
+                    "/client/get_fbmessage", headers=operator, params={"instance_id": iid}
+                )
+                statuses = {c["command_id"]: c["status"] for c in r.json()["commands"]}
+                assert statuses[stop_id] == "accepted"
+
+                # Revoked on A: B refuses the former holder at once.
+                r = await api_a.post(
+                    "/client/revoke_control", headers=ADMIN, json={"instance_id": iid}
+                )
+                assert r.status_code == 200, r.text
+                r = await api_b.post(
+                    "/client/submit_control",
+                    headers=operator,
+                    json={"instance_ids": [iid], "command": go_to},
+                )
+                assert r.status_code == 409 and r.json()["error"]["code"] == "control_not_held"
+
+                # In contact with B only, for well past offline_after_s: A never marks it lost.
+                async def long_enough() -> bool:
+                    r = await api_b.post(
+                        "/client/connect_instance", headers=ADMIN, json={"instance_id": iid}
+                    )
+                    seen = datetime.fromisoformat(r.json()["instance"]["last_seen"])
+                    return (seen - started).total_seconds() > 2 * OFFLINE_S
+
+                await _until(long_enough, within_s=20)
+                assert set(await _presence_events(api_a, vid)) <= {"online"}
+                r = await api_a.get("/api/vehicles", headers=ADMIN)
+                (view,) = [v for v in r.json()["vehicles"] if v["vehicle_id"] == vid]
+                assert view["presence"] == "online"
+            finally:
+                beating.cancel()
+                with contextlib.suppress(asyncio.CancelledError):
+                    await beating
+
+        # Silent now: it goes stale, then offline, each told once whichever replica saw it.
+        async def offline() -> list[str] | None:
+            seen = await _presence_events(api_a, vid)
+            return seen if "offline" in seen else None
+
+        seen = await _until(offline, within_s=20)
+        assert seen.count("stale") == 1 and seen.count("offline") == 1, seen
+
+
+@pytest.mark.parametrize("where", ["a", "b"])
+async def test_a_vehicle_started_on_one_replica_resumes_on_the_other(
+    make_settings: Callable[..., Settings], redis_server: RedisServer, where: str
+) -> None:
+    async with two_replicas(make_settings, redis_server) as (api_a, api_b, _):
+        vid, vehicle = await make_vehicle(api_a)
+        body = {"vehicle_id": vid, "capabilities": ["stop"]}
+        first = await api_a.post("/upper/start_instance", headers=vehicle, json=body)
+        again = await (api_a if where == "a" else api_b).post(
+            "/upper/start_instance", headers=vehicle, json=body
+        )
+        assert again.json()["instance_id"] == first.json()["instance_id"]
+        assert again.json()["resumed"] is True
+        r = await api_b.post(
+            "/upper/finish_instance",
+            headers=vehicle,
+            json={"instance_id": again.json()["instance_id"]},
+        )
+        assert r.status_code == 200, r.text
+        fresh = await api_a.post("/upper/start_instance", headers=vehicle, json=body)
+        assert fresh.json()["resumed"] is False
+        assert fresh.json()["instance_id"] != first.json()["instance_id"]
