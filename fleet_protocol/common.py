@@ -42,8 +42,10 @@ def _as_utc(value: datetime) -> datetime:
 
 def format_ts(value: datetime) -> str:
     """ISO 8601 UTC with milliseconds, the contract's one time format."""
-    value = _as_utc(value)
-    return value.strftime("%Y-%m-%dT%H:%M:%S.") + f"{value.microsecond // 1000:03d}Z"
+    if value.tzinfo is not UTC:
+        value = _as_utc(value)
+    # "2026-05-01T12:00:00.000+00:00" less its offset: isoformat is the fastest spelling.
+    return value.isoformat(timespec="milliseconds")[:23] + "Z"
 
 
 def parse_ts(text: str) -> datetime:

@@ -23,6 +23,7 @@ Pure functions only; the server's permission rules live in
 
 from __future__ import annotations
 
+import functools
 import re
 from typing import Annotated
 
@@ -57,6 +58,12 @@ def split_topic(topic: str) -> list[str]:
     """The segments of a valid topic; ``ValueError`` saying why otherwise."""
     if not isinstance(topic, str):
         raise ValueError("a topic is a string")
+    return list(_segments(topic))
+
+
+@functools.lru_cache(maxsize=16384)
+def _segments(topic: str) -> tuple[str, ...]:
+    """Checked once per distinct topic: the same few topics carry most messages."""
     if not topic:
         raise ValueError("a topic is not empty")
     if len(topic) > MAX_TOPIC_CHARS:
@@ -71,11 +78,13 @@ def split_topic(topic: str) -> list[str]:
             raise ValueError(
                 f"topic segment {segment[:32]!r} may hold only a-z, 0-9, '_' and '-' (no wildcards)"
             )
-    return segments
+    return tuple(segments)
 
 
 def validate_topic(topic: str) -> str:
-    split_topic(topic)
+    if not isinstance(topic, str):
+        raise ValueError("a topic is a string")
+    _segments(topic)
     return topic
 
 
@@ -93,6 +102,7 @@ def topic_owner(topic: str) -> tuple[str, str | None]:
     return segments[0], (segments[1] if len(segments) > 1 else None)
 
 
+@functools.lru_cache(maxsize=16384)
 def is_media_topic(topic: str) -> bool:
     """Whether a (valid) topic carries media, delivered as binary frames, latest wins."""
     segments = topic.split("/")

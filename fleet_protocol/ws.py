@@ -201,6 +201,9 @@ class _Push(BaseModel):
         return self.model_dump_json()
 
 
+_ACK_OWN_FIELDS = frozenset({"op", "id", "ok", "error"})
+
+
 class AckPush(_Push):
     """The answer to an op with an ``id``; on success, the HTTP answer's fields beside."""
 
@@ -221,9 +224,13 @@ class AckPush(_Push):
     @staticmethod
     def success_frame(op_id: str, result: BaseModel | dict[str, Any] | None = None) -> str:
         """``success(...).frame()`` without building the model (the hot path of every op)."""
-        fields = result.model_dump(mode="json") if isinstance(result, BaseModel) else result
-        body = {k: v for k, v in (fields or {}).items() if k not in ("op", "id", "ok", "error")}
-        return json.dumps({"op": "ack", "id": op_id, "ok": True, **body}, separators=(",", ":"))
+        head = '{"op":"ack","id":' + json.dumps(op_id) + ',"ok":true'
+        if isinstance(result, BaseModel):
+            body = result.model_dump_json(exclude=_ACK_OWN_FIELDS)  # serialized in Rust
+        else:
+            kept = {k: v for k, v in (result or {}).items() if k not in _ACK_OWN_FIELDS}
+            body = json.dumps(kept, separators=(",", ":"))
+        return head + "}" if body == "{}" else head + "," + body[1:]
 
     @classmethod
     def failure(cls, op_id: str, error: ErrorBody) -> AckPush:

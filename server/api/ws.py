@@ -9,6 +9,7 @@ from fastapi import APIRouter, WebSocket, WebSocketDisconnect
 
 from server.bus.outbox import Frame, Outbox
 from server.errors import FleetError, Unauthorized
+from server.services.auth import digest
 from server.services.live import (
     CLOSE_FORBIDDEN,
     CLOSE_UNAUTHORIZED,
@@ -66,6 +67,7 @@ async def _serve(websocket: WebSocket, kind: str) -> None:
             await websocket.close(code, reason)
 
     assert token is not None
+    token_key = digest(token)  # checked again on every frame, hashed once
     conn = Connection(
         principal, token, Outbox(send, max_size=services.settings.ws_queue_size), close, kind
     )
@@ -77,7 +79,7 @@ async def _serve(websocket: WebSocket, kind: str) -> None:
             if message["type"] == "websocket.disconnect":
                 break
             try:
-                conn.principal = await services.auth.authenticate(conn.token)
+                conn.principal = await services.auth.authenticate_digest(token_key)
             except Unauthorized:
                 await services.live.close(conn, CLOSE_UNAUTHORIZED, "the token is no longer valid")
                 break

@@ -3,7 +3,9 @@
 Everything a WebSocket sends goes through its :class:`Outbox`: the bus
 handler and the op loop only ``put`` frames (never block), and one writer
 task ``await``\\ s ``send`` for each in turn, so a slow socket never stalls the
-fan-out to the others.
+fan-out to the others. When the writer is idle and the socket has room, ``put``
+runs the send itself as far as it goes without waiting (see
+:meth:`Outbox._send_eagerly`); a send that must wait is finished by the writer.
 
 - **Bounded.** With ``max_size`` frames waiting, a new frame drops the
   oldest waiting frame that is not critical; the drops are counted and the
@@ -29,9 +31,9 @@ import contextlib
 import logging
 import time
 from collections import deque
-from collections.abc import Awaitable, Callable
+from collections.abc import Callable, Coroutine
 from types import TracebackType
-from typing import Self
+from typing import Any, Self
 
 from fleet_protocol.ws import LaggingPush
 from server.bus.throttle import Throttle
@@ -55,7 +57,7 @@ class _Entry:
 class Outbox:
     def __init__(
         self,
-        send: Callable[[Frame], Awaitable[None]],
+        send: Callable[[Frame], Coroutine[Any, Any, None]],
         *,
         max_size: int = DEFAULT_MAX_QUEUE,
         clock: Callable[[], float] = time.monotonic,
@@ -75,6 +77,10 @@ class Outbox:
         self._idle = asyncio.Event()
         self._idle.set()
         self._task: asyncio.Task[None] | None = None
+        #: The writer waits for work (nothing queued, nothing being sent).
+        self._parked = False
+        #: A send begun by ``put`` that had to wait (the socket's buffer is full).
+        self._suspended: tuple[Coroutine[Any, Any, None], Any] | None = None
         self._unreported_drops = 0
         self.closed = asyncio.Event()
         #: Why the writer stopped, when ``send`` failed.
@@ -108,6 +114,8 @@ class Outbox:
                 self._enqueue(frame, topic, latest_wins)
         else:
             self._enqueue(frame, topic, latest_wins)
+        if self._parked and self._suspended is None and self._send_eagerly():
+            return
         self._idle.clear()
         self._wakeup.set()
 
@@ -191,9 +199,68 @@ class Outbox:
             return entry.frame
         return None
 
-    async def _write(self) -> None:
+    def _send_eagerly(self) -> bool:
+        """Send what waits from ``put`` itself, while no send has to wait.
+
+        A socket with room in its buffer takes a frame without suspending,
+        so the frame leaves in the producer's turn of the event loop, not one
+        task switch later (that switch is most of a relay's latency). The
+        first send that does have to wait is left to the writer task to
+        finish. ``True`` when nothing is left waiting.
+        """
+        while (frame := self._next()) is not None:
+            coro = self._send(frame)
+            try:
+                waiting = coro.send(None)
+            except StopIteration:
+                self.sent += 1
+                continue
+            except Exception as exc:
+                self._fail(exc)
+                return True
+            # It waits on a future (flow control): hand it to the writer.
+            if hasattr(waiting, "_asyncio_future_blocking"):
+                waiting._asyncio_future_blocking = False
+            self._suspended = (coro, waiting)
+            return False
+        self._idle.set()
+        return True
+
+    async def _finish_suspended(self) -> None:
+        assert self._suspended is not None
+        coro, waiting = self._suspended
         try:
             while True:
+                if waiting is None:
+                    await asyncio.sleep(0)
+                else:
+                    await asyncio.wait([waiting])
+                try:
+                    waiting = coro.send(None)
+                except StopIteration:
+                    break
+                if hasattr(waiting, "_asyncio_future_blocking"):
+                    waiting._asyncio_future_blocking = False
+        except BaseException:
+            coro.close()
+            raise
+        finally:
+            self._suspended = None
+        self.sent += 1
+
+    def _fail(self, exc: BaseException) -> None:
+        self.error = exc
+        log.info("outbox: send failed, writer stops: %r", exc)
+        self.closed.set()
+        self._idle.set()
+        self._wakeup.set()
+
+    async def _write(self) -> None:
+        try:
+            while not self.closed.is_set():
+                if self._suspended is not None:
+                    await self._finish_suspended()
+                    continue
                 frame = self._next()
                 if frame is None:
                     await self._wait_for_work()
@@ -203,9 +270,11 @@ class Outbox:
         except asyncio.CancelledError:
             raise
         except Exception as exc:
-            self.error = exc
-            log.info("outbox: send failed, writer stops: %r", exc)
+            self._fail(exc)
         finally:
+            if self._suspended is not None:
+                self._suspended[0].close()
+                self._suspended = None
             self.closed.set()
             self._idle.set()
 
@@ -214,6 +283,13 @@ class Outbox:
         if due is None:
             self._idle.set()
         self._wakeup.clear()
-        timeout = None if due is None else max(0.0, due - self._clock())
-        with contextlib.suppress(TimeoutError):
-            await asyncio.wait_for(self._wakeup.wait(), timeout)
+        self._parked = True
+        try:
+            if due is None:
+                await self._wakeup.wait()
+            else:
+                with contextlib.suppress(TimeoutError):
+                    async with asyncio.timeout(max(0.0, due - self._clock())):
+                        await self._wakeup.wait()
+        finally:
+            self._parked = False

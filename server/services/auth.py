@@ -71,7 +71,10 @@ class AuthService:
     async def authenticate(self, token: str | None) -> Principal:
         if not token:
             raise Unauthorized("a bearer token is required")
-        key = digest(token)
+        return await self.authenticate_digest(digest(token))
+
+    async def authenticate_digest(self, key: str) -> Principal:
+        """:meth:`authenticate` for a token whose digest is known (a socket's every frame)."""
         cached = self._cache.get(key)
         now = time.time()
         if cached is not None and (cached.expires_at is None or cached.expires_at > now):

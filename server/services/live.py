@@ -10,7 +10,6 @@ replica hears what was published on another.
 from __future__ import annotations
 
 import asyncio
-import json
 import logging
 import secrets
 from collections.abc import Awaitable, Callable
@@ -22,6 +21,7 @@ from fleet_protocol.topics import is_media_topic
 from fleet_protocol.ws import CommandPush, ControlPush, EventPush, RoutesPush
 from server.bus import Bus, Message, Subscription
 from server.bus.outbox import Outbox
+from server.bus.wire import dumps
 from server.domain.access import Principal
 from server.domain.routing import RoutingTable
 from server.domain.topics import UnitRef
@@ -236,7 +236,7 @@ class LiveHub:
             filtered = self._visible_fleet(conn.principal, message)
             if filtered is None:
                 return
-            frame = json.dumps(filtered, separators=(",", ":"))
+            frame = dumps(filtered)
         else:
             frame = self._encode(message)
         conn.outbox.put(frame, topic=topic, latest_wins=is_media_topic(topic), throttle_ms=throttle)
@@ -245,7 +245,7 @@ class LiveHub:
         """One JSON encoding per message, however many local subscribers it has."""
         if self._last_message is not message:
             self._last_message = message
-            self._last_frame = json.dumps(message, separators=(",", ":"))
+            self._last_frame = dumps(message)
         return self._last_frame
 
     @staticmethod

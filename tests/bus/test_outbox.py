@@ -224,3 +224,32 @@ def test_max_size_must_be_positive():
 
     with pytest.raises(ValueError):
         Outbox(send, max_size=0)
+
+
+async def test_a_send_that_must_wait_is_finished_by_the_writer_in_order():
+    socket = Socket()
+    async with Outbox(socket.send) as outbox:
+        outbox.put("a")  # the writer is idle: sent from put itself
+        await wait_idle(outbox)
+        socket.gate.clear()
+        socket.entered.clear()
+        outbox.put("b")  # begins, then waits on the closed gate
+        outbox.put("c")
+        await asyncio.wait_for(socket.entered.wait(), WAIT_S)
+        assert socket.frames == ["a"]
+        socket.gate.set()
+        await wait_idle(outbox)
+    assert socket.frames == ["a", "b", "c"]
+    assert outbox.sent == 3
+
+
+async def test_a_send_failing_while_the_writer_is_idle_stops_the_outbox():
+    socket = Socket(fail_on=1)
+    async with Outbox(socket.send) as outbox:
+        outbox.put("a")
+        await wait_idle(outbox)
+        outbox.put("b")
+        await asyncio.wait_for(outbox.closed.wait(), WAIT_S)
+        assert isinstance(outbox.error, ConnectionError)
+        outbox.put("c")
+    assert socket.frames == ["a"]
