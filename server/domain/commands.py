@@ -207,9 +207,14 @@ def _join(head: str, tail: str | None) -> str:
 # ---- expiry, drift, delivery ------------------------------------------------
 
 
+def expires_now(cmd: Command, now: datetime) -> bool:
+    """Not acknowledged by ``expires_at``: to be expired, handed out or not."""
+    return cmd.status in UNACKNOWLEDGED and now >= cmd.expires_at
+
+
 def expire_if_due(cmd: Command, now: datetime) -> bool:
     """A command not acknowledged by ``expires_at`` is expired, handed out or not."""
-    if cmd.status in UNACKNOWLEDGED and now >= cmd.expires_at:
+    if expires_now(cmd, now):
         cmd.move("expired", now)
         return True
     return False

@@ -288,6 +288,8 @@ class CommandService:
         timeout = self.settings.ack_timeout_s
         for lane in list(self._lanes.values()):
             due = False
+            if self.shared and any(life.expires_now(c, now) for c in lane.active.values()):
+                await self._sync(lane.instance_id)  # acknowledged on another replica?
             for cmd in list(lane.active.values()):
                 if life.expire_if_due(cmd, now):
                     await self._finished(cmd)

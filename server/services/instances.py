@@ -11,7 +11,7 @@ from __future__ import annotations
 import secrets
 import time
 from collections.abc import Awaitable, Callable
-from datetime import datetime
+from datetime import datetime, timedelta
 from typing import Any
 
 from fleet_protocol import Sample, StartInstance
@@ -245,9 +245,10 @@ class InstanceService:
         tick = time.monotonic()
         every = self.settings.contact_write_s
         states = list(self._by_id.values())
-        changes = [(s, p) for s in states if (p := self._presence(s, now)) != s.presence]
-        if self.shared and changes:  # the vehicle may be in contact with another replica
-            changes = await self._recheck(changes, now)
+        if self.shared:  # the vehicle may be in contact with another replica
+            changes = await self._recheck(states, now)
+        else:
+            changes = [(s, p) for s in states if (p := self._presence(s, now)) != s.presence]
         for state, presence in changes:
             told = not self.shared or await self.repo.claim_presence(state.instance_id, presence)
             self._set_presence(state, presence, tell=told)
@@ -326,16 +327,21 @@ class InstanceService:
         return doc.get("finished_at") is not None
 
     async def _recheck(
-        self, changes: list[tuple[InstanceState, Presence]], now: datetime
+        self, states: list[InstanceState], now: datetime
     ) -> list[tuple[InstanceState, Presence]]:
-        """Before a presence change: the contact other replicas wrote (one read for all)."""
-        stored = {
-            d["instance_id"]: d
-            for d in await self.repo.contacts([s.instance_id for s, _ in changes])
-        }
+        """Several replicas: the presence changes due, once the contact other replicas
+        wrote is read back (one read for all). A copy is read back a little before it
+        would change (``contact_write_s`` ahead), so that it never looks stale here
+        while the vehicle is in contact with another replica."""
+        ahead = now + timedelta(seconds=self.settings.contact_write_s)
+        near = [s for s in states if self._presence(s, ahead) != s.presence]
+        if not near:
+            return []
+        stored = await self.repo.contacts([s.instance_id for s in near])
+        by_id = {d["instance_id"]: d for d in stored}
         out = []
-        for state, _ in changes:
-            if (doc := stored.get(state.instance_id)) is not None:
+        for state in near:
+            if (doc := by_id.get(state.instance_id)) is not None:
                 state.merge_contact(doc)
             if (presence := self._presence(state, now)) != state.presence:
                 out.append((state, presence))

@@ -37,11 +37,11 @@ Replicas = tuple[httpx.AsyncClient, httpx.AsyncClient, str]
 
 @asynccontextmanager
 async def two_replicas(
-    make_settings: Callable[..., Settings], redis_server: RedisServer
+    make_settings: Callable[..., Settings], redis_server: RedisServer, **overrides: Any
 ) -> AsyncIterator[Replicas]:
     """Replicas A and B on one store; yields an HTTP client to each and B's base URL."""
     settings = make_settings(
-        redis_url=redis_server.url, stale_after_s=STALE_S, offline_after_s=OFFLINE_S
+        redis_url=redis_server.url, stale_after_s=STALE_S, offline_after_s=OFFLINE_S, **overrides
     )
     store = open_store(settings)
     try:
@@ -201,3 +201,60 @@ async def test_a_vehicle_started_on_one_replica_resumes_on_the_other(
         fresh = await api_a.post("/upper/start_instance", headers=vehicle, json=body)
         assert fresh.json()["resumed"] is False
         assert fresh.json()["instance_id"] != first.json()["instance_id"]
+
+
+async def test_a_long_poll_on_one_replica_gets_a_command_accepted_on_the_other(
+    make_settings: Callable[..., Settings], redis_server: RedisServer
+) -> None:
+    # One long poll per vehicle: a second one is refused while the first waits (429).
+    async with two_replicas(make_settings, redis_server, long_poll_max=1) as (api_a, api_b, _):
+        vid, vehicle = await make_vehicle(api_a)
+        _, operator = await make_user(api_a, "operator", [vid])
+        r = await api_b.post(
+            "/upper/start_instance", headers=vehicle, json={"vehicle_id": vid, "capabilities": []}
+        )
+        iid = r.json()["instance_id"]
+
+        def start_poll() -> asyncio.Task[httpx.Response]:
+            params = {"instance_id": iid, "wait_s": 20}
+            return asyncio.create_task(
+                api_b.get("/upper/get_control", headers=vehicle, params=params, timeout=30)
+            )
+
+        poll = start_poll()
+
+        async def waiting_on_b() -> bool:
+            """Whether the poll is open on B: a second one is refused (429) while it is."""
+            nonlocal poll
+            if poll.done():  # refused while this probe held the one slot: open it again
+                assert poll.result().status_code == 429, poll.result().text
+                poll = start_poll()
+                return False
+            params = {"instance_id": iid, "wait_s": 0.05}
+            r = await api_b.get("/upper/get_control", headers=vehicle, params=params)
+            return r.status_code == 429
+
+        await _until(waiting_on_b, within_s=10)
+        r = await api_a.post(
+            "/client/submit_control",
+            headers=operator,
+            json={"instance_ids": [iid], "command": {"type": "stop"}},
+        )
+        assert r.status_code == 202, r.text
+        async with asyncio.timeout(10):  # well before the poll's own 20 s
+            got = await poll
+        assert [c["type"] for c in got.json()["commands"]] == ["stop"]
+        # Cancelled on A once delivered on B: the vehicle hears "abort" on its next report.
+        command_id = got.json()["commands"][0]["command_id"]
+        r = await api_a.post(
+            "/client/cancel_command", headers=operator, json={"command_id": command_id}
+        )
+        assert r.status_code == 200 and r.json()["status"] == "cancelled", r.text
+        r = await api_b.post(
+            "/upper/update_fbmessage",
+            headers=vehicle,
+            json={"instance_id": iid, "acks": [{"command_id": command_id, "status": "accepted"}]},
+        )
+        assert command_id in r.json()["abort"]
+        r = await api_b.get(f"/api/commands/{command_id}", headers=operator)
+        assert r.json()["status"] == "cancelled"
