@@ -331,6 +331,9 @@ class CommandService:
             await self._sync(instance_id)
             lane.wake()
 
+    def has_lane(self, instance_id: str) -> bool:
+        return instance_id in self._lanes
+
     def forget(self, instance_id: str) -> None:
         """The instance finished on another replica (which ended its commands)."""
         if (lane := self._lanes.pop(instance_id, None)) is not None:

@@ -266,6 +266,9 @@ class ControlService:
         else:
             self._requests.pop(instance_id, None)
 
+    def has_lease(self, instance_id: str) -> bool:
+        return instance_id in self._leases
+
     def forget(self, instance_id: str) -> None:
         """The instance finished on another replica (which ended its lease)."""
         self._leases.pop(instance_id, None)

@@ -59,6 +59,7 @@ class ReplicaSync:
         self._tasks: set[asyncio.Task[Any]] = set()
         self._worker: asyncio.Task[None] | None = None
         self._sub: Subscription | None = None
+        self._stopped = False
         #: Announcements from other replicas applied (for tests and metrics).
         self.refreshed = 0
 
@@ -69,6 +70,7 @@ class ReplicaSync:
         self._worker = asyncio.create_task(self._run(), name="replica-sync")
 
     async def stop(self) -> None:
+        self._stopped = True
         if self._sub is not None:
             await self.bus.unsubscribe(self._sub)
         for task in [self._worker, *self._tasks]:
@@ -78,6 +80,8 @@ class ReplicaSync:
                     await task
 
     def announce(self, instance_id: str, part: str) -> None:
+        if self._stopped:
+            return
         message = {"origin": self.origin, "instance_id": instance_id, "part": part}
         task = asyncio.ensure_future(self.bus.publish(STATE_TOPIC, message))
         self._tasks.add(task)
@@ -104,7 +108,17 @@ class ReplicaSync:
                     log.exception("refreshing instance %s from the store failed", instance_id)
                 self.refreshed += 1
 
+    def _holds(self, instance_id: str) -> bool:
+        """Whether this replica keeps a copy of anything of the instance."""
+        return (
+            self.instances.current_by_id(instance_id) is not None
+            or self.commands.has_lane(instance_id)
+            or self.control.has_lease(instance_id)
+        )
+
     async def _refresh(self, instance_id: str, parts: set[str]) -> None:
+        if not self._holds(instance_id):
+            return  # nothing here to catch up: what it reads later comes from the store
         if "instance" in parts and await self.instances.refresh(instance_id):
             self.commands.forget(instance_id)  # finished on another replica
             self.control.forget(instance_id)
