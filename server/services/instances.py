@@ -251,6 +251,9 @@ class InstanceService:
             changes = [(s, p) for s in states if (p := self._presence(s, now)) != s.presence]
         for state, presence in changes:
             told = not self.shared or await self.repo.claim_presence(state.instance_id, presence)
+            for state in states:
+                if state.polling:  # an open long poll is contact; the others read it in the store
+                    self.touch(state)
             self._set_presence(state, presence, tell=told)
             if told:  # several replicas: the one whose claim matched tells everyone
                 await self.events.record(

@@ -258,3 +258,19 @@ async def test_a_long_poll_on_one_replica_gets_a_command_accepted_on_the_other(
         assert command_id in r.json()["abort"]
         r = await api_b.get(f"/api/commands/{command_id}", headers=operator)
         assert r.json()["status"] == "cancelled"
+
+
+async def test_a_long_poll_open_on_one_replica_keeps_the_vehicle_online_on_the_other(
+    make_settings: Callable[..., Settings], redis_server: RedisServer
+) -> None:
+    async with two_replicas(make_settings, redis_server) as (api_a, api_b, _):
+        vid, vehicle = await make_vehicle(api_a)
+        r = await api_a.post(
+            "/upper/start_instance", headers=vehicle, json={"vehicle_id": vid, "capabilities": []}
+        )
+        iid = r.json()["instance_id"]
+        # Its only contact for twice offline_after_s: one long poll on B.
+        params = {"instance_id": iid, "wait_s": 2 * OFFLINE_S}
+        r = await api_b.get("/upper/get_control", headers=vehicle, params=params, timeout=30)
+        assert r.status_code == 200 and r.json()["commands"] == []
+        assert set(await _presence_events(api_a, vid)) <= {"online"}
