@@ -68,7 +68,10 @@ class Settings(BaseSettings):
         default=10.0, gt=0, description="a partly filled telemetry bucket is written after this"
     )
     persist_interval_s: float = Field(
-        default=10.0, gt=0, description="how often vehicles' last contact and position are saved"
+        default=10.0,
+        gt=0,
+        description="how often vehicles' last contact and position are saved "
+        "(several replicas: at least every stale_after_s / 3)",
     )
     long_poll_max: int = Field(default=4, ge=1, description="open long polls per vehicle")
     max_pending_requests: int = Field(
