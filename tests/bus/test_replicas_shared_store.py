@@ -2,11 +2,12 @@
 
 Each replica is a full server app on its own uvicorn, with its own services,
 memory, sweepers and Redis bus; they are built on ONE embedded store object
-(``create_app(store=...)``), as two replicas share one MongoDB. What they
-share is exactly what real replicas share: the store and Redis. What this
-does not prove is MongoDB itself (its timing, millisecond datetimes,
-concurrency between processes): the embedded store answers both replicas
-from one event loop, so no two writes ever interleave inside one call.
+(``create_app(store=...)``), as two replicas share one MongoDB, and talk
+through a real redis-server. Beyond what real replicas share (the store and
+Redis) they share only the process and its event loop. What this does not
+prove is MongoDB itself (its timing, millisecond datetimes, writes from two
+processes racing): the embedded store answers both replicas in one event
+loop, so two store calls never run at the same time.
 ``test_replicas.py::test_command_accepted_on_a_reaches_vehicle_on_b`` runs
 on a real MongoDB when FLEET_TEST_MONGO_URL is given.
 """
