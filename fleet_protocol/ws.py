@@ -226,7 +226,8 @@ class AckPush(_Push):
         """``success(...).frame()`` without building the model (the hot path of every op)."""
         head = '{"op":"ack","id":' + json.dumps(op_id) + ',"ok":true'
         if isinstance(result, BaseModel):
-            body = result.model_dump_json(exclude=_ACK_OWN_FIELDS)  # serialized in Rust
+            clash = _ACK_OWN_FIELDS & type(result).model_fields.keys()
+            body = result.model_dump_json(exclude=clash or None)  # serialized in Rust
         else:
             kept = {k: v for k, v in (result or {}).items() if k not in _ACK_OWN_FIELDS}
             body = json.dumps(kept, separators=(",", ":"))

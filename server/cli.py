@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import gc
 import logging
 from typing import Any
 
@@ -44,8 +45,10 @@ def run(settings: Settings) -> None:
     logging.basicConfig(
         level=settings.log_level.upper(), format="%(asctime)s %(levelname)s %(name)s: %(message)s"
     )
+    app = create_app(settings)
+    _settle_gc()
     uvicorn.run(
-        create_app(settings),
+        app,
         host=settings.host,
         port=settings.port,
         log_level=settings.log_level,
@@ -54,6 +57,22 @@ def run(settings: Settings) -> None:
         # Open long polls (up to 30 s) must not hold a stop up: they are cut after this.
         timeout_graceful_shutdown=3,
     )
+
+
+def _settle_gc() -> None:
+    """Collector settings for a long-running server process.
+
+    The code, schemas and routes loaded so far live as long as the process:
+    ``gc.freeze`` takes them out of every later collection. A server holding
+    thousands of sockets keeps hundreds of thousands of live objects, and
+    CPython's default thresholds (700, 10, 10) scan the old ones again and
+    again (measured at 5,000 vehicles: a full collection of ~0.4 s every few
+    seconds, the bulk of the p99); larger thresholds collect young garbage
+    as before, the old generations less often.
+    """
+    gc.collect()
+    gc.freeze()
+    gc.set_threshold(10_000, 50, 50)
 
 
 def main() -> None:

@@ -21,6 +21,14 @@ def metrics(out: dict[str, Any]) -> list[Metric]:
             for key, label in (("median_ms", "median"), ("p99_ms", "p99")):
                 add(f"pub-sub {size} B {label}, fleet", "ms", [r[key] for r in f])
                 add(f"pub-sub {size} B {label}, mosquitto", "ms", [r[key] for r in m])
+                if "relay" in d:
+                    add(f"pub-sub {size} B {label}, bare relay", "ms", [r[key] for r in d["relay"]])
+            if "relay" in d:
+                add(
+                    f"pub-sub {size} B median fleet / bare relay",
+                    "ratio",
+                    [a["median_ms"] / b["median_ms"] for a, b in zip(f, d["relay"], strict=True)],
+                )
             add(
                 f"pub-sub {size} B median / mosquitto",
                 "ratio",

@@ -13,6 +13,7 @@ from bench._live.clients import close_all, next_event, run_async, ws_call, ws_co
 from bench._live.config import WINDOW, Config
 from bench._live.world import World
 from bench._mosquitto import MqttPump, mosquitto
+from bench._relay import bare_relay
 from bench._stats import fmt3
 from bench.pubsub_mqtt import SIZES, LatencyResult, mqtt_one_hop
 
@@ -34,6 +35,27 @@ async def fleet_one_hop(world: World, size: int, count: int, warmup: int) -> Lat
                 await next_event(sub)
                 samples.append(time.perf_counter_ns() - t0)
         return LatencyResult.from_samples("fleet-ws", size, samples[warmup:])
+    finally:
+        await close_all([pub, sub])
+
+
+async def relay_one_hop(port: int, size: int, count: int, warmup: int) -> LatencyResult:
+    """The same hop through the bare relay (``bench._relay``): the stack's floor."""
+    sub = await ws_connect(f"ws://127.0.0.1:{port}/sub")
+    pub = await ws_connect(f"ws://127.0.0.1:{port}/pub")
+    try:
+        frame = json.dumps({"op": "publish", "topic": "user/bench-pub/x", "data": "x" * size})
+        async with asyncio.timeout(60):  # the relay takes the subscriber once it is open
+            await pub.send(frame)
+            await sub.recv()
+        samples: list[int] = []
+        async with asyncio.timeout(300):
+            for _ in range(warmup + count):
+                t0 = time.perf_counter_ns()
+                await pub.send(frame)
+                await sub.recv()
+                samples.append(time.perf_counter_ns() - t0)
+        return LatencyResult.from_samples("bare-relay", size, samples[warmup:])
     finally:
         await close_all([pub, sub])
 
@@ -114,21 +136,25 @@ def section_pubsub(
     cfg: Config, world: World, workdir: Path, core: int | None, report: Callable[[str], None]
 ) -> dict[str, Any]:
     result: dict[str, Any] = {"latency": {}, "throughput": {}}
-    with mosquitto(workdir, core, name="hop") as port:
+    with mosquitto(workdir, core, name="hop") as port, bare_relay(workdir, core) as relay:
         for size in SIZES:
-            fleet_runs: list[dict[str, float]] = []
-            mqtt_runs: list[dict[str, float]] = []
-            for _ in range(cfg.runs):  # interleaved, so both see the same machine
-                ours = run_async(fleet_one_hop(world, size, cfg.count, cfg.warmup))
-                theirs = mqtt_one_hop(port, size, cfg.count, cfg.warmup)
-                fleet_runs.append({"median_ms": ours.median_ms, "p99_ms": ours.p99_ms})
-                mqtt_runs.append({"median_ms": theirs.median_ms, "p99_ms": theirs.p99_ms})
-            result["latency"][size] = {"fleet": fleet_runs, "mosquitto": mqtt_runs}
+            runs: dict[str, list[dict[str, float]]] = {"fleet": [], "mosquitto": [], "relay": []}
+            for _ in range(cfg.runs):  # interleaved, so all see the same machine
+                for name, got in (
+                    ("fleet", run_async(fleet_one_hop(world, size, cfg.count, cfg.warmup))),
+                    ("mosquitto", mqtt_one_hop(port, size, cfg.count, cfg.warmup)),
+                    ("relay", run_async(relay_one_hop(relay, size, cfg.count, cfg.warmup))),
+                ):
+                    runs[name].append({"median_ms": got.median_ms, "p99_ms": got.p99_ms})
+            result["latency"][size] = runs
             report(
-                f"  pub-sub {size:>6} B: fleet median {fmt3([r['median_ms'] for r in fleet_runs])}"
-                f" p99 {fmt3([r['p99_ms'] for r in fleet_runs])};"
-                f" mosquitto median {fmt3([r['median_ms'] for r in mqtt_runs])}"
-                f" p99 {fmt3([r['p99_ms'] for r in mqtt_runs])} ms"
+                f"  pub-sub {size:>6} B: "
+                + "; ".join(
+                    f"{name} median {fmt3([r['median_ms'] for r in rs])}"
+                    f" p99 {fmt3([r['p99_ms'] for r in rs])}"
+                    for name, rs in runs.items()
+                )
+                + " ms"
             )
         size = SIZES[0]
         fleet_tp = []

@@ -41,7 +41,10 @@ def table(out: dict[str, Any]) -> str:
             f"   {'size':>8}  {'path':<14} {'median':>26} {'p99':>26}",
         ]
         for size, d in p["latency"].items():
-            for name, runs in (("fleet /ws", d["fleet"]), ("mosquitto", d["mosquitto"])):
+            named = [("fleet /ws", d["fleet"]), ("mosquitto", d["mosquitto"])]
+            if "relay" in d:
+                named.append(("bare relay", d["relay"]))
+            for name, runs in named:
                 lines.append(
                     f"   {int(size):>8}  {name:<14} {_col(runs, 'median_ms'):>26}"
                     f" {_col(runs, 'p99_ms'):>26}"
@@ -49,11 +52,20 @@ def table(out: dict[str, Any]) -> str:
             rm = _mid(d["fleet"], "median_ms") / _mid(d["mosquitto"], "median_ms")
             rp = _mid(d["fleet"], "p99_ms") / _mid(d["mosquitto"], "p99_ms")
             lines.append(
-                f"   {int(size):>8}  {'ratio':<14} {rm:>20.2f}x {'':>4} {rp:>20.2f}x"
+                f"   {int(size):>8}  {'fleet/mosq.':<14} {rm:>20.2f}x {'':>4} {rp:>20.2f}x"
                 f"   goal <= {GOALS['pubsub_median_ratio']}x median"
                 f" {verdict(rm <= GOALS['pubsub_median_ratio'])},"
                 f" <= {GOALS['pubsub_p99_ratio']}x p99 {verdict(rp <= GOALS['pubsub_p99_ratio'])}"
             )
+            if "relay" in d:
+                for label, base in (("relay/mosq.", d["mosquitto"]), ("fleet/relay", None)):
+                    top = d["relay"] if base is not None else d["fleet"]
+                    bottom = base if base is not None else d["relay"]
+                    lines.append(
+                        f"   {int(size):>8}  {label:<14}"
+                        f" {_mid(top, 'median_ms') / _mid(bottom, 'median_ms'):>20.2f}x {'':>4}"
+                        f" {_mid(top, 'p99_ms') / _mid(bottom, 'p99_ms'):>20.2f}x"
+                    )
         t = p["throughput"]
         lines += [
             f"   throughput one publisher -> one subscriber, {t['size']} B,"

@@ -184,8 +184,9 @@ class Outbox:
         await self.close()
 
     def _next(self) -> Frame | None:
-        for topic, (frame, latest_wins) in self._throttle.due(self._clock()):
-            self._enqueue(frame, topic, latest_wins)
+        if self._throttle:
+            for topic, (frame, latest_wins) in self._throttle.due(self._clock()):
+                self._enqueue(frame, topic, latest_wins)
         if self._critical:
             return self._critical.popleft().frame
         if self._unreported_drops:

@@ -50,6 +50,10 @@ class Throttle(Generic[T]):
     def held(self) -> int:
         return len(self._held)
 
+    def __bool__(self) -> bool:
+        """Whether anything is held back (nothing can be due otherwise)."""
+        return bool(self._held)
+
     def forget(self, key: str) -> None:
         """Drop what is known of ``key`` (on unsubscribe)."""
         self._last_sent.pop(key, None)

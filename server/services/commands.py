@@ -287,6 +287,8 @@ class CommandService:
         now = now or self.clock()
         timeout = self.settings.ack_timeout_s
         for lane in list(self._lanes.values()):
+            if not lane.active:
+                continue  # most vehicles, most ticks
             due = False
             if self.shared and any(life.expires_now(c, now) for c in lane.active.values()):
                 await self._sync(lane.instance_id)  # acknowledged on another replica?

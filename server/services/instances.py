@@ -195,12 +195,17 @@ class InstanceService:
         state.params_updated_at = self.clock()
         state.dirty = True
 
-    def set_position(self, state: InstanceState, sample: Sample) -> bool:
-        """Keep the sample with the greatest ``ts`` as the latest position."""
+    def set_position(
+        self, state: InstanceState, sample: Sample, doc: dict[str, Any] | None = None
+    ) -> bool:
+        """Keep the sample with the greatest ``ts`` as the latest position.
+
+        ``doc``: the sample already in its stored form (``model_dump(exclude_none=True)``).
+        """
         current = state.position
         if current is not None and current["ts"] >= sample.ts:
             return False
-        state.position = sample.model_dump(exclude_none=True)
+        state.position = dict(doc) if doc is not None else sample.model_dump(exclude_none=True)
         state.moved = True
         return True
 
@@ -246,14 +251,22 @@ class InstanceService:
         every = self.settings.contact_write_s
         states = list(self._by_id.values())
         if self.shared:  # the vehicle may be in contact with another replica
-            changes = await self._recheck(states, now)
-        else:
-            changes = [(s, p) for s in states if (p := self._presence(s, now)) != s.presence]
-        for state, presence in changes:
-            told = not self.shared or await self.repo.claim_presence(state.instance_id, presence)
             for state in states:
                 if state.polling:  # an open long poll is contact; the others read it in the store
                     self.touch(state)
+            changes = await self._recheck(states, now)
+        else:
+            # Most vehicles are online and fresh: one comparison each, presence_of for the rest.
+            fresh = now - timedelta(seconds=self.settings.stale_after_s)
+            changes = [
+                (s, p)
+                for s in states
+                if not (s.presence == "online" and s.last_seen is not None and s.last_seen >= fresh)
+                or s.finished
+                if (p := self._presence(s, now)) != s.presence
+            ]
+        for state, presence in changes:
+            told = not self.shared or await self.repo.claim_presence(state.instance_id, presence)
             self._set_presence(state, presence, tell=told)
             if told:  # several replicas: the one whose claim matched tells everyone
                 await self.events.record(

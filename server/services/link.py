@@ -99,7 +99,7 @@ class VehicleLink:
         self.instances.merge_params(state, body.params)
         result = await self.telemetry.ingest(state.vehicle_id, state.instance_id, body.samples)
         if result.latest is not None:
-            self.instances.set_position(state, result.latest)
+            self.instances.set_position(state, result.latest, result.latest_doc)
         if result.stored:
             for listener in self.sample_listeners:
                 listener(state.vehicle_id, result.stored, result.replayed)

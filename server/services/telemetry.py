@@ -58,6 +58,8 @@ class IngestResult:
     #: The accepted samples, in the order received, and whether each came late.
     stored: list[Sample] = field(default_factory=list)
     replayed: list[bool] = field(default_factory=list)
+    #: ``latest`` in its stored form (a dict shared with the open bucket: read, never change).
+    latest_doc: Doc | None = None
 
 
 @dataclass(slots=True)
@@ -102,6 +104,7 @@ class TelemetryService:
         self.repo = repo or TelemetryRepo(store)
         self._vehicles: dict[str, _Vehicle] = {}
         self._last_flush = time.monotonic()
+        self._offline_after = timedelta(seconds=settings.offline_after_s)
 
     async def load(self) -> None:
         """Indexes and the in-process bucket index (embedded). Once, after ``store.load()``."""
@@ -129,38 +132,54 @@ class TelemetryService:
     async def ingest(
         self, vehicle_id: str, instance_id: str, samples: list[Sample]
     ) -> IngestResult:
-        state = self._state(vehicle_id)
+        state = self._vehicles.get(vehicle_id) or self._state(vehicle_id)
+        cap = self.settings.bucket_samples
+        if state.loaded and not state.lock.locked() and len(state.pending) + len(samples) < cap:
+            # The common case (known vehicle, bucket not full) awaits nothing, so it
+            # cannot interleave with another ingest or the writer: no lock needed.
+            return self._accept(state, samples)
         async with state.lock:
             await self._load(vehicle_id, state)
-            cap = self.settings.bucket_samples
             if samples and len(state.pending) >= cap * MAX_PENDING_BUCKETS:
                 raise Unavailable("telemetry cannot be stored now; send it again shortly")
-            before = state.latest
-            stale_before = self.clock() - timedelta(seconds=self.settings.offline_after_s)
-            result = IngestResult(0, 0, -1, -1, None)
-            for sample in samples:
-                if sample.seq <= state.high:
-                    result.duplicates += 1
-                    continue
-                state.high = sample.seq
-                if not state.pending:
-                    state.opened_at = time.monotonic()
-                state.pending.append(_stored(sample))
-                latest = state.latest
-                result.replayed.append(
-                    (latest is not None and sample.ts < latest.ts) or sample.ts < stale_before
-                )
-                if latest is None or sample.ts >= latest.ts:
-                    state.latest = sample
-                result.stored.append(sample)
-            result.accepted = len(result.stored)
+            result = self._accept(state, samples)
             while len(state.pending) >= cap:
                 if not await self._write_bucket(vehicle_id, state, best_effort=True):
                     break
             result.acked_through_seq = state.high
             result.durable_through_seq = state.durable
-            result.latest = state.latest if state.latest is not before else None
             return result
+
+    def _accept(self, state: _Vehicle, samples: list[Sample]) -> IngestResult:
+        """Take the new samples into the open bucket (synchronous: the caller holds the turn)."""
+        before = state.latest
+        stale_before = self.clock() - self._offline_after
+        result = IngestResult(0, 0, -1, -1, None)
+        for sample in samples:
+            if sample.seq <= state.high:
+                result.duplicates += 1
+                continue
+            state.high = sample.seq
+            if not state.pending:
+                state.opened_at = time.monotonic()
+            doc = _stored(sample)
+            state.pending.append(doc)
+            latest = state.latest
+            result.replayed.append(
+                (latest is not None and sample.ts < latest.ts) or sample.ts < stale_before
+            )
+            if latest is None or sample.ts >= latest.ts:
+                state.latest = sample
+                result.latest_doc = doc
+            result.stored.append(sample)
+        result.accepted = len(result.stored)
+        result.acked_through_seq = state.high
+        result.durable_through_seq = state.durable
+        if state.latest is not before:
+            result.latest = state.latest
+        else:
+            result.latest_doc = None
+        return result
 
     async def _write_bucket(
         self, vehicle_id: str, state: _Vehicle, *, best_effort: bool = False

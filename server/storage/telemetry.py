@@ -168,7 +168,7 @@ class TelemetryRepo:
         }
 
     async def insert(self, bucket: Doc) -> BucketMeta:
-        await self.coll.insert_one(bucket)  # fills bucket["_id"]
+        await self.coll.append(bucket)  # fills bucket["_id"]; buckets have no unique index
         meta = BucketMeta.of(bucket)
         if self._index is not None:
             self._vehicle(meta.vehicle_id).add(meta)
