@@ -16,7 +16,8 @@ from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from fleet_protocol import format_ts
+from fleet_protocol import format_ts, utcnow
+from fleet_protocol.common import now_ts
 from fleet_protocol.topics import is_media_topic
 from fleet_protocol.ws import CommandPush, ControlPush, EventPush, RoutesPush
 from server.bus import Bus, Message, Subscription
@@ -214,7 +215,7 @@ class LiveHub:
             "data": data,
             "source": unit.id,
             "origin": conn.id,
-            "ts": format_ts(self.instances.clock()),
+            "ts": now_ts() if self.instances.clock is utcnow else format_ts(self.instances.clock()),
         }
         await self.bus.publish(topic, message)
 
