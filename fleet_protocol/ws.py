@@ -227,7 +227,7 @@ class AckPush(_Push):
         head = '{"op":"ack","id":' + json.dumps(op_id) + ',"ok":true'
         if isinstance(result, BaseModel):
             clash = _ACK_OWN_FIELDS & type(result).model_fields.keys()
-            body = result.model_dump_json(exclude=clash or None)  # serialized in Rust
+            body = result.model_dump_json(exclude=set(clash) if clash else None)  # in Rust
         else:
             kept = {k: v for k, v in (result or {}).items() if k not in _ACK_OWN_FIELDS}
             body = json.dumps(kept, separators=(",", ":"))

@@ -7,7 +7,7 @@ so the HTTP routes and the WebSocket ops call the same methods.
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Protocol
+from typing import Any, Protocol
 
 from fleet_protocol import (
     ControlInfo,
@@ -33,6 +33,7 @@ class IngestResult(Protocol):
     latest: Sample | None
     stored: list[Sample]
     replayed: list[bool]
+    latest_doc: dict[str, Any] | None
 
 
 class Telemetry(Protocol):

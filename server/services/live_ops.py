@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import time
+from collections.abc import Awaitable, Callable
 from typing import TYPE_CHECKING, Any
 
 from pydantic import BaseModel
@@ -35,6 +36,7 @@ if TYPE_CHECKING:
     from server.container import Services
 
 _INSTANCE_OPS = (FinishInstanceOp, UpdateParamOp, UpdateFbMessageOp, HeartbeatOp)
+_WRITABLE_MEMO = 256
 
 
 class OpRunner:
@@ -45,6 +47,19 @@ class OpRunner:
         self.conn = conn
         self._allowance = float(services.settings.ws_ops_per_s)
         self._stamp = time.monotonic()
+        #: (principal, topic) pairs this connection may publish on, already checked.
+        self._writable: set[tuple[Any, str]] = set()
+        self._handlers: dict[type, Callable[[Any], Awaitable[Any]]] = {
+            StartInstanceOp: self._start,
+            FinishInstanceOp: self._finish,
+            HeartbeatOp: self._heartbeat,
+            UpdateParamOp: self._update_param,
+            UpdateFbMessageOp: self._update_fb,
+            RegisterOp: self._register,
+            SubscribeOp: self._subscribe,
+            UnsubscribeOp: self._unsubscribe,
+            PublishOp: self._publish,
+        }
 
     def _rate(self) -> None:
         rate = self.s.settings.ws_ops_per_s
@@ -125,42 +140,57 @@ class OpRunner:
             await self.s.live.start_streams(self.conn, op.topics)
 
     async def dispatch(self, op: Any) -> BaseModel | dict[str, Any] | None:
-        principal = self.conn.principal
-        live, link = self.s.live, self.s.link
         if isinstance(op, _INSTANCE_OPS) and op.instance_id not in self.conn.instances:
-            state = await self.s.instances.for_vehicle_caller(principal, op.instance_id)
+            state = await self.s.instances.for_vehicle_caller(self.conn.principal, op.instance_id)
             if not isinstance(op, FinishInstanceOp):
-                await live.attach_instance(self.conn, state)
-        match op:
-            case StartInstanceOp():
-                return await link.start(principal, op)
-            case FinishInstanceOp():
-                return await link.finish(principal, op.instance_id)
-            case HeartbeatOp():
-                return await link.heartbeat(principal, op.instance_id)
-            case UpdateParamOp():
-                return await link.update_param(principal, op)
-            case UpdateFbMessageOp():
-                abort = await self.s.commands.acknowledge(
-                    principal, op.instance_id, op.control_mode, op.acks
-                )
-                return UpdateFbMessageResult(abort=abort)
-            case RegisterOp():
-                check_write(principal, op.topics)
-                live.register(self.conn, unit_for(principal, op.vehicle_id), op.topics)
-                return {"topics": op.topics}
-            case SubscribeOp():
-                check_read(principal, op.topics)
-                live.subscribe(
-                    self.conn, unit_for(principal, op.vehicle_id), op.topics, op.throttle_ms
-                )
-                return {"topics": op.topics}
-            case UnsubscribeOp():
-                await live.unsubscribe(self.conn, unit_for(principal, op.vehicle_id), op.topics)
-                return {"topics": op.topics}
-            case PublishOp():
-                unit = unit_for(principal, op.vehicle_id)
-                check_write(principal, op.topic)
-                await live.publish(self.conn, unit, op.topic, op.data)
-                return None
-        raise Invalid(f"op {getattr(op, 'op', '?')} is not handled here")
+                await self.s.live.attach_instance(self.conn, state)
+        handler = self._handlers.get(type(op))
+        if handler is None:
+            raise Invalid(f"op {getattr(op, 'op', '?')} is not handled here")
+        return await handler(op)
+
+    # ---- one method per op (looked up by the op's type) --------------------------
+    async def _start(self, op: StartInstanceOp) -> BaseModel:
+        return await self.s.link.start(self.conn.principal, op)
+
+    async def _finish(self, op: FinishInstanceOp) -> BaseModel:
+        return await self.s.link.finish(self.conn.principal, op.instance_id)
+
+    async def _heartbeat(self, op: HeartbeatOp) -> BaseModel:
+        return await self.s.link.heartbeat(self.conn.principal, op.instance_id)
+
+    async def _update_param(self, op: UpdateParamOp) -> BaseModel:
+        return await self.s.link.update_param(self.conn.principal, op)
+
+    async def _update_fb(self, op: UpdateFbMessageOp) -> BaseModel:
+        abort = await self.s.commands.acknowledge(
+            self.conn.principal, op.instance_id, op.control_mode, op.acks
+        )
+        return UpdateFbMessageResult(abort=abort)
+
+    async def _register(self, op: RegisterOp) -> dict[str, Any]:
+        check_write(self.conn.principal, op.topics)
+        self.s.live.register(self.conn, unit_for(self.conn.principal, op.vehicle_id), op.topics)
+        return {"topics": op.topics}
+
+    async def _subscribe(self, op: SubscribeOp) -> dict[str, Any]:
+        principal = self.conn.principal
+        check_read(principal, op.topics)
+        unit = unit_for(principal, op.vehicle_id)
+        self.s.live.subscribe(self.conn, unit, op.topics, op.throttle_ms)
+        return {"topics": op.topics}
+
+    async def _unsubscribe(self, op: UnsubscribeOp) -> dict[str, Any]:
+        unit = unit_for(self.conn.principal, op.vehicle_id)
+        await self.s.live.unsubscribe(self.conn, unit, op.topics)
+        return {"topics": op.topics}
+
+    async def _publish(self, op: PublishOp) -> None:
+        principal = self.conn.principal
+        unit = unit_for(principal, op.vehicle_id)
+        if (principal, op.topic) not in self._writable:
+            check_write(principal, op.topic)
+            if len(self._writable) >= _WRITABLE_MEMO:
+                self._writable.clear()
+            self._writable.add((principal, op.topic))  # a new principal checks again
+        await self.s.live.publish(self.conn, unit, op.topic, op.data)
