@@ -1,18 +1,16 @@
 """Commands: submit (all or nothing), queue, hand out, acknowledge, cancel, expire.
 
-Hot state (each instance's active commands) lives in memory in a
-:class:`~server.services.lanes.Lane` and in the small ``commands_active``
-collection; a command that ends is inserted once into the history.
-Delivery has one path, :meth:`CommandService.take`, used by the long poll
-and by vehicle sockets alike: sockets register in ``ready_listeners`` and
-are told an instance has something to hand out (on submit, and when a
-redelivery falls due), then call :meth:`take`.
+Hot state (each instance's active commands) lives in a :class:`Lane` and in
+the small ``commands_active`` collection; a command that ends is inserted
+once into the history. Delivery has one path, :meth:`CommandService.take`,
+for long polls and vehicle sockets alike: sockets register in
+``ready_listeners``, are told an instance has something to hand out (on
+submit, when a redelivery falls due), then call :meth:`take`.
 
-On several replicas (``FLEET_REDIS_URL``) the lanes are a cache of the
-store: a replica reads an instance's active commands back before it hands
-them out, cancels them or takes acks, records a command's end only if it
-is the one that took it out of ``commands_active``, and announces what it
-wrote (server/services/replicas.py).
+On several replicas the lanes are a cache of the store: a replica reads an
+instance's active commands back before it hands them out, cancels them or
+takes acks, records a command's end only if it took it out of
+``commands_active``, and announces what it wrote (services/replicas.py).
 """
 
 from __future__ import annotations
@@ -20,7 +18,7 @@ from __future__ import annotations
 import asyncio
 import secrets
 from collections import Counter
-from collections.abc import Callable
+from collections.abc import Callable, KeysView
 from datetime import datetime
 from typing import Any
 
@@ -328,13 +326,20 @@ class CommandService:
 
     # ---- several replicas -----------------------------------------------------
     async def refresh(self, instance_id: str) -> None:
-        """Another replica moved the instance's commands: catch up, wake the long polls."""
-        if (lane := self._lanes.get(instance_id)) is not None:
-            await self._sync(instance_id)
+        """Another replica moved the instance's commands: catch up. Commands new here are
+        handed out (to this replica's socket, or through the nudge), the long polls woken."""
+        if (lane := self._lanes.get(instance_id)) is None:
+            return
+        known = set(lane.active)
+        await self._sync(instance_id)
+        if set(lane.active) - known:
+            self._ready(lane)
+        else:
             lane.wake()
 
-    def has_lane(self, instance_id: str) -> bool:
-        return instance_id in self._lanes
+    @property
+    def lane_ids(self) -> KeysView[str]:
+        return self._lanes.keys()
 
     def forget(self, instance_id: str) -> None:
         """The instance finished on another replica (which ended its commands)."""

@@ -10,7 +10,7 @@ whoever tells vehicles who holds control (their sockets) registers in
 from __future__ import annotations
 
 import secrets
-from collections.abc import Awaitable, Callable
+from collections.abc import Awaitable, Callable, KeysView
 from datetime import datetime, timedelta
 from typing import Any
 
@@ -266,8 +266,9 @@ class ControlService:
         else:
             self._requests.pop(instance_id, None)
 
-    def has_lease(self, instance_id: str) -> bool:
-        return instance_id in self._leases
+    @property
+    def lease_ids(self) -> KeysView[str]:
+        return self._leases.keys()
 
     def forget(self, instance_id: str) -> None:
         """The instance finished on another replica (which ended its lease)."""

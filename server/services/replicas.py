@@ -7,8 +7,9 @@ the bus topic ``_state`` (``{origin, instance_id, part}``, part one of
 from the store if they keep a copy of it. An announcement only tells a
 replica to look again: lose one (Redis down) and a replica acts on its copy
 until it next reads the store, which the services do before every decision
-that matters (submit, take, grant, revoke, presence changes). See
-docs/live.md, "Several replicas".
+that matters (submit, take, grant, revoke, presence changes), and when the
+bus comes back after an outage a replica reads back everything it holds.
+See docs/live.md, "Several replicas".
 """
 
 from __future__ import annotations
@@ -33,6 +34,8 @@ log = logging.getLogger("fleet.replicas")
 Announce = Callable[[str, str], None]
 STATE_TOPIC = "_state"
 PARTS = ("instance", "lease", "commands")
+#: How often the sync looks whether the bus came back (then it reads everything back).
+HEALTH_CHECK_S = 0.5
 
 
 def no_announce(instance_id: str, part: str) -> None:
@@ -96,9 +99,14 @@ class ReplicaSync:
             self._wake.set()
 
     async def _run(self) -> None:
+        healthy = self.bus.healthy
         while True:
-            await self._wake.wait()
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(self._wake.wait(), HEALTH_CHECK_S)
             self._wake.clear()
+            if self.bus.healthy and not healthy:  # announcements were lost meanwhile
+                self._catch_up_all()
+            healthy = self.bus.healthy
             while self._pending:  # one pass per instance, however many announcements came
                 instance_id = next(iter(self._pending))
                 parts = self._pending.pop(instance_id)
@@ -108,12 +116,19 @@ class ReplicaSync:
                     log.exception("refreshing instance %s from the store failed", instance_id)
                 self.refreshed += 1
 
+    def _catch_up_all(self) -> None:
+        held = {s.instance_id for s in self.instances.live()}
+        held.update(self.commands.lane_ids, self.control.lease_ids)
+        log.info("bus back: reading %d instances back from the store", len(held))
+        for instance_id in held:
+            self._pending.setdefault(instance_id, set()).update(PARTS)
+
     def _holds(self, instance_id: str) -> bool:
         """Whether this replica keeps a copy of anything of the instance."""
         return (
             self.instances.current_by_id(instance_id) is not None
-            or self.commands.has_lane(instance_id)
-            or self.control.has_lease(instance_id)
+            or instance_id in self.commands.lane_ids
+            or instance_id in self.control.lease_ids
         )
 
     async def _refresh(self, instance_id: str, parts: set[str]) -> None:

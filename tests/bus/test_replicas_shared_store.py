@@ -275,3 +275,47 @@ async def test_a_long_poll_open_on_one_replica_keeps_the_vehicle_online_on_the_o
         r = await api_b.get("/upper/get_control", headers=vehicle, params=params, timeout=30)
         assert r.status_code == 200 and r.json()["commands"] == []
         assert set(await _presence_events(api_a, vid)) <= {"online"}
+
+
+async def test_redis_away_each_replica_serves_its_own_and_catches_up_after(
+    make_settings: Callable[..., Settings], redis_server: RedisServer
+) -> None:
+    async with two_replicas(make_settings, redis_server) as (api_a, api_b, b):
+        vid, vehicle = await make_vehicle(api_a)
+        user, operator = await make_user(api_a, "operator", [vid])
+        async with await connect(b, "/ws/vehicle", vehicle["Authorization"][7:]) as car:
+            ack = await call(car, "start_instance", "s", vehicle_id=vid, capabilities=["go_to"])
+            iid = ack["instance_id"]
+            redis_server.stop()
+
+            async def both_cut_off() -> bool:
+                codes = [(await api.get("/readyz")).status_code for api in (api_a, api_b)]
+                return codes == [503, 503]
+
+            await _until(both_cut_off, within_s=20)
+            # Decisions still come from the store: a lease granted on A holds on B.
+            r = await api_a.post(
+                "/client/grant_control",
+                headers=ADMIN,
+                json={"instance_id": iid, "user": user, "duration_s": 60},
+            )
+            assert r.status_code == 200, r.text
+            go_to = {"type": "go_to", "args": {"lat": 63.4, "lon": 10.4}}
+            r = await api_b.post(
+                "/client/submit_control",
+                headers=operator,
+                json={"instance_ids": [iid], "command": go_to},
+            )
+            assert r.status_code == 202, r.text  # B's own socket: pushed at once
+            assert (await recv_until(car, lambda f: f["op"] == "command"))["type"] == "go_to"
+            r = await api_a.post(
+                "/client/submit_control",
+                headers=operator,
+                json={"instance_ids": [iid], "command": {"type": "stop"}},
+            )
+            assert r.status_code == 202, r.text
+            stop_id = r.json()["commands"][0]["command_id"]
+            redis_server.start()
+            # Redis back: the stop accepted on A while B was cut off reaches B's socket.
+            pushed = await recv_until(car, lambda f: f["op"] == "command", within_s=20)
+            assert pushed["command_id"] == stop_id
