@@ -63,8 +63,6 @@ class ReplicaSync:
         self._worker: asyncio.Task[None] | None = None
         self._sub: Subscription | None = None
         self._stopped = False
-        #: Announcements from other replicas applied (for tests and metrics).
-        self.refreshed = 0
 
     async def start(self) -> None:
         for service in (self.instances, self.control, self.commands):
@@ -114,7 +112,6 @@ class ReplicaSync:
                     await self._refresh(instance_id, parts)
                 except Exception:
                     log.exception("refreshing instance %s from the store failed", instance_id)
-                self.refreshed += 1
 
     def _catch_up_all(self) -> None:
         held = {s.instance_id for s in self.instances.live()}
