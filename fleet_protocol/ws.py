@@ -337,7 +337,8 @@ def parse_client_op(frame: str | bytes) -> Any:
 
 def _parse(adapter: TypeAdapter[Any], frame: str | bytes) -> Any:
     try:
-        return adapter.validate_json(frame)
+        # The core validator itself: TypeAdapter.validate_json only adds Python-side checks.
+        return adapter.validator.validate_json(frame)
     except ValidationError as exc:
         raise FrameError(_error_body(exc), _salvage_id(frame)) from None
 
