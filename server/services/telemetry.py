@@ -14,6 +14,9 @@ yet written (the open bucket), the latest position and the durable mark.
 - The latest position is the sample with the greatest ``ts``. A sample older
   than the latest position, or older than ``offline_after_s`` when it
   arrives, is flagged ``replayed`` (it came late, from an outbox).
+- Reads show each ``seq`` once (:func:`distinct_samples`): with several
+  replicas a vehicle that moves between them may have a sample stored twice.
+  On ``start_instance`` a replica of several reads the high-water mark again.
 - -1 stands for "no sample" in ``seq`` marks (a vehicle's first ``seq`` may be 0).
 """
 
@@ -32,7 +35,7 @@ from server.domain.track import TRACK_PAGE_CAP, cut_page, simplify
 from server.errors import Unavailable
 from server.settings import Settings
 from server.storage.driver import Doc, Store
-from server.storage.telemetry import TelemetryRepo, aware, samples_of
+from server.storage.telemetry import TelemetryRepo, aware, distinct_samples
 
 log = logging.getLogger("fleet.telemetry")
 Clock = Callable[[], datetime]
@@ -101,7 +104,8 @@ class TelemetryService:
         self.settings = settings
         self.store = store
         self.clock = clock
-        self.repo = repo or TelemetryRepo(store)
+        # The in-process bucket index sees this process's writes only: none with several replicas.
+        self.repo = repo or TelemetryRepo(store, use_index=False if settings.shared_state else None)
         self._vehicles: dict[str, _Vehicle] = {}
         self._last_flush = time.monotonic()
         self._offline_after = timedelta(seconds=settings.offline_after_s)
@@ -118,15 +122,18 @@ class TelemetryService:
             state = self._vehicles[vehicle_id] = _Vehicle()
         return state
 
-    async def _load(self, vehicle_id: str, state: _Vehicle) -> None:
-        """High-water mark and latest position from the store, once per vehicle (under its lock)."""
-        if state.loaded:
+    async def _load(self, vehicle_id: str, state: _Vehicle, *, again: bool = False) -> None:
+        """High-water mark and latest position from the store, once per vehicle or ``again``
+        (under its lock). Each moves forward only."""
+        if state.loaded and not again:
             return
         high = await self.repo.max_seq(vehicle_id)
         latest = await self.repo.latest_sample(vehicle_id)
         state.high = max(state.high, high)
         state.durable = max(state.durable, high)  # what was stored before is durable
-        state.latest = _sample(latest) if latest is not None else None
+        stored = _sample(latest) if latest is not None else None
+        if stored is not None and (state.latest is None or stored.ts > state.latest.ts):
+            state.latest = stored
         state.loaded = True
 
     async def ingest(
@@ -203,10 +210,14 @@ class TelemetryService:
         return True
 
     async def last_seq(self, vehicle_id: str) -> int:
-        """The vehicle's highest ``seq`` the server has (-1: none), for ``start_instance``."""
+        """The vehicle's highest ``seq`` the server has (-1: none), for ``start_instance``.
+
+        With several replicas it is read from the store again: since this replica
+        read it the vehicle may have sent samples through another one.
+        """
         state = self._state(vehicle_id)
         async with state.lock:
-            await self._load(vehicle_id, state)
+            await self._load(vehicle_id, state, again=self.settings.shared_state)
             return state.high
 
     async def latest(self, vehicle_id: str) -> Sample | None:
@@ -313,11 +324,10 @@ class TelemetryService:
         tail = self._tail(vehicle_id)
         buckets = await self.repo.in_window(vehicle_id, start, end)
         points: list[dict[str, Any]] = []
-        for bucket in buckets:
-            for s in samples_of(bucket):
-                ts = aware(s["ts"])
-                if start <= ts < end:
-                    points.append(_point(s, ts))
+        for s in distinct_samples(buckets):
+            ts = aware(s["ts"])
+            if start <= ts < end:
+                points.append(_point(s, ts))
         # A bucket written since the tail was taken may be in both: its samples count once.
         stored_high = max((b["max_seq"] for b in buckets), default=-1)
         for s in tail:
@@ -353,7 +363,7 @@ class TelemetryService:
                 out.append({**s, "ts": ts})
             return len(out) >= limit
 
-        cursor = after_seq
+        cursor = after_seq  # every seq up to here is read
         full = False
         while not full:
             buckets = await self.repo.after_seq(
@@ -361,14 +371,12 @@ class TelemetryService:
             )
             if not buckets:
                 break
-            for bucket in buckets:
-                for s in samples_of(bucket):
-                    if s["seq"] > cursor and take(s):
-                        full = True
-                        break
-                if full:
+            # Of copies in this batch, the first stored; one from an earlier batch was shown.
+            for s in distinct_samples(buckets):
+                if s["seq"] > cursor and take(s):
+                    full = True
                     break
-                cursor = max(cursor, bucket["max_seq"])
+            cursor = max(cursor, *(b["max_seq"] for b in buckets))
         if not full:
             last = out[-1]["seq"] if out else after_seq
             for s in tail:

@@ -5,8 +5,11 @@ where ``start``/``end`` are the earliest and latest sample ``ts`` in it and
 the samples are in ``seq`` order, packed as one BSON binary (read them with
 :func:`samples_of`): queries select buckets by their metadata only, and a
 packed bucket costs a tenth of the memory of a list of documents and is
-inserted without the driver walking every field. Buckets of one vehicle hold disjoint,
-rising ``seq`` ranges (the service writes them in order). Index
+inserted without the driver walking every field. The buckets one replica writes
+for a vehicle hold disjoint, rising ``seq`` ranges (the service writes them in
+order). With several replicas a sample the vehicle sent to two of them may be
+stored twice (docs/live.md, "Several replicas"); reads go through
+:func:`distinct_samples`, which gives each ``seq`` once. Index
 ``(vehicle_id, start)``; no unique index, no ``$group``, no ``update_one``
 (see ARCHITECTURE.md, Storage).
 
@@ -23,8 +26,10 @@ durable.
 from __future__ import annotations
 
 import bisect
+import heapq
+import itertools
 import logging
-from collections.abc import Mapping
+from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from typing import Any
@@ -55,6 +60,47 @@ def samples_of(bucket: Mapping[str, Any]) -> list[Doc]:
         samples: list[Doc] = bson.decode(raw, _CODEC)["s"]
         return samples
     return list(raw)
+
+
+def distinct_samples(buckets: Iterable[Mapping[str, Any]]) -> Iterator[Doc]:
+    """The samples of ``buckets`` in ``seq`` order, each ``seq`` once.
+
+    Buckets whose ``seq`` ranges overlap no other (all of them, on one replica)
+    are read as they are, one after the other: no cost per sample. Overlapping
+    ones are merged by ``seq`` and, of two copies of one ``seq``, the copy in
+    the bucket inserted first (lowest ``_id``: an ObjectId begins with its
+    insert time) is kept.
+    """
+    group: list[Mapping[str, Any]] = []
+    reach = 0  # highest max_seq in the group
+    for bucket in sorted(buckets, key=lambda b: int(b["min_seq"])):
+        if group and bucket["min_seq"] <= reach:
+            group.append(bucket)
+            reach = max(reach, int(bucket["max_seq"]))
+            continue
+        yield from _merged(group)
+        group = [bucket]
+        reach = int(bucket["max_seq"])
+    yield from _merged(group)
+
+
+def _merged(group: list[Mapping[str, Any]]) -> Iterator[Doc]:
+    if len(group) <= 1:
+        for bucket in group:
+            yield from samples_of(bucket)
+        return
+    # heapq.merge takes equal keys from the earlier input first: the first inserted.
+    runs = [samples_of(b) for b in sorted(group, key=_inserted)]
+    last = None
+    for sample in heapq.merge(*runs, key=lambda s: int(s["seq"])):
+        if sample["seq"] != last:
+            last = sample["seq"]
+            yield sample
+
+
+def _inserted(bucket: Mapping[str, Any]) -> str:
+    """Insert order of a bucket: its ObjectId as hex sorts as the ObjectId does."""
+    return str(bucket.get("_id", ""))
 
 
 def aware(value: datetime) -> datetime:
@@ -90,30 +136,44 @@ class BucketMeta:
 
 
 class _VehicleIndex:
-    """One vehicle's buckets in ``seq`` order (so ``max_seq`` rises too)."""
+    """One vehicle's buckets in ``min_seq`` order, and the running highest ``max_seq``.
 
-    __slots__ = ("max_seqs", "metas")
+    ``reach[i]`` is the highest ``max_seq`` of ``metas[: i + 1]``: it never falls,
+    so it can be bisected even where two replicas' buckets overlap.
+    """
+
+    __slots__ = ("metas", "reach")
 
     def __init__(self) -> None:
         self.metas: list[BucketMeta] = []
-        self.max_seqs: list[int] = []
+        self.reach: list[int] = []
 
     def add(self, meta: BucketMeta) -> None:
-        if self.max_seqs and meta.min_seq <= self.max_seqs[-1]:
-            # Out of order (never from the service; tolerated for restored data).
-            self.metas.append(meta)
-            self.metas.sort(key=lambda m: m.min_seq)
-            self.max_seqs = [m.max_seq for m in self.metas]
+        if self.metas and meta.min_seq < self.metas[-1].min_seq:
+            # Out of order (never from one replica; restored data, or another replica's write).
+            at = bisect.bisect_right(self.metas, meta.min_seq, key=lambda m: m.min_seq)
+            self.metas.insert(at, meta)
+            self._reach()
             return
         self.metas.append(meta)
-        self.max_seqs.append(meta.max_seq)
+        self.reach.append(max(self.reach[-1], meta.max_seq) if self.reach else meta.max_seq)
 
-    def after_seq(self, after_seq: int) -> list[BucketMeta]:
-        return self.metas[bisect.bisect_right(self.max_seqs, after_seq) :]
+    def high(self) -> int:
+        return self.reach[-1] if self.reach else -1
+
+    def after_seq(self, after_seq: int) -> Iterator[BucketMeta]:
+        """Buckets holding a ``seq`` above ``after_seq``, in ``min_seq`` order (lazily)."""
+        for i in range(bisect.bisect_right(self.reach, after_seq), len(self.metas)):
+            meta = self.metas[i]
+            if meta.max_seq > after_seq:
+                yield meta
 
     def drop(self, ids: set[Any]) -> None:
         self.metas = [m for m in self.metas if m.id not in ids]
-        self.max_seqs = [m.max_seq for m in self.metas]
+        self._reach()
+
+    def _reach(self) -> None:
+        self.reach = list(itertools.accumulate((m.max_seq for m in self.metas), max))
 
 
 class TelemetryRepo:
@@ -211,22 +271,26 @@ class TelemetryRepo:
         """Highest stored ``seq`` of the vehicle; -1 when none."""
         if self._index is not None:
             entry = self._index.get(vehicle_id)
-            return entry.max_seqs[-1] if entry and entry.max_seqs else -1
+            return entry.high() if entry else -1
         docs = await self.coll.find(
             {"vehicle_id": vehicle_id}, sort=[("max_seq", -1)], limit=1, projection=_META
         )
         return int(docs[0]["max_seq"]) if docs else -1
 
     async def latest_sample(self, vehicle_id: str) -> Doc | None:
-        """The stored sample with the greatest ``ts`` (it is in the bucket ending last)."""
+        """The stored sample with the greatest ``ts`` (it is in the bucket ending last;
+        of two such buckets, copies of one sample, the one inserted first)."""
         if self._index is not None:
             entry = self._index.get(vehicle_id)
             if not entry or not entry.metas:
                 return None
-            last = max(entry.metas, key=lambda m: m.end)
+            end = max(m.end for m in entry.metas)
+            last = min((m for m in entry.metas if m.end == end), key=lambda m: str(m.id))
             buckets = self._fetch([last])
         else:
-            buckets = await self.coll.find({"vehicle_id": vehicle_id}, sort=[("end", -1)], limit=1)
+            buckets = await self.coll.find(
+                {"vehicle_id": vehicle_id}, sort=[("end", -1), ("_id", 1)], limit=1
+            )
         if not buckets:
             return None
         return max(samples_of(buckets[0]), key=lambda s: (aware(s["ts"]), s["seq"]))
@@ -251,17 +315,19 @@ class TelemetryRepo:
         start: datetime | None = None,
         end: datetime | None = None,
     ) -> list[Doc]:
-        """Up to ``limit`` buckets holding samples with ``seq > after_seq``, in ``seq`` order.
+        """Up to ``limit`` buckets holding samples with ``seq > after_seq``, in ``seq`` order
+        (of ``max_seq`` on MongoDB, of ``min_seq`` in the index: read them with
+        :func:`distinct_samples`).
 
         With ``start``/``end``, only buckets that may hold samples with ``start <= ts < end``.
         """
         if self._index is not None:
             entry = self._index.get(vehicle_id)
-            metas = entry.after_seq(after_seq) if entry else []
+            metas = entry.after_seq(after_seq) if entry else iter(())
             if start is not None or end is not None:
                 lo, hi = start or _MIN, end or _MAX
-                metas = [m for m in metas if m.overlaps(lo, hi)]
-            return self._fetch(metas[:limit])
+                metas = (m for m in metas if m.overlaps(lo, hi))
+            return self._fetch(list(itertools.islice(metas, limit)))
         flt: Doc = {"vehicle_id": vehicle_id, "max_seq": {"$gt": after_seq}}
         if start is not None:
             flt["end"] = {"$gte": start}

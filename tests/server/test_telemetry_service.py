@@ -233,3 +233,40 @@ async def test_a_full_page_gives_the_last_seq(world: World) -> None:
     assert (seqs_of(page), next_after) == (list(range(3, 11)), 10)
     page, next_after = await world.svc.page("usv-1", after_seq=10, limit=8)
     assert (page, next_after) == ([], None)
+
+
+async def test_a_seq_stored_twice_is_read_once_the_first_copy(world: World) -> None:
+    """Two replicas may both store a sample (docs/live.md, "Several replicas"); the repo
+    insert stands for the other replica's late write of 98..103, then of 102..103 again."""
+    await world.svc.ingest("usv-1", "i1", samples(range(1, 104)))  # 20 buckets + 3 in memory
+    await world.svc.flush_all()
+    for seqs, battery in ((range(98, 104), 11.0), (range(102, 104), 22.0)):
+        copies = [s.model_dump(exclude_none=True) for s in samples(seqs, battery_pct=battery)]
+        await world.svc.repo.insert(TelemetryRepo.make_bucket("usv-1", copies))
+    every = list(range(1, 104))
+    for limit in (1000, 7):
+        got: list[dict[str, Any]] = []
+        after: int | None = -1
+        while after is not None:
+            page, after = await world.svc.page("usv-1", after_seq=after, limit=limit)
+            got += page
+        assert seqs_of(got) == every, limit
+        assert all("battery_pct" not in d for d in got), limit
+    track = await world.svc.track("usv-1", T0, T0 + timedelta(hours=1))
+    assert [p["seq"] for p in track.points] == every
+    assert all("battery_pct" not in p for p in track.points)
+    latest = await world.svc.repo.latest_sample("usv-1")
+    assert latest is not None and (latest["seq"], latest.get("battery_pct")) == (103, None)
+
+
+async def test_of_two_copies_the_one_stored_first_is_read(world: World) -> None:
+    """The other replica (the repo insert) writes 3..7 before this one writes its own copies."""
+    await world.svc.ingest("usv-1", "i1", samples(range(1, 3)))
+    copies = [s.model_dump(exclude_none=True) for s in samples(range(3, 8), battery_pct=11.0)]
+    await world.svc.repo.insert(TelemetryRepo.make_bucket("usv-1", copies))
+    assert (await world.svc.ingest("usv-1", "i1", samples(range(3, 11)))).accepted == 8
+    expected = [11.0 if 3 <= n <= 7 else None for n in range(1, 11)]
+    page, _ = await world.svc.page("usv-1", limit=100)
+    assert [d.get("battery_pct") for d in page] == expected
+    track = await world.svc.track("usv-1", T0, T0 + timedelta(hours=1))
+    assert [p.get("battery_pct") for p in track.points] == expected
