@@ -81,6 +81,26 @@ async def _until(probe: Callable[[], Any], within_s: float) -> Any:
     return got
 
 
+async def _grant(api: httpx.AsyncClient, instance_id: str, user: str) -> None:
+    """The admin (field manager) grants ``user`` control for 60 s."""
+    r = await api.post(
+        "/client/grant_control",
+        headers=ADMIN,
+        json={"instance_id": instance_id, "user": user, "duration_s": 60},
+    )
+    assert r.status_code == 200, r.text
+
+
+async def _submit(
+    api: httpx.AsyncClient, headers: dict[str, str], instance_id: str, command: dict[str, Any]
+) -> httpx.Response:
+    return await api.post(
+        "/client/submit_control",
+        headers=headers,
+        json={"instance_ids": [instance_id], "command": command},
+    )
+
+
 async def test_commands_acks_leases_and_presence_cross_replicas(
     make_settings: Callable[..., Settings], redis_server: RedisServer
 ) -> None:
@@ -96,28 +116,15 @@ async def test_commands_acks_leases_and_presence_cross_replicas(
             beating = asyncio.create_task(_heartbeats(api_b, vehicle, iid))
             try:
                 # A lease granted on A is honoured by a submit on B.
-                r = await api_a.post(
-                    "/client/grant_control",
-                    headers=ADMIN,
-                    json={"instance_id": iid, "user": user, "duration_s": 60},
-                )
-                assert r.status_code == 200, r.text
+                await _grant(api_a, iid, user)
                 go_to = {"type": "go_to", "args": {"lat": 63.4, "lon": 10.4}}
-                r = await api_b.post(
-                    "/client/submit_control",
-                    headers=operator,
-                    json={"instance_ids": [iid], "command": go_to},
-                )
+                r = await _submit(api_b, operator, iid, go_to)
                 assert r.status_code == 202, r.text
                 pushed = await recv_until(car, lambda f: f["op"] == "command")
                 assert pushed["type"] == "go_to"
 
                 # A command accepted on A reaches the vehicle's socket on B, stop first.
-                r = await api_a.post(
-                    "/client/submit_control",
-                    headers=operator,
-                    json={"instance_ids": [iid], "command": {"type": "stop"}},
-                )
+                r = await _submit(api_a, operator, iid, {"type": "stop"})
                 assert r.status_code == 202, r.text
                 stop_id = r.json()["commands"][0]["command_id"]
                 pushed = await recv_until(car, lambda f: f["op"] == "command", within_s=10)
@@ -146,11 +153,7 @@ async def test_commands_acks_leases_and_presence_cross_replicas(
                     "/client/revoke_control", headers=ADMIN, json={"instance_id": iid}
                 )
                 assert r.status_code == 200, r.text
-                r = await api_b.post(
-                    "/client/submit_control",
-                    headers=operator,
-                    json={"instance_ids": [iid], "command": go_to},
-                )
+                r = await _submit(api_b, operator, iid, go_to)
                 assert r.status_code == 409 and r.json()["error"]["code"] == "control_not_held"
 
                 # In contact with B only, for well past offline_after_s: A never marks it lost.
@@ -236,11 +239,7 @@ async def test_a_long_poll_on_one_replica_gets_a_command_accepted_on_the_other(
             return r.status_code == 429
 
         await _until(waiting_on_b, within_s=10)
-        r = await api_a.post(
-            "/client/submit_control",
-            headers=operator,
-            json={"instance_ids": [iid], "command": {"type": "stop"}},
-        )
+        r = await _submit(api_a, operator, iid, {"type": "stop"})
         assert r.status_code == 202, r.text
         async with asyncio.timeout(10):  # well before the poll's own 20 s
             got = await poll
@@ -294,25 +293,12 @@ async def test_redis_away_each_replica_serves_its_own_and_catches_up_after(
 
             await _until(both_cut_off, within_s=20)
             # Decisions still come from the store: a lease granted on A holds on B.
-            r = await api_a.post(
-                "/client/grant_control",
-                headers=ADMIN,
-                json={"instance_id": iid, "user": user, "duration_s": 60},
-            )
-            assert r.status_code == 200, r.text
+            await _grant(api_a, iid, user)
             go_to = {"type": "go_to", "args": {"lat": 63.4, "lon": 10.4}}
-            r = await api_b.post(
-                "/client/submit_control",
-                headers=operator,
-                json={"instance_ids": [iid], "command": go_to},
-            )
+            r = await _submit(api_b, operator, iid, go_to)
             assert r.status_code == 202, r.text  # B's own socket: pushed at once
             assert (await recv_until(car, lambda f: f["op"] == "command"))["type"] == "go_to"
-            r = await api_a.post(
-                "/client/submit_control",
-                headers=operator,
-                json={"instance_ids": [iid], "command": {"type": "stop"}},
-            )
+            r = await _submit(api_a, operator, iid, {"type": "stop"})
             assert r.status_code == 202, r.text
             stop_id = r.json()["commands"][0]["command_id"]
             redis_server.start()
