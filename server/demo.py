@@ -115,7 +115,14 @@ async def main() -> None:
                 proc.kill()
 
 
+def _stop_as_on_ctrl_c(signum: int, frame: object) -> None:
+    raise KeyboardInterrupt
+
+
 if __name__ == "__main__":
     DATA.mkdir(exist_ok=True)
+    # uvicorn hands a SIGTERM back to the handler it found once it has shut down; the
+    # default one would end the process before the simulated vehicles are stopped.
+    signal.signal(signal.SIGTERM, _stop_as_on_ctrl_c)
     with contextlib.suppress(KeyboardInterrupt):
         asyncio.run(main())
