@@ -350,7 +350,7 @@ def _error_body(exc: ValidationError) -> ErrorBody:
             return ErrorBody(code="invalid", message="the frame is not valid JSON")
         loc = [str(part) for part in err["loc"]]
         # Drop the union tag pydantic inserts ("update_param" in ops.0.update_param.x).
-        field = ".".join(p for p in loc if not _is_tag(p))
+        field = ".".join(p for p in loc if p not in _OP_TAGS)
         message = err["msg"].removeprefix("Value error, ")
         if err["type"] == "union_tag_invalid":
             field, message = (
@@ -385,10 +385,6 @@ _OP_TAGS = frozenset(
 
 def _join(path: str, name: str) -> str:
     return f"{path}.{name}" if path else name
-
-
-def _is_tag(part: str) -> bool:
-    return part in _OP_TAGS
 
 
 def _salvage_id(frame: str | bytes) -> str | None:
