@@ -78,8 +78,11 @@ async def _serve(websocket: WebSocket, kind: str) -> None:
             message = await websocket.receive()
             if message["type"] == "websocket.disconnect":
                 break
-            try:
-                conn.principal = await services.auth.authenticate_digest(token_key)
+            try:  # on every frame; a revoked token's entry is gone from the cache
+                principal = services.auth.cached(token_key)
+                if principal is None:
+                    principal = await services.auth.authenticate_digest(token_key)
+                conn.principal = principal
             except Unauthorized:
                 await services.live.close(conn, CLOSE_UNAUTHORIZED, "the token is no longer valid")
                 break

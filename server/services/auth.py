@@ -73,12 +73,18 @@ class AuthService:
             raise Unauthorized("a bearer token is required")
         return await self.authenticate_digest(digest(token))
 
+    def cached(self, key: str) -> Principal | None:
+        """The principal of a token digest known valid, without a store read; else None."""
+        cached = self._cache.get(key)
+        if cached is not None and (cached.expires_at is None or cached.expires_at > time.time()):
+            return cached.principal
+        return None
+
     async def authenticate_digest(self, key: str) -> Principal:
         """:meth:`authenticate` for a token whose digest is known (a socket's every frame)."""
-        cached = self._cache.get(key)
-        now = time.time()
-        if cached is not None and (cached.expires_at is None or cached.expires_at > now):
-            return cached.principal
+        principal = self.cached(key)
+        if principal is not None:
+            return principal
         principal, expires_at = await self._load(key)
         if len(self._cache) > 100_000:
             self._cache.clear()

@@ -104,7 +104,7 @@ class VehicleLink:
         if result.stored:
             for listener in self.sample_listeners:
                 listener(state.vehicle_id, result.stored, result.replayed)
-        return UpdateParamResult(
+        return UpdateParamResult.model_construct(  # plain counters: nothing to validate
             accepted=result.accepted,
             duplicates=result.duplicates,
             acked_through_seq=max(0, result.acked_through_seq),
