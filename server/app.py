@@ -19,6 +19,7 @@ from server.api import (
     fleet,
     fleet_telemetry,
     health,
+    obstacles,
     upper,
     upper_control,
     ws,
@@ -64,7 +65,7 @@ def create_app(
     metrics = Metrics()  # not bound to a loop: built here so the middleware can hold it
     errors.install(app)
     # Vehicles call most often: their routes are matched first.
-    for module in (upper, upper_control, client, control, fleet, health, admin, ws):
+    for module in (upper, upper_control, client, control, fleet, health, admin, obstacles, ws):
         app.include_router(module.router)
     app.include_router(fleet_telemetry.router)
     if WEB_DIR.is_dir() and any(WEB_DIR.iterdir()):

@@ -21,6 +21,7 @@ from server.services.fleet import FleetViews
 from server.services.instances import InstanceService
 from server.services.link import VehicleLink
 from server.services.live import LiveHub
+from server.services.obstacles import ObstacleService
 from server.services.replicas import ReplicaSync
 from server.services.telemetry import TelemetryService
 from server.settings import Settings
@@ -30,6 +31,7 @@ from server.storage.commands import CommandsRepo
 from server.storage.control import ControlRepo
 from server.storage.events import EventsRepo
 from server.storage.instances import InstancesRepo
+from server.storage.obstacles import ObstaclesRepo
 
 log = logging.getLogger("fleet.server")
 Clock = Callable[[], datetime]
@@ -51,6 +53,7 @@ class Services:
     views: FleetViews
     bus: Bus
     live: LiveHub
+    obstacles: ObstacleService
     extra: dict[str, Any] = field(default_factory=dict)
     tasks: list[asyncio.Task[None]] = field(default_factory=list)
     admin_token: str | None = None
@@ -106,6 +109,8 @@ async def build(
     instances = InstanceService(settings, instances_repo, auth, events, clock)
     control = ControlService(settings, ControlRepo(store), instances, auth, events, clock)
     commands = CommandService(settings, CommandsRepo(store), instances, control, events, clock)
+    obstacles = ObstacleService(settings, ObstaclesRepo(store), clock)
+    commands.admission.zones = obstacles.zones  # planned paths keep clear of them
     telemetry = TelemetryService(settings, store, clock)
     views = FleetViews(auth, instances, control)
     link = VehicleLink(settings, instances, telemetry, control)
@@ -129,6 +134,7 @@ async def build(
         views=views,
         bus=bus,
         live=live,
+        obstacles=obstacles,
         owns_store=owns_store,
     )
     if settings.shared_state:

@@ -44,6 +44,9 @@ class Settings(BaseSettings):
     safety_radius_m: float = Field(
         default=5.0, ge=0, description="clearance a planned path keeps from other vehicles"
     )
+    max_obstacles: int = Field(
+        default=1000, ge=0, description="known fixed obstacles (POST /api/obstacles) at most"
+    )
     retention_s: float = Field(
         default=7 * DAY_S,
         gt=0,

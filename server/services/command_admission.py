@@ -9,7 +9,7 @@ each target's record and lease are read from the store first.
 from __future__ import annotations
 
 import asyncio
-from collections.abc import Callable, Mapping
+from collections.abc import Awaitable, Callable, Mapping, Sequence
 from datetime import datetime
 from typing import Any
 
@@ -17,6 +17,7 @@ from fleet_protocol import CommandSpec
 from server.domain import arbitration
 from server.domain import commands as life
 from server.domain.access import Principal
+from server.domain.planning import Zone
 from server.errors import FleetError, Forbidden, InstanceFinished, RateLimited
 from server.services.control import ControlService
 from server.services.instances import InstanceService, InstanceState
@@ -28,6 +29,12 @@ MAX_ACTIVE_PER_INSTANCE = 256
 
 Refusal = tuple[int, str, FleetError]
 Target = tuple[int, InstanceState]
+#: The known fixed obstacles, read when a path is planned.
+ZoneSource = Callable[[], Awaitable[Sequence[Zone]]]
+
+
+async def no_zones() -> Sequence[Zone]:
+    return ()
 
 
 class Admission:
@@ -38,8 +45,10 @@ class Admission:
         planner: Planner,
         lanes: Mapping[str, Lane],
         clock: Callable[[], datetime],
+        zones: ZoneSource = no_zones,
     ) -> None:
         self.instances = instances
+        self.zones = zones
         self.control = control
         self.planner = planner
         self.lanes = lanes
@@ -102,5 +111,6 @@ class Admission:
         args = dict(spec.args)
         if spec.type == "follow_path" and args.get("plan"):
             others = [s for s in self.instances.live() if s.instance_id != state.instance_id]
-            args = await asyncio.to_thread(self.planner, state, args, others)
+            zones = await self.zones()
+            args = await asyncio.to_thread(self.planner, state, args, others, zones)
         return args

@@ -1,24 +1,31 @@
-"""``follow_path`` with ``plan: true``: the server plans round the other vehicles.
+"""``follow_path`` with ``plan: true``: the server plans round the other vehicles and
+the known fixed obstacles.
 
-The one known kind of obstacle today is another vehicle's latest position,
-kept at ``FLEET_SAFETY_RADIUS_M``; the path goes into ``args.path``.
+Another vehicle's latest position is kept at ``FLEET_SAFETY_RADIUS_M``; a
+fixed obstacle (``/api/obstacles``, read by the caller) at its own clearance.
+The path goes into ``args.path``.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any
 
-from server.domain.planning import NoPath, Obstacle, plan_path
+from server.domain.planning import NoPath, Obstacle, Zone, plan_path
 from server.errors import Invalid
 from server.services.instances import InstanceState
 
-Planner = Callable[[InstanceState, dict[str, Any], list[InstanceState]], dict[str, Any]]
+Planner = Callable[
+    [InstanceState, dict[str, Any], list[InstanceState], Sequence[Zone]], dict[str, Any]
+]
 
 
 def vehicle_planner(safety_radius_m: float) -> Planner:
     def plan(
-        state: InstanceState, args: dict[str, Any], others: list[InstanceState]
+        state: InstanceState,
+        args: dict[str, Any],
+        others: list[InstanceState],
+        zones: Sequence[Zone] = (),
     ) -> dict[str, Any]:
         obstacles = [
             Obstacle(
@@ -31,7 +38,7 @@ def vehicle_planner(safety_radius_m: float) -> Planner:
         start = (float(here["lat"]), float(here["lon"])) if here is not None else None
         waypoints = [(float(p["lat"]), float(p["lon"])) for p in args["waypoints"]]
         try:
-            path = plan_path(start, waypoints, obstacles)
+            path = plan_path(start, waypoints, obstacles, zones)
         except NoPath as exc:
             raise Invalid(
                 f"cannot plan the path: {exc}",

@@ -1,0 +1,85 @@
+"""Known fixed obstacles: an admin draws them, the planner keeps clear of them.
+
+Read from the store on each planned path, so every replica plans round the
+same set at once; there are few (``FLEET_MAX_OBSTACLES``), each small.
+"""
+
+from __future__ import annotations
+
+import secrets
+from collections.abc import Callable
+from datetime import datetime
+from typing import Any
+
+import shapely
+from shapely.validation import explain_validity
+
+from fleet_protocol import CreateObstacle, PolygonGeometry
+from server.domain.planning import Zone
+from server.errors import Conflict, Invalid, NotFound
+from server.settings import Settings
+from server.storage.driver import Doc
+from server.storage.obstacles import ObstaclesRepo
+
+Clock = Callable[[], datetime]
+
+
+def check_polygon(polygon: PolygonGeometry) -> None:
+    """A polygon the planner can work with: valid as a whole (no self-intersection,
+    holes inside the outer ring), not only ring by ring as the wire model checks."""
+    shell, *holes = polygon.coordinates
+    try:
+        reason = explain_validity(shapely.Polygon(shell, holes))
+    except (ValueError, shapely.errors.GEOSException) as exc:
+        reason = str(exc)
+    if reason != "Valid Geometry":
+        raise Invalid(
+            f"the polygon is not valid: {reason}",
+            details=[{"field": "polygon.coordinates", "message": reason}],
+        )
+
+
+def zone_of(doc: Doc) -> Zone:
+    rings = tuple(
+        tuple((float(lat), float(lon)) for lon, lat in ring)
+        for ring in doc["polygon"]["coordinates"]
+    )
+    return Zone(rings, float(doc["clearance_m"]), doc["name"])
+
+
+class ObstacleService:
+    def __init__(self, settings: Settings, repo: ObstaclesRepo, clock: Clock) -> None:
+        self.settings = settings
+        self.repo = repo
+        self.clock = clock
+
+    async def create(self, body: CreateObstacle) -> Doc:
+        check_polygon(body.polygon)
+        if await self.repo.count() >= self.settings.max_obstacles:
+            raise Conflict(
+                f"there are already {self.settings.max_obstacles} obstacles "
+                "(FLEET_MAX_OBSTACLES); delete one first"
+            )
+        clearance = body.clearance_m
+        doc: dict[str, Any] = {
+            "obstacle_id": "o-" + secrets.token_hex(8),
+            "name": body.name,
+            "polygon": body.polygon.model_dump(mode="json"),
+            "clearance_m": self.settings.safety_radius_m if clearance is None else clearance,
+            "created_at": self.clock(),
+        }
+        await self.repo.insert(doc)
+        return doc
+
+    async def all(self) -> list[Doc]:
+        return await self.repo.all()
+
+    async def delete(self, obstacle_id: str) -> Doc:
+        doc = await self.repo.get(obstacle_id)
+        if doc is None or not await self.repo.delete(obstacle_id):
+            raise NotFound(f"no obstacle {obstacle_id}")
+        return doc
+
+    async def zones(self) -> list[Zone]:
+        """What the planner keeps clear of."""
+        return [zone_of(doc) for doc in await self.repo.all()]
