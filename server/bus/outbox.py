@@ -207,7 +207,8 @@ class Outbox:
         so the frame leaves in the producer's turn of the event loop, not one
         task switch later (that switch is most of a relay's latency). The
         first send that does have to wait is left to the writer task to
-        finish. ``True`` when nothing is left waiting.
+        finish, and so is a frame a throttle holds back. ``True`` when
+        nothing is left waiting or held.
         """
         while (frame := self._next()) is not None:
             coro = self._send(frame)
@@ -224,6 +225,8 @@ class Outbox:
                 waiting._asyncio_future_blocking = False
             self._suspended = (coro, waiting)
             return False
+        if self._throttle:
+            return False  # a frame held back by a throttle: the writer sends it when due
         self._idle.set()
         return True
 

@@ -253,3 +253,14 @@ async def test_a_send_failing_while_the_writer_is_idle_stops_the_outbox():
         assert isinstance(outbox.error, ConnectionError)
         outbox.put("c")
     assert socket.frames == ["a"]
+
+
+async def test_a_frame_held_by_the_throttle_goes_when_due_without_another_put():
+    socket = Socket()
+    async with Outbox(socket.send) as outbox:  # real clock
+        await wait_idle(outbox)  # the writer is idle: puts send from put itself
+        outbox.put("v1", topic="t", throttle_ms=50)
+        outbox.put("v2", topic="t", throttle_ms=50)  # held back for the interval
+        assert socket.frames == ["v1"]
+        await wait_idle(outbox)  # idle only once the held frame went
+        assert socket.frames == ["v1", "v2"]
