@@ -66,6 +66,29 @@ async def test_telemetry_snapshot_then_live_samples(base: str, api: httpx.AsyncC
         assert live["data"]["lat"] == 43.9002
 
 
+async def test_throttle_gives_the_first_sample_then_the_latest_once_due(
+    base: str, api: httpx.AsyncClient
+) -> None:
+    vid, vh, iid = await _vehicle_with_instance(api)
+    _, viewer = await make_user(api, "viewer", [vid])
+    async with await connect(base, "/ws/client", tok(viewer)) as ws:
+        topic = f"vehicle/{vid}/telemetry"
+        ack = await call(ws, "subscribe", "s", topics=[topic], throttle_ms=400)
+        assert ack["ok"] is True
+        for seq in range(1, 6):  # a burst well inside one interval
+            r = await api.post(
+                "/upper/update_param",
+                headers=vh,
+                json={"instance_id": iid, "samples": [sample(seq, lat=43.9 + seq / 1e4)]},
+            )
+            assert r.status_code == 200, r.text
+        first = await recv_until(ws, lambda f: f["op"] == "event")
+        assert first["data"]["seq"] == 1
+        # Nothing more is sent: the latest value still arrives once the interval is over.
+        latest = await recv_until(ws, lambda f: f["op"] == "event", within_s=5)
+        assert latest["data"]["seq"] == 5
+
+
 async def test_fleet_shows_only_visible_vehicles(base: str, api: httpx.AsyncClient) -> None:
     v1, h1, i1 = await _vehicle_with_instance(api)
     v2, _, _ = await _vehicle_with_instance(api)
