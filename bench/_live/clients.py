@@ -6,7 +6,8 @@ import asyncio
 import contextlib
 import json
 import socket
-from collections.abc import Awaitable, Sequence
+import time
+from collections.abc import Awaitable, Callable, Sequence
 from typing import Any
 
 import websockets
@@ -50,6 +51,24 @@ async def next_event(ws: ClientConnection) -> str:
             return frame
         if isinstance(frame, str) and frame.startswith(('{"op":"lagging"', '{"op":"error"')):
             raise RuntimeError(f"unexpected frame: {frame[:200]!r}")
+
+
+async def time_hops(
+    send: Callable[[str], Awaitable[None]],
+    arrival: Callable[[], Awaitable[Any]],
+    frame: str,
+    count: int,
+    warmup: int,
+) -> list[int]:
+    """One message in flight: ns from before each ``send`` to its ``arrival``, warm-up dropped."""
+    samples: list[int] = []
+    async with asyncio.timeout(300):
+        for _ in range(warmup + count):
+            t0 = time.perf_counter_ns()
+            await send(frame)
+            await arrival()
+            samples.append(time.perf_counter_ns() - t0)
+    return samples[warmup:]
 
 
 async def close_all(sockets: Sequence[ClientConnection]) -> None:

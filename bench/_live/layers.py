@@ -14,7 +14,14 @@ import websockets
 from websockets.asyncio.client import ClientConnection
 from websockets.asyncio.server import ServerConnection
 
-from bench._live.clients import close_all, next_event, run_async, ws_call, ws_connect
+from bench._live.clients import (
+    close_all,
+    next_event,
+    run_async,
+    time_hops,
+    ws_call,
+    ws_connect,
+)
 from bench._live.config import Config
 from bench._live.world import World
 from bench._mosquitto import MqttPump, mosquitto
@@ -52,14 +59,7 @@ async def fleet_three_layer(world: World, size: int, count: int, warmup: int) ->
         port = next(iter(gateway.sockets)).getsockname()[1]
         unit = await ws_connect(f"ws://127.0.0.1:{port}")
         frame = json.dumps({"op": "publish", "topic": topic, "data": "x" * size})
-        samples: list[int] = []
-        async with asyncio.timeout(300):
-            for _ in range(warmup + count):
-                t0 = time.perf_counter_ns()
-                await unit.send(frame)
-                await next_event(operator)
-                samples.append(time.perf_counter_ns() - t0)
-        return samples[warmup:]
+        return await time_hops(unit.send, lambda: next_event(operator), frame, count, warmup)
     finally:
         await close_all([ws for ws in (unit, operator, upstream) if ws is not None])
         gateway.close()

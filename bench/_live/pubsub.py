@@ -9,7 +9,14 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from bench._live.clients import close_all, next_event, run_async, ws_call, ws_connect
+from bench._live.clients import (
+    close_all,
+    next_event,
+    run_async,
+    time_hops,
+    ws_call,
+    ws_connect,
+)
 from bench._live.config import WINDOW, Config
 from bench._live.world import World
 from bench._mosquitto import MqttPump, mosquitto
@@ -27,14 +34,8 @@ async def fleet_one_hop(world: World, size: int, count: int, warmup: int) -> Lat
         ack = await ws_call(sub, "subscribe", "s", topics=[topic])
         assert ack["ok"], ack
         frame = json.dumps({"op": "publish", "topic": topic, "data": "x" * size})
-        samples: list[int] = []
-        async with asyncio.timeout(300):
-            for _ in range(warmup + count):
-                t0 = time.perf_counter_ns()
-                await pub.send(frame)
-                await next_event(sub)
-                samples.append(time.perf_counter_ns() - t0)
-        return LatencyResult.from_samples("fleet-ws", size, samples[warmup:])
+        samples = await time_hops(pub.send, lambda: next_event(sub), frame, count, warmup)
+        return LatencyResult.from_samples("fleet-ws", size, samples)
     finally:
         await close_all([pub, sub])
 
@@ -48,14 +49,8 @@ async def relay_one_hop(port: int, size: int, count: int, warmup: int) -> Latenc
         async with asyncio.timeout(60):  # the relay takes the subscriber once it is open
             await pub.send(frame)
             await sub.recv()
-        samples: list[int] = []
-        async with asyncio.timeout(300):
-            for _ in range(warmup + count):
-                t0 = time.perf_counter_ns()
-                await pub.send(frame)
-                await sub.recv()
-                samples.append(time.perf_counter_ns() - t0)
-        return LatencyResult.from_samples("bare-relay", size, samples[warmup:])
+        samples = await time_hops(pub.send, sub.recv, frame, count, warmup)
+        return LatencyResult.from_samples("bare-relay", size, samples)
     finally:
         await close_all([pub, sub])
 

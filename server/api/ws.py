@@ -79,10 +79,8 @@ async def _serve(websocket: WebSocket, kind: str) -> None:
             if message["type"] == "websocket.disconnect":
                 break
             try:  # on every frame; a revoked token's entry is gone from the cache
-                principal = services.auth.cached(token_key)
-                if principal is None:
-                    principal = await services.auth.authenticate_digest(token_key)
-                conn.principal = principal
+                known = services.auth.cached(token_key)
+                conn.principal = known or await services.auth.authenticate_digest(token_key)
             except Unauthorized:
                 await services.live.close(conn, CLOSE_UNAUTHORIZED, "the token is no longer valid")
                 break

@@ -72,13 +72,10 @@ class LiveHub:
         events: EventService,
         views: FleetViews,
     ) -> None:
-        self.settings = settings
         self.bus = bus
         self.instances = instances
         self.commands = commands
         self.control = control
-        self.events = events
-        self.views = views
         self.routing = RoutingTable(settings.ws_max_topics)
         self.connections: set[Connection] = set()
         self._vehicle_socket: dict[str, Connection] = {}  # instance_id -> its socket here

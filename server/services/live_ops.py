@@ -36,7 +36,6 @@ if TYPE_CHECKING:
     from server.container import Services
 
 _INSTANCE_OPS = (FinishInstanceOp, UpdateParamOp, UpdateFbMessageOp, HeartbeatOp)
-_WRITABLE_MEMO = 256
 
 
 class OpRunner:
@@ -47,8 +46,6 @@ class OpRunner:
         self.conn = conn
         self._allowance = float(services.settings.ws_ops_per_s)
         self._stamp = time.monotonic()
-        #: (principal, topic) pairs this connection may publish on, already checked.
-        self._writable: set[tuple[Any, str]] = set()
         self._handlers: dict[type, Callable[[Any], Awaitable[Any]]] = {
             StartInstanceOp: self._start,
             FinishInstanceOp: self._finish,
@@ -188,9 +185,5 @@ class OpRunner:
     async def _publish(self, op: PublishOp) -> None:
         principal = self.conn.principal
         unit = unit_for(principal, op.vehicle_id)
-        if (principal, op.topic) not in self._writable:
-            check_write(principal, op.topic)
-            if len(self._writable) >= _WRITABLE_MEMO:
-                self._writable.clear()
-            self._writable.add((principal, op.topic))  # a new principal checks again
+        check_write(principal, op.topic)
         await self.s.live.publish(self.conn, unit, op.topic, op.data)
