@@ -22,10 +22,29 @@ from bench._live.world import World
 from bench._mosquitto import MqttPump, mosquitto
 from bench._relay import bare_relay
 from bench._stats import fmt3
+from bench._wsync import HandWs, time_hops_sync
 from bench.pubsub_mqtt import SIZES, LatencyResult, mqtt_one_hop
 
 
-async def fleet_one_hop(world: World, size: int, count: int, warmup: int) -> LatencyResult:
+def fleet_one_hop(world: World, size: int, count: int, warmup: int) -> LatencyResult:
+    """Publisher to subscriber through ``/ws/client``, clients driven by hand (``bench._wsync``)."""
+    ws = world.server.ws
+    sub = HandWs(f"{ws}/ws/client", world.tokens["sub"])
+    pub = HandWs(f"{ws}/ws/client", world.tokens["pub"])
+    try:
+        topic = "user/bench-pub/x"
+        ack = sub.call("subscribe", "s", topics=[topic])
+        assert ack["ok"], ack
+        frame = json.dumps({"op": "publish", "topic": topic, "data": "x" * size})
+        samples = time_hops_sync(pub.send, sub.next_event, frame, count, warmup)
+        return LatencyResult.from_samples("fleet-ws", size, samples)
+    finally:
+        pub.close()
+        sub.close()
+
+
+async def fleet_one_hop_asyncio(world: World, size: int, count: int, warmup: int) -> LatencyResult:
+    """The same hop with asyncio ``websockets`` clients: what an asyncio program sees."""
     ws = world.server.ws
     sub = await ws_connect(f"{ws}/ws/client", world.tokens["sub"])
     pub = await ws_connect(f"{ws}/ws/client", world.tokens["pub"])
@@ -35,24 +54,34 @@ async def fleet_one_hop(world: World, size: int, count: int, warmup: int) -> Lat
         assert ack["ok"], ack
         frame = json.dumps({"op": "publish", "topic": topic, "data": "x" * size})
         samples = await time_hops(pub.send, lambda: next_event(sub), frame, count, warmup)
-        return LatencyResult.from_samples("fleet-ws", size, samples)
+        return LatencyResult.from_samples("fleet-ws-asyncio", size, samples)
     finally:
         await close_all([pub, sub])
 
 
-async def relay_one_hop(port: int, size: int, count: int, warmup: int) -> LatencyResult:
+def relay_one_hop(port: int, size: int, count: int, warmup: int) -> LatencyResult:
     """The same hop through the bare relay (``bench._relay``): the stack's floor."""
-    sub = await ws_connect(f"ws://127.0.0.1:{port}/sub")
-    pub = await ws_connect(f"ws://127.0.0.1:{port}/pub")
+    sub = HandWs(f"ws://127.0.0.1:{port}/sub")
+    pub = HandWs(f"ws://127.0.0.1:{port}/pub")
     try:
         frame = json.dumps({"op": "publish", "topic": "user/bench-pub/x", "data": "x" * size})
-        async with asyncio.timeout(60):  # the relay takes the subscriber once it is open
-            await pub.send(frame)
-            await sub.recv()
-        samples = await time_hops(pub.send, sub.recv, frame, count, warmup)
+        deadline = time.monotonic() + 60
+        while True:  # the relay takes the subscriber once it is open: retry until it has
+            pub.send(frame)
+            sub.sock.settimeout(0.2)
+            try:
+                sub.recv()
+                break
+            except TimeoutError:
+                if time.monotonic() > deadline:
+                    raise
+            finally:
+                sub.sock.settimeout(60)
+        samples = time_hops_sync(pub.send, sub.recv, frame, count, warmup)
         return LatencyResult.from_samples("bare-relay", size, samples)
     finally:
-        await close_all([pub, sub])
+        pub.close()
+        sub.close()
 
 
 async def fleet_throughput(world: World, size: int, count: int) -> dict[str, float]:
@@ -127,19 +156,32 @@ def mqtt_throughput(port: int, size: int, count: int) -> dict[str, float]:
         pump.close()
 
 
+def _hops(
+    cfg: Config, world: World, mqtt_port: int, relay_port: int, size: int
+) -> dict[str, Callable[[], LatencyResult]]:
+    """The one-hop measurements of one size, by row name."""
+    count, warmup = cfg.count, cfg.warmup
+    return {
+        "fleet": lambda: fleet_one_hop(world, size, count, warmup),
+        "mosquitto": lambda: mqtt_one_hop(mqtt_port, size, count, warmup),
+        "relay": lambda: relay_one_hop(relay_port, size, count, warmup),
+        "fleet_asyncio": lambda: run_async(fleet_one_hop_asyncio(world, size, count, warmup)),
+    }
+
+
 def section_pubsub(
     cfg: Config, world: World, workdir: Path, core: int | None, report: Callable[[str], None]
 ) -> dict[str, Any]:
     result: dict[str, Any] = {"latency": {}, "throughput": {}}
     with mosquitto(workdir, core, name="hop") as port, bare_relay(workdir, core) as relay:
         for size in SIZES:
-            runs: dict[str, list[dict[str, float]]] = {"fleet": [], "mosquitto": [], "relay": []}
+            runs: dict[str, list[dict[str, float]]] = {
+                "fleet": [], "mosquitto": [], "relay": [], "fleet_asyncio": []
+            }  # fmt: skip
+            hops = _hops(cfg, world, port, relay, size)
             for _ in range(cfg.runs):  # interleaved, so all see the same machine
-                for name, got in (
-                    ("fleet", run_async(fleet_one_hop(world, size, cfg.count, cfg.warmup))),
-                    ("mosquitto", mqtt_one_hop(port, size, cfg.count, cfg.warmup)),
-                    ("relay", run_async(relay_one_hop(relay, size, cfg.count, cfg.warmup))),
-                ):
+                for name, hop in hops.items():
+                    got = hop()
                     runs[name].append({"median_ms": got.median_ms, "p99_ms": got.p99_ms})
             result["latency"][size] = runs
             report(

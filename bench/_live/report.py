@@ -37,13 +37,16 @@ def table(out: dict[str, Any]) -> str:
         c = out["config"]
         lines += [
             f"1. one-hop pub-sub latency (one message in flight, {c['count']} messages"
-            f" after {c['warmup']} warm-up, per run), ms",
+            f" after {c['warmup']} warm-up, per run; clients driven by hand from one"
+            " thread, as paho is for mosquitto; 'fleet, asyncio': asyncio websockets clients), ms",
             f"   {'size':>8}  {'path':<14} {'median':>26} {'p99':>26}",
         ]
         for size, d in p["latency"].items():
             named = [("fleet /ws", d["fleet"]), ("mosquitto", d["mosquitto"])]
             if "relay" in d:
                 named.append(("bare relay", d["relay"]))
+            if "fleet_asyncio" in d:
+                named.append(("fleet, asyncio", d["fleet_asyncio"]))
             for name, runs in named:
                 lines.append(
                     f"   {int(size):>8}  {name:<14} {_col(runs, 'median_ms'):>26}"
