@@ -22,6 +22,7 @@ Binary frames (media topics) are in :mod:`fleet_protocol.media`.
 
 from __future__ import annotations
 
+import functools
 import json
 from typing import Annotated, Any, ClassVar, Literal
 
@@ -35,6 +36,7 @@ from pydantic import (
     ValidationError,
     model_serializer,
 )
+from pydantic_core import to_json
 
 from fleet_protocol.commands import CommandObject
 from fleet_protocol.common import Identifier, Timestamp, WireModel
@@ -204,6 +206,12 @@ class _Push(BaseModel):
 _ACK_OWN_FIELDS = frozenset({"op", "id", "ok", "error"})
 
 
+@functools.cache
+def _ack_clash(model: type[BaseModel]) -> set[str]:
+    """A result model's fields that an ack's own fields take precedence over."""
+    return set(_ACK_OWN_FIELDS & model.model_fields.keys())
+
+
 class AckPush(_Push):
     """The answer to an op with an ``id``; on success, the HTTP answer's fields beside."""
 
@@ -224,13 +232,15 @@ class AckPush(_Push):
     @staticmethod
     def success_frame(op_id: str, result: BaseModel | dict[str, Any] | None = None) -> str:
         """``success(...).frame()`` without building the model (the hot path of every op)."""
-        head = '{"op":"ack","id":' + json.dumps(op_id) + ',"ok":true'
+        head = '{"op":"ack","id":' + to_json(op_id).decode() + ',"ok":true'
         if isinstance(result, BaseModel):
-            clash = _ACK_OWN_FIELDS & type(result).model_fields.keys()
-            body = result.model_dump_json(exclude=set(clash) if clash else None)  # in Rust
+            clash = _ack_clash(type(result))
+            body = result.model_dump_json(exclude=clash or None)  # in Rust
+        elif result:
+            kept = {k: v for k, v in result.items() if k not in _ACK_OWN_FIELDS}
+            body = to_json(kept).decode()
         else:
-            kept = {k: v for k, v in (result or {}).items() if k not in _ACK_OWN_FIELDS}
-            body = json.dumps(kept, separators=(",", ":"))
+            body = "{}"
         return head + "}" if body == "{}" else head + "," + body[1:]
 
     @classmethod

@@ -5,6 +5,7 @@ from __future__ import annotations
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from fastapi import FastAPI
 from fastapi.staticfiles import StaticFiles
@@ -22,14 +23,29 @@ from server.api import (
     obstacles,
     upper,
     upper_control,
-    ws,
 )
 from server.api.limits import BodyLimit
+from server.api.ws import LIVE_PATHS, serve_live
 from server.metrics import Metrics, MetricsMiddleware
 from server.settings import Settings
 from server.storage import Store
 
+if TYPE_CHECKING:
+    from starlette.types import Receive, Scope, Send
+
 WEB_DIR = Path(__file__).parent / "web"
+
+
+class FleetApp(FastAPI):
+    """The FastAPI app, with the live sockets (``/ws/vehicle``, ``/ws/client``) served
+    straight from the ASGI call: see :mod:`server.api.ws` for why."""
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if scope["type"] == "websocket" and scope["path"] in LIVE_PATHS:
+            scope["app"] = self
+            await serve_live(self.state.services, scope, receive, send)
+            return
+        await super().__call__(scope, receive, send)
 
 
 def create_app(
@@ -56,7 +72,7 @@ def create_app(
         finally:
             await container.shutdown(services)
 
-    app = FastAPI(
+    app = FleetApp(
         title="fleet-cloud",
         version="0.1.0",
         summary="Monitor and command fleets of unmanned marine vehicles",
@@ -65,7 +81,7 @@ def create_app(
     metrics = Metrics()  # not bound to a loop: built here so the middleware can hold it
     errors.install(app)
     # Vehicles call most often: their routes are matched first.
-    for module in (upper, upper_control, client, control, fleet, health, admin, obstacles, ws):
+    for module in (upper, upper_control, client, control, fleet, health, admin, obstacles):
         app.include_router(module.router)
     app.include_router(fleet_telemetry.router)
     if WEB_DIR.is_dir() and any(WEB_DIR.iterdir()):

@@ -1,11 +1,21 @@
-"""``/ws/vehicle`` and ``/ws/client``: accept, authenticate, then parse -> service -> send."""
+"""``/ws/vehicle`` and ``/ws/client``: accept, authenticate, then parse -> service -> send.
+
+The two endpoints are plain ASGI handlers that :class:`server.app.FleetApp`
+calls straight from its ``__call__`` (``LIVE_PATHS``), ahead of the
+middleware and routing stack the HTTP routes need: that stack does nothing
+for a WebSocket, but every frame received would resume its twenty-odd
+coroutine frames, and every frame sent would pass three wrappers. The
+messages are the ASGI WebSocket ones (``websocket.connect``, ``.accept``,
+``.receive``, ``.send``, ``.close``, ``.disconnect``).
+"""
 
 from __future__ import annotations
 
 import contextlib
-from typing import TYPE_CHECKING
+from collections.abc import Awaitable, Callable, MutableMapping
+from typing import TYPE_CHECKING, Any
 
-from fastapi import APIRouter, WebSocket, WebSocketDisconnect
+from starlette.datastructures import Headers, QueryParams
 
 from server.bus.outbox import Frame, Outbox
 from server.errors import FleetError, Unauthorized
@@ -20,77 +30,82 @@ from server.services.live_ops import OpRunner
 if TYPE_CHECKING:
     from server.container import Services
 
-router = APIRouter(tags=["live"])
+Scope = MutableMapping[str, Any]
+Receive = Callable[[], Awaitable[MutableMapping[str, Any]]]
+Send = Callable[[MutableMapping[str, Any]], Awaitable[None]]
+
+#: path -> the kind of socket it serves (``vehicle``: vehicle and gateway tokens)
+LIVE_PATHS = {"/ws/vehicle": "vehicle", "/ws/client": "client"}
+CLOSE_TRY_AGAIN = 1013
 
 
-@router.websocket("/ws/vehicle")
-async def ws_vehicle(websocket: WebSocket) -> None:
-    await _serve(websocket, "vehicle")
-
-
-@router.websocket("/ws/client")
-async def ws_client(websocket: WebSocket) -> None:
-    await _serve(websocket, "client")
-
-
-def _token(websocket: WebSocket) -> str | None:
-    scheme, _, value = websocket.headers.get("authorization", "").partition(" ")
+def _token(scope: Scope) -> str | None:
+    scheme, _, value = Headers(scope=scope).get("authorization", "").partition(" ")
     if scheme.lower() == "bearer" and value.strip():
         return value.strip()
-    return websocket.query_params.get("token") or None
+    query = scope.get("query_string", b"")
+    return QueryParams(query.decode("latin-1")).get("token") or None
 
 
-async def _serve(websocket: WebSocket, kind: str) -> None:
-    services: Services = websocket.app.state.services
-    await websocket.accept()
-    token = _token(websocket)
+async def serve_live(services: Services, scope: Scope, receive: Receive, send: Send) -> None:
+    """One WebSocket on ``scope["path"]`` (a key of :data:`LIVE_PATHS`), until it closes."""
+    kind = LIVE_PATHS[scope["path"]]
+    if (await receive())["type"] != "websocket.connect":
+        return
+    await send({"type": "websocket.accept"})
+
+    async def close(code: int, reason: str) -> None:
+        with contextlib.suppress(Exception):  # already closed, or the client went
+            await send({"type": "websocket.close", "code": code, "reason": reason})
+
+    token = _token(scope)
     try:
         principal = await services.auth.authenticate(token)
     except Unauthorized as exc:
-        await websocket.close(CLOSE_UNAUTHORIZED, exc.message)
+        await close(CLOSE_UNAUTHORIZED, exc.message)
         return
     except FleetError as exc:
-        await websocket.close(1013, exc.message)  # try again later
+        await close(CLOSE_TRY_AGAIN, exc.message)
         return
     if (kind == "vehicle") != (principal.kind in ("vehicle", "gateway")):
-        await websocket.close(CLOSE_FORBIDDEN, f"/ws/{kind} is not for {principal.kind} tokens")
+        await close(CLOSE_FORBIDDEN, f"/ws/{kind} is not for {principal.kind} tokens")
         return
 
-    async def send(frame: Frame) -> None:
+    async def push(frame: Frame) -> None:
         if isinstance(frame, bytes):
-            await websocket.send_bytes(frame)
+            await send({"type": "websocket.send", "bytes": frame})
         else:
-            await websocket.send_text(frame)
-
-    async def close(code: int, reason: str) -> None:
-        with contextlib.suppress(Exception):
-            await websocket.close(code, reason)
+            await send({"type": "websocket.send", "text": frame})
 
     assert token is not None
     token_key = digest(token)  # checked again on every frame, hashed once
     conn = Connection(
-        principal, token, Outbox(send, max_size=services.settings.ws_queue_size), close, kind
+        principal, token, Outbox(push, max_size=services.settings.ws_queue_size), close, kind
     )
     services.live.add(conn)
     ops = OpRunner(services, conn)
+    auth, live = services.auth, services.live
     try:
         while not conn.closed:
-            message = await websocket.receive()
-            if message["type"] == "websocket.disconnect":
-                break
+            message = await receive()
+            if message["type"] != "websocket.receive":
+                break  # websocket.disconnect
             try:  # on every frame; a revoked token's entry is gone from the cache
-                known = services.auth.cached(token_key)
-                conn.principal = known or await services.auth.authenticate_digest(token_key)
+                known = auth.cached(token_key)
+                conn.principal = known or await auth.authenticate_digest(token_key)
             except Unauthorized:
-                await services.live.close(conn, CLOSE_UNAUTHORIZED, "the token is no longer valid")
+                await live.close(conn, CLOSE_UNAUTHORIZED, "the token is no longer valid")
                 break
             if kind == "vehicle":
-                services.live.touch(conn)
-            if message.get("text") is not None:
-                await ops.text(message["text"])
-            elif message.get("bytes") is not None:
-                await ops.binary(message["bytes"])
-    except (WebSocketDisconnect, RuntimeError):
-        pass
+                live.touch(conn)
+            text = message.get("text")
+            if text is not None:
+                await ops.text(text)
+            else:
+                data = message.get("bytes")
+                if data is not None:
+                    await ops.binary(data)
+    except (OSError, RuntimeError):
+        pass  # the client went while a frame was sent (uvicorn's ClientDisconnected)
     finally:
-        await services.live.drop(conn)
+        await live.drop(conn)

@@ -18,7 +18,6 @@ from fleet_protocol import (
     StartInstance,
     StartInstanceResult,
     UpdateParam,
-    UpdateParamResult,
 )
 from server.domain.access import Principal
 from server.services.instances import InstanceService, InstanceState
@@ -95,7 +94,9 @@ class VehicleLink:
         await self.live(principal, instance_id)
         return HeartbeatResult(server_time=self.instances.clock())
 
-    async def update_param(self, principal: Principal, body: UpdateParam) -> UpdateParamResult:
+    async def update_param(self, principal: Principal, body: UpdateParam) -> dict[str, int]:
+        """Merge the params, store the samples; the counters of ``UpdateParamResult``
+        (a dict: the socket's ack is built from it with no model in between)."""
         state = await self.live(principal, body.instance_id)
         self.instances.merge_params(state, body.params)
         result = await self.telemetry.ingest(state.vehicle_id, state.instance_id, body.samples)
@@ -104,9 +105,9 @@ class VehicleLink:
         if result.stored:
             for listener in self.sample_listeners:
                 listener(state.vehicle_id, result.stored, result.replayed)
-        return UpdateParamResult.model_construct(  # plain counters: nothing to validate
-            accepted=result.accepted,
-            duplicates=result.duplicates,
-            acked_through_seq=max(0, result.acked_through_seq),
-            durable_through_seq=max(0, result.durable_through_seq),
-        )
+        return {
+            "accepted": result.accepted,
+            "duplicates": result.duplicates,
+            "acked_through_seq": max(0, result.acked_through_seq),
+            "durable_through_seq": max(0, result.durable_through_seq),
+        }

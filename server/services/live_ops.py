@@ -156,7 +156,7 @@ class OpRunner:
     async def _heartbeat(self, op: HeartbeatOp) -> BaseModel:
         return await self.s.link.heartbeat(self.conn.principal, op.instance_id)
 
-    async def _update_param(self, op: UpdateParamOp) -> BaseModel:
+    async def _update_param(self, op: UpdateParamOp) -> dict[str, int]:
         return await self.s.link.update_param(self.conn.principal, op)
 
     async def _update_fb(self, op: UpdateFbMessageOp) -> BaseModel:
