@@ -55,6 +55,10 @@ class InstanceState:
             "finished_at": self.finished_at,
         }
 
+    def contact_doc(self) -> dict[str, Any]:
+        """The fields that move with every frame (``moved``): a write of these alone."""
+        return {"last_seen": self.last_seen, "position": self.position}
+
     @classmethod
     def from_doc(cls, doc: dict[str, Any]) -> InstanceState:
         fields: dict[str, Any] = {

@@ -290,10 +290,12 @@ class InstanceService:
         changed = state.dirty
         state.dirty = state.moved = False
         state.saved_at = tick
+        # Only contact and position moved (most writes): those two fields alone.
+        fields = state.to_doc() if changed else state.contact_doc()
         if not self.shared:
-            await self.repo.save(state.instance_id, state.to_doc())
+            await self.repo.save(state.instance_id, fields)
             return
-        await self.repo.save_shared(state.instance_id, state.to_doc())
+        await self.repo.save_shared(state.instance_id, fields)
         if changed:
             self.announce(state.instance_id, "instance")
 

@@ -41,7 +41,13 @@ async def test_embedded_store_survives_a_clean_restart(
         r = await c.post(
             "/upper/update_param",
             headers=vh,
-            json={"instance_id": iid, "samples": [sample(i) for i in range(1, 51)]},
+            json={"instance_id": iid, "params": {"mode": "survey"}, "samples": [sample(1)]},
+        )
+        await app.state.services.instances.sweep(everything=True)  # params: the whole record
+        r = await c.post(  # then contact and position alone move (written by the shutdown)
+            "/upper/update_param",
+            headers=vh,
+            json={"instance_id": iid, "samples": [sample(i) for i in range(2, 51)]},
         )
         assert r.json()["acked_through_seq"] == 50
     app = create_app(settings)
@@ -53,6 +59,7 @@ async def test_embedded_store_survives_a_clean_restart(
             await c.get("/client/get_param", headers=ADMIN, params={"instance_id": iid})
         ).json()
         assert params["position"]["seq"] == 50  # written through the keyed path, replayed
+        assert params["params"] == {"mode": "survey"}  # not lost to the contact-only write
         page = (
             await c.get(
                 f"/api/vehicles/{vid}/telemetry",
