@@ -107,6 +107,21 @@ class Outbox:
         """
         if self.closed.is_set():
             return
+        if (
+            self._parked
+            and self._suspended is None
+            and not self._normal
+            and not self._critical
+            and not self._throttle
+            and not self._unreported_drops
+            and (topic is None or throttle_ms <= 0)
+        ):
+            # Nothing waits or is held back: the frame goes out at once, unqueued.
+            if self._try_send(frame):
+                return
+            self._idle.clear()
+            self._wakeup.set()  # the writer finishes the send that has to wait
+            return
         if critical:
             self._critical.append(_Entry(frame, None))
         elif topic is not None and throttle_ms > 0:
@@ -211,24 +226,33 @@ class Outbox:
         nothing is left waiting or held.
         """
         while (frame := self._next()) is not None:
-            coro = self._send(frame)
-            try:
-                waiting = coro.send(None)
-            except StopIteration:
-                self.sent += 1
-                continue
-            except Exception as exc:
-                self._fail(exc)
-                return True
-            # It waits on a future (flow control): hand it to the writer.
-            if hasattr(waiting, "_asyncio_future_blocking"):
-                waiting._asyncio_future_blocking = False
-            self._suspended = (coro, waiting)
-            return False
+            if not self._try_send(frame):
+                return False
+            if self.closed.is_set():
+                return True  # the send failed: the outbox is closed
         if self._throttle:
             return False  # a frame held back by a throttle: the writer sends it when due
         self._idle.set()
         return True
+
+    def _try_send(self, frame: Frame) -> bool:
+        """Send ``frame`` within this call if the socket takes it without waiting:
+        ``True`` when done (sent, or failed and the outbox closed); ``False`` when
+        the send waits on flow control and is left to the writer (``_suspended``)."""
+        coro = self._send(frame)
+        try:
+            waiting = coro.send(None)
+        except StopIteration:
+            self.sent += 1
+            return True
+        except Exception as exc:
+            self._fail(exc)
+            return True
+        # It waits on a future (flow control): hand it to the writer.
+        if hasattr(waiting, "_asyncio_future_blocking"):
+            waiting._asyncio_future_blocking = False
+        self._suspended = (coro, waiting)
+        return False
 
     async def _finish_suspended(self) -> None:
         assert self._suspended is not None
