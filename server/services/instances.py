@@ -21,6 +21,7 @@ from server.errors import Forbidden, InstanceFinished, NotFound
 from server.services.auth import AuthService
 from server.services.events import EventService
 from server.services.instance_state import InstanceState
+from server.services.pacing import Pacer
 from server.services.replicas import Announce, no_announce
 from server.settings import Settings
 from server.storage.instances import InstancesRepo
@@ -276,10 +277,12 @@ class InstanceService:
                     data={"presence": presence},
                 )
                 self.announce(state.instance_id, "instance")
+        pacer = Pacer()
         for state in states:
             due = state.moved and (everything or tick - state.saved_at >= every)
             if state.dirty or due:
                 await self._write(state, tick)
+                await pacer.step()  # vehicles that connected together are due together
 
     async def save_now(self, state: InstanceState) -> None:
         """Several replicas: write a changed record at once (control mode decides submits)."""

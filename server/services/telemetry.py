@@ -33,6 +33,7 @@ from typing import Any
 from fleet_protocol import Sample, utcnow
 from server.domain.track import TRACK_PAGE_CAP, cut_page, simplify
 from server.errors import Unavailable
+from server.services.pacing import Pacer
 from server.settings import Settings
 from server.storage.driver import Doc, Store
 from server.storage.telemetry import TelemetryRepo, aware, distinct_samples
@@ -237,6 +238,7 @@ class TelemetryService:
         cap = self.settings.bucket_samples
         written = 0
         now = time.monotonic()
+        pacer = Pacer()
         for vehicle_id, state in list(self._vehicles.items()):
             if not state.pending:
                 continue
@@ -250,6 +252,7 @@ class TelemetryService:
                 ):
                     await self._write_bucket(vehicle_id, state)
                     written += 1
+            await pacer.step()  # buckets that opened together age out together
         return written
 
     async def make_durable(self) -> bool:
