@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import functools
 import json
-from typing import Annotated, Any, ClassVar, Literal
+from typing import Annotated, Any, ClassVar, Literal, get_args
 
 from pydantic import (
     BaseModel,
@@ -376,20 +376,8 @@ def _error_body(exc: ValidationError) -> ErrorBody:
     return ErrorBody(code="invalid", message=f"invalid op ({summary})", details=details)
 
 
-_OP_TAGS = frozenset(
-    model.model_fields["op"].default
-    for model in (
-        StartInstanceOp,
-        FinishInstanceOp,
-        UpdateParamOp,
-        UpdateFbMessageOp,
-        HeartbeatOp,
-        RegisterOp,
-        SubscribeOp,
-        UnsubscribeOp,
-        PublishOp,
-        BatchOp,
-    )
+_OP_TAGS = frozenset(  # every op's tag: the members of the union, and batch
+    m.model_fields["op"].default for m in (*get_args(get_args(_SingleVehicleOp)[0]), BatchOp)
 )
 
 
