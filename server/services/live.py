@@ -10,6 +10,7 @@ replica hears what was published on another.
 from __future__ import annotations
 
 import asyncio
+import functools
 import logging
 import secrets
 from collections.abc import Awaitable, Callable
@@ -172,7 +173,7 @@ class LiveHub:
                 continue
             conn.buffering[topic] = []
             conn.subs[("sub", topic)] = await self.bus.subscribe(
-                topic, lambda t, m: self._deliver(conn, t, m)
+                topic, functools.partial(self._deliver, conn)
             )
             try:
                 snapshot = await self.topics.snapshot(conn.principal, topic)
@@ -214,7 +215,10 @@ class LiveHub:
             "origin": conn.id,
             "ts": now_ts() if self.instances.clock is utcnow else format_ts(self.instances.clock()),
         }
-        await self.bus.publish(topic, message)
+        if self.bus.remote:
+            await self.bus.publish(topic, message)
+        else:
+            self.bus.deliver_local(topic, message)  # the same, without a coroutine per message
 
     async def publish_media(self, topic: str, frame: bytes) -> None:
         await self.bus.publish(topic, frame)

@@ -28,7 +28,7 @@ from fleet_protocol.ws import (
     parse_client_op,
     parse_vehicle_op,
 )
-from server.domain.topics import check_read, check_write, unit_for
+from server.domain.topics import UnitRef, check_read, check_write, unit_for
 from server.errors import FleetError, Invalid, RateLimited
 from server.services.live import Connection
 
@@ -46,6 +46,9 @@ class OpRunner:
         self.conn = conn
         self._allowance = float(services.settings.ws_ops_per_s)
         self._stamp = time.monotonic()
+        self._parse = parse_vehicle_op if conn.kind == "vehicle" else parse_client_op
+        self._max_text = services.settings.ws_max_text_bytes
+        self._own_unit: UnitRef | None = None  # the unit an op naming no vehicle acts as
         self._handlers: dict[type, Callable[[Any], Awaitable[Any]]] = {
             StartInstanceOp: self._start,
             FinishInstanceOp: self._finish,
@@ -72,15 +75,12 @@ class OpRunner:
         self.conn.outbox.put(push.frame())
 
     async def text(self, frame: str) -> None:
-        if len(frame) > self.s.settings.ws_max_text_bytes:
-            limit = self.s.settings.ws_max_text_bytes
-            self._reply(
-                None, ErrorBody(code="too_large", message=f"a JSON frame has at most {limit} bytes")
-            )
+        if len(frame) > self._max_text:
+            message = f"a JSON frame has at most {self._max_text} bytes"
+            self._reply(None, ErrorBody(code="too_large", message=message))
             return
-        parse = parse_vehicle_op if self.conn.kind == "vehicle" else parse_client_op
         try:
-            op = parse(frame)
+            op = self._parse(frame)
         except FrameError as exc:
             self.conn.outbox.put(exc.reply().frame())
             return
@@ -167,23 +167,31 @@ class OpRunner:
 
     async def _register(self, op: RegisterOp) -> dict[str, Any]:
         check_write(self.conn.principal, op.topics)
-        self.s.live.register(self.conn, unit_for(self.conn.principal, op.vehicle_id), op.topics)
+        self.s.live.register(self.conn, self._unit(op.vehicle_id), op.topics)
         return {"topics": op.topics}
 
     async def _subscribe(self, op: SubscribeOp) -> dict[str, Any]:
         principal = self.conn.principal
         check_read(principal, op.topics)
-        unit = unit_for(principal, op.vehicle_id)
+        unit = self._unit(op.vehicle_id)
         self.s.live.subscribe(self.conn, unit, op.topics, op.throttle_ms)
         return {"topics": op.topics}
 
     async def _unsubscribe(self, op: UnsubscribeOp) -> dict[str, Any]:
-        unit = unit_for(self.conn.principal, op.vehicle_id)
+        unit = self._unit(op.vehicle_id)
         await self.s.live.unsubscribe(self.conn, unit, op.topics)
         return {"topics": op.topics}
 
+    def _unit(self, vehicle_id: str | None) -> UnitRef:
+        """The unit an op acts as (``unit_for``); the connection's own one kept."""
+        if vehicle_id is not None:
+            return unit_for(self.conn.principal, vehicle_id)
+        if self._own_unit is None:
+            self._own_unit = unit_for(self.conn.principal)
+        return self._own_unit
+
     async def _publish(self, op: PublishOp) -> None:
         principal = self.conn.principal
-        unit = unit_for(principal, op.vehicle_id)
+        unit = self._unit(op.vehicle_id)
         check_write(principal, op.topic)
         await self.s.live.publish(self.conn, unit, op.topic, op.data)
