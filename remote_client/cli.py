@@ -17,6 +17,7 @@ app = typer.Typer(
     help="Operate a fleet-cloud fleet: list vehicles, send missions, manage control.",
 )
 console = Console()
+errors = Console(stderr=True)  # stdout stays the answer alone (what --json scripts read)
 
 ServerOpt = typer.Option("http://127.0.0.1:8000", envvar="FLEET_SERVER", help="server URL")
 TokenOpt = typer.Option(..., envvar="FLEET_TOKEN", help="API token (FLEET_TOKEN)")
@@ -30,16 +31,21 @@ def _call(server: str, token: str, method: str, path: str, **kwargs: Any) -> Any
         try:
             r = client.request(method, path, **kwargs)
         except httpx.HTTPError as exc:
-            console.print(f"[red]cannot reach {server}: {exc}[/red]")
+            errors.print(f"cannot reach {server}: {exc}", style="red", markup=False)
             raise typer.Exit(3) from None
     if r.status_code >= 400:
         try:
             err = r.json()["error"]
-            console.print(f"[red]{r.status_code} {err['code']}: {err['message']}[/red]")
-            if err.get("details"):
-                console.print(err["details"])
-        except (ValueError, KeyError):
-            console.print(f"[red]{r.status_code}: {r.text[:500]}[/red]")
+            errors.print(
+                f"{r.status_code} {err['code']}: {err['message']}", style="red", markup=False
+            )
+            for detail in err.get("details") or []:
+                where = detail.get("instance_id") or detail.get("field") or ""
+                errors.print(
+                    f"  {where}: {detail.get('message', '')}", markup=False, highlight=False
+                )
+        except (ValueError, KeyError, TypeError, AttributeError):
+            errors.print(f"{r.status_code}: {r.text[:500]}", style="red", markup=False)
         raise typer.Exit(1 if r.status_code < 500 else 2)
     return r.json()
 
