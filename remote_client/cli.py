@@ -57,7 +57,8 @@ def vehicles(server: str = ServerOpt, token: str = TokenOpt, as_json: bool = Jso
     if as_json:
         print(json.dumps(data, indent=2))
         return
-    table = Table("vehicle", "name", "type", "presence", "instance", "position", "control")
+    table = Table("vehicle", "name", "type", "presence", "position", "control")
+    table.add_column("instance", no_wrap=True)  # whole: the id the other commands take
     for v in data["vehicles"]:
         pos = v.get("position")
         where = f"{pos['lat']:.5f}, {pos['lon']:.5f}" if pos else "-"
@@ -67,11 +68,24 @@ def vehicles(server: str = ServerOpt, token: str = TokenOpt, as_json: bool = Jso
             v["name"],
             v["vehicle_type"],
             v["presence"],
-            v.get("instance_id") or "-",
             where,
             ctl["holder"] if ctl else "-",
+            v.get("instance_id") or "-",
         )
     console.print(table)
+
+
+InstancesArg = typer.Argument(..., help="one or more instance ids")
+TtlOpt = typer.Option(30, help="seconds the order stays valid")
+SpeedOpt = typer.Option(None, help="m/s")
+
+
+def _submit(
+    server: str, token: str, instance_ids: list[str], command: dict[str, Any], ttl: int
+) -> dict[str, Any]:
+    body = {"instance_ids": instance_ids, "command": command, "ttl_s": ttl}
+    result: dict[str, Any] = _call(server, token, "POST", "/client/submit_control", json=body)
+    return result
 
 
 @app.command()
@@ -82,14 +96,8 @@ def stop(
     as_json: bool = JsonOpt,
 ) -> None:
     """Stop vehicles at once (needs no lease). With no instance: every vehicle you can see."""
-    data = _call(
-        server,
-        token,
-        "POST",
-        "/client/submit_control",
-        json={"instance_ids": instance_ids or ["*"], "command": {"type": "stop", "args": {}}},
-    )
-    _print_queued(data, as_json)
+    command = {"type": "stop", "args": {}}
+    _print_queued(_submit(server, token, instance_ids or ["*"], command, 30), as_json)
 
 
 @app.command()
@@ -97,8 +105,8 @@ def goto(
     instance_id: str,
     lat: float,
     lon: float,
-    speed: float | None = typer.Option(None, help="m/s"),
-    ttl: int = typer.Option(30, help="seconds the order stays valid"),
+    speed: float | None = SpeedOpt,
+    ttl: int = TtlOpt,
     server: str = ServerOpt,
     token: str = TokenOpt,
     as_json: bool = JsonOpt,
@@ -107,18 +115,117 @@ def goto(
     args: dict[str, Any] = {"lat": lat, "lon": lon}
     if speed is not None:
         args["speed_mps"] = speed
+    command = {"type": "go_to", "args": args}
+    _print_queued(_submit(server, token, [instance_id], command, ttl), as_json)
+
+
+@app.command()
+def station(
+    instance_ids: list[str] = InstancesArg,
+    lat: float | None = typer.Option(None, help="degrees; none: where the vehicle is"),
+    lon: float | None = typer.Option(None, help="degrees; none: where the vehicle is"),
+    radius: float | None = typer.Option(None, help="metres (the server's default: 2)"),
+    ttl: int = TtlOpt,
+    server: str = ServerOpt,
+    token: str = TokenOpt,
+    as_json: bool = JsonOpt,
+) -> None:
+    """Keep station: hold a position, or where each vehicle is (needs a lease on each)."""
+    if (lat is None) != (lon is None):
+        errors.print("give both --lat and --lon, or neither", style="red")
+        raise typer.Exit(2)
+    given = {"lat": lat, "lon": lon, "radius_m": radius}
+    command = {"type": "keep_station", "args": {k: v for k, v in given.items() if v is not None}}
+    _print_queued(_submit(server, token, instance_ids, command, ttl), as_json)
+
+
+@app.command()
+def path(
+    instance_id: str,
+    waypoints: list[str] = typer.Argument(..., help="LAT,LON pairs, in order"),
+    speed: float | None = SpeedOpt,
+    plan: bool = typer.Option(False, "--plan", help="let the server route around obstacles"),
+    ttl: int = TtlOpt,
+    server: str = ServerOpt,
+    token: str = TokenOpt,
+    as_json: bool = JsonOpt,
+) -> None:
+    """Follow a path of waypoints (needs a lease)."""
+    points = []
+    for text in waypoints:
+        try:
+            lat, lon = (float(part) for part in text.split(","))
+        except ValueError:
+            errors.print(f"not a LAT,LON pair: {text!r}", style="red", markup=False)
+            raise typer.Exit(2) from None
+        points.append({"lat": lat, "lon": lon})
+    args: dict[str, Any] = {"waypoints": points}
+    if speed is not None:
+        args["speed_mps"] = speed
+    if plan:
+        args["plan"] = True
+    command = {"type": "follow_path", "args": args}
+    _print_queued(_submit(server, token, [instance_id], command, ttl), as_json)
+
+
+@app.command()
+def commands(
+    instance_id: str, server: str = ServerOpt, token: str = TokenOpt, as_json: bool = JsonOpt
+) -> None:
+    """The instance's recent commands and their status."""
+    data = _call(server, token, "GET", "/client/get_fbmessage", params={"instance_id": instance_id})
+    if as_json:
+        print(json.dumps(data, indent=2))
+        return
+    table = Table("type", "status", "issued by", "issued at", "last detail")
+    table.add_column("command", no_wrap=True)  # whole: the id cancel takes
+    for c in data["commands"]:
+        detail = next((h.get("detail") for h in reversed(c["history"]) if h.get("detail")), None)
+        table.add_row(
+            c["type"], c["status"], c["issued_by"], c["issued_at"], detail or "-", c["command_id"]
+        )
+    console.print(f"control mode: {data['control_mode']}")
+    console.print(table)
+
+
+@app.command()
+def cancel(
+    command_id: str, server: str = ServerOpt, token: str = TokenOpt, as_json: bool = JsonOpt
+) -> None:
+    """Cancel a command that is not final yet."""
+    data = _call(server, token, "POST", "/client/cancel_command", json={"command_id": command_id})
+    print(json.dumps(data, indent=2) if as_json else f"{data['command_id']} {data['status']}")
+
+
+@app.command()
+def request(
+    instance_id: str, server: str = ServerOpt, token: str = TokenOpt, as_json: bool = JsonOpt
+) -> None:
+    """Ask the field manager for control of an instance."""
     data = _call(
-        server,
-        token,
-        "POST",
-        "/client/submit_control",
-        json={
-            "instance_ids": [instance_id],
-            "command": {"type": "go_to", "args": args},
-            "ttl_s": ttl,
-        },
+        server, token, "POST", "/client/request_control", json={"instance_id": instance_id}
     )
-    _print_queued(data, as_json)
+    print(json.dumps(data, indent=2) if as_json else f"requested: {data['request_id']}")
+
+
+@app.command()
+def requests(
+    instance_id: str | None = typer.Argument(None, help="one instance; none: all you may answer"),
+    server: str = ServerOpt,
+    token: str = TokenOpt,
+    as_json: bool = JsonOpt,
+) -> None:
+    """(manager) The pending control requests you may answer."""
+    query = {"instance_id": instance_id} if instance_id else {}
+    data = _call(server, token, "GET", "/client/control_requests", params=query)
+    if as_json:
+        print(json.dumps(data, indent=2))
+        return
+    table = Table("user", "requested at", "request")
+    table.add_column("instance", no_wrap=True)  # whole: the id grant takes
+    for r in data["requests"]:
+        table.add_row(r["username"], r["requested_at"], r["request_id"], r["instance_id"])
+    console.print(table)
 
 
 @app.command()
@@ -143,6 +250,26 @@ def grant(
         if as_json
         else f"{data['holder']} holds {instance_id} until {data['expires_at']}"
     )
+
+
+@app.command()
+def revoke(
+    instance_id: str, server: str = ServerOpt, token: str = TokenOpt, as_json: bool = JsonOpt
+) -> None:
+    """(manager) End the lease on an instance: its holder's queued commands are cancelled."""
+    data = _call(server, token, "POST", "/client/revoke_control", json={"instance_id": instance_id})
+    print(json.dumps(data, indent=2) if as_json else f"control of {instance_id} revoked")
+
+
+@app.command()
+def release(
+    instance_id: str, server: str = ServerOpt, token: str = TokenOpt, as_json: bool = JsonOpt
+) -> None:
+    """Give back the lease you hold on an instance."""
+    data = _call(
+        server, token, "POST", "/client/release_control", json={"instance_id": instance_id}
+    )
+    print(json.dumps(data, indent=2) if as_json else f"control of {instance_id} released")
 
 
 def _print_queued(data: dict[str, Any], as_json: bool) -> None:

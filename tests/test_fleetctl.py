@@ -36,6 +36,7 @@ async def test_an_operator_lists_is_refused_then_granted_and_commands(
         assert [v["instance_id"] for v in json.loads(listed.stdout)["vehicles"]] == [iid]
         table = await _fleetctl(base, op_token, "vehicles")
         assert vid in table.stdout and "online" in table.stdout
+        assert iid in table.stdout  # whole, not cut to fit: the other commands take it
 
         refused = await _fleetctl(base, op_token, "goto", iid, "43.95", "15.45", "--json")
         assert refused.exit_code == 1
@@ -65,3 +66,51 @@ async def test_an_unreachable_server_is_exit_code_3(make_settings: Callable[...,
         pass  # stopped: its port is closed now
     gone = await _fleetctl(base, ADMIN_TOKEN, "vehicles")
     assert gone.exit_code == 3 and "cannot reach" in gone.stderr and gone.stdout == ""
+
+
+async def test_missions_requests_and_the_lease_from_the_command_line(
+    make_settings: Callable[..., Settings],
+) -> None:
+    async with serve(make_settings()) as base, httpx.AsyncClient(base_url=base) as c:
+        vid, vh = await make_vehicle(c)
+        iid = (await start_instance(c, vid, vh))["instance_id"]
+        _, op = await make_user(c, "operator", vehicles=[vid], username="piet")
+        op_token = op["Authorization"].removeprefix("Bearer ")
+
+        asked = await _fleetctl(base, op_token, "request", iid, "--json")
+        assert asked.exit_code == 0, asked.output
+        pending = await _fleetctl(base, ADMIN_TOKEN, "requests", iid)
+        assert pending.exit_code == 0 and "piet" in pending.stdout
+        assert (await _fleetctl(base, ADMIN_TOKEN, "grant", iid, "piet")).exit_code == 0
+
+        held = await _fleetctl(base, op_token, "station", iid, "--radius", "5", "--json")
+        assert held.exit_code == 0, held.output
+        one_sided = await _fleetctl(base, op_token, "station", iid, "--lat", "43.9")
+        assert one_sided.exit_code == 2 and "--lat and --lon" in one_sided.stderr
+        route = ["43.941,15.441", "43.942,15.442"]
+        followed = await _fleetctl(base, op_token, "path", iid, *route, "--speed", "1.5", "--json")
+        assert followed.exit_code == 0, followed.output
+        path_id = json.loads(followed.stdout)["commands"][0]["command_id"]
+        garbled = await _fleetctl(base, op_token, "path", iid, "43.9;15.4")
+        assert garbled.exit_code == 2 and "LAT,LON" in garbled.stderr
+
+        listed = await _fleetctl(base, op_token, "commands", iid, "--json")
+        kinds = {cmd["command_id"]: cmd for cmd in json.loads(listed.stdout)["commands"]}
+        assert kinds[path_id]["type"] == "follow_path"
+        assert kinds[path_id]["args"]["waypoints"][1] == {"lat": 43.942, "lon": 15.442}
+        assert {cmd["args"].get("radius_m") for cmd in kinds.values()} >= {5.0}
+        table = await _fleetctl(base, op_token, "commands", iid)
+        assert path_id in table.stdout and "control mode" in table.stdout
+
+        cancelled = await _fleetctl(base, op_token, "cancel", path_id, "--json")
+        assert cancelled.exit_code == 0 and json.loads(cancelled.stdout)["status"] == "cancelled"
+
+        released = await _fleetctl(base, op_token, "release", iid)
+        assert released.exit_code == 0 and "released" in released.stdout
+        after = await _fleetctl(base, op_token, "station", iid)
+        assert after.exit_code == 1 and "control_not_held" in after.stderr
+        assert (await _fleetctl(base, ADMIN_TOKEN, "grant", iid, "piet")).exit_code == 0
+        revoked = await _fleetctl(base, ADMIN_TOKEN, "revoke", iid, "--json")
+        assert revoked.exit_code == 0 and json.loads(revoked.stdout) == {"ok": True}
+        not_a_manager = await _fleetctl(base, op_token, "revoke", iid)
+        assert not_a_manager.exit_code == 1 and "403" in not_a_manager.stderr
