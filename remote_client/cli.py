@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import asyncio
+import contextlib
 import json
 import os
 from typing import Any
 
 import httpx
 import typer
+import websockets
 from rich.console import Console
 from rich.table import Table
 
@@ -270,6 +273,85 @@ def release(
         server, token, "POST", "/client/release_control", json={"instance_id": instance_id}
     )
     print(json.dumps(data, indent=2) if as_json else f"control of {instance_id} released")
+
+
+@app.command()
+def watch(
+    topics: list[str] = typer.Argument(None, help="topics to follow; none: fleet"),
+    count: int | None = typer.Option(None, min=1, help="stop after this many events"),
+    seconds: float | None = typer.Option(None, min=0, help="stop after this long"),
+    throttle_ms: int = typer.Option(0, min=0, help="at most one event per topic per N ms"),
+    server: str = ServerOpt,
+    token: str = TokenOpt,
+    as_json: bool = JsonOpt,
+) -> None:
+    """Follow topics live: each topic's current state first, then every change.
+
+    fleet (presence), vehicle/ID/telemetry, .../commands, .../control,
+    .../events, or any topic a unit publishes. Ctrl-C stops.
+    """
+    subscribe: dict[str, Any] = {"op": "subscribe", "id": "watch", "topics": topics or ["fleet"]}
+    if throttle_ms:
+        subscribe["throttle_ms"] = throttle_ms
+    with contextlib.suppress(KeyboardInterrupt):
+        asyncio.run(_watch(server, token, subscribe, count, seconds, as_json))
+
+
+async def _watch(
+    server: str,
+    token: str,
+    subscribe: dict[str, Any],
+    count: int | None,
+    seconds: float | None,
+    as_json: bool,
+) -> None:
+    url = server.replace("https://", "wss://", 1).replace("http://", "ws://", 1) + "/ws/client"
+    try:
+        ws = await websockets.connect(
+            url, additional_headers={"Authorization": f"Bearer {token}"}, open_timeout=30
+        )
+    except (OSError, TimeoutError, websockets.InvalidHandshake) as exc:
+        errors.print(f"cannot reach {server}: {exc}", style="red", markup=False)
+        raise typer.Exit(3) from None
+    seen = 0
+    try:
+        async with ws, asyncio.timeout(seconds):
+            await ws.send(json.dumps(subscribe))
+            async for frame in ws:
+                if not isinstance(frame, str):
+                    continue  # media: binary frames are not printed
+                push = json.loads(frame)
+                if push.get("op") == "ack" and not push.get("ok"):
+                    err = push.get("error") or {}
+                    errors.print(
+                        f"{err.get('code')}: {err.get('message')}", style="red", markup=False
+                    )
+                    raise typer.Exit(1)
+                if push.get("op") == "lagging":
+                    errors.print(f"{push.get('dropped')} events dropped (too slow)", markup=False)
+                if push.get("op") != "event":
+                    continue
+                _print_event(push, as_json)
+                seen += 1
+                if count is not None and seen >= count:
+                    return
+    except TimeoutError:
+        return  # --seconds is over
+    except websockets.ConnectionClosed as exc:
+        if exc.rcvd is not None and exc.rcvd.code in (4401, 4403):
+            errors.print(f"refused: {exc.rcvd.reason}", style="red", markup=False)
+            raise typer.Exit(1) from None
+        errors.print(f"the server closed the connection: {exc}", style="red", markup=False)
+        raise typer.Exit(3) from None
+
+
+def _print_event(push: dict[str, Any], as_json: bool) -> None:
+    if as_json:
+        print(json.dumps(push), flush=True)
+        return
+    mark = " (current)" if push.get("snapshot") else ""
+    data = json.dumps(push.get("data"), separators=(",", ":"))
+    print(f"{push.get('ts') or '-'} {push['topic']}{mark} {data}", flush=True)
 
 
 def _print_queued(data: dict[str, Any], as_json: bool) -> None:

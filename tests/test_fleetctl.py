@@ -11,7 +11,7 @@ from typer.testing import CliRunner, Result
 
 from remote_client.cli import app
 from server.settings import Settings
-from tests.factories import ADMIN_TOKEN, make_user, make_vehicle, start_instance
+from tests.factories import ADMIN_TOKEN, make_user, make_vehicle, sample, start_instance
 from tests.live import serve
 
 runner = CliRunner()
@@ -114,3 +114,43 @@ async def test_missions_requests_and_the_lease_from_the_command_line(
         assert revoked.exit_code == 0 and json.loads(revoked.stdout) == {"ok": True}
         not_a_manager = await _fleetctl(base, op_token, "revoke", iid)
         assert not_a_manager.exit_code == 1 and "403" in not_a_manager.stderr
+
+
+async def test_watch_prints_the_current_state_then_changes(
+    make_settings: Callable[..., Settings],
+) -> None:
+    async with serve(make_settings()) as base, httpx.AsyncClient(base_url=base) as c:
+        vid, vh = await make_vehicle(c)
+        iid = (await start_instance(c, vid, vh))["instance_id"]
+        seq = 1
+        r = await c.post(
+            "/upper/update_param", headers=vh, json={"instance_id": iid, "samples": [sample(seq)]}
+        )
+        assert r.status_code == 200
+        topic = f"vehicle/{vid}/telemetry"
+        watching = asyncio.create_task(
+            _fleetctl(base, ADMIN_TOKEN, "watch", topic, "--count", "2", "--json")
+        )
+        async with asyncio.timeout(20):
+            while not watching.done():  # samples until the watcher has seen a change
+                seq += 1
+                body = {"instance_id": iid, "samples": [sample(seq)]}
+                assert (await c.post("/upper/update_param", headers=vh, json=body)).is_success
+                await asyncio.wait({watching}, timeout=0.05)
+        result = watching.result()
+        assert result.exit_code == 0, result.output
+        first, second = (json.loads(line) for line in result.stdout.splitlines())
+        assert first["topic"] == topic and first["snapshot"] is True
+        assert second.get("snapshot") is None and second["data"]["seq"] > first["data"]["seq"]
+
+        fleet = await _fleetctl(base, ADMIN_TOKEN, "watch", "--seconds", "0.5")
+        assert fleet.exit_code == 0, fleet.output
+        assert fleet.stdout.startswith("- fleet (current)") and vid in fleet.stdout
+
+        _, viewer = await make_user(c, "viewer", vehicles=[])
+        blind = await _fleetctl(
+            base, viewer["Authorization"].removeprefix("Bearer "), "watch", topic, "--seconds", "5"
+        )
+        assert blind.exit_code == 1 and "forbidden" in blind.stderr and blind.stdout == ""
+        nobody = await _fleetctl(base, "fct_not-a-token-at-all-0000000000", "watch")
+        assert nobody.exit_code == 1 and "refused" in nobody.stderr
