@@ -60,7 +60,10 @@ def vehicles(server: str = ServerOpt, token: str = TokenOpt, as_json: bool = Jso
     if as_json:
         print(json.dumps(data, indent=2))
         return
-    table = Table("vehicle", "name", "type", "presence", "position", "control")
+    table = Table()
+    table.add_column("vehicle", no_wrap=True)
+    for name in ("name", "type", "presence", "position", "control"):
+        table.add_column(name)
     table.add_column("instance", no_wrap=True)  # whole: the id the other commands take
     for v in data["vehicles"]:
         pos = v.get("position")
@@ -349,9 +352,18 @@ def _print_event(push: dict[str, Any], as_json: bool) -> None:
     if as_json:
         print(json.dumps(push), flush=True)
         return
-    mark = " (current)" if push.get("snapshot") else ""
-    data = json.dumps(push.get("data"), separators=(",", ":"))
-    print(f"{push.get('ts') or '-'} {push['topic']}{mark} {data}", flush=True)
+    head = f"{push.get('ts') or '-'} {push['topic']}" + (
+        " (current)" if push.get("snapshot") else ""
+    )
+    data = push.get("data")
+    if push["topic"] == "fleet" and isinstance(data, dict):  # a line per vehicle
+        for v in data.get("vehicles", []):
+            pos = v.get("position") or {}
+            where = f"{pos['lat']:.5f},{pos['lon']:.5f}" if "lat" in pos else "-"
+            holder = (v.get("control") or {}).get("holder", "-")
+            print(f"{head} {v['vehicle_id']} {v['presence']} {where} control={holder}", flush=True)
+        return
+    print(f"{head} {json.dumps(data, separators=(',', ':'))}", flush=True)
 
 
 def _print_queued(data: dict[str, Any], as_json: bool) -> None:
