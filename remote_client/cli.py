@@ -6,21 +6,21 @@ import asyncio
 import contextlib
 import json
 import os
+import sys
 from typing import Any
 
 import httpx
 import typer
-import websockets
-from rich.console import Console
 from rich.table import Table
+
+from remote_client import streams
+from remote_client.output import console, errors
 
 app = typer.Typer(
     add_completion=False,
     no_args_is_help=True,
     help="Operate a fleet-cloud fleet: list vehicles, send missions, manage control.",
 )
-console = Console()
-errors = Console(stderr=True)  # stdout stays the answer alone (what --json scripts read)
 
 ServerOpt = typer.Option("http://127.0.0.1:8000", envvar="FLEET_SERVER", help="server URL")
 TokenOpt = typer.Option(..., envvar="FLEET_TOKEN", help="API token (FLEET_TOKEN)")
@@ -279,6 +279,36 @@ def release(
 
 
 @app.command()
+def export(
+    vehicle_id: str,
+    since: str | None = typer.Option(None, "--from", help="ISO 8601 time, inclusive"),
+    until: str | None = typer.Option(None, "--to", help="ISO 8601 time, exclusive"),
+    fmt: str = typer.Option("jsonl", "--format", help="jsonl (a sample per line) or csv"),
+    output: str = typer.Option("-", "--output", "-o", help="file to write; -: stdout"),
+    page: int = typer.Option(10_000, min=1, max=10_000, help="samples per request"),
+    server: str = ServerOpt,
+    token: str = TokenOpt,
+) -> None:
+    """Every stored telemetry sample of a vehicle, in seq order, page by page."""
+    if fmt not in ("jsonl", "csv"):
+        errors.print(f"--format is jsonl or csv, not {fmt!r}", style="red", markup=False)
+        raise typer.Exit(2)
+    query: dict[str, Any] = {"limit": page, "after_seq": 0}
+    query.update({k: v for k, v in (("from", since), ("to", until)) if v})
+    path = f"/api/vehicles/{vehicle_id}/telemetry"
+
+    def fetch(query: dict[str, Any]) -> dict[str, Any]:
+        page: dict[str, Any] = _call(server, token, "GET", path, params=query)
+        return page
+
+    with contextlib.ExitStack() as stack:
+        out = sys.stdout if output == "-" else stack.enter_context(open(output, "w", newline=""))
+        count = streams.export_samples(fetch, query, fmt, out)
+    if output != "-":
+        errors.print(f"{count} samples written to {output}", markup=False, highlight=False)
+
+
+@app.command()
 def watch(
     topics: list[str] = typer.Argument(None, help="topics to follow; none: fleet"),
     count: int | None = typer.Option(None, min=1, help="stop after this many events"),
@@ -297,73 +327,7 @@ def watch(
     if throttle_ms:
         subscribe["throttle_ms"] = throttle_ms
     with contextlib.suppress(KeyboardInterrupt):
-        asyncio.run(_watch(server, token, subscribe, count, seconds, as_json))
-
-
-async def _watch(
-    server: str,
-    token: str,
-    subscribe: dict[str, Any],
-    count: int | None,
-    seconds: float | None,
-    as_json: bool,
-) -> None:
-    url = server.replace("https://", "wss://", 1).replace("http://", "ws://", 1) + "/ws/client"
-    try:
-        ws = await websockets.connect(
-            url, additional_headers={"Authorization": f"Bearer {token}"}, open_timeout=30
-        )
-    except (OSError, TimeoutError, websockets.InvalidHandshake) as exc:
-        errors.print(f"cannot reach {server}: {exc}", style="red", markup=False)
-        raise typer.Exit(3) from None
-    seen = 0
-    try:
-        async with ws, asyncio.timeout(seconds):
-            await ws.send(json.dumps(subscribe))
-            async for frame in ws:
-                if not isinstance(frame, str):
-                    continue  # media: binary frames are not printed
-                push = json.loads(frame)
-                if push.get("op") == "ack" and not push.get("ok"):
-                    err = push.get("error") or {}
-                    errors.print(
-                        f"{err.get('code')}: {err.get('message')}", style="red", markup=False
-                    )
-                    raise typer.Exit(1)
-                if push.get("op") == "lagging":
-                    errors.print(f"{push.get('dropped')} events dropped (too slow)", markup=False)
-                if push.get("op") != "event":
-                    continue
-                _print_event(push, as_json)
-                seen += 1
-                if count is not None and seen >= count:
-                    return
-    except TimeoutError:
-        return  # --seconds is over
-    except websockets.ConnectionClosed as exc:
-        if exc.rcvd is not None and exc.rcvd.code in (4401, 4403):
-            errors.print(f"refused: {exc.rcvd.reason}", style="red", markup=False)
-            raise typer.Exit(1) from None
-        errors.print(f"the server closed the connection: {exc}", style="red", markup=False)
-        raise typer.Exit(3) from None
-
-
-def _print_event(push: dict[str, Any], as_json: bool) -> None:
-    if as_json:
-        print(json.dumps(push), flush=True)
-        return
-    head = f"{push.get('ts') or '-'} {push['topic']}" + (
-        " (current)" if push.get("snapshot") else ""
-    )
-    data = push.get("data")
-    if push["topic"] == "fleet" and isinstance(data, dict):  # a line per vehicle
-        for v in data.get("vehicles", []):
-            pos = v.get("position") or {}
-            where = f"{pos['lat']:.5f},{pos['lon']:.5f}" if "lat" in pos else "-"
-            holder = (v.get("control") or {}).get("holder", "-")
-            print(f"{head} {v['vehicle_id']} {v['presence']} {where} control={holder}", flush=True)
-        return
-    print(f"{head} {json.dumps(data, separators=(',', ':'))}", flush=True)
+        asyncio.run(streams.watch(server, token, subscribe, count, seconds, as_json))
 
 
 def _print_queued(data: dict[str, Any], as_json: bool) -> None:

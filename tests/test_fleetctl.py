@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import asyncio
+import csv
 import json
 from collections.abc import Callable
+from pathlib import Path
 
 import httpx
 from typer.testing import CliRunner, Result
@@ -154,3 +156,36 @@ async def test_watch_prints_the_current_state_then_changes(
         assert blind.exit_code == 1 and "forbidden" in blind.stderr and blind.stdout == ""
         nobody = await _fleetctl(base, "fct_not-a-token-at-all-0000000000", "watch")
         assert nobody.exit_code == 1 and "refused" in nobody.stderr
+
+
+async def test_export_writes_every_sample_page_by_page(
+    make_settings: Callable[..., Settings], tmp_path: Path
+) -> None:
+    async with serve(make_settings()) as base, httpx.AsyncClient(base_url=base) as c:
+        vid, vh = await make_vehicle(c)
+        iid = (await start_instance(c, vid, vh))["instance_id"]
+        samples = [sample(seq, depth_m=1.5) for seq in range(1, 26)]
+        samples[3]["data"] = {"sonar": "ok"}
+        body = {"instance_id": iid, "samples": samples}
+        assert (await c.post("/upper/update_param", headers=vh, json=body)).is_success
+
+        lines = await _fleetctl(base, ADMIN_TOKEN, "export", vid, "--page", "10")
+        assert lines.exit_code == 0, lines.output
+        rows = [json.loads(line) for line in lines.stdout.splitlines()]
+        assert [r["seq"] for r in rows] == list(range(1, 26))  # three pages, none twice
+        assert rows[3]["data"] == {"sonar": "ok"} and rows[0]["depth_m"] == 1.5
+
+        target = tmp_path / "track.csv"
+        written = await _fleetctl(
+            base, ADMIN_TOKEN, "export", vid, "--format", "csv", "-o", str(target), "--page", "7"
+        )
+        assert written.exit_code == 0 and "25 samples written" in written.stderr
+        table = list(csv.DictReader(target.open()))
+        assert [int(r["seq"]) for r in table] == list(range(1, 26))
+        assert json.loads(table[3]["data"]) == {"sonar": "ok"} and table[0]["data"] == ""
+        assert float(table[0]["depth_m"]) == 1.5
+
+        unknown = await _fleetctl(base, ADMIN_TOKEN, "export", "no-such-vehicle")
+        assert unknown.exit_code == 1 and "404" in unknown.stderr
+        wrong = await _fleetctl(base, ADMIN_TOKEN, "export", vid, "--format", "xml")
+        assert wrong.exit_code == 2 and "jsonl or csv" in wrong.stderr
