@@ -54,6 +54,8 @@ async def watch(
     seconds: float | None,
     as_json: bool,
 ) -> None:
+    """Send ``subscribe`` on ``/ws/client`` and print each event until ``count`` events,
+    ``seconds``, or the server closes (a refusal: exit 1; a lost link: exit 3)."""
     url = server.replace("https://", "wss://", 1).replace("http://", "ws://", 1) + "/ws/client"
     try:
         ws = await websockets.connect(
@@ -95,6 +97,8 @@ async def watch(
 
 
 def print_event(push: dict[str, Any], as_json: bool) -> None:
+    """An event as one JSON line, or for people: time, topic, data (``fleet``: a line per
+    vehicle)."""
     if as_json:
         print(json.dumps(push), flush=True)
         return
