@@ -82,6 +82,8 @@ def vehicles(server: str = ServerOpt, token: str = TokenOpt, as_json: bool = Jso
 
 
 InstancesArg = typer.Argument(..., help="one or more instance ids")
+#: Negative coordinates (-33.9) are arguments, not unknown options.
+COORDINATES = {"ignore_unknown_options": True}
 TtlOpt = typer.Option(30, help="seconds the order stays valid")
 SpeedOpt = typer.Option(None, help="m/s")
 
@@ -106,7 +108,7 @@ def stop(
     _print_queued(_submit(server, token, instance_ids or ["*"], command, 30), as_json)
 
 
-@app.command()
+@app.command(context_settings=COORDINATES)
 def goto(
     instance_id: str,
     lat: float,
@@ -145,7 +147,7 @@ def station(
     _print_queued(_submit(server, token, instance_ids, command, ttl), as_json)
 
 
-@app.command()
+@app.command(context_settings=COORDINATES)
 def path(
     instance_id: str,
     waypoints: list[str] = typer.Argument(..., help="LAT,LON pairs, in order"),

@@ -49,8 +49,8 @@ async def test_an_operator_lists_is_refused_then_granted_and_commands(
         assert granted.exit_code == 0, granted.output
         assert json.loads(granted.stdout)["holder"] == "olga"
 
-        sent = await _fleetctl(base, op_token, "goto", iid, "43.95", "15.45", "--json")
-        assert sent.exit_code == 0, sent.output
+        sent = await _fleetctl(base, op_token, "goto", iid, "-33.95", "-15.45", "--json")
+        assert sent.exit_code == 0, sent.output  # negative coordinates are not options
         command = json.loads(sent.stdout)["commands"][0]
         assert command["instance_id"] == iid and command["status"] == "queued"
 
@@ -89,7 +89,7 @@ async def test_missions_requests_and_the_lease_from_the_command_line(
         assert held.exit_code == 0, held.output
         one_sided = await _fleetctl(base, op_token, "station", iid, "--lat", "43.9")
         assert one_sided.exit_code == 2 and "--lat and --lon" in one_sided.stderr
-        route = ["43.941,15.441", "43.942,15.442"]
+        route = ["43.941,15.441", "-43.942,-15.442"]
         followed = await _fleetctl(base, op_token, "path", iid, *route, "--speed", "1.5", "--json")
         assert followed.exit_code == 0, followed.output
         path_id = json.loads(followed.stdout)["commands"][0]["command_id"]
@@ -99,7 +99,7 @@ async def test_missions_requests_and_the_lease_from_the_command_line(
         listed = await _fleetctl(base, op_token, "commands", iid, "--json")
         kinds = {cmd["command_id"]: cmd for cmd in json.loads(listed.stdout)["commands"]}
         assert kinds[path_id]["type"] == "follow_path"
-        assert kinds[path_id]["args"]["waypoints"][1] == {"lat": 43.942, "lon": 15.442}
+        assert kinds[path_id]["args"]["waypoints"][1] == {"lat": -43.942, "lon": -15.442}
         assert {cmd["args"].get("radius_m") for cmd in kinds.values()} >= {5.0}
         table = await _fleetctl(base, op_token, "commands", iid)
         assert path_id in table.stdout and "control mode" in table.stdout
