@@ -46,6 +46,14 @@ def export_samples(
             query = {**query, "after_seq": data["next_after_seq"]}
 
 
+#: Waits between reconnections of ``watch`` after a lost link (the last one repeats).
+RECONNECT_S = (0.5, 1.0, 2.0, 5.0, 10.0)
+
+
+class _Refused(Exception):
+    """The server refused the token or the subscription: no use trying again."""
+
+
 async def watch(
     server: str,
     token: str,
@@ -54,19 +62,48 @@ async def watch(
     seconds: float | None,
     as_json: bool,
 ) -> None:
-    """Send ``subscribe`` on ``/ws/client`` and print each event until ``count`` events,
-    ``seconds``, or the server closes (a refusal: exit 1; a lost link: exit 3)."""
+    """Send ``subscribe`` on ``/ws/client`` and print each event until ``count`` events or
+    ``seconds``. A lost link is taken up again (the current state comes first again, so
+    nothing is missed); a refusal is exit 1, a server not reachable at the start exit 3."""
     url = server.replace("https://", "wss://", 1).replace("http://", "ws://", 1) + "/ws/client"
+    seen = [0]
+    failures = 0
     try:
-        ws = await websockets.connect(
-            url, additional_headers={"Authorization": f"Bearer {token}"}, open_timeout=30
-        )
-    except (OSError, TimeoutError, websockets.InvalidHandshake) as exc:
-        errors.print(f"cannot reach {server}: {exc}", style="red", markup=False)
-        raise typer.Exit(3) from None
-    seen = 0
-    try:
-        async with ws, asyncio.timeout(seconds):
+        async with asyncio.timeout(seconds):
+            while True:
+                try:
+                    if await _follow(url, token, subscribe, count, seen, as_json):
+                        return
+                    failures = 0  # it ran: the next loss starts the waits again
+                    reason = "the server closed the connection"
+                except _Refused as exc:
+                    errors.print(str(exc), style="red", markup=False)
+                    raise typer.Exit(1) from None
+                except (OSError, TimeoutError, websockets.InvalidHandshake) as exc:
+                    if seen[0] == 0 and failures == 0:
+                        errors.print(f"cannot reach {server}: {exc}", style="red", markup=False)
+                        raise typer.Exit(3) from None
+                    reason = f"{type(exc).__name__}: {exc}"
+                wait = RECONNECT_S[min(failures, len(RECONNECT_S) - 1)]
+                failures += 1
+                errors.print(f"link lost ({reason}); again in {wait:g} s", markup=False)
+                await asyncio.sleep(wait)
+    except TimeoutError:
+        return  # --seconds is over
+
+
+async def _follow(
+    url: str,
+    token: str,
+    subscribe: dict[str, Any],
+    count: int | None,
+    seen: list[int],
+    as_json: bool,
+) -> bool:
+    """One connection: True when ``count`` events were printed, False when it closed."""
+    headers = {"Authorization": f"Bearer {token}"}
+    async with websockets.connect(url, additional_headers=headers, open_timeout=30) as ws:
+        try:
             await ws.send(json.dumps(subscribe))
             async for frame in ws:
                 if not isinstance(frame, str):
@@ -74,26 +111,19 @@ async def watch(
                 push = json.loads(frame)
                 if push.get("op") == "ack" and not push.get("ok"):
                     err = push.get("error") or {}
-                    errors.print(
-                        f"{err.get('code')}: {err.get('message')}", style="red", markup=False
-                    )
-                    raise typer.Exit(1)
+                    raise _Refused(f"{err.get('code')}: {err.get('message')}")
                 if push.get("op") == "lagging":
                     errors.print(f"{push.get('dropped')} events dropped (too slow)", markup=False)
                 if push.get("op") != "event":
                     continue
                 print_event(push, as_json)
-                seen += 1
-                if count is not None and seen >= count:
-                    return
-    except TimeoutError:
-        return  # --seconds is over
-    except websockets.ConnectionClosed as exc:
-        if exc.rcvd is not None and exc.rcvd.code in (4401, 4403):
-            errors.print(f"refused: {exc.rcvd.reason}", style="red", markup=False)
-            raise typer.Exit(1) from None
-        errors.print(f"the server closed the connection: {exc}", style="red", markup=False)
-        raise typer.Exit(3) from None
+                seen[0] += 1
+                if count is not None and seen[0] >= count:
+                    return True
+        except websockets.ConnectionClosed as exc:
+            if exc.rcvd is not None and exc.rcvd.code in (4401, 4403):
+                raise _Refused(f"refused: {exc.rcvd.reason}") from None
+        return False
 
 
 def print_event(push: dict[str, Any], as_json: bool) -> None:

@@ -25,10 +25,12 @@ def free_port() -> int:
 
 
 @asynccontextmanager
-async def serve(settings: Settings, store: Store | None = None) -> AsyncIterator[str]:
+async def serve(
+    settings: Settings, store: Store | None = None, port: int | None = None
+) -> AsyncIterator[str]:
     """Yields the base URL (``http://127.0.0.1:PORT``) while the server runs (on ``store``
-    when given: the caller's open store, which it closes)."""
-    port = free_port()
+    when given: the caller's open store, which it closes; on ``port`` when given)."""
+    port = port or free_port()
     config = uvicorn.Config(
         create_app(settings, store=store),
         host="127.0.0.1",

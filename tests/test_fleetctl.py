@@ -5,6 +5,8 @@ from __future__ import annotations
 import asyncio
 import csv
 import json
+import os
+import sys
 from collections.abc import Callable
 from pathlib import Path
 
@@ -14,7 +16,7 @@ from typer.testing import CliRunner, Result
 from remote_client.cli import app
 from server.settings import Settings
 from tests.factories import ADMIN_TOKEN, make_user, make_vehicle, sample, start_instance
-from tests.live import serve
+from tests.live import free_port, serve
 
 runner = CliRunner()
 
@@ -189,3 +191,32 @@ async def test_export_writes_every_sample_page_by_page(
         assert unknown.exit_code == 1 and "404" in unknown.stderr
         wrong = await _fleetctl(base, ADMIN_TOKEN, "export", vid, "--format", "xml")
         assert wrong.exit_code == 2 and "jsonl or csv" in wrong.stderr
+
+
+async def test_watch_takes_a_lost_link_up_again(make_settings: Callable[..., Settings]) -> None:
+    settings, port = make_settings(), free_port()
+    watcher: asyncio.subprocess.Process | None = None
+    try:
+        async with asyncio.timeout(60):
+            async with serve(settings, port=port) as base, httpx.AsyncClient(base_url=base) as c:
+                vid, vh = await make_vehicle(c)
+                await start_instance(c, vid, vh)
+                env = {**os.environ, "FLEET_SERVER": base, "FLEET_TOKEN": ADMIN_TOKEN}
+                watcher = await asyncio.create_subprocess_exec(
+                    sys.executable, "-m", "remote_client.cli", "watch", "--count", "2", "--json",
+                    env=env, stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE,
+                )  # fmt: skip
+                assert watcher.stdout is not None and watcher.stderr is not None
+                first = json.loads(await watcher.stdout.readline())
+            # The server is gone; the watcher waits, then finds it back on the same port.
+            async with serve(settings, port=port):
+                second = json.loads(await watcher.stdout.readline())
+                assert await watcher.wait() == 0
+    finally:
+        if watcher is not None and watcher.returncode is None:
+            watcher.kill()
+            await watcher.wait()
+    assert first["topic"] == second["topic"] == "fleet"
+    assert first["snapshot"] is True and second["snapshot"] is True  # the state again: no gap
+    assert vid in json.dumps(second["data"])
+    assert "link lost" in (await watcher.stderr.read()).decode()
