@@ -63,8 +63,9 @@ async def watch(
     as_json: bool,
 ) -> None:
     """Send ``subscribe`` on ``/ws/client`` and print each event until ``count`` events or
-    ``seconds``. A lost link is taken up again (the current state comes first again, so
-    nothing is missed); a refusal is exit 1, a server not reachable at the start exit 3."""
+    ``seconds``. A lost link is taken up again and each topic's current state comes first
+    again (the changes while the link was down are not replayed: ``export`` has every
+    sample); a refusal is exit 1, a server not reachable at the start exit 3."""
     url = server.replace("https://", "wss://", 1).replace("http://", "ws://", 1) + "/ws/client"
     seen = [0]
     failures = 0
