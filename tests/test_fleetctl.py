@@ -217,6 +217,6 @@ async def test_watch_takes_a_lost_link_up_again(make_settings: Callable[..., Set
             watcher.kill()
             await watcher.wait()
     assert first["topic"] == second["topic"] == "fleet"
-    assert first["snapshot"] is True and second["snapshot"] is True  # the state again: no gap
+    assert first["snapshot"] is True and second["snapshot"] is True  # the current state, again
     assert vid in json.dumps(second["data"])
     assert "link lost" in (await watcher.stderr.read()).decode()
