@@ -7,7 +7,8 @@ import contextlib
 import json
 import os
 import sys
-from typing import Any
+from collections.abc import Awaitable, Callable
+from typing import Any, TypeVar
 
 import httpx
 import typer
@@ -15,6 +16,7 @@ from rich.table import Table
 
 from remote_client import streams
 from remote_client.output import console, errors
+from remote_client.sdk import FleetApiError, FleetClient
 
 app = typer.Typer(
     add_completion=False,
@@ -27,36 +29,31 @@ TokenOpt = typer.Option(..., envvar="FLEET_TOKEN", help="API token (FLEET_TOKEN)
 JsonOpt = typer.Option(False, "--json", help="print JSON for scripts")
 
 
-def _call(server: str, token: str, method: str, path: str, **kwargs: Any) -> Any:
-    with httpx.Client(
-        base_url=server, headers={"Authorization": f"Bearer {token}"}, timeout=30
-    ) as client:
-        try:
-            r = client.request(method, path, **kwargs)
-        except httpx.HTTPError as exc:
-            errors.print(f"cannot reach {server}: {exc}", style="red", markup=False)
-            raise typer.Exit(3) from None
-    if r.status_code >= 400:
-        try:
-            err = r.json()["error"]
-            errors.print(
-                f"{r.status_code} {err['code']}: {err['message']}", style="red", markup=False
-            )
-            for detail in err.get("details") or []:
-                where = detail.get("instance_id") or detail.get("field") or ""
-                errors.print(
-                    f"  {where}: {detail.get('message', '')}", markup=False, highlight=False
-                )
-        except (ValueError, KeyError, TypeError, AttributeError):
-            errors.print(f"{r.status_code}: {r.text[:500]}", style="red", markup=False)
-        raise typer.Exit(1 if r.status_code < 500 else 2)
-    return r.json()
+T = TypeVar("T")
+
+
+def _run(server: str, token: str, action: Callable[[FleetClient], Awaitable[T]]) -> T:
+    """``action`` on a :class:`FleetClient` session; a refusal or a network failure is
+    printed on stderr and becomes the exit code (1 refused, 2 server error, 3 unreachable)."""
+
+    async def session() -> T:
+        async with FleetClient(server, token) as fleet:
+            return await action(fleet)
+
+    try:
+        return asyncio.run(session())
+    except httpx.HTTPError as exc:
+        errors.print(f"cannot reach {server}: {exc}", style="red", markup=False)
+        raise typer.Exit(3) from None
+    except FleetApiError as exc:
+        streams.print_refusal(exc)
+        raise typer.Exit(1 if exc.status < 500 else 2) from None
 
 
 @app.command()
 def vehicles(server: str = ServerOpt, token: str = TokenOpt, as_json: bool = JsonOpt) -> None:
     """List the vehicles you can see, with presence, position and control."""
-    data = _call(server, token, "GET", "/api/vehicles")
+    data = _run(server, token, lambda fleet: fleet.vehicles())
     if as_json:
         print(json.dumps(data, indent=2))
         return
@@ -88,14 +85,6 @@ TtlOpt = typer.Option(30, help="seconds the order stays valid")
 SpeedOpt = typer.Option(None, help="m/s")
 
 
-def _submit(
-    server: str, token: str, instance_ids: list[str], command: dict[str, Any], ttl: int
-) -> dict[str, Any]:
-    body = {"instance_ids": instance_ids, "command": command, "ttl_s": ttl}
-    result: dict[str, Any] = _call(server, token, "POST", "/client/submit_control", json=body)
-    return result
-
-
 @app.command()
 def stop(
     instance_ids: list[str] = typer.Argument(None, help="instances to stop; none: every vehicle"),
@@ -104,8 +93,7 @@ def stop(
     as_json: bool = JsonOpt,
 ) -> None:
     """Stop vehicles at once (needs no lease). With no instance: every vehicle you can see."""
-    command = {"type": "stop", "args": {}}
-    _print_queued(_submit(server, token, instance_ids or ["*"], command, 30), as_json)
+    _print_queued(_run(server, token, lambda fleet: fleet.stop(instance_ids or None)), as_json)
 
 
 @app.command(context_settings=COORDINATES)
@@ -120,11 +108,10 @@ def goto(
     as_json: bool = JsonOpt,
 ) -> None:
     """Send one vehicle to a position (needs a lease)."""
-    args: dict[str, Any] = {"lat": lat, "lon": lon}
-    if speed is not None:
-        args["speed_mps"] = speed
-    command = {"type": "go_to", "args": args}
-    _print_queued(_submit(server, token, [instance_id], command, ttl), as_json)
+    data = _run(
+        server, token, lambda fleet: fleet.go_to(instance_id, lat, lon, speed_mps=speed, ttl_s=ttl)
+    )
+    _print_queued(data, as_json)
 
 
 @app.command()
@@ -142,9 +129,14 @@ def station(
     if (lat is None) != (lon is None):
         errors.print("give both --lat and --lon, or neither", style="red")
         raise typer.Exit(2)
-    given = {"lat": lat, "lon": lon, "radius_m": radius}
-    command = {"type": "keep_station", "args": {k: v for k, v in given.items() if v is not None}}
-    _print_queued(_submit(server, token, instance_ids, command, ttl), as_json)
+    data = _run(
+        server,
+        token,
+        lambda fleet: fleet.keep_station(
+            instance_ids, lat=lat, lon=lon, radius_m=radius, ttl_s=ttl
+        ),
+    )
+    _print_queued(data, as_json)
 
 
 @app.command(context_settings=COORDINATES)
@@ -166,14 +158,13 @@ def path(
         except ValueError:
             errors.print(f"not a LAT,LON pair: {text!r}", style="red", markup=False)
             raise typer.Exit(2) from None
-        points.append({"lat": lat, "lon": lon})
-    args: dict[str, Any] = {"waypoints": points}
-    if speed is not None:
-        args["speed_mps"] = speed
-    if plan:
-        args["plan"] = True
-    command = {"type": "follow_path", "args": args}
-    _print_queued(_submit(server, token, [instance_id], command, ttl), as_json)
+        points.append((lat, lon))
+    data = _run(
+        server,
+        token,
+        lambda fleet: fleet.follow_path(instance_id, points, speed_mps=speed, plan=plan, ttl_s=ttl),
+    )
+    _print_queued(data, as_json)
 
 
 @app.command()
@@ -181,7 +172,7 @@ def commands(
     instance_id: str, server: str = ServerOpt, token: str = TokenOpt, as_json: bool = JsonOpt
 ) -> None:
     """The instance's recent commands and their status."""
-    data = _call(server, token, "GET", "/client/get_fbmessage", params={"instance_id": instance_id})
+    data = _run(server, token, lambda fleet: fleet.commands(instance_id))
     if as_json:
         print(json.dumps(data, indent=2))
         return
@@ -201,7 +192,7 @@ def cancel(
     command_id: str, server: str = ServerOpt, token: str = TokenOpt, as_json: bool = JsonOpt
 ) -> None:
     """Cancel a command that is not final yet."""
-    data = _call(server, token, "POST", "/client/cancel_command", json={"command_id": command_id})
+    data = _run(server, token, lambda fleet: fleet.cancel(command_id))
     print(json.dumps(data, indent=2) if as_json else f"{data['command_id']} {data['status']}")
 
 
@@ -210,9 +201,7 @@ def request(
     instance_id: str, server: str = ServerOpt, token: str = TokenOpt, as_json: bool = JsonOpt
 ) -> None:
     """Ask the field manager for control of an instance."""
-    data = _call(
-        server, token, "POST", "/client/request_control", json={"instance_id": instance_id}
-    )
+    data = _run(server, token, lambda fleet: fleet.request_control(instance_id))
     print(json.dumps(data, indent=2) if as_json else f"requested: {data['request_id']}")
 
 
@@ -224,8 +213,7 @@ def requests(
     as_json: bool = JsonOpt,
 ) -> None:
     """(manager) The pending control requests you may answer."""
-    query = {"instance_id": instance_id} if instance_id else {}
-    data = _call(server, token, "GET", "/client/control_requests", params=query)
+    data = _run(server, token, lambda fleet: fleet.control_requests(instance_id))
     if as_json:
         print(json.dumps(data, indent=2))
         return
@@ -246,13 +234,7 @@ def grant(
     as_json: bool = JsonOpt,
 ) -> None:
     """(manager) Grant remote control of an instance to an operator."""
-    data = _call(
-        server,
-        token,
-        "POST",
-        "/client/grant_control",
-        json={"instance_id": instance_id, "user": user, "duration_s": duration},
-    )
+    data = _run(server, token, lambda fleet: fleet.grant_control(instance_id, user, duration))
     print(
         json.dumps(data, indent=2)
         if as_json
@@ -265,7 +247,7 @@ def revoke(
     instance_id: str, server: str = ServerOpt, token: str = TokenOpt, as_json: bool = JsonOpt
 ) -> None:
     """(manager) End the lease on an instance: its holder's queued commands are cancelled."""
-    data = _call(server, token, "POST", "/client/revoke_control", json={"instance_id": instance_id})
+    data = _run(server, token, lambda fleet: fleet.revoke_control(instance_id))
     print(json.dumps(data, indent=2) if as_json else f"control of {instance_id} revoked")
 
 
@@ -274,9 +256,7 @@ def release(
     instance_id: str, server: str = ServerOpt, token: str = TokenOpt, as_json: bool = JsonOpt
 ) -> None:
     """Give back the lease you hold on an instance."""
-    data = _call(
-        server, token, "POST", "/client/release_control", json={"instance_id": instance_id}
-    )
+    data = _run(server, token, lambda fleet: fleet.release_control(instance_id))
     print(json.dumps(data, indent=2) if as_json else f"control of {instance_id} released")
 
 
@@ -295,17 +275,15 @@ def export(
     if fmt not in ("jsonl", "csv"):
         errors.print(f"--format is jsonl or csv, not {fmt!r}", style="red", markup=False)
         raise typer.Exit(2)
-    query: dict[str, Any] = {"limit": page, "after_seq": 0}
-    query.update({k: v for k, v in (("from", since), ("to", until)) if v})
-    path = f"/api/vehicles/{vehicle_id}/telemetry"
-
-    def fetch(query: dict[str, Any]) -> dict[str, Any]:
-        page: dict[str, Any] = _call(server, token, "GET", path, params=query)
-        return page
-
     with contextlib.ExitStack() as stack:
         out = sys.stdout if output == "-" else stack.enter_context(open(output, "w", newline=""))
-        count = streams.export_samples(fetch, query, fmt, out)
+        count = _run(
+            server,
+            token,
+            lambda fleet: streams.export_samples(
+                fleet.telemetry_pages(vehicle_id, since=since, until=until, page=page), fmt, out
+            ),
+        )
     if output != "-":
         errors.print(f"{count} samples written to {output}", markup=False, highlight=False)
 
@@ -325,11 +303,9 @@ def watch(
     fleet (presence), vehicle/ID/telemetry, .../commands, .../control,
     .../events, or any topic a unit publishes. Ctrl-C stops.
     """
-    subscribe: dict[str, Any] = {"op": "subscribe", "id": "watch", "topics": topics or ["fleet"]}
-    if throttle_ms:
-        subscribe["throttle_ms"] = throttle_ms
     with contextlib.suppress(KeyboardInterrupt):
-        asyncio.run(streams.watch(server, token, subscribe, count, seconds, as_json))
+        follow = streams.Follow(topics or ["fleet"], throttle_ms, count, seconds, as_json)
+        asyncio.run(streams.watch(FleetClient(server, token), follow))
 
 
 def _print_queued(data: dict[str, Any], as_json: bool) -> None:
