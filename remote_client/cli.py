@@ -193,7 +193,7 @@ def cancel(
 ) -> None:
     """Cancel a command that is not final yet."""
     data = _run(server, token, lambda fleet: fleet.cancel(command_id))
-    print(json.dumps(data, indent=2) if as_json else f"{data['command_id']} {data['status']}")
+    _say(data, as_json, f"{data['command_id']} {data['status']}")
 
 
 @app.command()
@@ -202,7 +202,7 @@ def request(
 ) -> None:
     """Ask the field manager for control of an instance."""
     data = _run(server, token, lambda fleet: fleet.request_control(instance_id))
-    print(json.dumps(data, indent=2) if as_json else f"requested: {data['request_id']}")
+    _say(data, as_json, f"requested: {data['request_id']}")
 
 
 @app.command()
@@ -235,11 +235,7 @@ def grant(
 ) -> None:
     """(manager) Grant remote control of an instance to an operator."""
     data = _run(server, token, lambda fleet: fleet.grant_control(instance_id, user, duration))
-    print(
-        json.dumps(data, indent=2)
-        if as_json
-        else f"{data['holder']} holds {instance_id} until {data['expires_at']}"
-    )
+    _say(data, as_json, f"{data['holder']} holds {instance_id} until {data['expires_at']}")
 
 
 @app.command()
@@ -248,7 +244,7 @@ def revoke(
 ) -> None:
     """(manager) End the lease on an instance: its holder's queued commands are cancelled."""
     data = _run(server, token, lambda fleet: fleet.revoke_control(instance_id))
-    print(json.dumps(data, indent=2) if as_json else f"control of {instance_id} revoked")
+    _say(data, as_json, f"control of {instance_id} revoked")
 
 
 @app.command()
@@ -257,7 +253,7 @@ def release(
 ) -> None:
     """Give back the lease you hold on an instance."""
     data = _run(server, token, lambda fleet: fleet.release_control(instance_id))
-    print(json.dumps(data, indent=2) if as_json else f"control of {instance_id} released")
+    _say(data, as_json, f"control of {instance_id} released")
 
 
 @app.command()
@@ -306,6 +302,11 @@ def watch(
     with contextlib.suppress(KeyboardInterrupt):
         follow = streams.Follow(topics or ["fleet"], throttle_ms, count, seconds, as_json)
         asyncio.run(streams.watch(FleetClient(server, token), follow))
+
+
+def _say(data: dict[str, Any], as_json: bool, text: str) -> None:
+    """The answer: its JSON for scripts, else ``text`` for people."""
+    print(json.dumps(data, indent=2) if as_json else text)
 
 
 def _print_queued(data: dict[str, Any], as_json: bool) -> None:
