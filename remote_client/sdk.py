@@ -28,6 +28,10 @@ Body = dict[str, Any]
 
 #: WebSocket close codes that refuse the token (4401) or the socket (4403).
 REFUSING_CLOSE_CODES = {4401: 401, 4403: 403}
+#: The HTTP status an error code has on the HTTP routes (a refused op is acked with the code).
+STATUS_OF_CODE = {
+    "unauthorized": 401, "forbidden": 403, "not_found": 404, "invalid": 422, "rate_limited": 429,
+}  # fmt: skip
 
 
 class FleetApiError(Exception):
@@ -223,16 +227,16 @@ class FleetClient:
                     push = json.loads(frame)
                     if push.get("op") == "ack" and not push.get("ok"):
                         error = push.get("error") or {}
-                        raise FleetApiError(
-                            403, error.get("code", "refused"), error.get("message", ""),
-                            error.get("details"),
-                        )  # fmt: skip
+                        code = error.get("code", "refused")
+                        status = STATUS_OF_CODE.get(code, 409)
+                        message = error.get("message", "")
+                        raise FleetApiError(status, code, message, error.get("details"))
                     if push.get("op") in ("event", "lagging"):
                         yield push
             except websockets.ConnectionClosed as exc:
-                status = REFUSING_CLOSE_CODES.get(exc.rcvd.code) if exc.rcvd else None
-                if status is not None and exc.rcvd is not None:
-                    raise FleetApiError(status, "refused", exc.rcvd.reason) from None
+                closing = REFUSING_CLOSE_CODES.get(exc.rcvd.code) if exc.rcvd else None
+                if closing is not None and exc.rcvd is not None:
+                    raise FleetApiError(closing, "refused", exc.rcvd.reason) from None
 
 
 def _given(**fields: Any) -> Body:

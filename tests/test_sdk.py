@@ -106,3 +106,7 @@ async def test_events_give_the_state_then_changes_and_refusals_raise(
                 with pytest.raises(FleetApiError) as unknown:
                     _ = [p async for p in nobody.events(["fleet"])]
             assert unknown.value.status == 401
+            async with FleetClient(base, ADMIN_TOKEN) as fleet:
+                with pytest.raises(FleetApiError) as bad:
+                    _ = [p async for p in fleet.events(["Not A Topic"])]
+            assert bad.value.status == 422 and bad.value.code == "invalid"
