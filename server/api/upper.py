@@ -41,4 +41,5 @@ async def heartbeat(body: Heartbeat, caller: VehicleCaller, s: ServicesDep) -> H
 
 @router.post("/update_param", response_model=UpdateParamResult)
 async def update_param(body: UpdateParam, caller: VehicleCaller, s: ServicesDep) -> ModelResponse:
-    return ModelResponse(UpdateParamResult(**await s.link.update_param(caller, body)))
+    counts = await s.link.update_param(caller, body)
+    return ModelResponse(UpdateParamResult.model_construct(None, **counts))  # plain counters
