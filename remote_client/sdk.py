@@ -24,10 +24,12 @@ from typing import Any, Self
 import httpx
 import websockets
 
+from fleet_protocol.links import CLOSE_FORBIDDEN, CLOSE_UNAUTHORIZED, websocket_url
+
 Body = dict[str, Any]
 
-#: WebSocket close codes that refuse the token (4401) or the socket (4403).
-REFUSING_CLOSE_CODES = {4401: 401, 4403: 403}
+#: WebSocket close codes that refuse the token or the socket, as HTTP statuses.
+REFUSING_CLOSE_CODES = {CLOSE_UNAUTHORIZED: 401, CLOSE_FORBIDDEN: 403}
 #: The HTTP status an error code has on the HTTP routes (a refused op is acked with the code).
 STATUS_OF_CODE = {
     "unauthorized": 401, "forbidden": 403, "not_found": 404, "invalid": 422, "rate_limited": 429,
@@ -212,12 +214,13 @@ class FleetClient:
         A refused token or subscription raises :class:`FleetApiError`; a lost link ends
         the iteration (``websockets.ConnectionClosed`` is not raised).
         """
-        url = self.server.replace("https://", "wss://", 1).replace("http://", "ws://", 1)
         subscribe: Body = {"op": "subscribe", "id": "events", "topics": list(topics)}
         if throttle_ms:
             subscribe["throttle_ms"] = throttle_ms
         async with websockets.connect(
-            url + "/ws/client", additional_headers=self._headers, open_timeout=30
+            websocket_url(self.server, "/ws/client"),
+            additional_headers=self._headers,
+            open_timeout=30,
         ) as ws:
             try:
                 await ws.send(json.dumps(subscribe))

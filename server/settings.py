@@ -8,6 +8,8 @@ from typing import Literal
 from pydantic import Field, SecretStr
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
+from fleet_protocol.links import MAX_BINARY_FRAME_BYTES, MAX_TEXT_FRAME_BYTES
+
 DAY_S = 86400
 
 
@@ -100,10 +102,12 @@ class Settings(BaseSettings):
         default=256, ge=1, description="topics one unit may register, and subscribe to"
     )
     ws_max_binary_bytes: int = Field(
-        default=4 * 1_048_576, ge=1024, description="largest binary (media) frame accepted"
+        default=MAX_BINARY_FRAME_BYTES, ge=1024, description="largest binary (media) frame accepted"
     )
     ws_max_text_bytes: int = Field(
-        default=1_048_576, ge=1024, description="largest JSON frame accepted on a WebSocket"
+        default=MAX_TEXT_FRAME_BYTES,
+        ge=1024,
+        description="largest JSON frame accepted on a WebSocket",
     )
     store_timeout_ms: int = Field(
         default=2000, ge=100, description="MongoDB server selection / operation timeout"

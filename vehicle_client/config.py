@@ -21,8 +21,8 @@ from pydantic_settings import (
 )
 
 from fleet_protocol.common import ID_PATTERN
+from fleet_protocol.links import MAX_BINARY_FRAME_BYTES
 from vehicle_client.errors import FatalError
-from vehicle_client.gateway.units import DEFAULT_MAX_MEDIA_BYTES
 from vehicle_client.gateway.uplink import DEFAULT_MEDIA_UP_PER_S
 from vehicle_client.outbox import DEFAULT_MAX_SAMPLES
 from vehicle_client.sim.dynamics import Current
@@ -106,7 +106,7 @@ class GatewaySettings(LinkOptions):
     #: "HOST:PORT" of the gateway's own WebSocket for its local units (none if unset).
     listen: str | None = None
     #: The largest media frame (header and bytes) a local unit may send.
-    max_media_bytes: int = Field(default=DEFAULT_MAX_MEDIA_BYTES, ge=1024, le=64 * 2**20)
+    max_media_bytes: int = Field(default=MAX_BINARY_FRAME_BYTES, ge=1024, le=64 * 2**20)
     #: Media frames per second sent up to the server, all topics together (latest wins).
     media_up_per_s: float = Field(default=DEFAULT_MEDIA_UP_PER_S, gt=0, le=1000)
     vehicles: list[VehicleOptions] = Field(min_length=1, max_length=1000)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import TYPE_CHECKING, Annotated, Any
 
 from fastapi import Depends, Request
@@ -21,9 +22,9 @@ async def get_services(request: Request) -> Services:
 ServicesDep = Annotated["Services", Depends(get_services)]
 
 
-def _bearer(request: Request) -> str | None:
-    header = request.headers.get("authorization", "")
-    scheme, _, value = header.partition(" ")
+def bearer_token(headers: Mapping[str, str]) -> str | None:
+    """The token of an ``Authorization: Bearer <token>`` header."""
+    scheme, _, value = headers.get("authorization", "").partition(" ")
     if scheme.lower() == "bearer" and value.strip():
         return value.strip()
     return None
@@ -31,7 +32,7 @@ def _bearer(request: Request) -> str | None:
 
 async def get_principal(request: Request) -> Principal:
     services: Services = request.app.state.services
-    principal = await services.auth.authenticate(_bearer(request))
+    principal = await services.auth.authenticate(bearer_token(request.headers))
     services.auth.check_rate(principal)
     request.state.principal = principal
     return principal

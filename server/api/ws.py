@@ -17,14 +17,12 @@ from typing import TYPE_CHECKING, Any
 
 from starlette.datastructures import Headers, QueryParams
 
+from fleet_protocol.links import CLOSE_FORBIDDEN, CLOSE_TRY_AGAIN, CLOSE_UNAUTHORIZED
+from server.api.deps import bearer_token
 from server.bus.outbox import Frame, Outbox
 from server.errors import FleetError, Unauthorized
 from server.services.auth import digest
-from server.services.live import (
-    CLOSE_FORBIDDEN,
-    CLOSE_UNAUTHORIZED,
-    Connection,
-)
+from server.services.live import Connection
 from server.services.live_ops import OpRunner
 
 if TYPE_CHECKING:
@@ -36,15 +34,12 @@ Send = Callable[[MutableMapping[str, Any]], Awaitable[None]]
 
 #: path -> the kind of socket it serves (``vehicle``: vehicle and gateway tokens)
 LIVE_PATHS = {"/ws/vehicle": "vehicle", "/ws/client": "client"}
-CLOSE_TRY_AGAIN = 1013
 
 
 def _token(scope: Scope) -> str | None:
-    scheme, _, value = Headers(scope=scope).get("authorization", "").partition(" ")
-    if scheme.lower() == "bearer" and value.strip():
-        return value.strip()
-    query = scope.get("query_string", b"")
-    return QueryParams(query.decode("latin-1")).get("token") or None
+    """The bearer token, or ``?token=`` on the URL (browsers cannot set headers)."""
+    query = QueryParams(scope.get("query_string", b"").decode("latin-1"))
+    return bearer_token(Headers(scope=scope)) or query.get("token") or None
 
 
 async def serve_live(services: Services, scope: Scope, receive: Receive, send: Send) -> None:
@@ -77,10 +72,10 @@ async def serve_live(services: Services, scope: Scope, receive: Receive, send: S
         else:
             await send({"type": "websocket.send", "text": frame})
 
-    assert token is not None
+    assert token is not None  # authenticate refuses a missing one
     token_key = digest(token)  # checked again on every frame, hashed once
     conn = Connection(
-        principal, token, Outbox(push, max_size=services.settings.ws_queue_size), close, kind
+        principal, Outbox(push, max_size=services.settings.ws_queue_size), close, kind
     )
     services.live.add(conn)
     ops = OpRunner(services, conn)

@@ -18,6 +18,7 @@ harbour full of piers thus costs only the piers near the way.
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -79,11 +80,16 @@ class _Area:
         grow = zone.clearance_m / math.cos(math.pi / (4 * ARC_SEGMENTS)) if zone.clearance_m else 0
         self.keep_out = polygon.buffer(grow - TOUCH_M, quad_segs=ARC_SEGMENTS)
         shapely.prepare(self.keep_out)
-        gap = zone.clearance_m * 1.02 + CORNER_GAP_M
+        self._polygon, self._gap = polygon, zone.clearance_m * 1.02 + CORNER_GAP_M
+
+    @functools.cached_property
+    def corners(self) -> list[XY]:
+        """The graph's corners, built when a route first meets this area (most never do)."""
         grown = shapely.orient_polygons(
-            polygon.buffer(gap, join_style="mitre", mitre_limit=2.0), exterior_cw=False
+            self._polygon.buffer(self._gap, join_style="mitre", mitre_limit=2.0),
+            exterior_cw=False,
         )
-        self.corners = _outward_corners(grown)
+        return _outward_corners(grown)
 
     def holds(self, x: float, y: float) -> bool:
         return bool(shapely.intersects_xy(self.keep_out, x, y))

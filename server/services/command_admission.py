@@ -45,10 +45,10 @@ class Admission:
         planner: Planner,
         lanes: Mapping[str, Lane],
         clock: Callable[[], datetime],
-        zones: ZoneSource = no_zones,
     ) -> None:
         self.instances = instances
-        self.zones = zones
+        #: The fixed obstacles a planned path keeps clear of (the container sets the source).
+        self.zones: ZoneSource = no_zones
         self.control = control
         self.planner = planner
         self.lanes = lanes
@@ -74,7 +74,7 @@ class Admission:
                     refusals.append((index, instance_id, exc))
         if self.control.shared:  # a lease granted or ended on another replica counts here
             for _, state in targets:
-                await self.control.refresh(state.instance_id)
+                await self.control.refresh(state.instance_id, requests=False)  # the lease
         return targets, refusals
 
     def check_all(
@@ -106,11 +106,23 @@ class Admission:
         if spec.type != "stop" and lane is not None and len(lane.active) >= MAX_ACTIVE_PER_INSTANCE:
             raise RateLimited(f"{MAX_ACTIVE_PER_INSTANCE} commands already wait on this instance")
 
-    async def args(self, state: InstanceState, spec: CommandSpec) -> dict[str, Any]:
-        """The command's args for this instance: planned (off the event loop) if asked."""
-        args = dict(spec.args)
-        if spec.type == "follow_path" and args.get("plan"):
-            others = [s for s in self.instances.live() if s.instance_id != state.instance_id]
-            zones = await self.zones()
-            args = await asyncio.to_thread(self.planner, state, args, others, zones)
-        return args
+    async def args_for(
+        self, targets: list[Target], spec: CommandSpec
+    ) -> tuple[dict[str, dict[str, Any]], list[Refusal]]:
+        """Each target's args: planned (off the event loop) if asked, the obstacles read
+        once for all of them; a target the planner refuses is a refusal."""
+        plan = spec.type == "follow_path" and bool(spec.args.get("plan"))
+        zones = await self.zones() if plan else ()
+        by_instance: dict[str, dict[str, Any]] = {}
+        refusals: list[Refusal] = []
+        for index, state in targets:
+            args = dict(spec.args)
+            if plan:
+                others = [s for s in self.instances.live() if s.instance_id != state.instance_id]
+                try:
+                    args = await asyncio.to_thread(self.planner, state, args, others, zones)
+                except FleetError as exc:
+                    refusals.append((index, state.instance_id, exc))
+                    continue
+            by_instance[state.instance_id] = args
+        return by_instance, refusals

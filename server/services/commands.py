@@ -27,7 +27,7 @@ from server.domain import arbitration
 from server.domain import commands as life
 from server.domain.access import Principal
 from server.domain.commands import AckOutcome, Command
-from server.errors import ControlNotHeld, FleetError, Forbidden, NotFound, RateLimited
+from server.errors import ControlNotHeld, Forbidden, NotFound, RateLimited
 from server.services.command_admission import MAX_ACTIVE_PER_INSTANCE, Admission
 from server.services.control import ControlService
 from server.services.events import EventService
@@ -91,11 +91,7 @@ class CommandService:
         refusals += admission.check_all(principal, targets, body.command)
         args_by_instance: dict[str, dict[str, Any]] = {}
         if not refusals:
-            for index, state in targets:
-                try:
-                    args_by_instance[state.instance_id] = await admission.args(state, body.command)
-                except FleetError as exc:
-                    refusals.append((index, state.instance_id, exc))
+            args_by_instance, refusals = await admission.args_for(targets, body.command)
             if body.command.type == "follow_path":  # planning yields: check again
                 refusals += admission.check_all(principal, targets, body.command)
         if refusals:

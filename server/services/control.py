@@ -85,17 +85,11 @@ class ControlService:
         if instance_id is not None:
             await self.instances.find(instance_id)  # an unknown instance is a 404
         if self.shared:  # requests made on every replica
-            pending_docs = await self.repo.requests_of(instance_id)
-            return [
-                _request(d).wire()
-                for d in pending_docs
-                if rules.may_grant(principal, d["vehicle_id"])
-            ]
-        pending = (
-            self._requests.get(instance_id, [])
-            if instance_id is not None
-            else [r for reqs in self._requests.values() for r in reqs]
-        )
+            pending = [_request(d) for d in await self.repo.requests_of(instance_id)]
+        elif instance_id is not None:
+            pending = self._requests.get(instance_id, [])
+        else:
+            pending = [r for reqs in self._requests.values() for r in reqs]
         return [r.wire() for r in pending if rules.may_grant(principal, r.vehicle_id)]
 
     # ---- operators and managers ------------------------------------------
@@ -247,8 +241,11 @@ class ControlService:
             await self.refresh(lease.instance_id)
         return dropped > 0
 
-    async def refresh(self, instance_id: str, *, only_cached: bool = False) -> None:
-        """Several replicas: take the instance's lease and requests as the store has them."""
+    async def refresh(
+        self, instance_id: str, *, only_cached: bool = False, requests: bool = True
+    ) -> None:
+        """Several replicas: take the instance's lease (and, with ``requests``, its pending
+        control requests) as the store has them."""
         if not self.shared or (
             only_cached
             and instance_id not in self._leases
@@ -260,6 +257,8 @@ class ControlService:
             self._leases.pop(instance_id, None)
         elif (stored := Lease.from_doc(doc)) != self._leases.get(instance_id):
             self._leases[instance_id] = stored
+        if not requests:
+            return
         pending = [_request(d) for d in await self.repo.requests_of(instance_id)]
         if pending:
             self._requests[instance_id] = pending

@@ -103,8 +103,7 @@ class StoredLanes:
         lane = self.lane(instance_id)
         stored = [Command.from_doc(d) for d in await self.repo.active_for(instance_id)]
         for gone in lane.merge(stored):
-            doc = await self.repo.get(gone.command_id)
-            if doc is not None and gone.catch_up(Command.from_doc(doc)) and gone.final:
+            if await self.catch_up(gone) and gone.final:
                 lane.retire(gone)  # ended on another replica
         return lane
 
@@ -130,7 +129,8 @@ class StoredLanes:
         recent.sort(key=lambda c: (c.issued_at, c.seq), reverse=True)
         return recent[:limit]
 
-    async def catch_up(self, cmd: Command) -> None:
-        """Take the stored copy's word on a command (another replica moved it)."""
-        if (doc := await self.repo.get(cmd.command_id)) is not None:
-            cmd.catch_up(Command.from_doc(doc))
+    async def catch_up(self, cmd: Command) -> bool:
+        """Take the stored copy's word on a command (another replica moved it); whether
+        that changed it."""
+        doc = await self.repo.get(cmd.command_id)
+        return doc is not None and cmd.catch_up(Command.from_doc(doc))

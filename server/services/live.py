@@ -19,6 +19,7 @@ from typing import Any
 
 from fleet_protocol import format_ts, utcnow
 from fleet_protocol.common import now_ts
+from fleet_protocol.links import CLOSE_REPLACED, CLOSE_UNAUTHORIZED
 from fleet_protocol.topics import is_media_topic
 from fleet_protocol.ws import CommandPush, ControlPush, EventPush, RoutesPush
 from server.bus import Bus, Message, Subscription
@@ -37,17 +38,12 @@ from server.settings import Settings
 
 log = logging.getLogger("fleet.live")
 
-CLOSE_UNAUTHORIZED = 4401
-CLOSE_FORBIDDEN = 4403
-CLOSE_REPLACED = 4409
-
 
 @dataclass(eq=False)
 class Connection:
     """One WebSocket: who it is, its outbox, its subscriptions and units."""
 
     principal: Principal
-    token: str
     outbox: Outbox
     close: Callable[[int, str], Awaitable[None]]
     kind: str  # "vehicle" (vehicle and gateway tokens) or "client"

@@ -25,7 +25,7 @@ def vehicle_planner(safety_radius_m: float) -> Planner:
         state: InstanceState,
         args: dict[str, Any],
         others: list[InstanceState],
-        zones: Sequence[Zone] = (),
+        zones: Sequence[Zone],
     ) -> dict[str, Any]:
         obstacles = [
             Obstacle(

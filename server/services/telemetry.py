@@ -185,8 +185,6 @@ class TelemetryService:
         result.durable_through_seq = state.durable
         if state.latest is not before:
             result.latest = state.latest
-        else:
-            result.latest_doc = None
         return result
 
     async def _write_bucket(

@@ -26,13 +26,7 @@ class InstancesRepo:
         return doc
 
     async def unfinished_for_vehicle(self, vehicle_id: str) -> Doc | None:
-        docs = await self.instances.find(
-            {"vehicle_id": vehicle_id, "finished_at": None},
-            sort=[("started_at", -1)],
-            limit=1,
-            projection={"_id": 0},
-        )
-        return docs[0] if docs else None
+        return await self.latest_for_vehicle(vehicle_id, unfinished=True)
 
     async def contacts(self, instance_ids: list[str]) -> list[Doc]:
         """Last contact and position of these instances (several replicas)."""
@@ -50,9 +44,12 @@ class InstancesRepo:
         flt = {"_id": instance_id, "presence": {"$ne": presence}}
         return await self.instances.update_one(flt, {"$set": {"presence": presence}}) > 0
 
-    async def latest_for_vehicle(self, vehicle_id: str) -> Doc | None:
+    async def latest_for_vehicle(self, vehicle_id: str, *, unfinished: bool = False) -> Doc | None:
+        query: dict[str, Any] = {"vehicle_id": vehicle_id}
+        if unfinished:
+            query["finished_at"] = None
         docs = await self.instances.find(
-            {"vehicle_id": vehicle_id}, sort=[("started_at", -1)], limit=1, projection={"_id": 0}
+            query, sort=[("started_at", -1)], limit=1, projection={"_id": 0}
         )
         return docs[0] if docs else None
 

@@ -32,6 +32,7 @@ from websockets.exceptions import ConnectionClosed
 
 from fleet_protocol import ErrorBody
 from fleet_protocol.common import ID_PATTERN
+from fleet_protocol.links import CLOSE_REPLACED, MAX_BINARY_FRAME_BYTES, MAX_TEXT_FRAME_BYTES
 from fleet_protocol.media import decode_media_frame
 from fleet_protocol.topics import is_media_topic
 from fleet_protocol.ws import (
@@ -54,13 +55,7 @@ from vehicle_client.transport.ws import WsLink
 
 log = logging.getLogger(__name__)
 
-CLOSE_BAD_REQUEST = 4400
-CLOSE_REPLACED = 4409
-#: The largest media frame (header and bytes) a unit may send; the server's default
-#: ``FLEET_WS_MAX_BINARY_BYTES``.
-DEFAULT_MAX_MEDIA_BYTES = 4 * 2**20
-#: The largest JSON frame a unit may send (the server's default ``FLEET_WS_MAX_TEXT_BYTES``).
-MAX_TEXT_BYTES = 2**20
+CLOSE_BAD_REQUEST = 4400  # the gateway's own: a unit that did not name its vehicle
 
 
 def _listen_address(listen: str) -> tuple[str, int]:
@@ -77,7 +72,7 @@ class UnitServer:
         link: WsLink,
         listen: str,
         *,
-        max_media_bytes: int = DEFAULT_MAX_MEDIA_BYTES,
+        max_media_bytes: int = MAX_BINARY_FRAME_BYTES,
         media_up_per_s: float = DEFAULT_MEDIA_UP_PER_S,
         queue_size: int = DEFAULT_UNIT_QUEUE,
     ) -> None:
@@ -101,7 +96,7 @@ class UnitServer:
                 self.host,
                 self.port,
                 compression=None,
-                max_size=max(2 * self.max_media_bytes, MAX_TEXT_BYTES),
+                max_size=max(2 * self.max_media_bytes, MAX_TEXT_FRAME_BYTES),
             )
         except OSError as exc:
             raise FatalError(f"cannot listen on {self.host}:{self.port}: {exc}") from exc
@@ -161,9 +156,9 @@ class UnitServer:
                 await self.link.send({**op, "topics": sorted(unit.consumes)})
 
     async def _op(self, vehicle_id: str, queue: UnitQueue, frame: str) -> None:
-        if len(frame) > MAX_TEXT_BYTES:
+        if len(frame) > MAX_TEXT_FRAME_BYTES:
             error = ErrorBody(
-                code="too_large", message=f"a JSON frame has at most {MAX_TEXT_BYTES} bytes"
+                code="too_large", message=f"a JSON frame has at most {MAX_TEXT_FRAME_BYTES} bytes"
             )
             _answer(queue, None, error)
             return

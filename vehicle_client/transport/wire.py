@@ -12,6 +12,12 @@ from typing import Annotated, Any
 
 from pydantic import Field, TypeAdapter, ValidationError
 
+from fleet_protocol.links import (
+    CLOSE_FORBIDDEN,
+    CLOSE_REPLACED,
+    CLOSE_UNAUTHORIZED,
+    websocket_url,
+)
 from fleet_protocol.ws import (
     MAX_BATCH_OPS,
     AckPush,
@@ -36,9 +42,6 @@ __all__ = [
     "ws_url",
 ]
 
-CLOSE_UNAUTHORIZED = 4401
-CLOSE_FORBIDDEN = 4403
-CLOSE_REPLACED = 4409
 
 AnyPush = Annotated[
     AckPush | ErrorPush | CommandPush | ControlPush | EventPush | RoutesPush | LaggingPush,
@@ -63,15 +66,10 @@ def parse_push(frame: str | bytes) -> Any:
 
 def ws_url(server: str, path: str = "/ws/vehicle") -> str:
     """``http://host:port/prefix`` -> ``ws://host:port/prefix/ws/vehicle`` (https -> wss)."""
-    if server.startswith("https://"):
-        base = "wss://" + server.removeprefix("https://")
-    elif server.startswith("http://"):
-        base = "ws://" + server.removeprefix("http://")
-    elif server.startswith(("ws://", "wss://")):
-        base = server
-    else:
-        raise FatalError(f"--server must be an http(s) URL, got {server!r}")
-    return base.rstrip("/") + path
+    try:
+        return websocket_url(server, path)
+    except ValueError:
+        raise FatalError(f"--server must be an http(s) URL, got {server!r}") from None
 
 
 class IdSource:

@@ -1,0 +1,41 @@
+"""The WebSocket links' addresses and close codes, as the contract (API.md) fixes them."""
+
+from __future__ import annotations
+
+__all__ = [
+    "CLOSE_FORBIDDEN",
+    "CLOSE_REPLACED",
+    "CLOSE_TRY_AGAIN",
+    "CLOSE_UNAUTHORIZED",
+    "MAX_BINARY_FRAME_BYTES",
+    "MAX_TEXT_FRAME_BYTES",
+    "websocket_url",
+]
+
+#: The default bounds of one frame (the server's ``FLEET_WS_MAX_TEXT_BYTES`` and
+#: ``FLEET_WS_MAX_BINARY_BYTES``; a gateway holds its units to the same).
+MAX_TEXT_FRAME_BYTES = 2**20
+MAX_BINARY_FRAME_BYTES = 4 * 2**20
+
+#: The token is missing, unknown, expired or revoked.
+CLOSE_UNAUTHORIZED = 4401
+#: The token may not use this socket (a user token on ``/ws/vehicle``, ...).
+CLOSE_FORBIDDEN = 4403
+#: Another connection took this vehicle's link.
+CLOSE_REPLACED = 4409
+#: The server cannot check the token now (its store is down): try again later.
+CLOSE_TRY_AGAIN = 1013
+
+
+def websocket_url(server: str, path: str) -> str:
+    """``http://host:port/prefix`` -> ``ws://host:port/prefix<path>`` (https -> wss; a
+    ws(s) URL is kept). ``ValueError`` for any other scheme."""
+    if server.startswith("https://"):
+        base = "wss://" + server.removeprefix("https://")
+    elif server.startswith("http://"):
+        base = "ws://" + server.removeprefix("http://")
+    elif server.startswith(("ws://", "wss://")):
+        base = server
+    else:
+        raise ValueError(f"the server must be an http(s) URL, got {server!r}")
+    return base.rstrip("/") + path
