@@ -51,6 +51,7 @@ def format_ts(value: datetime) -> str:
 
 
 _second: tuple[int, str] = (-1, "")
+_MILLIS = tuple(f".{milli:03d}Z" for milli in range(1000))
 
 
 def now_ts() -> str:
@@ -61,7 +62,7 @@ def now_ts() -> str:
     if sec != cached_sec:
         prefix = time.strftime("%Y-%m-%dT%H:%M:%S", time.gmtime(sec))
         _second = (sec, prefix)
-    return f"{prefix}.{milli:03d}Z"
+    return prefix + _MILLIS[milli]
 
 
 def parse_ts(text: str) -> datetime:

@@ -18,6 +18,7 @@ from pathlib import Path
 import httpx
 import uvicorn
 
+from server.api.ws_direct import uvicorn_ws_options
 from server.app import create_app
 from server.services.auth import new_token
 from server.settings import Settings
@@ -87,7 +88,7 @@ async def main() -> None:
             host=settings.host,
             port=settings.port,
             log_level="warning",
-            ws_per_message_deflate=False,
+            **uvicorn_ws_options(),
         )
     )
     serving = asyncio.create_task(server.serve())

@@ -13,6 +13,7 @@ import httpx
 import uvicorn
 import websockets
 
+from server.api.ws_direct import uvicorn_ws_options
 from server.app import create_app
 from server.settings import Settings
 from server.storage import Store
@@ -36,7 +37,7 @@ async def serve(
         host="127.0.0.1",
         port=port,
         log_level="warning",
-        ws_per_message_deflate=False,
+        **uvicorn_ws_options(),
         lifespan="on",
     )
     server = uvicorn.Server(config)

@@ -11,7 +11,10 @@ messages are the ASGI WebSocket ones (``websocket.connect``, ``.accept``,
 
 from __future__ import annotations
 
+import asyncio
 import contextlib
+import logging
+from collections import deque
 from collections.abc import Awaitable, Callable, MutableMapping
 from typing import TYPE_CHECKING, Any
 
@@ -19,6 +22,7 @@ from starlette.datastructures import Headers, QueryParams
 
 from fleet_protocol.links import CLOSE_FORBIDDEN, CLOSE_TRY_AGAIN, CLOSE_UNAUTHORIZED
 from server.api.deps import bearer_token
+from server.api.ws_direct import DIRECT
 from server.bus.outbox import Frame, Outbox
 from server.errors import FleetError, Unauthorized
 from server.services.auth import digest
@@ -34,6 +38,10 @@ Send = Callable[[MutableMapping[str, Any]], Awaitable[None]]
 
 #: path -> the kind of socket it serves (``vehicle``: vehicle and gateway tokens)
 LIVE_PATHS = {"/ws/vehicle": "vehicle", "/ws/client": "client"}
+#: The WebSocket close code for a fault of the server's (RFC 6455: internal error).
+CLOSE_INTERNAL_ERROR = 1011
+
+log = logging.getLogger("fleet.live")
 
 
 def _token(scope: Scope) -> str | None:
@@ -73,34 +81,144 @@ async def serve_live(services: Services, scope: Scope, receive: Receive, send: S
             await send({"type": "websocket.send", "text": frame})
 
     assert token is not None  # authenticate refuses a missing one
-    token_key = digest(token)  # checked again on every frame, hashed once
     conn = Connection(
         principal, Outbox(push, max_size=services.settings.ws_queue_size), close, kind
     )
     services.live.add(conn)
-    ops = OpRunner(services, conn)
-    auth, live = services.auth, services.live
+    frames = _Frames(services, conn, digest(token))  # the token hashed once
+    direct = scope.get("extensions", {}).get(DIRECT)
+    inbox = None if direct is None else _DirectInbox(frames, direct["pause"], direct["resume"])
     try:
+        if inbox is not None and direct is not None:
+            for early in direct["attach"](inbox.feed):  # frames that came before, first
+                inbox.feed(early)
         while not conn.closed:
             message = await receive()
             if message["type"] != "websocket.receive":
                 break  # websocket.disconnect
-            try:  # on every frame; a revoked token's entry is gone from the cache
-                known = auth.cached(token_key)
-                conn.principal = known or await auth.authenticate_digest(token_key)
-            except Unauthorized:
-                await live.close(conn, CLOSE_UNAUTHORIZED, "the token is no longer valid")
-                break
-            if kind == "vehicle":
-                live.touch(conn)
-            text = message.get("text")
-            if text is not None:
-                await ops.text(text)
-            else:
+            data = message.get("text")
+            if data is None:
                 data = message.get("bytes")
-                if data is not None:
-                    await ops.binary(data)
+            if data is None:
+                continue
+            if inbox is not None:
+                inbox.feed(data)  # not expected once attached: kept in order all the same
+            else:
+                await frames.handle(data)
+        if inbox is not None:
+            await inbox.idle.wait()  # what came before the disconnect is handled first
     except (OSError, RuntimeError):
         pass  # the client went while a frame was sent (uvicorn's ClientDisconnected)
+    except Exception:
+        log.exception("live socket: handling a message failed")
+        await services.live.close(conn, CLOSE_INTERNAL_ERROR, "internal error")
     finally:
-        await live.drop(conn)
+        await services.live.drop(conn)
+
+
+class _Frames:
+    """What is done with each message of one socket: the token checked again (a revoked
+    token closes the socket), contact counted on a vehicle's socket, then the op."""
+
+    def __init__(self, services: Services, conn: Connection, token_key: str) -> None:
+        self.auth = services.auth
+        self.live = services.live
+        self.conn = conn
+        self.ops = OpRunner(services, conn)
+        self.token_key = token_key
+        self.vehicle = conn.kind == "vehicle"
+
+    async def handle(self, data: str | bytes) -> None:
+        try:  # a revoked token's entry is gone from the cache
+            known = self.auth.cached(self.token_key)
+            self.conn.principal = known or await self.auth.authenticate_digest(self.token_key)
+        except Unauthorized:
+            await self.live.close(self.conn, CLOSE_UNAUTHORIZED, "the token is no longer valid")
+            return
+        if self.vehicle:
+            self.live.touch(self.conn)
+        if isinstance(data, str):
+            await self.ops.text(data)
+        else:
+            await self.ops.binary(data)
+
+    def now(self, data: str | bytes) -> Awaitable[None] | None:
+        """:meth:`handle` within this call as far as nothing waits; what is left, if any."""
+        known = self.auth.cached(self.token_key)
+        if known is None:
+            return self.handle(data)  # the token is looked up again: all of it waits
+        self.conn.principal = known
+        if self.vehicle:
+            self.live.touch(self.conn)
+        if isinstance(data, str):
+            return self.ops.text_now(data)
+        return self.ops.binary_now(data)
+
+
+class _DirectInbox:
+    """Messages handed over by the server as they are read (``server.api.ws_direct``).
+
+    Each is handled at once, in the server's read callback, as far as nothing
+    has to wait: a publish goes out to its subscribers before the socket is
+    read again, with no task switch. A message whose handling waits (the
+    store, another replica, a token to look up) is finished by a task, and
+    the ones after it wait their turn in order, with reading paused.
+    """
+
+    def __init__(
+        self, frames: _Frames, pause: Callable[[], None], resume: Callable[[], None]
+    ) -> None:
+        self.frames = frames
+        self._pause = pause
+        self._resume = resume
+        self._backlog: deque[str | bytes] = deque()
+        self._task: asyncio.Task[None] | None = None
+        self._stopped = False
+        #: Set while no message waits or is being handled.
+        self.idle = asyncio.Event()
+        self.idle.set()
+
+    def feed(self, data: str | bytes) -> None:
+        if self._stopped or self.frames.conn.closed:
+            return
+        if self._task is not None:
+            self._backlog.append(data)
+            return
+        try:
+            rest = self.frames.now(data)
+        except Exception:
+            self._fail()
+            return
+        if rest is not None:
+            self._pause()
+            self.idle.clear()
+            self._task = asyncio.get_running_loop().create_task(self._finish(rest))
+
+    async def _finish(self, rest: Awaitable[None]) -> None:
+        try:
+            await rest
+            while self._backlog and not self.frames.conn.closed:
+                await self.frames.handle(self._backlog.popleft())
+        except (OSError, RuntimeError):
+            self._stopped = True  # the client went while a frame was sent
+        except Exception:
+            self._fail()
+        finally:
+            self._backlog.clear()
+            self._task = None
+            self._resume()
+            self.idle.set()
+
+    def _fail(self) -> None:
+        """A fault of ours: logged, and the socket closed (1011) as uvicorn would."""
+        log.exception("live socket: handling a message failed")
+        self._stopped = True
+        conn = self.frames.conn
+        task = asyncio.get_running_loop().create_task(
+            self.frames.live.close(conn, CLOSE_INTERNAL_ERROR, "internal error")
+        )
+        _closing.add(task)
+        task.add_done_callback(_closing.discard)
+
+
+_closing: set[asyncio.Task[None]] = set()

@@ -200,8 +200,14 @@ class LiveHub:
         self._add_unit(conn, unit)
         self._push_routes(self.routing.register(unit.id, topics))
 
-    async def publish(self, conn: Connection, unit: UnitRef, topic: str, data: Any) -> None:
-        """A unit's message to the topic's subscribers (not back to its own connection)."""
+    def publish(
+        self, conn: Connection, unit: UnitRef, topic: str, data: Any
+    ) -> Awaitable[None] | None:
+        """A unit's message to the topic's subscribers (not back to its own connection).
+
+        Delivered here at once; on a bus that leaves the process, the rest (the
+        other replicas) is the awaitable returned.
+        """
         self._add_unit(conn, unit)
         message = {
             "op": "event",
@@ -212,12 +218,16 @@ class LiveHub:
             "ts": now_ts() if self.instances.clock is utcnow else format_ts(self.instances.clock()),
         }
         if self.bus.remote:
-            await self.bus.publish(topic, message)
-        else:
-            self.bus.deliver_local(topic, message)  # the same, without a coroutine per message
+            return self.bus.publish(topic, message)
+        self.bus.deliver_local(topic, message)  # the same, without a coroutine per message
+        return None
 
-    async def publish_media(self, topic: str, frame: bytes) -> None:
-        await self.bus.publish(topic, frame)
+    def publish_media(self, topic: str, frame: bytes) -> Awaitable[None] | None:
+        """A binary media frame to the topic's subscribers, as :meth:`publish`."""
+        if self.bus.remote:
+            return self.bus.publish(topic, frame)
+        self.bus.deliver_local(topic, frame)
+        return None
 
     def _deliver(self, conn: Connection, topic: str, message: Message) -> None:
         buffer = conn.buffering.get(topic)
@@ -270,6 +280,8 @@ class LiveHub:
 
     def flush_routes(self) -> None:
         """Send ``routes`` to each unit whose part changed (after the op's ack)."""
+        if not self._routes_due:
+            return
         due, self._routes_due = self._routes_due, set()
         for unit_id in due:
             conn = self._unit_conn.get(unit_id)

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import time
-from collections.abc import Awaitable, Callable
+from collections.abc import Awaitable, Callable, Coroutine
 from typing import TYPE_CHECKING, Any
 
 from pydantic import BaseModel
@@ -35,7 +35,7 @@ from server.services.live import Connection
 if TYPE_CHECKING:
     from server.container import Services
 
-_INSTANCE_OPS = (FinishInstanceOp, UpdateParamOp, UpdateFbMessageOp, HeartbeatOp)
+_INSTANCE_OPS = frozenset({FinishInstanceOp, UpdateParamOp, UpdateFbMessageOp, HeartbeatOp})
 
 
 class OpRunner:
@@ -60,6 +60,11 @@ class OpRunner:
             UnsubscribeOp: self._unsubscribe,
             PublishOp: self._publish,
         }
+        #: Topics this connection's principal may write (``check_write`` passed), kept
+        #: while the principal is the same object: a new one (a token seen again after
+        #: its cache entry went) is checked afresh.
+        self._writable: set[str] = set()
+        self._writer: object = None
 
     def _rate(self) -> None:
         rate = self.s.settings.ws_ops_per_s
@@ -75,18 +80,36 @@ class OpRunner:
         self.conn.outbox.put(push.frame())
 
     async def text(self, frame: str) -> None:
+        rest = self.text_now(frame)
+        if rest is not None:
+            await rest
+
+    def text_now(self, frame: str) -> Coroutine[Any, Any, None] | None:
+        """Handle a text frame within this call where nothing has to wait: a refusal, or
+        a ``publish`` on a bus that does not leave the process (the hot path). Otherwise
+        the coroutine that handles it, not started."""
         if len(frame) > self._max_text:
             message = f"a JSON frame has at most {self._max_text} bytes"
             self._reply(None, ErrorBody(code="too_large", message=message))
-            return
+            return None
         try:
             op = self._parse(frame)
         except FrameError as exc:
             self.conn.outbox.put(exc.reply().frame())
-            return
-        await self.run(op)
+            return None
+        if type(op) is PublishOp and not self.s.live.bus.remote:
+            self._publish_now(op)
+            return None
+        return self.run(op)
 
     async def binary(self, frame: bytes) -> None:
+        rest = self.binary_now(frame)
+        if rest is not None:
+            await rest
+
+    def binary_now(self, frame: bytes) -> Awaitable[None] | None:
+        """A media frame, like :meth:`text_now`: delivered here within this call; what is
+        left to await when the bus also takes it to other replicas."""
         try:
             self._rate()
             if len(frame) > self.s.settings.ws_max_binary_bytes:
@@ -98,15 +121,18 @@ class OpRunner:
             if not is_media_topic(header.topic):
                 raise Invalid(f"{header.topic} is not a media topic; send JSON on it")
             check_write(self.conn.principal, header.topic)
-            await self.s.live.publish_media(header.topic, frame)
         except FrameError as exc:
             self.conn.outbox.put(exc.reply().frame())
+            return None
         except FleetError as exc:
             self._reply(None, ErrorBody(code=exc.code, message=exc.message, details=exc.details))
+            return None
+        return self.s.live.publish_media(header.topic, frame)
 
     async def run(self, op: Any, *, counted: bool = False) -> None:
         """Run one op; a batch counts once against the rate (a gateway's tick is one frame)."""
-        if isinstance(op, BatchOp):
+        kind = type(op)  # parsed ops are exactly these classes: no isinstance walk
+        if kind is BatchOp:
             try:
                 self._rate()
             except FleetError as exc:
@@ -129,19 +155,32 @@ class OpRunner:
             self.conn.outbox.put(AckPush.success_frame(op.id, result))
         # After the ack: the pushes the op set off.
         self.s.live.flush_routes()
-        if isinstance(op, StartInstanceOp):
+        if kind is StartInstanceOp:
             state = self.s.instances.current(op.vehicle_id)
             if state is not None:
                 await self.s.live.attach_instance(self.conn, state)
-        elif isinstance(op, SubscribeOp):
+        elif kind is SubscribeOp:
             await self.s.live.start_streams(self.conn, op.topics)
 
+    def _publish_now(self, op: PublishOp) -> None:
+        """:meth:`run` for a ``publish`` on a local bus, where nothing waits."""
+        try:
+            self._rate()
+            self._publish_local(op)
+        except FleetError as exc:
+            self._reply(op.id, ErrorBody(code=exc.code, message=exc.message, details=exc.details))
+        else:
+            if op.id:
+                self.conn.outbox.put(AckPush.success_frame(op.id, None))
+        self.s.live.flush_routes()
+
     async def dispatch(self, op: Any) -> BaseModel | dict[str, Any] | None:
-        if isinstance(op, _INSTANCE_OPS) and op.instance_id not in self.conn.instances:
+        kind = type(op)
+        if kind in _INSTANCE_OPS and op.instance_id not in self.conn.instances:
             state = await self.s.instances.for_vehicle_caller(self.conn.principal, op.instance_id)
-            if not isinstance(op, FinishInstanceOp):
+            if kind is not FinishInstanceOp:
                 await self.s.live.attach_instance(self.conn, state)
-        handler = self._handlers.get(type(op))
+        handler = self._handlers.get(kind)
         if handler is None:
             raise Invalid(f"op {getattr(op, 'op', '?')} is not handled here")
         return await handler(op)
@@ -191,7 +230,17 @@ class OpRunner:
         return self._own_unit
 
     async def _publish(self, op: PublishOp) -> None:
+        pending = self._publish_local(op)
+        if pending is not None:
+            await pending
+
+    def _publish_local(self, op: PublishOp) -> Awaitable[None] | None:
+        """Check and publish; what is left to await when the bus leaves the process."""
         principal = self.conn.principal
         unit = self._unit(op.vehicle_id)
-        check_write(principal, op.topic)
-        await self.s.live.publish(self.conn, unit, op.topic, op.data)
+        if principal is not self._writer:
+            self._writer, self._writable = principal, set()
+        if op.topic not in self._writable:
+            check_write(principal, op.topic)
+            self._writable.add(op.topic)
+        return self.s.live.publish(self.conn, unit, op.topic, op.data)
