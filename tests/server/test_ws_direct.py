@@ -88,7 +88,9 @@ async def test_a_vehicles_samples_and_publishes_keep_their_order(
     async with await connect(base, "/ws/vehicle", tok(vh)) as ws:
         ack = await call(ws, "start_instance", "s", vehicle_id=vid, capabilities=CAPS)
         iid = ack["instance_id"]
-        for seq in range(1, 6):  # update_param waits on the store; publish does not
+        # update_param waits on the store, publish does not; 40 messages sent at once
+        # are more than the server holds before it pauses reading the socket.
+        for seq in range(1, 21):
             await ws.send(
                 json.dumps({"op": "update_param", "id": f"u{seq}", "instance_id": iid,
                             "samples": [sample(seq)]})
@@ -97,11 +99,11 @@ async def test_a_vehicles_samples_and_publishes_keep_their_order(
                 json.dumps({"op": "publish", "id": f"p{seq}", "topic": f"vehicle/{vid}/sonar",
                             "data": {"seq": seq}})
             )  # fmt: skip
-        got = await acks(ws, 10)
-        assert [i for i, _ in got] == [f"{k}{n}" for n in range(1, 6) for k in "up"]
+        got = await acks(ws, 40)
+        assert [i for i, _ in got] == [f"{k}{n}" for n in range(1, 21) for k in "up"]
         assert all(ok for _, ok in got)
     r = await api.get(f"/api/vehicles/{vid}/telemetry")
-    assert [s["seq"] for s in r.json()["samples"]] == [1, 2, 3, 4, 5]
+    assert [s["seq"] for s in r.json()["samples"]] == list(range(1, 21))
 
 
 async def test_messages_sent_while_the_token_is_checked_are_all_handled(
