@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import asyncio
 import json
-from collections.abc import AsyncIterator, Callable
 from typing import Any
 
 import httpx
@@ -17,23 +16,10 @@ import websockets
 
 from server.services.auth import AuthService
 from server.services.live_ops import OpRunner
-from server.settings import Settings
 from tests.factories import ADMIN, make_user, make_vehicle, sample
-from tests.live import call, connect, recv_json, recv_until, serve
+from tests.live import call, connect, recv_json, recv_until
 
 CAPS = ["stop", "go_to", "keep_station", "follow_path"]
-
-
-@pytest.fixture
-async def base(make_settings: Callable[..., Settings]) -> AsyncIterator[str]:
-    async with serve(make_settings()) as url:
-        yield url
-
-
-@pytest.fixture
-async def api(base: str) -> AsyncIterator[httpx.AsyncClient]:
-    async with httpx.AsyncClient(base_url=base, headers=ADMIN, timeout=10) as c:
-        yield c
 
 
 def tok(headers: dict[str, str]) -> str:
@@ -42,7 +28,7 @@ def tok(headers: dict[str, str]) -> str:
 
 async def acks(ws: Any, count: int) -> list[tuple[str, bool]]:
     """The next ``count`` acks, as (id, ok), in the order they came."""
-    got = []
+    got: list[tuple[str, bool]] = []
     while len(got) < count:
         frame = await recv_until(ws, lambda f: f["op"] == "ack")
         got.append((frame["id"], frame["ok"]))
@@ -102,7 +88,7 @@ async def test_a_vehicles_samples_and_publishes_keep_their_order(
         got = await acks(ws, 40)
         assert [i for i, _ in got] == [f"{k}{n}" for n in range(1, 21) for k in "up"]
         assert all(ok for _, ok in got)
-    r = await api.get(f"/api/vehicles/{vid}/telemetry")
+    r = await api.get(f"/api/vehicles/{vid}/telemetry", headers=ADMIN)
     assert [s["seq"] for s in r.json()["samples"]] == list(range(1, 21))
 
 

@@ -3,29 +3,15 @@
 from __future__ import annotations
 
 import json
-from collections.abc import AsyncIterator, Callable
 
 import httpx
 import pytest
 import websockets
 
-from server.settings import Settings
 from tests.factories import ADMIN, ADMIN_TOKEN, make_user, make_vehicle, sample
-from tests.live import call, connect, recv_until, serve, ws_url
+from tests.live import call, connect, recv_until, ws_url
 
 CAPS = ["stop", "go_to", "keep_station", "follow_path"]
-
-
-@pytest.fixture
-async def base(make_settings: Callable[..., Settings]) -> AsyncIterator[str]:
-    async with serve(make_settings()) as url:
-        yield url
-
-
-@pytest.fixture
-async def api(base: str) -> AsyncIterator[httpx.AsyncClient]:
-    async with httpx.AsyncClient(base_url=base, timeout=10) as c:
-        yield c
 
 
 def token_of(headers: dict[str, str]) -> str:
