@@ -36,6 +36,9 @@ if TYPE_CHECKING:
     from server.container import Services
 
 _INSTANCE_OPS = frozenset({FinishInstanceOp, UpdateParamOp, UpdateFbMessageOp, HeartbeatOp})
+#: Topics a connection's write permissions are kept for (a client writing to ever new
+#: topics starts over, rather than growing the set without end).
+_WRITABLE_KEPT = 1024
 
 
 class OpRunner:
@@ -238,7 +241,7 @@ class OpRunner:
         """Check and publish; what is left to await when the bus leaves the process."""
         principal = self.conn.principal
         unit = self._unit(op.vehicle_id)
-        if principal is not self._writer:
+        if principal is not self._writer or len(self._writable) >= _WRITABLE_KEPT:
             self._writer, self._writable = principal, set()
         if op.topic not in self._writable:
             check_write(principal, op.topic)
