@@ -165,7 +165,9 @@ class _DirectInbox:
     the ones after it wait their turn in order; reading is paused once
     :data:`_HELD_BEFORE_PAUSE` wait (not at the first: a vehicle's 1 Hz
     ``update_param`` never has one behind it, and pausing and resuming are
-    two system calls each time).
+    two system calls each time). A burst of more than :data:`_PER_READ`
+    messages in one read goes the same way, so that one socket cannot hold
+    the others up.
     """
 
     def __init__(
@@ -177,17 +179,24 @@ class _DirectInbox:
         self._backlog: deque[str | bytes] = deque()
         self._task: asyncio.Task[None] | None = None
         self._stopped = False
+        self._loop = asyncio.get_running_loop()
         #: Set while no message waits or is being handled.
         self.idle = asyncio.Event()
         self.idle.set()
 
-    def feed(self, data: str | bytes) -> None:
+    def feed(self, data: str | bytes, rank: int = 1) -> None:
+        """``rank``: the message's place among those of one read of the socket."""
         if self._stopped or self.frames.conn.closed:
             return
         if self._task is not None:
             self._backlog.append(data)
             if len(self._backlog) >= _HELD_BEFORE_PAUSE:
                 self._pause()  # resumed when the backlog is handled
+            return
+        if rank > _PER_READ:  # a burst: the other sockets get their turn first
+            self._backlog.append(data)
+            self.idle.clear()
+            self._task = self._loop.create_task(self._finish(asyncio.sleep(0)))
             return
         try:
             rest = self.frames.now(data)
@@ -196,13 +205,17 @@ class _DirectInbox:
             return
         if rest is not None:
             self.idle.clear()
-            self._task = asyncio.get_running_loop().create_task(self._finish(rest))
+            self._task = self._loop.create_task(self._finish(rest))
 
     async def _finish(self, rest: Awaitable[None]) -> None:
         try:
             await rest
+            handled = 0
             while self._backlog and not self.frames.conn.closed:
                 await self.frames.handle(self._backlog.popleft())
+                handled += 1
+                if handled % _PER_READ == 0:
+                    await asyncio.sleep(0)  # a long backlog does not hold the loop either
         except (OSError, RuntimeError):
             self._stopped = True  # the client went while a frame was sent
         except Exception:
@@ -218,7 +231,7 @@ class _DirectInbox:
         log.exception("live socket: handling a message failed")
         self._stopped = True
         conn = self.frames.conn
-        task = asyncio.get_running_loop().create_task(
+        task = self._loop.create_task(
             self.frames.live.close(conn, CLOSE_INTERNAL_ERROR, "internal error")
         )
         _closing.add(task)
@@ -228,3 +241,6 @@ class _DirectInbox:
 _closing: set[asyncio.Task[None]] = set()
 #: Messages held behind a waiting one before the socket's reading is paused.
 _HELD_BEFORE_PAUSE = 16
+#: Messages of one read of a socket handled at once; the rest of a burst (a read can
+#: carry thousands of small frames) waits for the other sockets' turn.
+_PER_READ = 64

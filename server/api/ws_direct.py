@@ -6,8 +6,11 @@ one turn of the event loop later to take it and resume reading. For a relay
 that is most of its time per message. With this protocol (``fleet-server``
 runs uvicorn with it), an app that finds :data:`DIRECT` among the scope's
 ``extensions`` may call ``attach(on_message)``: from then on each complete
-text (``str``) or binary (``bytes``) message is passed to ``on_message`` as
-it is parsed, within the protocol's ``data_received``. Everything else is
+text (``str``) or binary (``bytes``) message is passed to
+``on_message(message, rank)`` as it is parsed, within the protocol's
+``data_received``; ``rank`` counts the messages of that one read from 1 (a
+read can carry thousands of small messages, and an app may want to let the
+other sockets have their turn). Everything else is
 uvicorn's own: the handshake, sending, closing (``websocket.disconnect``
 still arrives through ``receive``), pings, flow control.
 
@@ -37,7 +40,8 @@ Message = str | bytes
 class LiveWebSocketProtocol(WebSocketsSansIOProtocol):
     """:class:`WebSocketsSansIOProtocol` offering the :data:`DIRECT` extension."""
 
-    _on_message: Callable[[Message], None] | None = None
+    _on_message: Callable[[Message, int], None] | None = None
+    _rank = 0  # messages handed over from the current read
 
     def handle_connect(self, event: Request) -> None:
         super().handle_connect(event)
@@ -49,7 +53,7 @@ class LiveWebSocketProtocol(WebSocketsSansIOProtocol):
                 "resume": self._resume,
             }
 
-    def _attach(self, on_message: Callable[[Message], None]) -> list[Message]:
+    def _attach(self, on_message: Callable[[Message, int], None]) -> list[Message]:
         pending: list[Message] = []
         others: list[Any] = []
         while not self.queue.empty():
@@ -75,6 +79,10 @@ class LiveWebSocketProtocol(WebSocketsSansIOProtocol):
             self.read_paused = False
             self.transport.resume_reading()
 
+    def data_received(self, data: bytes) -> None:
+        self._rank = 0
+        super().data_received(data)
+
     def send_receive_event_to_app(self) -> None:
         on_message = self._on_message
         if on_message is None or self.close_sent:
@@ -88,10 +96,12 @@ class LiveWebSocketProtocol(WebSocketsSansIOProtocol):
                 super().send_receive_event_to_app()  # uvicorn closes with 1007
                 return
             self.frames = []
-            on_message(text)
+            self._rank += 1
+            on_message(text, self._rank)
         else:
             self.frames = []
-            on_message(bytes(data))
+            self._rank += 1
+            on_message(bytes(data), self._rank)
 
 
 def uvicorn_ws_options() -> dict[str, Any]:

@@ -65,6 +65,16 @@ async def test_ops_sent_back_to_back_are_answered_in_the_order_sent(
         seen.append((await recv_until(listener, lambda f: f["op"] == "event"))["data"]["n"])
         seen.append((await recv_until(listener, lambda f: f["op"] == "event"))["data"]["n"])
         assert seen == [2, 4, 6]
+        # A burst larger than the server handles for one socket in one loop turn.
+        burst = [
+            json.dumps({"op": "publish", "id": f"b{n}", "topic": topic, "data": {"n": n}})
+            for n in range(300)
+        ]
+        for frame in burst:
+            await ws.send(frame)
+        assert [i for i, _ in await acks(ws, 300)] == [f"b{n}" for n in range(300)]
+        for n in range(300):
+            assert (await recv_until(listener, lambda f: f["op"] == "event"))["data"]["n"] == n
 
 
 async def test_a_vehicles_samples_and_publishes_keep_their_order(
