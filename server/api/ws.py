@@ -87,11 +87,10 @@ async def serve_live(services: Services, scope: Scope, receive: Receive, send: S
     services.live.add(conn)
     frames = _Frames(services, conn, digest(token))  # the token hashed once
     direct = scope.get("extensions", {}).get(DIRECT)
-    inbox = None if direct is None else _DirectInbox(frames, direct["pause"], direct["resume"])
+    inbox = None if direct is None else _DirectInbox(frames, direct)
     try:
-        if inbox is not None and direct is not None:
-            for early in direct["attach"](inbox.feed):  # frames that came before, first
-                inbox.feed(early)
+        if inbox is not None:
+            inbox.attach()
         while not conn.closed:
             message = await receive()
             if message["type"] != "websocket.receive":
@@ -129,25 +128,29 @@ class _Frames:
         self.vehicle = conn.kind == "vehicle"
 
     async def handle(self, data: str | bytes) -> None:
-        try:  # a revoked token's entry is gone from the cache
-            known = self.auth.cached(self.token_key)
-            self.conn.principal = known or await self.auth.authenticate_digest(self.token_key)
+        rest = self.now(data)
+        if rest is not None:
+            await rest
+
+    def now(self, data: str | bytes) -> Awaitable[None] | None:
+        """Handle ``data`` within this call as far as nothing waits; what is left, if any."""
+        known = self.auth.cached(self.token_key)
+        if known is None:
+            return self._after_lookup(data)  # the token is looked up again: all of it waits
+        self.conn.principal = known
+        return self._op_now(data)
+
+    async def _after_lookup(self, data: str | bytes) -> None:
+        try:  # a revoked token's entry is gone from the cache, and the lookup refuses it
+            self.conn.principal = await self.auth.authenticate_digest(self.token_key)
         except Unauthorized:
             await self.live.close(self.conn, CLOSE_UNAUTHORIZED, "the token is no longer valid")
             return
-        if self.vehicle:
-            self.live.touch(self.conn)
-        if isinstance(data, str):
-            await self.ops.text(data)
-        else:
-            await self.ops.binary(data)
+        rest = self._op_now(data)
+        if rest is not None:
+            await rest
 
-    def now(self, data: str | bytes) -> Awaitable[None] | None:
-        """:meth:`handle` within this call as far as nothing waits; what is left, if any."""
-        known = self.auth.cached(self.token_key)
-        if known is None:
-            return self.handle(data)  # the token is looked up again: all of it waits
-        self.conn.principal = known
+    def _op_now(self, data: str | bytes) -> Awaitable[None] | None:
         if self.vehicle:
             self.live.touch(self.conn)
         if isinstance(data, str):
@@ -170,12 +173,11 @@ class _DirectInbox:
     the others up.
     """
 
-    def __init__(
-        self, frames: _Frames, pause: Callable[[], None], resume: Callable[[], None]
-    ) -> None:
+    def __init__(self, frames: _Frames, direct: dict[str, Any]) -> None:
         self.frames = frames
-        self._pause = pause
-        self._resume = resume
+        self._direct = direct
+        self._pause: Callable[[], None] = direct["pause"]
+        self._resume: Callable[[], None] = direct["resume"]
         self._backlog: deque[str | bytes] = deque()
         self._task: asyncio.Task[None] | None = None
         self._stopped = False
@@ -183,6 +185,12 @@ class _DirectInbox:
         #: Set while no message waits or is being handled.
         self.idle = asyncio.Event()
         self.idle.set()
+
+    def attach(self) -> None:
+        """From now on the server hands each message to :meth:`feed`; those that came
+        before are handled first."""
+        for early in self._direct["attach"](self.feed):
+            self.feed(early)
 
     def feed(self, data: str | bytes, rank: int = 1) -> None:
         """``rank``: the message's place among those of one read of the socket."""

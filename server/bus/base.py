@@ -18,7 +18,7 @@ from __future__ import annotations
 import itertools
 import logging
 from abc import ABC, abstractmethod
-from collections.abc import Callable
+from collections.abc import Awaitable, Callable
 from dataclasses import dataclass
 from types import TracebackType
 from typing import Any, Self
@@ -106,9 +106,13 @@ class Bus(ABC):
         """Whether a connection of this process listens on ``topic``."""
         return self._router.has(topic)
 
-    def deliver_local(self, topic: str, message: Message) -> int:
-        """Deliver to this process's handlers only, at once (no await)."""
-        return self._router.deliver(topic, message)
+    def publish_here_first(self, topic: str, message: Message) -> Awaitable[None] | None:
+        """:meth:`publish`, delivered in this process within the call: what is left to
+        await (the other replicas), ``None`` on a bus that does not leave the process."""
+        if self.remote:
+            return self.publish(topic, message)
+        self._router.deliver(topic, message)
+        return None
 
     @abstractmethod
     async def publish(self, topic: str, message: Message) -> None:

@@ -217,17 +217,11 @@ class LiveHub:
             "origin": conn.id,
             "ts": now_ts() if self.instances.clock is utcnow else format_ts(self.instances.clock()),
         }
-        if self.bus.remote:
-            return self.bus.publish(topic, message)
-        self.bus.deliver_local(topic, message)  # the same, without a coroutine per message
-        return None
+        return self.bus.publish_here_first(topic, message)  # no coroutine on a local bus
 
     def publish_media(self, topic: str, frame: bytes) -> Awaitable[None] | None:
         """A binary media frame to the topic's subscribers, as :meth:`publish`."""
-        if self.bus.remote:
-            return self.bus.publish(topic, frame)
-        self.bus.deliver_local(topic, frame)
-        return None
+        return self.bus.publish_here_first(topic, frame)
 
     def _deliver(self, conn: Connection, topic: str, message: Message) -> None:
         buffer = conn.buffering.get(topic)

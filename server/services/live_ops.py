@@ -82,10 +82,8 @@ class OpRunner:
         push = AckPush.failure(op_id, error) if op_id else ErrorPush(error=error)
         self.conn.outbox.put(push.frame())
 
-    async def text(self, frame: str) -> None:
-        rest = self.text_now(frame)
-        if rest is not None:
-            await rest
+    def _refuse(self, op_id: str | None, exc: FleetError) -> None:
+        self._reply(op_id, ErrorBody(code=exc.code, message=exc.message, details=exc.details))
 
     def text_now(self, frame: str) -> Coroutine[Any, Any, None] | None:
         """Handle a text frame within this call where nothing has to wait: a refusal, or
@@ -105,11 +103,6 @@ class OpRunner:
             return None
         return self.run(op)
 
-    async def binary(self, frame: bytes) -> None:
-        rest = self.binary_now(frame)
-        if rest is not None:
-            await rest
-
     def binary_now(self, frame: bytes) -> Awaitable[None] | None:
         """A media frame, like :meth:`text_now`: delivered here within this call; what is
         left to await when the bus also takes it to other replicas."""
@@ -128,7 +121,7 @@ class OpRunner:
             self.conn.outbox.put(exc.reply().frame())
             return None
         except FleetError as exc:
-            self._reply(None, ErrorBody(code=exc.code, message=exc.message, details=exc.details))
+            self._refuse(None, exc)
             return None
         return self.s.live.publish_media(header.topic, frame)
 
@@ -151,7 +144,7 @@ class OpRunner:
                 self._rate()
             result = await self.dispatch(op)
         except FleetError as exc:
-            self._reply(op.id, ErrorBody(code=exc.code, message=exc.message, details=exc.details))
+            self._refuse(op.id, exc)
             self.s.live.flush_routes()
             return
         if op.id:
@@ -171,7 +164,7 @@ class OpRunner:
             self._rate()
             self._publish_local(op)
         except FleetError as exc:
-            self._reply(op.id, ErrorBody(code=exc.code, message=exc.message, details=exc.details))
+            self._refuse(op.id, exc)
         else:
             if op.id:
                 self.conn.outbox.put(AckPush.success_frame(op.id, None))

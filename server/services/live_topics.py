@@ -57,10 +57,9 @@ class ServerTopics:
             "data": data() if callable(data) else data,
             "ts": format_ts(self.instances.clock()),
         }
-        if self.bus.remote:
-            self._fire(self.bus.publish(topic, message))
-        else:
-            self.bus.deliver_local(topic, message)
+        pending = self.bus.publish_here_first(topic, message)
+        if pending is not None:
+            self._fire(pending)
 
     def _on_presence(self, state: InstanceState, presence: str) -> None:
         view = self.views.live_view(state).model_dump(mode="json")
