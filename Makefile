@@ -2,7 +2,13 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test lint bench chaos soak clean
+.PHONY: demo test lint bench chaos soak clean ferretdb
+
+# FerretDB (MongoDB's wire protocol over SQLite), built from the Go module proxy at the
+# version pinned in tools/ferretdb/go.mod: the tests' real MongoDB-driver path runs on it.
+# FLEET_FERRETDB_BIN, when set, names the binary to use (built there if missing).
+FERRETDB_VERSION := $(shell awk '$$1 == "github.com/FerretDB/FerretDB" { print $$2 }' tools/ferretdb/go.mod)
+FERRETDB_BIN ?= $(or $(FLEET_FERRETDB_BIN),.cache/ferretdb/$(FERRETDB_VERSION)/bin/ferretdb)
 
 $(STAMP): pyproject.toml
 	test -x $(PY) || python3 -m venv $(VENV)
@@ -10,19 +16,24 @@ $(STAMP): pyproject.toml
 	$(PY) -m pip install -q -e '.[all]'
 	touch $(STAMP)
 
+$(FERRETDB_BIN):
+	tools/ferretdb/build.sh $(FERRETDB_BIN)
+
+ferretdb: $(FERRETDB_BIN)
+
 demo: $(STAMP)
 	$(PY) -m server.demo
 
-test: $(STAMP)
-	$(PY) -m pytest -q $(PYTEST_ARGS)
+test: $(STAMP) $(FERRETDB_BIN)
+	FLEET_FERRETDB_BIN=$(abspath $(FERRETDB_BIN)) $(PY) -m pytest -q $(PYTEST_ARGS)
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/ruff format --check .
 	$(VENV)/bin/mypy
 
-bench: $(STAMP)
-	$(PY) -m bench $(BENCH_ARGS)
+bench: $(STAMP) $(FERRETDB_BIN)
+	FLEET_FERRETDB_BIN=$(abspath $(FERRETDB_BIN)) $(PY) -m bench $(BENCH_ARGS)
 
 clean:
 	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache

@@ -1,10 +1,16 @@
-"""Shared fixtures: an app on a fresh embedded store, an HTTP client to it."""
+"""Shared fixtures: an app on a fresh embedded store, an HTTP client to it.
+
+``tests/stores.py`` adds the store servers: ``ferretdb``, ``make_ferretdb``, ``mongo_url``
+and ``store_backend``; a module that takes ``store_backend`` (``pytestmark =
+pytest.mark.usefixtures("store_backend")``) runs each test on the embedded store and on
+FerretDB (or ``FLEET_TEST_MONGO_URL``), ``make_settings`` choosing the store.
+"""
 
 from __future__ import annotations
 
 from collections.abc import AsyncIterator, Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import httpx
 import pytest
@@ -14,9 +20,21 @@ from server.app import create_app
 from server.settings import Settings
 from tests.factories import ADMIN_TOKEN, FakeClock
 
+if TYPE_CHECKING:
+    from tests.stores import StoreBackend
+
+# The store servers' fixtures and the per-backend summary (imported here first, as a
+# plugin, so that pytest rewrites its asserts).
+pytest_plugins = ["tests.stores"]
+
 
 @pytest.fixture
-def make_settings(tmp_path: Path) -> Callable[..., Settings]:
+def make_settings(tmp_path: Path, request: pytest.FixtureRequest) -> Callable[..., Settings]:
+    """Settings for a test's app; on the test's ``store_backend`` when it takes one."""
+    backend: StoreBackend | None = None
+    if "store_backend" in request.fixturenames:
+        backend = request.getfixturevalue("store_backend")
+
     def build(**overrides: Any) -> Settings:
         values: dict[str, Any] = {
             "snapshot_path": tmp_path / "store.snapshot",
@@ -24,6 +42,8 @@ def make_settings(tmp_path: Path) -> Callable[..., Settings]:
             "rate_limit_per_s": 100_000,
             "rate_limit_burst": 100_000,
         }
+        if backend is not None:
+            values.update(backend.settings)
         values.update(overrides)
         return Settings(_env_file=None, **values)
 
