@@ -7,6 +7,7 @@ from typing import Literal
 from pydantic import Field
 
 from fleet_protocol.common import Identifier, Timestamp, WireModel
+from fleet_protocol.values import Text
 
 __all__ = [
     "CreateGateway",
@@ -29,13 +30,13 @@ ROLE_RANK = {"viewer": 0, "operator": 1, "manager": 2, "admin": 3}
 
 class CreateVehicle(WireModel):
     vehicle_id: Identifier
-    name: str = Field(default="", max_length=128)
-    vehicle_type: str = Field(default="usv", min_length=1, max_length=32)
+    name: Text = Field(default="", max_length=128)
+    vehicle_type: Text = Field(default="usv", min_length=1, max_length=32)
 
 
 class VehicleCreated(WireModel):
-    vehicle_id: str
-    token: str
+    vehicle_id: Text
+    token: Text
 
 
 class CreateGateway(WireModel):
@@ -44,29 +45,29 @@ class CreateGateway(WireModel):
 
 
 class GatewayCreated(WireModel):
-    gateway_id: str
-    token: str
-    vehicles: list[str] = Field(default_factory=list)
+    gateway_id: Text
+    token: Text
+    vehicles: list[Text] = Field(default_factory=list)
 
 
 class CreateUser(WireModel):
     username: Identifier
     role: Role
     vehicles: list[Identifier] = Field(default_factory=list, max_length=10000)
-    password: str | None = Field(default=None, min_length=1, max_length=256)
+    password: Text | None = Field(default=None, min_length=1, max_length=256)
 
 
 class UserCreated(WireModel):
-    username: str
+    username: Text
     role: Role
-    token: str
-    vehicles: list[str] = Field(default_factory=list)
+    token: Text
+    vehicles: list[Text] = Field(default_factory=list)
 
 
 class UserView(WireModel):
-    username: str
+    username: Text
     role: Role
-    vehicles: list[str]
+    vehicles: list[Text]
     disabled: bool
     created_at: Timestamp | None = None
 
@@ -79,15 +80,15 @@ class PatchUser(WireModel):
     role: Role | None = None
     vehicles: list[Identifier] | None = Field(default=None, max_length=10000)
     disabled: bool | None = None
-    password: str | None = Field(default=None, min_length=1, max_length=256)
+    password: Text | None = Field(default=None, min_length=1, max_length=256)
 
 
 class LoginRequest(WireModel):
-    username: str = Field(min_length=1, max_length=64)
-    password: str = Field(min_length=1, max_length=256)
+    username: Text = Field(min_length=1, max_length=64)
+    password: Text = Field(min_length=1, max_length=256)
 
 
 class TokenResult(WireModel):
-    access_token: str
+    access_token: Text
     token_type: Literal["bearer"] = "bearer"
     expires_in: int

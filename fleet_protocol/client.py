@@ -9,6 +9,7 @@ from pydantic import Field, ValidationInfo, field_validator, model_validator
 from fleet_protocol.commands import CommandObject, CommandSpec
 from fleet_protocol.common import Identifier, Sample, Timestamp, WireModel
 from fleet_protocol.upper import ControlInfo, ControlMode, InstanceRef
+from fleet_protocol.values import Text
 
 __all__ = [
     "CancelCommand",
@@ -31,7 +32,7 @@ Presence = Literal["online", "stale", "offline", "finished"]
 
 
 class ConnectInstance(WireModel):
-    instance_id: str | None = Field(default=None, min_length=1, max_length=64)
+    instance_id: Text | None = Field(default=None, min_length=1, max_length=64)
     vehicle_id: Identifier | None = None
 
     @model_validator(mode="after")
@@ -42,11 +43,11 @@ class ConnectInstance(WireModel):
 
 
 class InstanceView(WireModel):
-    instance_id: str
-    vehicle_id: str
-    name: str
-    vehicle_type: str
-    capabilities: list[str]
+    instance_id: Text
+    vehicle_id: Text
+    name: Text
+    vehicle_type: Text
+    capabilities: list[Text]
     presence: Presence
     last_seen: Timestamp | None
     control_mode: ControlMode
@@ -65,7 +66,7 @@ class GetParamResult(WireModel):
 
 
 class SubmitControl(WireModel):
-    instance_ids: list[str] = Field(min_length=1, max_length=1000)
+    instance_ids: list[Text] = Field(min_length=1, max_length=1000)
     command: CommandSpec
     ttl_s: int = Field(default=30, ge=1, le=3600)
 
@@ -87,9 +88,9 @@ class SubmitControl(WireModel):
 
 
 class QueuedCommand(WireModel):
-    instance_id: str
-    command_id: str
-    status: str = "queued"
+    instance_id: Text
+    command_id: Text
+    status: Text = "queued"
 
 
 class SubmitControlResult(WireModel):
@@ -102,13 +103,13 @@ class GetFbMessageResult(WireModel):
 
 
 class CancelCommand(WireModel):
-    command_id: str = Field(min_length=1, max_length=64)
+    command_id: Text = Field(min_length=1, max_length=64)
 
 
 class ControlRequest(WireModel):
-    request_id: str
-    username: str
-    instance_id: str
+    request_id: Text
+    username: Text
+    instance_id: Text
     requested_at: Timestamp
 
 

@@ -7,6 +7,7 @@ from typing import Any, Literal, get_args
 from pydantic import Field, ValidationError, model_validator
 
 from fleet_protocol.common import Latitude, LatLon, Longitude, Timestamp, WireModel
+from fleet_protocol.values import JsonObject, Text
 
 __all__ = [
     "ACK_STATUSES",
@@ -89,7 +90,8 @@ class CommandSpec(WireModel):
     """What an operator asks for: ``{type, args, max_drift_m?}``."""
 
     type: CommandType
-    args: dict[str, Any] = Field(default_factory=dict)
+    #: Checked as a free-form object first, then by the type's model (``ARGS_MODELS``).
+    args: JsonObject = Field(default_factory=dict)
     max_drift_m: float | None = Field(default=None, gt=0, le=1_000_000, allow_inf_nan=False)
 
     @model_validator(mode="after")
@@ -116,20 +118,20 @@ def _args_message(exc: ValidationError) -> str:
 
 
 class HistoryEntry(WireModel):
-    status: str
+    status: Text
     at: Timestamp
-    detail: str | None = None
+    detail: Text | None = None
 
 
 class CommandObject(WireModel):
-    command_id: str
-    instance_id: str
-    vehicle_id: str | None = None
+    command_id: Text
+    instance_id: Text
+    vehicle_id: Text | None = None
     type: CommandType
     args: dict[str, Any] = Field(default_factory=dict)
     max_drift_m: float | None = None
     status: CommandStatus
-    issued_by: str
+    issued_by: Text
     issued_at: Timestamp
     expires_at: Timestamp
     progress: float | None = None

@@ -4,9 +4,24 @@ from __future__ import annotations
 
 import time
 from datetime import UTC, datetime
-from typing import Annotated, Any
+from typing import Annotated
 
-from pydantic import AfterValidator, BaseModel, ConfigDict, Field, PlainSerializer
+from pydantic import (
+    AfterValidator,
+    BaseModel,
+    ConfigDict,
+    Field,
+    PlainSerializer,
+    WithJsonSchema,
+)
+from pydantic_core import PydanticCustomError
+
+from fleet_protocol.values import (
+    MAX_SAMPLE_DATA_BYTES,
+    MAX_TIMESTAMP,
+    MIN_TIMESTAMP,
+    SampleData,
+)
 
 __all__ = [
     "ID_PATTERN",
@@ -27,9 +42,6 @@ __all__ = [
 #: Identifiers (vehicles, users, gateways) become topic segments
 #: (``vehicle/<id>/telemetry``), so they follow the topic grammar.
 ID_PATTERN = r"^[a-z0-9][a-z0-9_-]{0,63}$"
-
-#: Bound on the JSON size of one sample's free-form ``data``.
-MAX_SAMPLE_DATA_BYTES = 8192
 
 
 def utcnow() -> datetime:
@@ -69,10 +81,36 @@ def parse_ts(text: str) -> datetime:
     return _as_utc(datetime.fromisoformat(text.replace("Z", "+00:00")))
 
 
+_RANGE_CTX = {"low": format_ts(MIN_TIMESTAMP), "high": format_ts(MAX_TIMESTAMP)}
+
+
+def _in_range(value: datetime) -> datetime:
+    """In UTC, within ``MIN_TIMESTAMP`` and ``MAX_TIMESTAMP`` (a conversion near year 1 or
+    9999 overflows: out of range too)."""
+    try:
+        utc = value.astimezone(UTC) if value.tzinfo is not None else value.replace(tzinfo=UTC)
+        if MIN_TIMESTAMP <= utc <= MAX_TIMESTAMP:
+            return utc
+    except OverflowError:
+        pass
+    raise PydanticCustomError(
+        "timestamp_range", "a timestamp lies between {low} and {high}", _RANGE_CTX
+    )
+
+
+#: A point in time: ISO 8601 in, ``format_ts`` out; between 1970-01-01 and 2100-01-01
+#: (``fleet_protocol.values.MIN_TIMESTAMP`` / ``MAX_TIMESTAMP``, both included).
 Timestamp = Annotated[
     datetime,
-    AfterValidator(_as_utc),
+    AfterValidator(_in_range),
     PlainSerializer(format_ts, return_type=str, when_used="json"),
+    WithJsonSchema(
+        {
+            "type": "string",
+            "format": "date-time",
+            "description": f"ISO 8601, UTC; from {_RANGE_CTX['low']} to {_RANGE_CTX['high']}",
+        }
+    ),
 ]
 Identifier = Annotated[str, Field(pattern=ID_PATTERN, examples=["usv-1"])]
 Latitude = Annotated[float, Field(ge=-90, le=90, allow_inf_nan=False)]
@@ -80,9 +118,15 @@ Longitude = Annotated[float, Field(ge=-180, le=180, allow_inf_nan=False)]
 
 
 class WireModel(BaseModel):
-    """Base of every message: unknown fields are ignored (clients may be newer)."""
+    """Base of every message: unknown fields are ignored (clients may be newer).
 
-    model_config = ConfigDict(extra="ignore", populate_by_name=True)
+    Every value is one JSON and the store can hold (``fleet_protocol.values``):
+    floats are finite (``allow_inf_nan=False`` for every float field), strings
+    are ``Text`` (no lone surrogates), free-form values are ``JsonValue`` /
+    ``JsonObject``, timestamps are ``Timestamp`` (1970 to 2100).
+    """
+
+    model_config = ConfigDict(extra="ignore", populate_by_name=True, allow_inf_nan=False)
 
 
 class LatLon(WireModel):
@@ -90,19 +134,14 @@ class LatLon(WireModel):
     lon: Longitude
 
 
-def _bounded_data(value: dict[str, Any] | None) -> dict[str, Any] | None:
-    if value is None:
-        return None
-    import json
-
-    size = len(json.dumps(value, separators=(",", ":"), default=str))
-    if size > MAX_SAMPLE_DATA_BYTES:
-        raise ValueError(f"data is {size} bytes, at most {MAX_SAMPLE_DATA_BYTES} are accepted")
-    return value
-
-
 class Sample(WireModel):
-    """One telemetry sample. ``seq`` rises strictly per vehicle."""
+    """One telemetry sample. ``seq`` rises strictly per vehicle.
+
+    ``ts`` between 1970 and 2100; ``data`` a free-form object of at most
+    ``MAX_SAMPLE_DATA_BYTES`` of JSON holding what JSON and the store can hold
+    (64-bit integers, finite floats, no lone surrogates, keys without a leading
+    ``$``, ``.`` or NUL, nesting at most ``MAX_JSON_DEPTH``: ``docs/limits.md``).
+    """
 
     seq: int = Field(ge=1, le=2**62, description="per vehicle, rising; 0 means none yet")
     ts: Timestamp
@@ -112,4 +151,4 @@ class Sample(WireModel):
     heading_deg: float | None = Field(default=None, ge=0, le=360, allow_inf_nan=False)
     speed_mps: float | None = Field(default=None, ge=0, le=200, allow_inf_nan=False)
     battery_pct: float | None = Field(default=None, ge=0, le=100, allow_inf_nan=False)
-    data: Annotated[dict[str, Any] | None, AfterValidator(_bounded_data)] = None
+    data: SampleData = None

@@ -8,19 +8,20 @@ from pydantic import Field
 
 from fleet_protocol.common import Sample, Timestamp, WireModel
 from fleet_protocol.upper import ControlInfo
+from fleet_protocol.values import Text
 
 __all__ = ["Event", "EventList", "TelemetryPage", "Track", "VehicleList", "VehicleView"]
 
 
 class VehicleView(WireModel):
-    vehicle_id: str
-    name: str
-    vehicle_type: str
-    presence: str
-    instance_id: str | None
+    vehicle_id: Text
+    name: Text
+    vehicle_type: Text
+    presence: Text
+    instance_id: Text | None
     position: Sample | None
     control: ControlInfo | None
-    control_mode: str | None = None
+    control_mode: Text | None = None
     last_seen: Timestamp | None = None
 
 
@@ -29,7 +30,7 @@ class VehicleList(WireModel):
 
 
 class Track(WireModel):
-    vehicle_id: str
+    vehicle_id: Text
     points: list[dict[str, Any]]
     truncated: bool
     next_from: Timestamp | None = None
@@ -41,12 +42,12 @@ class TelemetryPage(WireModel):
 
 
 class Event(WireModel):
-    event_id: str
-    kind: str
-    vehicle_id: str | None = None
-    instance_id: str | None = None
+    event_id: Text
+    kind: Text
+    vehicle_id: Text | None = None
+    instance_id: Text | None = None
     at: Timestamp
-    actor: str | None = None
+    actor: Text | None = None
     data: dict[str, Any] = Field(default_factory=dict)
 
 

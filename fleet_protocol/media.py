@@ -7,6 +7,7 @@ from pydantic import Field, ValidationError
 from fleet_protocol.common import Timestamp, WireModel
 from fleet_protocol.errors import ErrorBody
 from fleet_protocol.topics import Topic
+from fleet_protocol.values import Text
 from fleet_protocol.ws import MAX_MEDIA_HEADER_BYTES, FrameError, _error_body
 
 __all__ = ["MediaHeader", "decode_media_frame", "encode_media_frame"]
@@ -15,7 +16,7 @@ __all__ = ["MediaHeader", "decode_media_frame", "encode_media_frame"]
 class MediaHeader(WireModel):
     topic: Topic
     ts: Timestamp
-    content_type: str = Field(min_length=1, max_length=128)
+    content_type: Text = Field(min_length=1, max_length=128)
 
 
 def encode_media_frame(header: MediaHeader, payload: bytes) -> bytes:

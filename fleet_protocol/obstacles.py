@@ -7,6 +7,7 @@ from typing import Literal
 from pydantic import Field, field_validator
 
 from fleet_protocol.common import Latitude, Longitude, Timestamp, WireModel
+from fleet_protocol.values import Text
 
 __all__ = [
     "MAX_OBSTACLE_VERTICES",
@@ -51,7 +52,7 @@ class PolygonGeometry(WireModel):
 
 
 class CreateObstacle(WireModel):
-    name: str = Field(min_length=1, max_length=128)
+    name: Text = Field(min_length=1, max_length=128)
     polygon: PolygonGeometry
     clearance_m: float | None = Field(
         default=None,
@@ -63,8 +64,8 @@ class CreateObstacle(WireModel):
 
 
 class ObstacleView(WireModel):
-    obstacle_id: str
-    name: str
+    obstacle_id: Text
+    name: Text
     polygon: PolygonGeometry
     clearance_m: float
     created_at: Timestamp

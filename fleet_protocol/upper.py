@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
-from typing import Any, Literal
+from typing import Literal
 
 from pydantic import Field
 
 from fleet_protocol.commands import ACK_STATUSES, CommandObject, CommandType
 from fleet_protocol.common import Identifier, Sample, Timestamp, WireModel
+from fleet_protocol.values import Params, Text
 
 __all__ = [
     "MAX_SAMPLES_PER_CALL",
@@ -34,18 +35,17 @@ AckStatus = Literal["accepted", "executing", "done", "rejected", "failed"]
 assert set(ACK_STATUSES) == set(AckStatus.__args__)  # type: ignore[attr-defined]
 
 MAX_SAMPLES_PER_CALL = 5000
-MAX_PARAMS = 512
 
 
 class InstanceRef(WireModel):
-    instance_id: str = Field(min_length=1, max_length=64)
+    instance_id: Text = Field(min_length=1, max_length=64)
 
 
 class ControlInfo(WireModel):
     """Who holds remote control of an instance, and until when."""
 
-    holder: str
-    granted_by: str
+    holder: Text
+    granted_by: Text
     expires_at: Timestamp
 
 
@@ -57,15 +57,18 @@ class FailsafePolicy(WireModel):
 
 
 class StartInstance(WireModel):
+    """A vehicle starts (or resumes) its instance; ``params``: a free-form object of at most
+    ``MAX_PARAMS`` entries (``docs/limits.md``)."""
+
     vehicle_id: Identifier
-    name: str = Field(default="", max_length=128)
-    vehicle_type: str = Field(default="usv", min_length=1, max_length=32)
+    name: Text = Field(default="", max_length=128)
+    vehicle_type: Text = Field(default="usv", min_length=1, max_length=32)
     capabilities: list[CommandType] = Field(default_factory=list, max_length=16)
-    params: dict[str, Any] = Field(default_factory=dict, max_length=MAX_PARAMS)
+    params: Params = Field(default_factory=dict)
 
 
 class StartInstanceResult(WireModel):
-    instance_id: str
+    instance_id: Text
     resumed: bool
     last_seq: int
     heartbeat_interval_s: float
@@ -82,12 +85,14 @@ class FinishInstance(InstanceRef):
 
 
 class FinishInstanceResult(WireModel):
-    instance_id: str
+    instance_id: Text
     state: Literal["finished"] = "finished"
 
 
 class UpdateParam(InstanceRef):
-    params: dict[str, Any] = Field(default_factory=dict, max_length=MAX_PARAMS)
+    """Parameters (merged into the instance's) and telemetry samples (``docs/limits.md``)."""
+
+    params: Params = Field(default_factory=dict)
     samples: list[Sample] = Field(default_factory=list, max_length=MAX_SAMPLES_PER_CALL)
 
 
@@ -103,10 +108,10 @@ class GetControlResult(WireModel):
 
 
 class FbAck(WireModel):
-    command_id: str = Field(min_length=1, max_length=64)
+    command_id: Text = Field(min_length=1, max_length=64)
     status: AckStatus
     progress: float | None = Field(default=None, ge=0, le=100, allow_inf_nan=False)
-    detail: str | None = Field(default=None, max_length=512)
+    detail: Text | None = Field(default=None, max_length=512)
 
 
 class UpdateFbMessage(InstanceRef):
@@ -116,7 +121,7 @@ class UpdateFbMessage(InstanceRef):
 
 class UpdateFbMessageResult(WireModel):
     ok: bool = True
-    abort: list[str] = Field(default_factory=list)
+    abort: list[Text] = Field(default_factory=list)
 
 
 class Heartbeat(InstanceRef):

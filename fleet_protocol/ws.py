@@ -36,7 +36,7 @@ from pydantic import (
     ValidationError,
     model_serializer,
 )
-from pydantic_core import to_json
+from pydantic_core import PydanticSerializationError, to_json
 
 from fleet_protocol.commands import CommandObject
 from fleet_protocol.common import Identifier, Timestamp, WireModel
@@ -50,6 +50,7 @@ from fleet_protocol.upper import (
     UpdateFbMessage,
     UpdateParam,
 )
+from fleet_protocol.values import JsonValue, Text, safe_dumps, shown_text
 
 __all__ = [
     "MAX_BATCH_OPS",
@@ -76,6 +77,7 @@ __all__ = [
     "UpdateFbMessageOp",
     "UpdateParamOp",
     "VehicleOp",
+    "field_errors",
     "parse_client_op",
     "parse_vehicle_op",
 ]
@@ -86,7 +88,7 @@ MAX_BATCH_OPS = 256
 #: Bound on a media frame's JSON header line.
 MAX_MEDIA_HEADER_BYTES = 1024
 
-OpId = Annotated[str, Field(min_length=1, max_length=MAX_OP_ID_CHARS)]
+OpId = Annotated[Text, Field(min_length=1, max_length=MAX_OP_ID_CHARS)]
 TopicList = Annotated[list[Topic], Field(min_length=1, max_length=MAX_TOPICS_PER_OP)]
 
 
@@ -150,7 +152,8 @@ class UnsubscribeOp(_UnitOp):
 class PublishOp(_UnitOp):
     op: Literal["publish"] = "publish"
     topic: Topic
-    data: Any = None
+    #: Any JSON value the store and JSON can hold (``fleet_protocol.values``).
+    data: JsonValue = None
 
 
 _SingleVehicleOp = Annotated[
@@ -199,8 +202,12 @@ class _Push(BaseModel):
         return data
 
     def frame(self) -> str:
-        """The JSON text frame."""
-        return self.model_dump_json()
+        """The JSON text frame; a value JSON cannot hold (data stored by an older version)
+        is sent escaped (``fleet_protocol.values.json_safe``), never refused."""
+        try:
+            return self.model_dump_json()
+        except PydanticSerializationError:
+            return safe_dumps(self.model_dump(mode="python"))
 
 
 _ACK_OWN_FIELDS = frozenset({"op", "id", "ok", "error"})
@@ -219,7 +226,7 @@ class AckPush(_Push):
     _omit_if_none = frozenset({"error"})
 
     op: Literal["ack"] = "ack"
-    id: str
+    id: Text
     ok: bool
     error: ErrorBody | None = None
 
@@ -270,7 +277,7 @@ class ControlPush(_Push):
     """Who holds remote control of the instance now (``null``: nobody)."""
 
     op: Literal["control"] = "control"
-    instance_id: str
+    instance_id: Text
     control: ControlInfo | None = None
 
 
@@ -278,7 +285,7 @@ class EventPush(_Push):
     _omit_if_none = frozenset({"snapshot", "ts"})
 
     op: Literal["event"] = "event"
-    topic: str
+    topic: Text
     data: Any = None
     #: ``true`` on the current state sent first after a subscribe.
     snapshot: bool | None = None
@@ -295,11 +302,11 @@ class RoutesPush(_Push):
     """
 
     op: Literal["routes"] = "routes"
-    unit: str
-    produces: dict[str, list[str]] = Field(default_factory=dict)
-    consumes: dict[str, list[str]] = Field(default_factory=dict)
-    forward_up: list[str] = Field(default_factory=list)
-    forward_down: list[str] = Field(default_factory=list)
+    unit: Text
+    produces: dict[Text, list[Text]] = Field(default_factory=dict)
+    consumes: dict[Text, list[Text]] = Field(default_factory=dict)
+    forward_up: list[Text] = Field(default_factory=list)
+    forward_down: list[Text] = Field(default_factory=list)
 
 
 class LaggingPush(_Push):
@@ -350,18 +357,43 @@ def _parse(adapter: TypeAdapter[Any], frame: str | bytes) -> Any:
         # The core validator itself: TypeAdapter.validate_json only adds Python-side checks.
         return adapter.validator.validate_json(frame)
     except ValidationError as exc:
-        raise FrameError(_error_body(exc), _salvage_id(frame)) from None
+        error = exc
+    if error.errors(include_url=False)[0]["type"] == "json_invalid":
+        error = _python_errors(adapter, frame) or error
+    raise FrameError(_error_body(error), _salvage_id(frame))
+
+
+def _python_errors(adapter: TypeAdapter[Any], frame: str | bytes) -> ValidationError | None:
+    """The errors with their fields for a frame the JSON parser refused but Python's
+    ``json`` reads (a lone surrogate in a string: ``"\\ud800"``), as HTTP sees them."""
+    try:
+        value = json.loads(frame)
+    except (ValueError, RecursionError):
+        return None
+    try:
+        adapter.validator.validate_python(value)
+    except ValidationError as exc:
+        return exc
+    return None
 
 
 def _error_body(exc: ValidationError) -> ErrorBody:
+    if any(err["type"] == "json_invalid" for err in exc.errors(include_url=False)):
+        return ErrorBody(code="invalid", message="the frame is not valid JSON")
+    details = field_errors(exc)
+    summary = "; ".join(f"{d.field}: {d.message}" for d in details[:3])
+    return ErrorBody(code="invalid", message=f"invalid op ({summary})", details=details)
+
+
+def field_errors(exc: ValidationError) -> list[FieldError]:
+    """Each error's field (``samples.0.data.x``; pydantic's union tags left out) and message,
+    never the value itself: what a 422 or a log line may show."""
     details: list[FieldError] = []
-    for err in exc.errors(include_url=False):
-        if err["type"] == "json_invalid":
-            return ErrorBody(code="invalid", message="the frame is not valid JSON")
+    for err in exc.errors(include_url=False, include_input=False):
         loc = [str(part) for part in err["loc"]]
         # Drop the union tag pydantic inserts ("update_param" in ops.0.update_param.x).
-        field = ".".join(p for p in loc if p not in _OP_TAGS)
-        message = err["msg"].removeprefix("Value error, ")
+        field = shown_text(".".join(p for p in loc if p not in _OP_TAGS))
+        message = shown_text(err["msg"].removeprefix("Value error, "))
         if err["type"] == "union_tag_invalid":
             field, message = (
                 _join(field, "op"),
@@ -372,8 +404,7 @@ def _error_body(exc: ValidationError) -> ErrorBody:
         elif not field:
             field = "frame"
         details.append(FieldError(field=field, message=message))
-    summary = "; ".join(f"{d.field}: {d.message}" for d in details[:3])
-    return ErrorBody(code="invalid", message=f"invalid op ({summary})", details=details)
+    return details
 
 
 _OP_TAGS = frozenset(  # every op's tag: the members of the union, and batch
@@ -389,9 +420,9 @@ def _salvage_id(frame: str | bytes) -> str | None:
     """The frame's ``id``, when it has a usable one, so a failure can be acked."""
     try:
         value = json.loads(frame)
-    except ValueError:
+    except (ValueError, RecursionError):  # RecursionError: nested past the stack
         return None
     op_id = value.get("id") if isinstance(value, dict) else None
-    if isinstance(op_id, str) and 0 < len(op_id) <= MAX_OP_ID_CHARS:
+    if isinstance(op_id, str) and 0 < len(op_id) <= MAX_OP_ID_CHARS and shown_text(op_id) == op_id:
         return op_id
     return None

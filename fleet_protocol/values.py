@@ -1,0 +1,347 @@
+"""What JSON and the store can hold: the limits every wire model keeps, and the checked types.
+
+The server stores what it accepts in MongoDB (BSON; FerretDB in the tests)
+and sends it on as JSON, so a wire model refuses, with the path of the bad
+value in the 422, what either cannot hold (``docs/limits.md``):
+
+- integers within signed 64-bit, :data:`MIN_INT` to :data:`MAX_INT` (BSON's
+  widest integer);
+- finite floats: no NaN, no ±Infinity (not JSON numbers; FerretDB closes the
+  connection on a NaN);
+- strings without lone UTF-16 surrogates (U+D800..U+DFFF): neither UTF-8 nor
+  BSON can hold one, yet Python's ``json`` decodes ``"\\ud800"`` into one;
+- free-form objects and arrays nested at most :data:`MAX_JSON_DEPTH` deep;
+- keys of free-form objects: strings of at most :data:`MAX_KEY_CHARS`
+  characters, not starting with ``$`` (a MongoDB operator), without ``.`` (a
+  MongoDB path) and without NUL (BSON keys are C strings).
+
+:data:`JsonValue`, :data:`JsonObject` and their bounded variants check a
+free-form value in one walk that stops at the first bad value and names it:
+``data.reading.0`` under the field, so ``samples.3.data.reading.0`` in the
+422. :data:`Text` is a ``str`` field without lone surrogates. The timestamp
+range is :data:`MIN_TIMESTAMP` to :data:`MAX_TIMESTAMP`
+(:data:`fleet_protocol.common.Timestamp`).
+
+:func:`json_safe` is the other direction: a value already stored that breaks
+a rule (written by an older version) made into one JSON can hold, for the
+encoders that must still send it.
+
+Pydantic only: the server, the agent and the operator tools all check with it.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+from collections.abc import Callable
+from datetime import UTC, datetime
+from typing import Annotated, Any
+
+from pydantic import AfterValidator, PlainValidator, ValidationError, WithJsonSchema
+from pydantic_core import InitErrorDetails, PydanticCustomError, to_json
+
+__all__ = [
+    "MAX_INT",
+    "MAX_JSON_DEPTH",
+    "MAX_KEY_CHARS",
+    "MAX_PARAMS",
+    "MAX_SAMPLE_DATA_BYTES",
+    "MAX_TIMESTAMP",
+    "MIN_INT",
+    "MIN_TIMESTAMP",
+    "JsonObject",
+    "JsonValue",
+    "Params",
+    "SampleData",
+    "Text",
+    "check_text",
+    "json_problem",
+    "json_safe",
+    "safe_dumps",
+    "shown_text",
+]
+
+#: Integers: signed 64-bit, what BSON's widest integer (``int64``) holds.
+MIN_INT = -(2**63)
+MAX_INT = 2**63 - 1
+#: Nesting of a free-form value (the value itself is level 1). MongoDB refuses
+#: documents nested past 100 levels and a sample's ``data`` already sits four
+#: deep in its telemetry bucket (bucket, samples array, sample, data); 32 is
+#: far past any sensor reading or parameter set, and bounds every recursive
+#: walk (this check, the encoders, the drivers) well inside Python's stack.
+MAX_JSON_DEPTH = 32
+#: A free-form object's keys: at most this many characters.
+MAX_KEY_CHARS = 128
+#: Entries in a ``params`` object (``start_instance``, ``update_param``).
+MAX_PARAMS = 512
+#: A sample's ``data``: at most this many bytes of compact UTF-8 JSON.
+MAX_SAMPLE_DATA_BYTES = 8192
+#: Timestamps, both ends included. A vehicle without a GPS fix may send the
+#: epoch (1970); 2100 is far past any real clock. Every ``Timestamp`` field and
+#: the ``from``/``to`` query parameters keep to it.
+MIN_TIMESTAMP = datetime(1970, 1, 1, tzinfo=UTC)
+MAX_TIMESTAMP = datetime(2100, 1, 1, tzinfo=UTC)
+
+_SURROGATE = re.compile("[\ud800-\udfff]")
+
+_INT_MSG = f"an integer must lie within signed 64-bit ({MIN_INT} to {MAX_INT})"
+_FLOAT_MSG = "NaN and Infinity are not JSON numbers: send a finite number or null"
+_TEXT_MSG = "a string may not hold a lone UTF-16 surrogate (U+D800 to U+DFFF)"
+_DEPTH_MSG = f"nested deeper than {MAX_JSON_DEPTH} levels"
+
+Path = list[str | int]
+#: A bad value: its path (innermost first, reversed once at the end) and what is wrong.
+Problem = tuple[Path, str]
+
+
+def _has_surrogate(text: str) -> bool:
+    return not text.isascii() and _SURROGATE.search(text) is not None
+
+
+def _key_problem(key: object) -> str | None:
+    if type(key) is not str:
+        if not isinstance(key, str):
+            return "an object's keys are strings"
+        key = str(key)
+    if len(key) > MAX_KEY_CHARS:
+        return f"a key has at most {MAX_KEY_CHARS} characters"
+    if key[:1] == "$":
+        return "a key may not start with '$'"
+    if "." in key:
+        return "a key may not hold '.'"
+    if "\x00" in key:
+        return "a key may not hold NUL"
+    if _has_surrogate(key):
+        return _TEXT_MSG
+    return None
+
+
+def shown_text(text: str) -> str:
+    """``text`` with any lone surrogate replaced by U+FFFD: for paths and messages."""
+    return text if text.isascii() else _SURROGATE.sub("\ufffd", text)
+
+
+def _shown_key(key: object) -> str:
+    """A key as the 422's path shows it: text JSON can hold, and not too long."""
+    text = key if isinstance(key, str) else repr(key)
+    if len(text) > MAX_KEY_CHARS:
+        text = text[:MAX_KEY_CHARS] + "…"
+    return shown_text(text)
+
+
+def _scalar_problem(value: Any) -> str | None:
+    """What is wrong with a value that is neither an object nor an array (None: nothing)."""
+    if isinstance(value, str):
+        return _TEXT_MSG if _has_surrogate(value) else None
+    if isinstance(value, bool) or value is None:
+        return None
+    if isinstance(value, int):
+        return None if MIN_INT <= value <= MAX_INT else _INT_MSG
+    if isinstance(value, float):
+        return None if math.isfinite(value) else _FLOAT_MSG
+    return f"a {type(value).__name__} is not a JSON value"
+
+
+def _object_problem(value: dict[Any, Any], depth: int) -> Problem | None:
+    if depth > MAX_JSON_DEPTH:
+        return [], _DEPTH_MSG
+    for key, item in value.items():
+        # The common case inline: an ASCII key, a plain scalar.
+        if (
+            type(key) is not str
+            or not key.isascii()
+            or not key
+            or key[0] == "$"
+            or ("." in key or "\x00" in key or len(key) > MAX_KEY_CHARS)
+        ):
+            message = _key_problem(key)
+            if message is not None:
+                return [_shown_key(key)], message
+        kind = type(item)
+        if kind is str:
+            if item.isascii() or _SURROGATE.search(item) is None:
+                continue
+            return [key], _TEXT_MSG
+        if kind is float:
+            if item - item == 0.0:  # NaN - NaN and inf - inf are NaN
+                continue
+            return [key], _FLOAT_MSG
+        if kind is int:
+            if MIN_INT <= item <= MAX_INT:
+                continue
+            return [key], _INT_MSG
+        if kind is bool or item is None:
+            continue
+        problem = _nested_problem(item, depth)
+        if problem is not None:
+            problem[0].append(key)
+            return problem
+    return None
+
+
+def _array_problem(value: list[Any] | tuple[Any, ...], depth: int) -> Problem | None:
+    if depth > MAX_JSON_DEPTH:
+        return [], _DEPTH_MSG
+    for index, item in enumerate(value):
+        kind = type(item)
+        if kind is float:
+            if item - item == 0.0:
+                continue
+            return [index], _FLOAT_MSG
+        if kind is int:
+            if MIN_INT <= item <= MAX_INT:
+                continue
+            return [index], _INT_MSG
+        if kind is str:
+            if item.isascii() or _SURROGATE.search(item) is None:
+                continue
+            return [index], _TEXT_MSG
+        if kind is bool or item is None:
+            continue
+        problem = _nested_problem(item, depth)
+        if problem is not None:
+            problem[0].append(index)
+            return problem
+    return None
+
+
+def _nested_problem(value: Any, depth: int) -> Problem | None:
+    """``value`` sits at ``depth``: an object or array in it is one level deeper."""
+    if isinstance(value, dict):
+        return _object_problem(value, depth + 1)
+    if isinstance(value, list | tuple):
+        return _array_problem(value, depth + 1)
+    message = _scalar_problem(value)
+    return None if message is None else ([], message)
+
+
+def json_problem(value: Any) -> tuple[tuple[str | int, ...], str] | None:
+    """The first value in ``value`` that JSON or the store cannot hold: its path and what is
+    wrong with it; ``None`` when every value is fine."""
+    problem = _nested_problem(value, 0)
+    if problem is None:
+        return None
+    path, message = problem
+    return tuple(reversed(path)), message
+
+
+def _refuse(path: tuple[str | int, ...], message: str, value: Any) -> ValidationError:
+    error = PydanticCustomError("json_value", "{reason}", {"reason": message})
+    return ValidationError.from_exception_data(
+        "JSON value", [InitErrorDetails(type=error, loc=path, input=value)]
+    )
+
+
+def _checker(
+    *,
+    kind: type | None = None,
+    optional: bool = False,
+    max_keys: int | None = None,
+    max_bytes: int | None = None,
+) -> Callable[[Any], Any]:
+    """A plain validator: the value as it came (an object is copied, not deep-copied) or a
+    ``ValidationError`` whose path leads from the field to the first bad value."""
+
+    def check(value: Any) -> Any:
+        if value is None and optional:
+            return None
+        if kind is dict:
+            if not isinstance(value, dict):
+                raise _refuse((), "an object is expected here", value)
+            if max_keys is not None and len(value) > max_keys:
+                raise _refuse((), f"at most {max_keys} entries are accepted", value)
+            problem = _object_problem(value, 1)
+            if problem is not None:
+                path, message = problem
+                raise _refuse(tuple(reversed(path)), message, value)
+            if max_bytes is not None and len(value) and len(to_json(value)) > max_bytes:
+                size = len(to_json(value))
+                raise _refuse((), f"{size} bytes of JSON; at most {max_bytes} are accepted", value)
+            return dict(value)
+        found = json_problem(value)
+        if found is not None:
+            raise _refuse(*found, value)
+        return value
+
+    return check
+
+
+_ANY_SCHEMA = WithJsonSchema({"description": "any JSON value (docs/limits.md)"})
+_OBJECT_SCHEMA = WithJsonSchema(
+    {"type": "object", "description": "a free-form JSON object (docs/limits.md)"}
+)
+
+#: Any JSON value that JSON and the store can hold (``publish`` data).
+JsonValue = Annotated[Any, PlainValidator(_checker()), _ANY_SCHEMA]
+#: A free-form JSON object that JSON and the store can hold.
+JsonObject = Annotated[dict[str, Any], PlainValidator(_checker(kind=dict)), _OBJECT_SCHEMA]
+#: ``params`` of ``start_instance`` / ``update_param``: at most :data:`MAX_PARAMS` entries.
+Params = Annotated[
+    dict[str, Any],
+    PlainValidator(_checker(kind=dict, max_keys=MAX_PARAMS)),
+    WithJsonSchema(
+        {"type": "object", "maxProperties": MAX_PARAMS, "description": "free-form parameters"}
+    ),
+]
+#: A sample's ``data``: an object of at most :data:`MAX_SAMPLE_DATA_BYTES`, or null.
+SampleData = Annotated[
+    dict[str, Any] | None,
+    PlainValidator(_checker(kind=dict, optional=True, max_bytes=MAX_SAMPLE_DATA_BYTES)),
+    WithJsonSchema(
+        {
+            "anyOf": [{"type": "object"}, {"type": "null"}],
+            "description": f"free-form readings, at most {MAX_SAMPLE_DATA_BYTES} bytes of JSON",
+        }
+    ),
+]
+
+
+def check_text(value: str) -> str:
+    if value.isascii() or _SURROGATE.search(value) is None:
+        return value
+    raise PydanticCustomError("string_unicode", _TEXT_MSG)
+
+
+#: A ``str`` field: no lone surrogates (pydantic's plain ``str`` lets them through).
+Text = Annotated[str, AfterValidator(check_text)]
+
+
+# -- the other way: stored values that break a rule, made safe to send --------
+
+
+def json_safe(value: Any, depth: int = 0) -> Any:
+    """``value`` with what JSON cannot hold replaced: integers past signed 64-bit as
+    strings, NaN and Infinity as null, lone surrogates as U+FFFD, keys as strings, other
+    objects as their ``str``; past :data:`MAX_JSON_DEPTH` * 4 levels, a string."""
+    if isinstance(value, str):
+        return _SURROGATE.sub("\ufffd", value) if not value.isascii() else value
+    if isinstance(value, bool) or value is None:
+        return value
+    if isinstance(value, int):
+        return int(value) if MIN_INT <= value <= MAX_INT else str(value)
+    if isinstance(value, float):
+        return float(value) if math.isfinite(value) else None
+    if depth > 4 * MAX_JSON_DEPTH:
+        return "…"
+    if isinstance(value, dict):
+        return {json_safe(_key_text(k)): json_safe(v, depth + 1) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [json_safe(v, depth + 1) for v in value]
+    if isinstance(value, datetime):
+        from fleet_protocol.common import format_ts  # common imports this module
+
+        try:
+            return format_ts(value)
+        except (OverflowError, ValueError):
+            return value.isoformat()
+    return json_safe(str(value), depth)
+
+
+def _key_text(key: Any) -> str:
+    return key if isinstance(key, str) else str(key)
+
+
+def safe_dumps(value: Any) -> str:
+    """Compact JSON text of :func:`json_safe` ``(value)``: what the encoders fall back to."""
+    return json.dumps(json_safe(value), separators=(",", ":"), ensure_ascii=False)
