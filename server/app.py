@@ -1,4 +1,4 @@
-"""The app factory: routers, error handlers, middleware and a lifespan that owns the services."""
+"""The app factory: routers, error handlers, middleware and a lifespan that owns the server."""
 
 from __future__ import annotations
 
@@ -43,7 +43,7 @@ class FleetApp(FastAPI):
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         if scope["type"] == "websocket" and scope["path"] in LIVE_PATHS:
             scope["app"] = self
-            await serve_live(self.state.services, scope, receive, send)
+            await serve_live(self.state.services, self.state.hub, scope, receive, send)
             return
         await super().__call__(scope, receive, send)
 
@@ -61,16 +61,16 @@ def create_app(
 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
-        services = await container.build(settings, metrics, clock, store)
-        app.state.services = services
-        if services.admin_token:
-            # Shown once on the console for a new user; never logged.
-            print(f"fleet-server: admin token (shown once): {services.admin_token}", flush=True)
-        container.start_background(services)
+        runtime = await container.build(settings, metrics, clock, store)
+        app.state.runtime = runtime
+        app.state.services = runtime.services
+        app.state.hub = runtime.hub
+        app.state.metrics = metrics
+        await container.start(runtime)
         try:
             yield
         finally:
-            await container.shutdown(services)
+            await container.shutdown(runtime)
 
     app = FleetApp(
         title="fleet-cloud",

@@ -1,4 +1,15 @@
-"""The services, built once in the app's lifespan and handed to routes by dependency."""
+"""The composition root: everything built once, in dependency order, and run.
+
+:func:`build` opens the store and the bus, builds every service (each gets
+what it needs in its constructor), the live hub, and registers the handlers
+of the domain events the services emit: nothing is wired after
+construction. :func:`start` does the start-up work (indexes, the state a
+former run left, the admin) and then runs the background loops; when the
+store cannot be reached the server serves all the same, says so on
+``/readyz``, answers 503 and tries again with a growing wait. :func:`shutdown`
+stops it all, each step on its own so that one failing does not skip the
+others.
+"""
 
 from __future__ import annotations
 
@@ -8,20 +19,35 @@ import logging
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field
 from datetime import datetime, timedelta
-from typing import Any
 
 from fleet_protocol import utcnow
-from server.bus import Bus, make_bus
+from server.api.live_hub import LiveHub
+from server.bus import make_bus
+from server.domain.events import (
+    CommandsReady,
+    ControlChanged,
+    EventRecorded,
+    InstanceFinished,
+    LeaseEnded,
+    PresenceChanged,
+    SamplesStored,
+    StateWritten,
+    TokensRevoked,
+)
 from server.metrics import Metrics
 from server.services.auth import AuthService
 from server.services.commands import CommandService
 from server.services.control import ControlService
+from server.services.dead_letters import DeadLetters
 from server.services.events import EventService
 from server.services.fleet import FleetViews
 from server.services.instances import InstanceService
 from server.services.link import VehicleLink
-from server.services.live import LiveHub
+from server.services.live_topics import ServerTopics
+from server.services.messagebus import MessageBus
 from server.services.obstacles import ObstacleService
+from server.services.readiness import Readiness
+from server.services.registry import Services
 from server.services.replicas import ReplicaSync
 from server.services.telemetry import TelemetryService
 from server.settings import Settings
@@ -29,41 +55,35 @@ from server.storage import Store, open_store
 from server.storage.accounts import AccountsRepo
 from server.storage.commands import CommandsRepo
 from server.storage.control import ControlRepo
+from server.storage.dead_letters import DeadLettersRepo
 from server.storage.events import EventsRepo
 from server.storage.instances import InstancesRepo
 from server.storage.obstacles import ObstaclesRepo
+from server.storage.telemetry import TelemetryRepo
 
 log = logging.getLogger("fleet.server")
 Clock = Callable[[], datetime]
 
+#: First wait between tries to reach the store at start; it doubles up to the setting.
+RETRY_MIN_S = 0.5
+
 
 @dataclass
-class Services:
-    settings: Settings
-    store: Store
-    clock: Clock
+class Runtime:
+    """One server: its services, its live hub, and what runs in the background."""
+
+    services: Services
+    hub: LiveHub
     metrics: Metrics
-    auth: AuthService
-    events: EventService
-    instances: InstanceService
-    control: ControlService
-    commands: CommandService
-    telemetry: TelemetryService
-    link: VehicleLink
-    views: FleetViews
-    bus: Bus
-    live: LiveHub
-    obstacles: ObstacleService
-    extra: dict[str, Any] = field(default_factory=dict)
-    tasks: list[asyncio.Task[None]] = field(default_factory=list)
-    admin_token: str | None = None
-    #: Several replicas (``FLEET_REDIS_URL``): what keeps this one's copies in step.
-    replicas: ReplicaSync | None = None
     #: False when the store was handed in (``create_app(store=...)``): its owner closes it.
-    owns_store: bool = True
+    owns_store: bool
+    #: A fresh admin token to print once (none when ``FLEET_ADMIN_TOKEN`` is set).
+    admin_token: str | None = None
+    tasks: list[asyncio.Task[None]] = field(default_factory=list)
 
     def spawn(self, name: str, fn: Callable[[], Awaitable[None]], every_s: float) -> None:
-        """Run ``fn`` every ``every_s`` seconds until shutdown; failures are logged, not fatal."""
+        """Run ``fn`` every ``every_s`` seconds until shutdown. Each pass handles its own
+        records; what still escapes it is logged and counted, and the loop goes on."""
 
         async def loop() -> None:
             while True:
@@ -72,87 +92,101 @@ class Services:
                 except asyncio.CancelledError:
                     raise
                 except Exception:
-                    log.exception("background task %s failed; it goes on", name)
+                    log.exception("background %s failed; it goes on", name)
+                    self.metrics.background_error(name)
                 await asyncio.sleep(every_s)
 
         self.tasks.append(asyncio.create_task(loop(), name=name))
 
-    async def stop_tasks(self) -> None:
-        for task in self.tasks:
-            task.cancel()
-        for task in self.tasks:
-            with contextlib.suppress(asyncio.CancelledError):
-                await task
-        self.tasks.clear()
-
 
 async def build(
     settings: Settings, metrics: Metrics, clock: Clock = utcnow, store: Store | None = None
-) -> Services:
-    """The services; on ``store`` when given (the caller opened it and closes it)."""
+) -> Runtime:
+    """Everything of one server, built and wired; nothing started but the bus."""
     owns_store = store is None
-    store = store or open_store(settings)
-    if store.embedded and owns_store:
+    if store is None:
+        store = open_store(settings)
+    if store.kind == "embedded" and owns_store:
         log.warning(
             "embedded store (mongomock, in process), kept in %s; set FLEET_MONGO_URL for MongoDB",
             settings.snapshot_path,
         )
-        await store.load()
-    accounts = AccountsRepo(store)
-    events_repo = EventsRepo(store)
-    instances_repo = InstancesRepo(store)
-    if await store.ping():
-        for repo in (accounts, events_repo, instances_repo):
-            await repo.ensure_indexes()
-    auth = AuthService(settings, accounts)
-    events = EventService(events_repo, clock)
-    instances = InstanceService(settings, instances_repo, auth, events, clock)
-    control = ControlService(settings, ControlRepo(store), instances, auth, events, clock)
-    commands = CommandService(settings, CommandsRepo(store), instances, control, events, clock)
-    obstacles = ObstacleService(settings, ObstaclesRepo(store), clock)
-    commands.admission.zones = obstacles.zones  # planned paths keep clear of them
-    telemetry = TelemetryService(settings, store, clock)
-    views = FleetViews(auth, instances, control)
-    link = VehicleLink(settings, instances, telemetry, control)
     bus = make_bus(settings)
     await bus.start()
-    live = LiveHub(settings, bus, instances, commands, control, events, views)
-    link.sample_listeners.append(live.topics.telemetry)
-    auth.on_revoke(live.revoked)
-    services = Services(
+    messages = MessageBus(on_failure=metrics.handler_error)
+    dead_letters = DeadLetters(DeadLettersRepo(store), metrics.background_error, clock)
+
+    def news_flows() -> bool:
+        return not bus.remote or bus.healthy
+
+    auth = AuthService(settings, AccountsRepo(store), messages, news_flows)
+    events = EventService(EventsRepo(store), messages, clock)
+    instances = InstanceService(
+        settings, InstancesRepo(store), auth, events, messages, dead_letters, clock
+    )
+    control = ControlService(
+        settings, ControlRepo(store), instances, auth, events, messages, dead_letters, clock
+    )
+    obstacles = ObstacleService(settings, ObstaclesRepo(store), clock)
+    commands = CommandService(
         settings,
-        store,
-        clock,
-        metrics,
-        auth,
-        events,
+        CommandsRepo(store),
         instances,
         control,
-        commands,
-        telemetry,
+        events,
+        messages,
+        dead_letters,
+        obstacles.zones,
+        clock,
+    )
+    telemetry = TelemetryService(settings, store, TelemetryRepo(store), dead_letters, clock)
+    views = FleetViews(auth, instances, control)
+    link = VehicleLink(settings, instances, telemetry, control, messages)
+    topics = ServerTopics(bus, instances, commands, control, events, views)
+    replicas = ReplicaSync(bus, instances, control, commands, auth, messages, dead_letters)
+    hub = LiveHub(settings, bus, instances, commands, control, topics)
+    services = Services(
+        settings=settings,
+        store=store,
+        clock=clock,
+        bus=bus,
+        messages=messages,
+        dead_letters=dead_letters,
+        readiness=Readiness(),
+        auth=auth,
+        events=events,
+        instances=instances,
+        control=control,
+        commands=commands,
+        obstacles=obstacles,
+        telemetry=telemetry,
         link=link,
         views=views,
-        bus=bus,
-        live=live,
-        obstacles=obstacles,
-        owns_store=owns_store,
+        topics=topics,
+        replicas=replicas,
     )
-    if settings.shared_state:
-        services.replicas = ReplicaSync(bus, instances, control, commands)
-        await services.replicas.start()
-    if await store.ping():
-        await instances.load()
-        await control.load()
-        await commands.load()
-        await telemetry.load()
-        services.admin_token = await auth.bootstrap_admin()
-    else:
-        log.error("the store cannot be reached at start-up; /readyz says so until it can")
-    _register_gauges(services)
-    return services
+    # Who hears what: in the order given (a finish ends the lease, then the commands).
+    messages.register(InstanceFinished, control.on_instance_finished)
+    messages.register(InstanceFinished, commands.on_instance_finished)
+    messages.register(LeaseEnded, commands.on_lease_end)
+    messages.register(PresenceChanged, topics.on_presence)
+    messages.register(ControlChanged, topics.on_control)
+    messages.register(EventRecorded, topics.on_event)
+    messages.register(SamplesStored, topics.on_samples)
+    messages.register(SamplesStored, lambda e: metrics.samples.inc(len(e.samples)))
+    messages.register(CommandsReady, hub.on_commands_ready)
+    messages.register(TokensRevoked, hub.on_tokens_revoked)
+    messages.register(TokensRevoked, replicas.on_tokens_revoked)
+    messages.register(StateWritten, replicas.on_state_written)
+    await replicas.start()
+    runtime = Runtime(services, hub, metrics, owns_store)
+    _register_gauges(runtime)
+    return runtime
 
 
-def _register_gauges(services: Services) -> None:
+def _register_gauges(runtime: Runtime) -> None:
+    services = runtime.services
+
     def presence_counts() -> dict[str, float]:
         counts: dict[str, float] = {"online": 0, "stale": 0, "offline": 0}
         for state in services.instances.live():
@@ -160,65 +194,143 @@ def _register_gauges(services: Services) -> None:
             counts[presence] = counts.get(presence, 0) + 1
         return counts
 
-    services.metrics.live_gauge(
+    runtime.metrics.live_gauge(
         "fleet_vehicles", "vehicles with a live instance, by presence", presence_counts, "presence"
     )
 
     def commands_by_status() -> dict[str, float]:
         return {k: float(v) for k, v in services.commands.counts_by_status().items()}
 
-    services.metrics.live_gauge(
+    runtime.metrics.live_gauge(
         "fleet_commands", "active commands by status", commands_by_status, "status"
     )
-    services.metrics.live_gauge(
+    runtime.metrics.live_gauge(
         "fleet_ws_connections",
         "open WebSocket connections",
-        lambda: {"": float(len(services.live.connections))},
+        lambda: {"": float(len(runtime.hub.connections))},
     )
 
 
-def start_background(services: Services) -> None:
+# ---- start-up ----------------------------------------------------------------------------
+
+
+async def start(runtime: Runtime) -> None:
+    """Do the start-up work once now; if the store cannot be reached, keep trying in the
+    background (the server serves meanwhile: 503 and ``/readyz`` false with the reason)."""
+    if await _try_load(runtime):
+        _start_background(runtime)
+        return
+    runtime.tasks.append(asyncio.create_task(_retry_load(runtime), name="startup"))
+
+
+async def _try_load(runtime: Runtime) -> bool:
+    services = runtime.services
+    readiness = services.readiness
+    try:
+        if runtime.owns_store:
+            await services.store.load()
+        reason = await services.store.ping()
+        if reason is not None:
+            readiness.failed(reason)
+            return False
+        await services.dead_letters.repo.ensure_indexes()
+        for part in (services.auth, services.events, services.instances, services.control):
+            await part.load()
+        await services.commands.load()
+        await services.telemetry.load()
+        runtime.admin_token = await services.auth.bootstrap_admin()
+    except Exception as exc:  # the store went away half-way: all of it again, later
+        readiness.failed(f"start-up failed: {exc}")
+        log.warning("start-up: %s; trying again", exc)
+        return False
+    readiness.done()
+    if runtime.admin_token:
+        # Shown once on the console for a new user; never logged.
+        print(f"fleet-server: admin token (shown once): {runtime.admin_token}", flush=True)
+    return True
+
+
+async def _retry_load(runtime: Runtime) -> None:
+    services = runtime.services
+    wait = RETRY_MIN_S
+    log.error(
+        "the store cannot be reached at start-up (%s); trying again", services.readiness.reason
+    )
+    while True:
+        await asyncio.sleep(wait)
+        if await _try_load(runtime):
+            log.info("start-up done after %d tries", services.readiness.attempts + 1)
+            _start_background(runtime)
+            return
+        wait = min(wait * 2, services.settings.store_retry_max_s)
+
+
+def _start_background(runtime: Runtime) -> None:
+    services = runtime.services
     settings = services.settings
-    services.spawn("presence", services.instances.sweep, 0.25)
-    services.spawn("leases", services.control.sweep, 0.2)
-    services.spawn("commands", services.commands.sweep, 0.2)
-    services.tasks.append(asyncio.create_task(services.telemetry.run_writer(), name="telemetry"))
-    if services.store.embedded and services.owns_store:
-        services.spawn("journal", _flush(services), settings.snapshot_interval_s)
-    services.spawn("retention", _retention(services), 60.0)
+    runtime.spawn("presence", services.instances.sweep, 0.25)
+    runtime.spawn("leases", services.control.sweep, 0.2)
+    runtime.spawn("commands", services.commands.sweep, 0.2)
+    runtime.spawn("telemetry", services.telemetry.writer_step, services.telemetry.writer_tick_s())
+    if services.store.kind == "embedded" and runtime.owns_store:
+        runtime.spawn("journal", lambda: _flush(services.store), settings.snapshot_interval_s)
+    runtime.spawn("retention", lambda: _retention(services), 60.0)
 
 
-def _flush(services: Services) -> Callable[[], Awaitable[None]]:
-    async def flush() -> None:
-        await services.store.flush()
-
-    return flush
+async def _flush(store: Store) -> None:
+    await store.flush()
 
 
-def _retention(services: Services) -> Callable[[], Awaitable[None]]:
-    async def drop_old() -> None:
-        before = services.clock() - timedelta(seconds=services.settings.retention_s)
-        await services.events.drop_before(before)
-        await services.commands.drop_finished_before(before)
-        await services.telemetry.drop_before(before)
-        await services.instances.drop_finished_before(before)
-        await services.auth.repo.drop_expired_tokens(services.clock())
+async def _retention(services: Services) -> None:
+    """Drop what is older than ``FLEET_RETENTION_S``, one collection at a time."""
+    now = services.clock()
+    before = now - timedelta(seconds=services.settings.retention_s)
+    steps: list[tuple[str, Callable[[], Awaitable[int]]]] = [
+        ("events", lambda: services.events.drop_before(before)),
+        ("commands", lambda: services.commands.drop_finished_before(before)),
+        ("telemetry", lambda: services.telemetry.drop_before(before)),
+        ("instances", lambda: services.instances.drop_finished_before(before)),
+        ("dead_letters", lambda: services.dead_letters.drop_before(before)),
+        ("tokens", lambda: services.auth.repo.drop_expired_tokens(now)),
+    ]
+    for name, step in steps:
+        try:
+            await step()
+        except Exception as exc:
+            services.dead_letters.failed("retention", exc)
+            log.warning("retention of %s failed (%r); the others go on", name, exc)
 
-    return drop_old
+
+# ---- shutdown -----------------------------------------------------------------------------
 
 
-async def shutdown(services: Services) -> None:
-    with contextlib.suppress(Exception):
-        await services.live.stop()
-    await services.stop_tasks()
-    if services.replicas is not None:
-        with contextlib.suppress(Exception):
-            await services.replicas.stop()
-    with contextlib.suppress(Exception):
-        await services.bus.close()
-    with contextlib.suppress(Exception):
-        await services.instances.sweep(everything=True)
-    with contextlib.suppress(Exception):
-        await services.telemetry.flush_all()
-    if services.owns_store:
-        await services.store.close()
+async def shutdown(runtime: Runtime) -> None:
+    services = runtime.services
+    steps: list[tuple[str, Callable[[], Awaitable[None]]]] = [
+        ("sockets", runtime.hub.stop),
+        ("background", lambda: _stop_tasks(runtime)),
+        ("replicas", services.replicas.stop),
+        ("bus", services.bus.close),
+    ]
+    if services.readiness.loaded:
+        steps += [
+            ("contact", lambda: services.instances.write_back(everything=True)),
+            ("telemetry", services.telemetry.flush_all),
+        ]
+    steps.append(("handlers", services.messages.drain))
+    if runtime.owns_store:
+        steps.append(("store", services.store.close))
+    for name, step in steps:
+        try:
+            await step()
+        except Exception:
+            log.exception("shutdown: %s failed; the rest goes on", name)
+
+
+async def _stop_tasks(runtime: Runtime) -> None:
+    for task in runtime.tasks:
+        task.cancel()
+    for task in runtime.tasks:
+        with contextlib.suppress(asyncio.CancelledError):
+            await task
+    runtime.tasks.clear()

@@ -44,8 +44,26 @@ class Metrics:
             registry=self.registry,
         )
         self.samples = Counter(
-            "fleet_samples_ingested", "telemetry samples stored", registry=self.registry
+            "fleet_samples_ingested", "telemetry samples accepted", registry=self.registry
         )
+        self.background_errors = Counter(
+            "fleet_background_errors",
+            "records a background loop failed on (set aside), and passes it could not finish",
+            ["loop"],
+            registry=self.registry,
+        )
+        self.handler_errors = Counter(
+            "fleet_event_handler_errors",
+            "handlers of the server's internal events that failed",
+            ["event"],
+            registry=self.registry,
+        )
+
+    def background_error(self, loop: str) -> None:
+        self.background_errors.labels(loop).inc()
+
+    def handler_error(self, event: str) -> None:
+        self.handler_errors.labels(event).inc()
 
     def live_gauge(
         self, name: str, doc: str, read: Callable[[], dict[str, float]], label: str | None = None

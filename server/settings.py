@@ -69,6 +69,12 @@ class Settings(BaseSettings):
     bucket_samples: int = Field(
         default=200, ge=1, le=10_000, description="telemetry samples per stored bucket"
     )
+    bucket_max_bytes: int = Field(
+        default=1_048_576,
+        ge=65_536,
+        le=8_388_608,
+        description="telemetry bytes per stored bucket at most (BSON documents end at 16 MiB)",
+    )
     bucket_max_age_s: float = Field(
         default=10.0, gt=0, description="a partly filled telemetry bucket is written after this"
     )
@@ -112,6 +118,18 @@ class Settings(BaseSettings):
     store_timeout_ms: int = Field(
         default=2000, ge=100, description="MongoDB server selection / operation timeout"
     )
+    store_write_concern: str = Field(
+        default="majority",
+        pattern=r"^(majority|[0-9]{1,2})$",
+        description="MongoDB write concern w: 'majority' or a number of members; "
+        "telemetry is reported durable once a write is acknowledged with it",
+    )
+    store_journal: bool = Field(
+        default=True, description="MongoDB write concern j: acknowledge after the journal"
+    )
+    store_retry_max_s: float = Field(
+        default=30.0, gt=0, description="longest wait between tries to reach the store at start"
+    )
     log_level: str = Field(default="info", description="log level")
 
     @property
@@ -119,17 +137,20 @@ class Settings(BaseSettings):
         return self.mongo_url is None
 
     @property
-    def shared_state(self) -> bool:
-        """Several replicas (``FLEET_REDIS_URL`` set): the store is the truth, memory a cache."""
-        return self.redis_url is not None
-
-    @property
     def contact_write_s(self) -> float:
         """How often a vehicle's last contact is written to the store.
 
-        One replica: ``persist_interval_s``. Several: often enough that another
-        replica reading it back never takes a vehicle in contact for stale.
+        One replica: ``persist_interval_s``. Several (``FLEET_REDIS_URL`` set): often
+        enough that another replica reading it back never takes a vehicle in contact
+        for stale.
         """
-        if self.shared_state:
+        if self.redis_url is not None:
             return min(self.persist_interval_s, self.stale_after_s / 3)
         return self.persist_interval_s
+
+    @property
+    def read_ahead_s(self) -> float:
+        """How long before a presence change the stored contact is read back: with several
+        replicas, ``contact_write_s`` (another may be in contact with the vehicle); with
+        one, nothing is newer than this replica's copy."""
+        return self.contact_write_s if self.redis_url is not None else 0.0

@@ -102,3 +102,11 @@ def sample(
         "lon": lon,
         **extra,
     }
+
+
+def make_dead_letters(store: Any, clock: Any) -> Any:
+    """The dead letters of a store, for a service built by hand in a test (not counted)."""
+    from server.services.dead_letters import DeadLetters
+    from server.storage.dead_letters import DeadLettersRepo
+
+    return DeadLetters(DeadLettersRepo(store), lambda _loop: None, clock)

@@ -1,17 +1,20 @@
-"""Dependencies: the services, and who is calling. Every route names one caller alias."""
+"""Dependencies: the services, and who is calling. Every route names one caller alias.
+
+Every route that needs a caller first requires the server to be ready (its
+store reached at start-up): until then a 503 ``unavailable`` with
+``Retry-After``.
+"""
 
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import TYPE_CHECKING, Annotated, Any
+from typing import Annotated, Any
 
 from fastapi import Depends, Request
 
 from server.domain.access import Principal
 from server.errors import Forbidden
-
-if TYPE_CHECKING:
-    from server.container import Services
+from server.services.registry import Services
 
 
 async def get_services(request: Request) -> Services:
@@ -19,7 +22,7 @@ async def get_services(request: Request) -> Services:
     return services
 
 
-ServicesDep = Annotated["Services", Depends(get_services)]
+ServicesDep = Annotated[Services, Depends(get_services)]
 
 
 def bearer_token(headers: Mapping[str, str]) -> str | None:
@@ -32,6 +35,7 @@ def bearer_token(headers: Mapping[str, str]) -> str | None:
 
 async def get_principal(request: Request) -> Principal:
     services: Services = request.app.state.services
+    services.readiness.require()
     principal = await services.auth.authenticate(bearer_token(request.headers))
     services.auth.check_rate(principal)
     request.state.principal = principal
@@ -55,11 +59,8 @@ async def _vehicle_caller(principal: Annotated[Principal, Depends(get_principal)
     return principal
 
 
-Caller = Annotated[Principal, Depends(get_principal)]
 Viewer = Annotated[Principal, Depends(_require_user("viewer"))]
 Operator = Annotated[Principal, Depends(_require_user("operator"))]
 Manager = Annotated[Principal, Depends(_require_user("manager"))]
 Admin = Annotated[Principal, Depends(_require_user("admin"))]
 VehicleCaller = Annotated[Principal, Depends(_vehicle_caller)]
-# Kept as an alias: any user may read what they can see.
-CurrentUser = Viewer

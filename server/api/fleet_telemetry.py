@@ -15,11 +15,12 @@ from datetime import datetime, timedelta
 from typing import Annotated, Literal
 
 from fastapi import APIRouter, Depends, Path, Query
-from fastapi.responses import JSONResponse, Response
+from fastapi.responses import Response
 
 from fleet_protocol import TelemetryPage, Timestamp, Track, format_ts
 from server.api import track_formats
-from server.api.deps import CurrentUser, ServicesDep
+from server.api.deps import ServicesDep, Viewer
+from server.api.responses import SafeJSONResponse
 from server.domain.track import TRACK_PAGE_CAP
 from server.errors import Invalid
 
@@ -31,7 +32,7 @@ DEFAULT_WINDOW = timedelta(hours=24)
 
 async def _visible_vehicle(
     vehicle_id: Annotated[str, Path(min_length=1, max_length=64)],
-    user: CurrentUser,
+    user: Viewer,
     s: ServicesDep,
 ) -> str:
     await s.views.visible_vehicle(user, vehicle_id)  # 404 unknown, 403 not for this caller
@@ -70,7 +71,7 @@ async def track(
     headers = track_formats.paging_headers(result)
     media = track_formats.MEDIA_TYPES.get(fmt)
     if fmt == "geojson":
-        return JSONResponse(track_formats.geojson(result), media_type=media, headers=headers)
+        return SafeJSONResponse(track_formats.geojson(result), media_type=media, headers=headers)
     if fmt == "gpx":
         return Response(track_formats.gpx(result), media_type=media, headers=headers)
     if fmt == "csv":
@@ -81,7 +82,7 @@ async def track(
         truncated=result.truncated,
         next_from=result.next_from,
     )
-    return JSONResponse(body.model_dump(mode="json"))
+    return SafeJSONResponse(body.model_dump(mode="json"))
 
 
 @router.get("/api/vehicles/{vehicle_id}/telemetry")

@@ -16,21 +16,19 @@ import contextlib
 import logging
 from collections import deque
 from collections.abc import Awaitable, Callable, MutableMapping
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from starlette.datastructures import Headers, QueryParams
 
 from fleet_protocol.links import CLOSE_FORBIDDEN, CLOSE_TRY_AGAIN, CLOSE_UNAUTHORIZED
 from server.api.deps import bearer_token
+from server.api.live_hub import Connection, LiveHub
 from server.api.ws_direct import DIRECT
+from server.api.ws_ops import OpRunner
 from server.bus.outbox import Frame, Outbox
 from server.errors import FleetError, Unauthorized
 from server.services.auth import digest
-from server.services.live import Connection
-from server.services.live_ops import OpRunner
-
-if TYPE_CHECKING:
-    from server.container import Services
+from server.services.registry import Services
 
 Scope = MutableMapping[str, Any]
 Receive = Callable[[], Awaitable[MutableMapping[str, Any]]]
@@ -50,7 +48,9 @@ def _token(scope: Scope) -> str | None:
     return bearer_token(Headers(scope=scope)) or query.get("token") or None
 
 
-async def serve_live(services: Services, scope: Scope, receive: Receive, send: Send) -> None:
+async def serve_live(
+    services: Services, hub: LiveHub, scope: Scope, receive: Receive, send: Send
+) -> None:
     """One WebSocket on ``scope["path"]`` (a key of :data:`LIVE_PATHS`), until it closes."""
     kind = LIVE_PATHS[scope["path"]]
     if (await receive())["type"] != "websocket.connect":
@@ -63,6 +63,7 @@ async def serve_live(services: Services, scope: Scope, receive: Receive, send: S
 
     token = _token(scope)
     try:
+        services.readiness.require()
         principal = await services.auth.authenticate(token)
     except Unauthorized as exc:
         await close(CLOSE_UNAUTHORIZED, exc.message)
@@ -81,12 +82,16 @@ async def serve_live(services: Services, scope: Scope, receive: Receive, send: S
             await send({"type": "websocket.send", "text": frame})
 
     assert token is not None  # authenticate refuses a missing one
-    conn = Connection(
-        principal, Outbox(push, max_size=services.settings.ws_queue_size), close, kind
-    )
-    services.live.add(conn)
-    frames = _Frames(services, conn, digest(token))  # the token hashed once
+    token_key = digest(token)  # hashed once
     direct = scope.get("extensions", {}).get(DIRECT)
+    outbox = Outbox(
+        push,
+        send_nowait=direct["send_nowait"] if direct is not None else None,
+        max_size=services.settings.ws_queue_size,
+    )
+    conn = Connection(principal, outbox, close, kind, digest=token_key)
+    hub.add(conn)
+    frames = _Frames(services, hub, conn, token_key)
     inbox = None if direct is None else _DirectInbox(frames, direct)
     try:
         if inbox is not None:
@@ -110,20 +115,20 @@ async def serve_live(services: Services, scope: Scope, receive: Receive, send: S
         pass  # the client went while a frame was sent (uvicorn's ClientDisconnected)
     except Exception:
         log.exception("live socket: handling a message failed")
-        await services.live.close(conn, CLOSE_INTERNAL_ERROR, "internal error")
+        await hub.close(conn, CLOSE_INTERNAL_ERROR, "internal error")
     finally:
-        await services.live.drop(conn)
+        await hub.drop(conn)
 
 
 class _Frames:
     """What is done with each message of one socket: the token checked again (a revoked
     token closes the socket), contact counted on a vehicle's socket, then the op."""
 
-    def __init__(self, services: Services, conn: Connection, token_key: str) -> None:
+    def __init__(self, services: Services, hub: LiveHub, conn: Connection, token_key: str) -> None:
         self.auth = services.auth
-        self.live = services.live
+        self.live = hub
         self.conn = conn
-        self.ops = OpRunner(services, conn)
+        self.ops = OpRunner(services, hub, conn)
         self.token_key = token_key
         self.vehicle = conn.kind == "vehicle"
 

@@ -16,9 +16,16 @@ still arrives through ``receive``), pings, flow control.
 
 ``attach`` returns the messages that were already queued, for the app to
 handle first. ``pause()`` and ``resume()`` stop and restart reading from the
-socket, for an app whose handling of a message has to wait. Without the
+socket, for an app whose handling of a message has to wait.
+``send_nowait(message)`` writes a text or binary message at once when the
+transport is not asking the writer to wait, and says whether it did (the
+socket's outbox sends the rest through ``send`` as usual). Without the
 extension (another server, Starlette's test client) the app uses ``receive``
-as usual.
+and ``send`` as usual.
+
+This builds on uvicorn's sans-I/O protocol class, whose attributes are not a
+public API: ``pyproject.toml`` pins uvicorn to the minor version these tests
+ran with.
 """
 
 from __future__ import annotations
@@ -51,6 +58,7 @@ class LiveWebSocketProtocol(WebSocketsSansIOProtocol):
                 "attach": self._attach,
                 "pause": self._pause,
                 "resume": self._resume,
+                "send_nowait": self._send_nowait,
             }
 
     def _attach(self, on_message: Callable[[Message, int], None]) -> list[Message]:
@@ -78,6 +86,21 @@ class LiveWebSocketProtocol(WebSocketsSansIOProtocol):
         if self.read_paused and not self.transport.is_closing():
             self.read_paused = False
             self.transport.resume_reading()
+
+    def _send_nowait(self, message: Message) -> bool:
+        if (
+            not self.handshake_complete
+            or self.close_sent
+            or not self.writable.is_set()
+            or self.transport.is_closing()
+        ):
+            return False
+        if isinstance(message, str):
+            self.conn.send_text(message.encode())
+        else:
+            self.conn.send_binary(message)
+        self.transport.write(b"".join(self.conn.data_to_send()))
+        return True
 
     def data_received(self, data: bytes) -> None:
         self._rank = 0

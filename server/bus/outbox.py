@@ -3,9 +3,10 @@
 Everything a WebSocket sends goes through its :class:`Outbox`: the bus
 handler and the op loop only ``put`` frames (never block), and one writer
 task ``await``\\ s ``send`` for each in turn, so a slow socket never stalls the
-fan-out to the others. When the writer is idle and the socket has room, ``put``
-runs the send itself as far as it goes without waiting (see
-:meth:`Outbox._send_eagerly`); a send that must wait is finished by the writer.
+fan-out to the others. When the writer is idle and the socket can take a
+frame at once (``send_nowait``, offered by the server's WebSocket protocol),
+``put`` sends it itself (see :meth:`Outbox._send_eagerly`); anything that
+must wait is sent by the writer.
 
 - **Bounded.** With ``max_size`` frames waiting, a new frame drops the
   oldest waiting frame that is not critical; the drops are counted and the
@@ -21,7 +22,9 @@ runs the send itself as far as it goes without waiting (see
 
 ``send`` is any coroutine taking a text or binary frame
 (``websocket.send_text`` / ``send_bytes`` behind one function), so the
-outbox is tested without a socket.
+outbox is tested without a socket; ``send_nowait``, when given, writes a
+frame at once if the socket can take it without waiting and says whether it
+did.
 """
 
 from __future__ import annotations
@@ -59,12 +62,14 @@ class Outbox:
         self,
         send: Callable[[Frame], Coroutine[Any, Any, None]],
         *,
+        send_nowait: Callable[[Frame], bool] | None = None,
         max_size: int = DEFAULT_MAX_QUEUE,
         clock: Callable[[], float] = time.monotonic,
     ) -> None:
         if max_size < 1:
             raise ValueError("max_size is at least 1")
         self._send = send
+        self._send_nowait = send_nowait
         self.max_size = max_size
         self._clock = clock
         self._critical: deque[_Entry] = deque()
@@ -79,8 +84,6 @@ class Outbox:
         self._task: asyncio.Task[None] | None = None
         #: The writer waits for work (nothing queued, nothing being sent).
         self._parked = False
-        #: A send begun by ``put`` that had to wait (the socket's buffer is full).
-        self._suspended: tuple[Coroutine[Any, Any, None], Any] | None = None
         self._unreported_drops = 0
         self.closed = asyncio.Event()
         #: Why the writer stopped, when ``send`` failed.
@@ -109,19 +112,15 @@ class Outbox:
             return
         if (
             self._parked
-            and self._suspended is None
+            and self._send_nowait is not None
             and not self._normal
             and not self._critical
             and not self._throttle
             and not self._unreported_drops
             and (topic is None or throttle_ms <= 0)
+            and self._try_send(frame)
         ):
-            # Nothing waits or is held back: the frame goes out at once, unqueued.
-            if self._try_send(frame):
-                return
-            self._idle.clear()
-            self._wakeup.set()  # the writer finishes the send that has to wait
-            return
+            return  # nothing waited or was held back: the frame went out at once, unqueued
         if critical:
             self._critical.append(_Entry(frame, None))
         elif topic is not None and throttle_ms > 0:
@@ -129,7 +128,7 @@ class Outbox:
                 self._enqueue(frame, topic, latest_wins)
         else:
             self._enqueue(frame, topic, latest_wins)
-        if self._parked and self._suspended is None and self._send_eagerly():
+        if self._parked and self._send_nowait is not None and self._send_eagerly():
             return
         self._idle.clear()
         self._wakeup.set()
@@ -216,17 +215,17 @@ class Outbox:
         return None
 
     def _send_eagerly(self) -> bool:
-        """Send what waits from ``put`` itself, while no send has to wait.
+        """Send what waits from ``put`` itself, while the socket takes frames at once.
 
-        A socket with room in its buffer takes a frame without suspending,
-        so the frame leaves in the producer's turn of the event loop, not one
-        task switch later (that switch is most of a relay's latency). The
-        first send that does have to wait is left to the writer task to
-        finish, and so is a frame a throttle holds back. ``True`` when
-        nothing is left waiting or held.
+        A frame then leaves in the producer's turn of the event loop, not one
+        task switch later (that switch is most of a relay's latency). The first
+        frame the socket cannot take at once is put back first in line for the
+        writer, and so is a frame a throttle holds back. ``True`` when nothing
+        is left waiting or held.
         """
         while (frame := self._next()) is not None:
             if not self._try_send(frame):
+                self._critical.appendleft(_Entry(frame, None))  # first, in its order
                 return False
             if self.closed.is_set():
                 return True  # the send failed: the outbox is closed
@@ -236,45 +235,17 @@ class Outbox:
         return True
 
     def _try_send(self, frame: Frame) -> bool:
-        """Send ``frame`` within this call if the socket takes it without waiting:
-        ``True`` when done (sent, or failed and the outbox closed); ``False`` when
-        the send waits on flow control and is left to the writer (``_suspended``)."""
-        coro = self._send(frame)
+        """Send ``frame`` within this call if the socket takes it at once: ``True`` when
+        done (sent, or failed and the outbox closed); ``False`` when it has to wait."""
+        assert self._send_nowait is not None
         try:
-            waiting = coro.send(None)
-        except StopIteration:
-            self.sent += 1
-            return True
+            sent = self._send_nowait(frame)
         except Exception as exc:
             self._fail(exc)
             return True
-        # It waits on a future (flow control): hand it to the writer.
-        if hasattr(waiting, "_asyncio_future_blocking"):
-            waiting._asyncio_future_blocking = False
-        self._suspended = (coro, waiting)
-        return False
-
-    async def _finish_suspended(self) -> None:
-        assert self._suspended is not None
-        coro, waiting = self._suspended
-        try:
-            while True:
-                if waiting is None:
-                    await asyncio.sleep(0)
-                else:
-                    await asyncio.wait([waiting])
-                try:
-                    waiting = coro.send(None)
-                except StopIteration:
-                    break
-                if hasattr(waiting, "_asyncio_future_blocking"):
-                    waiting._asyncio_future_blocking = False
-        except BaseException:
-            coro.close()
-            raise
-        finally:
-            self._suspended = None
-        self.sent += 1
+        if sent:
+            self.sent += 1
+        return sent
 
     def _fail(self, exc: BaseException) -> None:
         self.error = exc
@@ -286,9 +257,6 @@ class Outbox:
     async def _write(self) -> None:
         try:
             while not self.closed.is_set():
-                if self._suspended is not None:
-                    await self._finish_suspended()
-                    continue
                 frame = self._next()
                 if frame is None:
                     await self._wait_for_work()
@@ -300,9 +268,6 @@ class Outbox:
         except Exception as exc:
             self._fail(exc)
         finally:
-            if self._suspended is not None:
-                self._suspended[0].close()
-                self._suspended = None
             self.closed.set()
             self._idle.set()
 

@@ -25,6 +25,8 @@ class Lease:
     granted_by: str
     granted_at: datetime
     expires_at: datetime
+    #: Raised by each write of the lease to the store (compare and set between replicas).
+    rev: int = 0
 
     def live(self, now: datetime) -> bool:
         return now < self.expires_at
@@ -40,6 +42,7 @@ class Lease:
             "granted_by": self.granted_by,
             "granted_at": self.granted_at,
             "expires_at": self.expires_at,
+            "rev": self.rev,
         }
 
     @classmethod
@@ -51,6 +54,7 @@ class Lease:
             doc["granted_by"],
             doc["granted_at"],
             doc["expires_at"],
+            int(doc.get("rev") or 0),
         )
 
 

@@ -1,13 +1,19 @@
 """Authentication and accounts: tokens (SHA-256 digests), passwords (argon2), roles.
 
-Every request looks its token up by digest; the answer is cached in process
-and the cache entry dropped the moment the token is revoked, its owner
-disabled or changed, so a revoked token fails at once.
+Every request looks its token up by digest; the answer is cached in process.
+When a token is revoked, or its owner disabled or changed, the entry is
+dropped here and :class:`~server.domain.events.TokensRevoked` goes out: the
+sockets holding it close, and other replicas drop their entries too (through
+the bus, within milliseconds). While that news cannot travel (the bus to the
+other replicas is down), an entry is trusted for at most
+:data:`UNCONFIRMED_TRUST_S` before the store is asked again, so that a
+revocation takes effect everywhere within that time.
 """
 
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import hashlib
 import logging
 import secrets
@@ -22,13 +28,18 @@ from argon2.exceptions import InvalidHashError, VerificationError
 
 from fleet_protocol import CreateGateway, CreateUser, CreateVehicle, PatchUser, utcnow
 from server.domain.access import Principal
+from server.domain.events import TokensRevoked
 from server.errors import Conflict, Invalid, NotFound, RateLimited, Unauthorized
+from server.services.messagebus import MessageBus
 from server.settings import Settings
 from server.storage.accounts import AccountsRepo
+from server.storage.backends import Duplicate
 
 log = logging.getLogger("fleet.auth")
 TOKEN_PREFIX = "fct_"
 BOOTSTRAP_ADMIN = "admin"
+#: How long a cached token is trusted while revocations from other replicas cannot arrive.
+UNCONFIRMED_TRUST_S = 1.0
 
 
 def digest(token: str) -> str:
@@ -42,7 +53,8 @@ def new_token() -> str:
 @dataclass
 class _Cached:
     principal: Principal
-    expires_at: float | None  # monotonic-free wall clock seconds, None: never
+    expires_at: float | None  # wall clock seconds, None: never
+    checked_at: float  # monotonic: when the store last said it was valid
 
 
 class _Bucket:
@@ -55,17 +67,25 @@ class _Bucket:
         self.stamp = time.monotonic()
 
 
-RevokeListener = Callable[[set[str]], None]
-
-
 class AuthService:
-    def __init__(self, settings: Settings, repo: AccountsRepo) -> None:
+    def __init__(
+        self,
+        settings: Settings,
+        repo: AccountsRepo,
+        messages: MessageBus,
+        news_flows: Callable[[], bool] = lambda: True,
+    ) -> None:
         self.settings = settings
         self.repo = repo
+        self.messages = messages
+        #: Whether revocations made on other replicas reach this one now (the bus is up).
+        self._news_flows = news_flows
         self._hasher = PasswordHasher()
         self._cache: dict[str, _Cached] = {}
         self._buckets: dict[str, _Bucket] = {}
-        self._revoke_listeners: list[RevokeListener] = []
+
+    async def load(self) -> None:
+        await self.repo.ensure_indexes()
 
     # ---- requests -------------------------------------------------------
     async def authenticate(self, token: str | None) -> Principal:
@@ -76,19 +96,24 @@ class AuthService:
     def cached(self, key: str) -> Principal | None:
         """The principal of a token digest known valid, without a store read; else None."""
         cached = self._cache.get(key)
-        if cached is not None and (cached.expires_at is None or cached.expires_at > time.time()):
-            return cached.principal
-        return None
+        if cached is None:
+            return None
+        if cached.expires_at is not None and cached.expires_at <= time.time():
+            return None
+        if time.monotonic() - cached.checked_at > UNCONFIRMED_TRUST_S and not self._news_flows():
+            return None
+        return cached.principal
 
     async def authenticate_digest(self, key: str) -> Principal:
         """:meth:`authenticate` for a token whose digest is known (a socket's every frame)."""
         principal = self.cached(key)
         if principal is not None:
             return principal
+        checked_at = time.monotonic()
         principal, expires_at = await self._load(key)
         if len(self._cache) > 100_000:
             self._cache.clear()
-        self._cache[key] = _Cached(principal, expires_at)
+        self._cache[key] = _Cached(principal, expires_at, checked_at)
         return principal
 
     async def _load(self, key: str) -> tuple[Principal, float | None]:
@@ -132,10 +157,6 @@ class AuthService:
             raise RateLimited("too many requests for this token", retry_after_s=max(wait, 0.1))
         bucket.tokens -= 1
 
-    def on_revoke(self, listener: RevokeListener) -> None:
-        """Called with the token ids that stopped being valid (to close their sockets)."""
-        self._revoke_listeners.append(listener)
-
     # ---- tokens ---------------------------------------------------------
     async def _issue(
         self,
@@ -169,39 +190,46 @@ class AuthService:
     def _forget(self, digests: set[str], token_ids: set[str]) -> None:
         for key in digests:
             self._cache.pop(key, None)
-        if token_ids:
-            for listener in self._revoke_listeners:
-                listener(token_ids)
+        if digests or token_ids:
+            self.messages.emit_now(TokensRevoked(frozenset(token_ids), frozenset(digests)))
 
-    def _forget_subject(self, kind: str, subject: str) -> None:
-        stale = {
-            k
-            for k, c in self._cache.items()
-            if c.principal.kind == kind and c.principal.name == subject
-        }
-        ids = {self._cache[k].principal.token_id for k in stale}
-        self._forget(stale, ids)
+    def forget(self, digests: frozenset[str]) -> None:
+        """Another replica revoked these tokens: drop them from the cache."""
+        for key in digests:
+            self._cache.pop(key, None)
+
+    def forget_all(self) -> None:
+        """Revocations may have been missed (the bus was down): ask the store again."""
+        self._cache.clear()
+
+    async def _forget_subject(self, kind: str, subject: str) -> None:
+        """The subject changed (role, vehicles, disabled): every replica reads its tokens
+        again, and the sockets that hold them close (they reconnect with the new rights)."""
+        docs = await self.repo.tokens_of(kind, subject)
+        self._forget({d["digest"] for d in docs}, {d["token_id"] for d in docs})
 
     async def bootstrap_admin(self) -> str | None:
         """Make sure an admin exists. Returns a token to print, or None when it came from
         ``FLEET_ADMIN_TOKEN`` (the operator already knows it)."""
         if await self.repo.user(BOOTSTRAP_ADMIN) is None:
-            await self.repo.insert_user(
-                {
-                    "username": BOOTSTRAP_ADMIN,
-                    "role": "admin",
-                    "vehicles": [],
-                    "disabled": False,
-                    "password_hash": None,
-                    "created_at": utcnow(),
-                }
-            )
+            with contextlib.suppress(Duplicate):  # another replica, starting at the same moment
+                await self.repo.insert_user(
+                    {
+                        "username": BOOTSTRAP_ADMIN,
+                        "role": "admin",
+                        "vehicles": [],
+                        "disabled": False,
+                        "password_hash": None,
+                        "created_at": utcnow(),
+                    }
+                )
         given = self.settings.admin_token
         if given is not None:
             token = given.get_secret_value()
             doc = await self.repo.token(digest(token))
             if doc is None:
-                await self._issue("user", BOOTSTRAP_ADMIN, purpose="bootstrap-env", token=token)
+                with contextlib.suppress(Duplicate):  # made by another replica just now
+                    await self._issue("user", BOOTSTRAP_ADMIN, purpose="bootstrap-env", token=token)
             elif doc.get("revoked_at") is not None or doc["subject"] != BOOTSTRAP_ADMIN:
                 # The operator set this token for the admin: it is the admin's again.
                 await self.repo.reinstate_token(doc["digest"], BOOTSTRAP_ADMIN)
@@ -226,16 +254,17 @@ class AuthService:
 
     # ---- administration -------------------------------------------------
     async def create_vehicle(self, body: CreateVehicle) -> str:
-        if await self.repo.vehicle(body.vehicle_id) is not None:
-            raise Conflict(f"vehicle {body.vehicle_id} exists already", code="exists")
-        await self.repo.insert_vehicle(
-            {
-                "vehicle_id": body.vehicle_id,
-                "name": body.name or body.vehicle_id,
-                "vehicle_type": body.vehicle_type,
-                "created_at": utcnow(),
-            },
-        )
+        try:
+            await self.repo.insert_vehicle(
+                {
+                    "vehicle_id": body.vehicle_id,
+                    "name": body.name or body.vehicle_id,
+                    "vehicle_type": body.vehicle_type,
+                    "created_at": utcnow(),
+                },
+            )
+        except Duplicate:
+            raise Conflict(f"vehicle {body.vehicle_id} exists already", code="exists") from None
         return await self._issue("vehicle", body.vehicle_id)
 
     async def rotate_vehicle_token(self, vehicle_id: str) -> str:
@@ -245,16 +274,17 @@ class AuthService:
         return await self._issue("vehicle", vehicle_id)
 
     async def create_gateway(self, body: CreateGateway) -> str:
-        if await self.repo.gateway(body.gateway_id) is not None:
-            raise Conflict(f"gateway {body.gateway_id} exists already", code="exists")
         await self._require_vehicles(body.vehicles)
-        await self.repo.insert_gateway(
-            {
-                "gateway_id": body.gateway_id,
-                "vehicles": sorted(set(body.vehicles)),
-                "created_at": utcnow(),
-            },
-        )
+        try:
+            await self.repo.insert_gateway(
+                {
+                    "gateway_id": body.gateway_id,
+                    "vehicles": sorted(set(body.vehicles)),
+                    "created_at": utcnow(),
+                },
+            )
+        except Duplicate:
+            raise Conflict(f"gateway {body.gateway_id} exists already", code="exists") from None
         return await self._issue("gateway", body.gateway_id)
 
     async def _require_vehicles(self, vehicles: list[str]) -> None:
@@ -270,16 +300,19 @@ class AuthService:
         if await self.repo.user(body.username) is not None:
             raise Conflict(f"user {body.username} exists already", code="exists")
         await self._require_vehicles(body.vehicles)
-        await self.repo.insert_user(
-            {
-                "username": body.username,
-                "role": body.role,
-                "vehicles": sorted(set(body.vehicles)),
-                "disabled": False,
-                "password_hash": await self._hash(body.password),
-                "created_at": utcnow(),
-            }
-        )
+        try:
+            await self.repo.insert_user(
+                {
+                    "username": body.username,
+                    "role": body.role,
+                    "vehicles": sorted(set(body.vehicles)),
+                    "disabled": False,
+                    "password_hash": await self._hash(body.password),
+                    "created_at": utcnow(),
+                }
+            )
+        except Duplicate:
+            raise Conflict(f"user {body.username} exists already", code="exists") from None
         return await self._issue("user", body.username)
 
     async def _hash(self, password: str | None) -> str | None:
@@ -304,7 +337,7 @@ class AuthService:
             fields["password_hash"] = await self._hash(body.password)
         if fields:
             await self.repo.update_user(username, fields)
-        self._forget_subject("user", username)
+        await self._forget_subject("user", username)
         return await self.get_user(username)
 
     async def revoke_user_tokens(self, username: str) -> None:

@@ -2,8 +2,8 @@
 
 ``submit_control`` is all or nothing: every target is checked (access,
 finished, capability, lease, local control, queue bound) and its args
-worked out (a planned path) before one command is made. On several replicas
-each target's record and lease are read from the store first.
+worked out (a planned path) before one command is made. Each target's
+record and lease are read from the store first.
 """
 
 from __future__ import annotations
@@ -33,30 +33,28 @@ Target = tuple[int, InstanceState]
 ZoneSource = Callable[[], Awaitable[Sequence[Zone]]]
 
 
-async def no_zones() -> Sequence[Zone]:
-    return ()
-
-
 class Admission:
     def __init__(
         self,
         instances: InstanceService,
         control: ControlService,
         planner: Planner,
+        zones: ZoneSource,
         lanes: Mapping[str, Lane],
         clock: Callable[[], datetime],
     ) -> None:
         self.instances = instances
-        #: The fixed obstacles a planned path keeps clear of (the container sets the source).
-        self.zones: ZoneSource = no_zones
         self.control = control
         self.planner = planner
+        self.zones = zones
         self.lanes = lanes
         self.clock = clock
 
     async def targets(
         self, principal: Principal, ids: list[str]
     ) -> tuple[list[Target], list[Refusal]]:
+        """The instances named (``["*"]``: every live one the caller sees), as the store has
+        them, their leases read again; an unknown one is a refusal."""
         if ids == ["*"]:
             live = [
                 s
@@ -72,9 +70,8 @@ class Admission:
                     targets.append((index, await self.instances.fresh(instance_id)))
                 except FleetError as exc:
                     refusals.append((index, instance_id, exc))
-        if self.control.shared:  # a lease granted or ended on another replica counts here
-            for _, state in targets:
-                await self.control.refresh(state.instance_id, requests=False)  # the lease
+        for _, state in targets:  # a lease granted or ended on another replica counts here
+            await self.control.current(state.instance_id)
         return targets, refusals
 
     def check_all(
@@ -113,12 +110,13 @@ class Admission:
         once for all of them; a target the planner refuses is a refusal."""
         plan = spec.type == "follow_path" and bool(spec.args.get("plan"))
         zones = await self.zones() if plan else ()
+        others_all = await self.instances.everyone() if plan else []
         by_instance: dict[str, dict[str, Any]] = {}
         refusals: list[Refusal] = []
         for index, state in targets:
             args = dict(spec.args)
             if plan:
-                others = [s for s in self.instances.live() if s.instance_id != state.instance_id]
+                others = [s for s in others_all if s.instance_id != state.instance_id]
                 try:
                     args = await asyncio.to_thread(self.planner, state, args, others, zones)
                 except FleetError as exc:

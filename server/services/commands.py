@@ -1,16 +1,14 @@
 """Commands: submit (all or nothing), queue, hand out, acknowledge, cancel, expire.
 
-Hot state (each instance's active commands) lives in a :class:`Lane` and in
-the small ``commands_active`` collection; a command that ends is inserted
-once into the history. Delivery has one path, :meth:`CommandService.take`,
-for long polls and vehicle sockets alike: sockets register in
-``ready_listeners``, are told an instance has something to hand out (on
-submit, when a redelivery falls due), then call :meth:`take`.
-
-On several replicas the lanes are a cache of the store: a replica reads an
-instance's active commands back before it hands them out, cancels them or
-takes acks, records a command's end only if it took it out of
-``commands_active``, and announces what it wrote (services/replicas.py).
+The store holds each instance's active commands (``commands_active``) and
+every ended one (``commands``, inserted once); this replica keeps a
+:class:`~server.services.lanes.Lane` per instance as a copy, caught up with
+the store before it hands commands out, takes acks, cancels or expires them.
+A command's end is recorded by whichever replica inserts it into the
+history first (the store refuses a second insert of one command id). Delivery
+has one path, :meth:`CommandService.take`, for long polls and vehicle
+sockets alike: :class:`~server.domain.events.CommandsReady` tells that an
+instance has something to hand out (on submit, when a redelivery falls due).
 """
 
 from __future__ import annotations
@@ -27,21 +25,20 @@ from server.domain import arbitration
 from server.domain import commands as life
 from server.domain.access import Principal
 from server.domain.commands import AckOutcome, Command
-from server.errors import ControlNotHeld, Forbidden, NotFound, RateLimited
-from server.services.command_admission import MAX_ACTIVE_PER_INSTANCE, Admission
+from server.domain.events import CommandsReady, InstanceFinished, LeaseEnded, StateWritten
+from server.errors import ControlNotHeld, Forbidden, NotFound, RateLimited, Unavailable
+from server.services.command_admission import Admission, ZoneSource
 from server.services.control import ControlService
+from server.services.dead_letters import DeadLetters
 from server.services.events import EventService
 from server.services.instances import InstanceService, InstanceState
-from server.services.lanes import Lane, StoredLanes
+from server.services.lanes import Lane
+from server.services.messagebus import MessageBus
 from server.services.planning import Planner, vehicle_planner
-from server.services.replicas import Announce, no_announce
 from server.settings import Settings
 from server.storage.commands import CommandsRepo
 
-Clock = Callable[[], datetime]
-ReadyListener = Callable[[str], None]
-
-__all__ = ["MAX_ACTIVE_PER_INSTANCE", "CommandService"]
+__all__ = ["CommandService"]
 
 
 class CommandService:
@@ -52,7 +49,10 @@ class CommandService:
         instances: InstanceService,
         control: ControlService,
         events: EventService,
-        clock: Clock,
+        messages: MessageBus,
+        dead_letters: DeadLetters,
+        zones: ZoneSource,
+        clock: Callable[[], datetime],
         planner: Planner | None = None,
     ) -> None:
         self.settings = settings
@@ -60,20 +60,19 @@ class CommandService:
         self.instances = instances
         self.control = control
         self.events = events
+        self.messages = messages
+        self.dead_letters = dead_letters
         self.clock = clock
-        self.planner = planner or vehicle_planner(settings.safety_radius_m)
         self._lanes: dict[str, Lane] = {}
         self._seq = 0
-        #: Called with an instance id that has commands to hand out (vehicle sockets).
-        self.ready_listeners: list[ReadyListener] = []
-        #: Several replicas: the store is the truth (see server/services/replicas.py).
-        self.shared = settings.shared_state
-        self.announce: Announce = no_announce
-        self.admission = Admission(instances, control, self.planner, self._lanes, clock)
-        self.stored = StoredLanes(repo, self._lanes, self._lane)
-        self._sync = self.stored.sync
-        control.lease_end_listeners.append(self._on_lease_end)
-        instances.finish_hooks.append(self._on_finish)
+        self.admission = Admission(
+            instances,
+            control,
+            planner or vehicle_planner(settings.safety_radius_m),
+            zones,
+            self._lanes,
+            clock,
+        )
 
     async def load(self) -> None:
         """Take the active commands of a former run up again."""
@@ -88,6 +87,8 @@ class CommandService:
         now = self.clock()
         admission = self.admission
         targets, refusals = await admission.targets(principal, body.instance_ids)
+        # The queue bound and a stop's supersedes see what every replica queued.
+        await self._sync_many([state.instance_id for _, state in targets])
         refusals += admission.check_all(principal, targets, body.command)
         args_by_instance: dict[str, dict[str, Any]] = {}
         if not refusals:
@@ -114,9 +115,6 @@ class CommandService:
                     position=state.position,
                 )
             )
-        if self.shared and body.command.type == "stop":  # what it supersedes, wherever queued
-            for cmd in made:
-                await self._sync(cmd.instance_id)
         superseded: list[Command] = []
         for cmd in made:  # memory first: a poll from now on sees the whole submit
             lane = self._lane(cmd.instance_id)
@@ -127,7 +125,7 @@ class CommandService:
         if made:
             await self.repo.insert_active([cmd.to_doc() for cmd in made])
         for cmd in made:
-            self.announce(cmd.instance_id, "commands")
+            self.messages.emit_now(StateWritten(cmd.instance_id, "commands"))
             self._ready(self._lane(cmd.instance_id))
             await self._audit(cmd, principal, args=cmd.args)
         for gone in superseded:
@@ -143,7 +141,7 @@ class CommandService:
             raise Forbidden(f"no access to vehicle {cmd.vehicle_id}")
         if cmd.final:
             return cmd
-        lease = self.control.lease(cmd.instance_id)
+        lease = await self.control.current(cmd.instance_id)
         if not (
             cmd.issued_by == principal.name
             or arbitration.holds(lease, principal.name, self.clock())
@@ -155,31 +153,27 @@ class CommandService:
         return cmd
 
     async def get(self, principal: Principal, command_id: str) -> Command:
-        cmd = await self._find(command_id, read_only=True)
+        cmd = await self._read(command_id)
+        if cmd is None:
+            raise NotFound(f"no command {command_id}")
         if not principal.can_see(cmd.vehicle_id):
             raise Forbidden(f"no access to vehicle {cmd.vehicle_id}")
         return cmd
 
     async def recent(self, principal: Principal, instance_id: str) -> tuple[str, list[Command]]:
-        """The instance's control mode and its recent commands, newest first."""
+        """The instance's control mode and its active and recent commands, newest first."""
         state = await self.instances.for_viewer(principal, instance_id)
         limit = self.settings.command_history_limit
-        if self.shared:
-            return state.control_mode, await self.stored.recent(state.instance_id, limit)
-        lane = self._lanes.get(state.instance_id)
-        mine = [*lane.active.values(), *lane.recent] if lane is not None else []
-        if lane is None or not lane.history_loaded:
-            seen = {c.command_id for c in mine}
-            stored = [
-                Command.from_doc(doc)
-                for doc in await self.repo.recent_finished(state.instance_id, limit)
-                if doc["command_id"] not in seen
-            ]
-            mine += stored
-            if lane is not None:
-                lane.remember(stored)
-        mine.sort(key=lambda c: (c.issued_at, c.seq), reverse=True)
-        return state.control_mode, mine[:limit]
+        docs = await self.repo.active_for(state.instance_id)
+        seen = {d["command_id"] for d in docs}
+        docs += [
+            d
+            for d in await self.repo.recent_finished(state.instance_id, limit)
+            if d["command_id"] not in seen
+        ]
+        recent = [Command.from_doc(d) for d in docs]
+        recent.sort(key=lambda c: (c.issued_at, c.seq), reverse=True)
+        return state.control_mode, recent[:limit]
 
     # ---- vehicles -------------------------------------------------------------
     async def get_control(
@@ -217,7 +211,7 @@ class CommandService:
         """The commands to hand out now, in order (``stop`` first), marked delivered."""
         if state.finished:
             return []
-        lane = await self._sync(state.instance_id) if self.shared else self._lane(state.instance_id)
+        lane = await self._sync(state.instance_id)
         out, ended = life.handout(
             list(lane.active.values()),
             self.clock(),
@@ -226,11 +220,16 @@ class CommandService:
         )
         for cmd in ended:
             await self._finished(cmd)
+        handed = []
         for cmd in out:
-            await self.repo.save_active(cmd.to_doc())
-        if out:
-            self.announce(state.instance_id, "commands")
-        return out
+            if await self.repo.save_active(cmd.to_doc()):
+                handed.append(cmd)
+            else:  # it ended on another replica meanwhile
+                await self._catch_up(cmd)
+                lane.retire(cmd)
+        if handed:
+            self.messages.emit_now(StateWritten(state.instance_id, "commands"))
+        return handed
 
     async def acknowledge(
         self, principal: Principal, instance_id: str, control_mode: str | None, acks: list[Any]
@@ -238,7 +237,7 @@ class CommandService:
         """Apply the vehicle's acks; returns the ``abort`` list."""
         state = await self.instances.for_vehicle_caller(principal, instance_id)
         self.instances.touch(state)
-        if self.instances.set_control_mode(state, control_mode):
+        if await self.instances.set_control_mode(state, control_mode):
             await self.events.record(  # failsafe and local control matter to the operators
                 "control_mode",
                 vehicle_id=state.vehicle_id,
@@ -246,26 +245,26 @@ class CommandService:
                 actor=principal,
                 data={"control_mode": control_mode},
             )
-            await self.instances.save_now(state)
-        shared = self.shared and bool(acks)
-        lane = await self._sync(state.instance_id) if shared else self._lane(state.instance_id)
+        lane = await self._sync(state.instance_id) if acks else self._lane(state.instance_id)
         now = self.clock()
         abort: list[str] = []
         for ack in acks:
-            cmd = lane.get(ack.command_id) or await self._stored(ack.command_id, state)
+            cmd = lane.active.get(ack.command_id) or await self._read(ack.command_id, state)
             if cmd is None:
                 abort.append(ack.command_id)  # unknown here: never to be carried out
                 continue
             outcome = life.apply_ack(cmd, ack.status, now, progress=ack.progress, detail=ack.detail)
             if outcome is AckOutcome.LATE:
+                await self.repo.note_history(cmd.command_id, cmd.history)
                 if cmd.status in life.ABORT_STATUSES:
                     abort.append(cmd.command_id)
             elif cmd.final:
                 await self._finished(cmd)
-            elif cmd.command_id in lane.active:
-                await self.repo.save_active(cmd.to_doc())
-        if shared:
-            self.announce(state.instance_id, "commands")
+            elif cmd.command_id in lane.active and not await self.repo.save_active(cmd.to_doc()):
+                await self._catch_up(cmd)  # it ended on another replica meanwhile
+                lane.retire(cmd)
+        if acks:
+            self.messages.emit_now(StateWritten(state.instance_id, "commands"))
         abort.extend(lane.take_aborts())
         return list(dict.fromkeys(abort))
 
@@ -275,7 +274,7 @@ class CommandService:
             Counter(c.status for lane in self._lanes.values() for c in lane.active.values())
         )
 
-    # ---- background and hooks ----------------------------------------------------
+    # ---- background and handlers ------------------------------------------------
     async def sweep(self, now: datetime | None = None) -> None:
         """Expire what is past ``expires_at``; wake the lanes with a redelivery due."""
         now = now or self.clock()
@@ -283,47 +282,52 @@ class CommandService:
         for lane in list(self._lanes.values()):
             if not lane.active:
                 continue  # most vehicles, most ticks
-            due = False
-            if self.shared and any(life.expires_now(c, now) for c in lane.active.values()):
-                await self._sync(lane.instance_id)  # acknowledged on another replica?
-            for cmd in list(lane.active.values()):
-                if life.expire_if_due(cmd, now):
-                    await self._finished(cmd)
-                elif life.due_for_delivery(cmd, now, timeout):
-                    due = True
-            if due:
-                self._ready(lane)
+            try:
+                await self._sweep_lane(lane, now, timeout)
+            except Unavailable as exc:
+                self.dead_letters.failed("commands", exc)
+                return
+            except Exception as exc:
+                await self.dead_letters.set_aside("commands", lane.instance_id, exc, lane.active)
+                self._lanes.pop(lane.instance_id, None)  # read again from the store when needed
+
+    async def _sweep_lane(self, lane: Lane, now: datetime, ack_timeout_s: float) -> None:
+        if any(life.expires_now(c, now) for c in lane.active.values()):
+            await self._sync(lane.instance_id)  # acknowledged on another replica?
+        due = False
+        for cmd in list(lane.active.values()):
+            if life.expire_if_due(cmd, now):
+                await self._finished(cmd)
+            elif life.due_for_delivery(cmd, now, ack_timeout_s):
+                due = True
+        if due:
+            self._ready(lane)
 
     async def drop_finished_before(self, before: datetime) -> int:
         return await self.repo.drop_finished_before(before)
 
-    async def _on_lease_end(self, lease: arbitration.Lease, reason: str) -> None:
-        if self.shared:
-            await self._sync(lease.instance_id)
-        if (lane := self._lanes.get(lease.instance_id)) is None:
-            return
+    async def on_lease_end(self, event: LeaseEnded) -> None:
+        """The former holder's commands not yet acknowledged are cancelled."""
+        lane = await self._sync(event.lease.instance_id)
         now = self.clock()
-        detail = "instance_finished" if reason == "instance_finished" else "lease_ended"
-        for cmd in life.lost_with_lease(list(lane.active.values()), lease.holder):
+        detail = "instance_finished" if event.reason == "instance_finished" else "lease_ended"
+        for cmd in life.lost_with_lease(list(lane.active.values()), event.lease.holder):
             life.cancel(cmd, now, detail)
             await self._finished(cmd)
 
-    async def _on_finish(self, state: InstanceState, principal: Principal | None) -> None:
-        if self.shared:
-            await self._sync(state.instance_id)
-        if (lane := self._lanes.get(state.instance_id)) is None:
-            return
+    async def on_instance_finished(self, event: InstanceFinished) -> None:
+        lane = await self._sync(event.instance_id)
         now = self.clock()
         for cmd in list(lane.active.values()):
             life.cancel(cmd, now, "instance_finished")
             await self._finished(cmd)
         lane.wake()
-        del self._lanes[state.instance_id]
+        self._lanes.pop(event.instance_id, None)
 
-    # ---- several replicas -----------------------------------------------------
     async def refresh(self, instance_id: str) -> None:
-        """Another replica moved the instance's commands: catch up. Commands new here are
-        handed out (to this replica's socket, or through the nudge), the long polls woken."""
+        """Another replica moved the instance's commands: catch up, if this one keeps
+        them. Commands new here are handed out (to this replica's socket, or through
+        the nudge), the long polls woken."""
         if (lane := self._lanes.get(instance_id)) is None:
             return
         known = set(lane.active)
@@ -345,44 +349,73 @@ class CommandService:
     # ---- internals ------------------------------------------------------------
     def _lane(self, instance_id: str) -> Lane:
         if (lane := self._lanes.get(instance_id)) is None:
-            lane = self._lanes[instance_id] = Lane(instance_id, self.settings.command_history_limit)
+            lane = self._lanes[instance_id] = Lane(instance_id)
+        return lane
+
+    async def _sync(self, instance_id: str) -> Lane:
+        """The instance's lane, caught up with its active commands in the store."""
+        docs = await self.repo.active_for(instance_id)
+        return await self._merge(instance_id, [Command.from_doc(d) for d in docs])
+
+    async def _sync_many(self, instance_ids: list[str]) -> None:
+        """:meth:`_sync` for several instances, in one read."""
+        if len(instance_ids) <= 1:
+            for instance_id in instance_ids:
+                await self._sync(instance_id)
+            return
+        by_instance: dict[str, list[Command]] = {i: [] for i in instance_ids}
+        for doc in await self.repo.active_for_many(instance_ids):
+            by_instance[doc["instance_id"]].append(Command.from_doc(doc))
+        for instance_id, stored in by_instance.items():
+            await self._merge(instance_id, stored)
+
+    async def _merge(self, instance_id: str, stored: list[Command]) -> Lane:
+        lane = self._lane(instance_id)
+        for gone in lane.merge(stored):
+            if await self._catch_up(gone) and gone.final:
+                lane.retire(gone)  # ended on another replica
         return lane
 
     def _ready(self, lane: Lane) -> None:
         lane.wake()
-        for listener in self.ready_listeners:
-            listener(lane.instance_id)
+        self.messages.emit_now(CommandsReady(lane.instance_id))
 
-    async def _find(self, command_id: str, *, read_only: bool = False) -> Command:
-        if self.shared:
-            return await self.stored.find(command_id, read_only)
-        for lane in self._lanes.values():
-            if (cmd := lane.get(command_id)) is not None:
-                return cmd
-        if (cmd := await self._stored(command_id)) is None:
+    async def _find(self, command_id: str) -> Command:
+        """A command to act on: this replica's copy, caught up with the store."""
+        doc = await self.repo.get(command_id)
+        if doc is None:
+            for lane in self._lanes.values():  # not written yet: a submit on its way here
+                if (cmd := lane.active.get(command_id)) is not None:
+                    return cmd
             raise NotFound(f"no command {command_id}")
-        return cmd
+        stored = Command.from_doc(doc)
+        if stored.final:
+            return stored
+        lane = await self._sync(stored.instance_id)
+        return lane.active.get(command_id) or stored
 
-    async def _stored(self, command_id: str, state: InstanceState | None = None) -> Command | None:
-        """A command from the store (of ``state``'s instance, when given)."""
+    async def _read(self, command_id: str, state: InstanceState | None = None) -> Command | None:
+        """A command as the store has it (of ``state``'s instance, when given)."""
         doc = await self.repo.get(command_id)
         if doc is None or (state is not None and doc["instance_id"] != state.instance_id):
             return None
         return Command.from_doc(doc)
 
+    async def _catch_up(self, cmd: Command) -> bool:
+        """Take the stored copy's word on a command (another replica moved it); whether
+        that changed it."""
+        stored = await self._read(cmd.command_id)
+        return stored is not None and cmd.catch_up(stored)
+
     async def _finished(self, cmd: Command, actor: Principal | None = None) -> None:
-        """Record a command that just reached a final status."""
+        """Record a command that just reached a final status (once, on every replica)."""
         lane = self._lanes.get(cmd.instance_id)
         if lane is not None:
             lane.retire(cmd)
-        now = self.clock()
-        if self.shared:
-            if not await self.repo.claim_finish(cmd.to_doc(), now):
-                await self.stored.catch_up(cmd)  # another replica recorded its end first
-                return
-            self.announce(cmd.instance_id, "commands")
-        else:
-            await self.repo.finish(cmd.to_doc(), now)
+        if not await self.repo.finish(cmd.to_doc(), self.clock()):
+            await self._catch_up(cmd)  # another replica recorded its end first
+            return
+        self.messages.emit_now(StateWritten(cmd.instance_id, "commands"))
         last = cmd.history[-1] if cmd.history else {}
         await self._audit(cmd, actor, detail=last.get("detail"))
 

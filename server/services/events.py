@@ -7,24 +7,24 @@ from collections.abc import Callable
 from datetime import datetime, timedelta
 from typing import Any
 
-from fleet_protocol import format_ts
 from server.domain.access import Principal
+from server.domain.events import EventRecorded
+from server.services.messagebus import MessageBus
 from server.storage.events import EventsRepo
 
-Clock = Callable[[], datetime]
-EventListener = Callable[[dict[str, Any]], None]
 MAX_EVENTS_PER_QUERY = 10_000
 
 
 class EventService:
-    def __init__(self, repo: EventsRepo, clock: Clock) -> None:
+    def __init__(
+        self, repo: EventsRepo, messages: MessageBus, clock: Callable[[], datetime]
+    ) -> None:
         self.repo = repo
+        self.messages = messages
         self.clock = clock
-        self._listeners: list[EventListener] = []
 
-    def subscribe(self, listener: EventListener) -> None:
-        """Live fan-out (the bus) hooks in here."""
-        self._listeners.append(listener)
+    async def load(self) -> None:
+        await self.repo.ensure_indexes()
 
     async def record(
         self,
@@ -46,8 +46,7 @@ class EventService:
         }
         await self.repo.insert(doc)
         doc.pop("_id", None)
-        for listener in self._listeners:
-            listener(doc)
+        self.messages.emit_now(EventRecorded(doc))
         return doc
 
     async def query(
@@ -68,6 +67,8 @@ class EventService:
             vehicle_ids = None
         else:
             vehicle_ids = sorted(principal.vehicles)
+        if vehicle_ids == []:
+            return []
         return await self.repo.query(
             vehicle_ids=vehicle_ids,
             kind=kind,
@@ -78,9 +79,3 @@ class EventService:
 
     async def drop_before(self, before: datetime) -> int:
         return await self.repo.drop_before(before)
-
-
-def event_json(doc: dict[str, Any]) -> dict[str, Any]:
-    out = dict(doc)
-    out["at"] = format_ts(doc["at"])
-    return out

@@ -24,7 +24,7 @@ class InstanceState:
     control_mode: str = "idle"
     position: dict[str, Any] | None = None
     finished_at: datetime | None = None
-    presence: Presence = "offline"
+    presence: Presence = "offline"  # the presence last told
     polling: int = 0  # open long polls: contact while open
     dirty: bool = False  # params or control mode changed: written at the next sweep
     moved: bool = False  # last_seen or position moved: written every persist_interval_s

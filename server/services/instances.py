@@ -1,36 +1,43 @@
 """Instances and presence: start (or resume), heartbeat, finish, parameters.
 
-Unfinished instances live in memory (hot state, one per vehicle) and are
-written through to the store; ``last_seen`` and the latest position move on
-every request, so they are written back by :meth:`InstanceService.sweep`
-rather than on each call.
+The store holds every instance; this replica keeps a copy of the unfinished
+ones it deals with (:class:`InstanceState`). Contact and the latest position
+move with every frame of every vehicle, so they live in the copy and are
+written back by :meth:`InstanceService.sweep` every ``contact_write_s``;
+parameters are written back at the next sweep; a change of control mode and
+a finish are written at once (decisions depend on them). Before a presence
+change is declared, the contact other replicas wrote is read back, and of
+several replicas seeing it only the one whose conditional write matches
+records it. One replica or several, the algorithm is this one.
 """
 
 from __future__ import annotations
 
 import secrets
 import time
-from collections.abc import Awaitable, Callable
+from collections.abc import Callable
 from datetime import datetime, timedelta
 from typing import Any
 
 from fleet_protocol import Sample, StartInstance
 from server.domain.access import Principal
+from server.domain.events import InstanceFinished, PresenceChanged, StateWritten
 from server.domain.presence import Presence, presence_of
-from server.errors import Forbidden, InstanceFinished, NotFound
+from server.errors import Conflict, Forbidden, NotFound, Unavailable
+from server.errors import InstanceFinished as Finished
 from server.services.auth import AuthService
+from server.services.dead_letters import DeadLetters
 from server.services.events import EventService
 from server.services.instance_state import InstanceState
+from server.services.messagebus import MessageBus
 from server.services.pacing import Pacer
-from server.services.replicas import Announce, no_announce
 from server.settings import Settings
 from server.storage.instances import InstancesRepo
 
-Clock = Callable[[], datetime]
-FinishHook = Callable[[InstanceState, Principal | None], Awaitable[None]]
-PresenceListener = Callable[[InstanceState, Presence], None]
-
 __all__ = ["InstanceService", "InstanceState"]
+
+#: Tries to claim a vehicle's instance while other replicas claim and finish it.
+_CLAIM_TRIES = 5
 
 
 class InstanceService:
@@ -40,45 +47,38 @@ class InstanceService:
         repo: InstancesRepo,
         auth: AuthService,
         events: EventService,
-        clock: Clock,
+        messages: MessageBus,
+        dead_letters: DeadLetters,
+        clock: Callable[[], datetime],
     ) -> None:
         self.settings = settings
         self.repo = repo
         self.auth = auth
         self.events = events
+        self.messages = messages
+        self.dead_letters = dead_letters
         self.clock = clock
         self._by_id: dict[str, InstanceState] = {}
         self._by_vehicle: dict[str, InstanceState] = {}
-        self.finish_hooks: list[FinishHook] = []
-        self.presence_listeners: list[PresenceListener] = []
-        #: Several replicas: the store is the truth (see server/services/replicas.py).
-        self.shared = settings.shared_state
-        self.announce: Announce = no_announce
 
     async def load(self) -> None:
+        await self.repo.ensure_indexes()
         for doc in await self.repo.unfinished():
-            state = InstanceState.from_doc(doc)
-            state.presence = self._presence(state, self.clock())
-            self._index(state)
-
-    def _index(self, state: InstanceState) -> None:
-        self._by_id[state.instance_id] = state
-        self._by_vehicle[state.vehicle_id] = state
+            self._adopt(doc)
 
     # ---- lookups --------------------------------------------------------
     async def find(self, instance_id: str) -> InstanceState:
+        """The instance: this replica's copy, or the store's."""
         state = self._by_id.get(instance_id)
         if state is None:
             doc = await self.repo.get(instance_id)
             if doc is None:
                 raise NotFound(f"no instance {instance_id}")
-            state = self._adopt(doc) if self.shared else InstanceState.from_doc(doc)
+            state = self._adopt(doc)
         return state
 
     async def fresh(self, instance_id: str) -> InstanceState:
-        """:meth:`find`; on several replicas, merged with the store's copy first."""
-        if not self.shared:
-            return await self.find(instance_id)
+        """The instance as the store has it now (this replica's copy caught up)."""
         doc = await self.repo.get(instance_id)
         if doc is None:
             raise NotFound(f"no instance {instance_id}")
@@ -90,7 +90,7 @@ class InstanceService:
         if not principal.acts_for(state.vehicle_id):
             raise Forbidden(f"this token does not act for vehicle {state.vehicle_id}")
         if state.finished:
-            raise InstanceFinished(f"instance {instance_id} is finished")
+            raise Finished(f"instance {instance_id} is finished")
         return state
 
     async def for_viewer(self, principal: Principal, instance_id: str) -> InstanceState:
@@ -100,26 +100,26 @@ class InstanceService:
         return state
 
     def current_by_id(self, instance_id: str) -> InstanceState | None:
-        """A live (unfinished) instance of this process, if any."""
+        """This replica's copy of an unfinished instance, if it keeps one."""
         return self._by_id.get(instance_id)
 
     def current(self, vehicle_id: str) -> InstanceState | None:
         return self._by_vehicle.get(vehicle_id)
 
     async def current_or_latest(self, vehicle_id: str) -> InstanceState | None:
+        """The vehicle's unfinished instance, else its latest one, else None."""
         state = self._by_vehicle.get(vehicle_id)
-        if state is None:
-            doc = await self.repo.latest_for_vehicle(vehicle_id)
-            state = InstanceState.from_doc(doc) if doc else None
-        return state
+        if state is not None:
+            return state
+        doc = await self.repo.latest_for_vehicle(vehicle_id)
+        return self._adopt(doc) if doc is not None else None
 
     def live(self) -> list[InstanceState]:
+        """The unfinished instances this replica keeps a copy of."""
         return list(self._by_id.values())
 
     async def everyone(self) -> list[InstanceState]:
-        """Every live instance: this replica's, or on several replicas the store's."""
-        if not self.shared:
-            return self.live()
+        """Every unfinished instance in the store."""
         return [s for doc in await self.repo.unfinished() if not (s := self._adopt(doc)).finished]
 
     def presence(self, state: InstanceState) -> Presence:
@@ -142,33 +142,15 @@ class InstanceService:
         meta = await self.auth.vehicle_meta(body.vehicle_id)
         if meta is None:
             raise NotFound(f"no vehicle {body.vehicle_id}; an admin registers it first")
-        now = self.clock()
-        if self.shared:  # its unfinished instance may have been started on another replica
-            await self._adopt_vehicle(body.vehicle_id)
-        state = self._by_vehicle.get(body.vehicle_id)
-        resumed = state is not None
-        if state is None:
-            state = InstanceState(
-                instance_id="i-" + secrets.token_hex(8),
-                vehicle_id=body.vehicle_id,
-                name=body.name or meta.get("name") or body.vehicle_id,
-                vehicle_type=body.vehicle_type,
-                capabilities=list(body.capabilities),
-                started_at=now,
-                params=dict(body.params),
-                params_updated_at=now if body.params else None,
-                last_seen=now,
-            )
-            await self.repo.insert(state.to_doc())
-            self._index(state)
-        else:
+        state, created = await self._claimed(body, meta)
+        resumed = not created
+        if resumed:
             if body.name:
                 state.name = body.name
             state.vehicle_type = body.vehicle_type
             state.capabilities = list(body.capabilities)
             self.merge_params(state, body.params)
-            await self.repo.save(state.instance_id, state.to_doc())
-        self.announce(state.instance_id, "instance")
+            await self._write(state, time.monotonic(), whole=True)
         await self.events.record(
             "instance",
             vehicle_id=state.vehicle_id,
@@ -178,6 +160,40 @@ class InstanceService:
         )
         self.touch(state)
         return state, resumed
+
+    async def _claimed(
+        self, body: StartInstance, meta: dict[str, Any]
+    ) -> tuple[InstanceState, bool]:
+        """The vehicle's unfinished instance as the store says, or a new one (True)."""
+        vehicle_id = body.vehicle_id
+        for _ in range(_CLAIM_TRIES):
+            current = await self.repo.current_id(vehicle_id)
+            if current is not None:
+                doc = await self.repo.get(current)
+                if doc is not None and doc.get("finished_at") is None:
+                    return self._adopt(doc), False
+                await self.repo.release(vehicle_id, current)  # a claim left by a crash
+                continue
+            now = self.clock()
+            state = InstanceState(
+                instance_id="i-" + secrets.token_hex(8),
+                vehicle_id=vehicle_id,
+                name=body.name or meta.get("name") or vehicle_id,
+                vehicle_type=body.vehicle_type,
+                capabilities=list(body.capabilities),
+                started_at=now,
+                params=dict(body.params),
+                params_updated_at=now if body.params else None,
+                last_seen=now,
+                presence="online",
+            )
+            if not await self.repo.claim(vehicle_id, state.instance_id):
+                continue  # another replica started one at the same moment: take it up
+            await self.repo.insert({**state.to_doc(), "presence": "online"})
+            self._index(state)
+            self.messages.emit_now(StateWritten(state.instance_id, "instance"))
+            return state, True
+        raise Conflict(f"vehicle {vehicle_id}'s instance keeps changing; try again")
 
     def touch(self, state: InstanceState) -> None:
         """Contact from the vehicle: any request, frame, or open long poll."""
@@ -210,21 +226,24 @@ class InstanceService:
         state.moved = True
         return True
 
-    def set_control_mode(self, state: InstanceState, mode: str | None) -> bool:
+    async def set_control_mode(self, state: InstanceState, mode: str | None) -> bool:
+        """The vehicle's control mode; written at once (submits depend on it)."""
         if mode is None or mode == state.control_mode:
             return False
         state.control_mode = mode
         state.dirty = True
+        await self._write(state, time.monotonic(), whole=True)
         return True
 
     async def finish(self, principal: Principal, state: InstanceState) -> None:
         state.finished_at = self.clock()
-        self._set_presence(state, "finished")
-        await self.repo.save(state.instance_id, state.to_doc())
+        state.presence = "finished"
+        await self.repo.save(state.instance_id, {**state.to_doc(), "presence": "finished"})
+        await self.repo.release(state.vehicle_id, state.instance_id)
+        self.messages.emit_now(PresenceChanged(state.instance_id, state.vehicle_id, "finished"))
         self._unindex(state)
-        self.announce(state.instance_id, "instance")
-        for hook in self.finish_hooks:
-            await hook(state, principal)
+        self.messages.emit_now(StateWritten(state.instance_id, "instance"))
+        await self.messages.emit(InstanceFinished(state.instance_id, state.vehicle_id, principal))
         await self.events.record(
             "instance",
             vehicle_id=state.vehicle_id,
@@ -234,89 +253,121 @@ class InstanceService:
         )
 
     # ---- background -----------------------------------------------------
-    def _set_presence(self, state: InstanceState, presence: Presence, *, tell: bool = True) -> None:
-        state.presence = presence
-        if tell:
-            for listener in self.presence_listeners:
-                listener(state, presence)
-
     async def sweep(self, *, everything: bool = False) -> None:
-        """Presence changes by age, and write back what changed.
-
-        Contact and position move with every frame of every vehicle: they are
-        written at most every ``persist_interval_s`` (and on shutdown), the
-        rest at once.
-        """
+        """Presence changes by age, and write back what changed (one record at a time)."""
         now = self.clock()
+        states = list(self._by_id.values())
+        for state in states:
+            if state.polling:  # an open long poll is contact for as long as it is open
+                self.touch(state)
+        for state, presence in await self._changes(states, now):
+            try:
+                await self._change_presence(state, presence)
+            except Unavailable as exc:
+                self.dead_letters.failed("presence", exc)
+                return
+            except Exception as exc:
+                await self.dead_letters.set_aside("presence", state.instance_id, exc, state)
+                state.presence = presence  # not tried again every pass
+        await self.write_back(everything=everything)
+
+    async def write_back(self, *, everything: bool = False) -> None:
+        """Write what moved: contact every ``contact_write_s``, the rest at once."""
         tick = time.monotonic()
         every = self.settings.contact_write_s
-        states = list(self._by_id.values())
-        if self.shared:  # the vehicle may be in contact with another replica
-            for state in states:
-                if state.polling:  # an open long poll is contact; the others read it in the store
-                    self.touch(state)
-            changes = await self._recheck(states, now)
-        else:
-            # Most vehicles are online and fresh: one comparison each, presence_of for the rest.
-            fresh = now - timedelta(seconds=self.settings.stale_after_s)
-            changes = [
-                (s, p)
-                for s in states
-                if not (s.presence == "online" and s.last_seen is not None and s.last_seen >= fresh)
-                or s.finished
-                if (p := self._presence(s, now)) != s.presence
-            ]
-        for state, presence in changes:
-            told = not self.shared or await self.repo.claim_presence(state.instance_id, presence)
-            self._set_presence(state, presence, tell=told)
-            if told:  # several replicas: the one whose claim matched tells everyone
-                await self.events.record(
-                    "presence",
-                    vehicle_id=state.vehicle_id,
-                    instance_id=state.instance_id,
-                    data={"presence": presence},
-                )
-                self.announce(state.instance_id, "instance")
         pacer = Pacer()
-        for state in states:
+        for state in list(self._by_id.values()):
             due = state.moved and (everything or tick - state.saved_at >= every)
-            if state.dirty or due:
-                await self._write(state, tick)
-                await pacer.step()  # vehicles that connected together are due together
+            if not (state.dirty or due):
+                continue
+            try:
+                await self._write(state, tick, whole=state.dirty)
+            except Unavailable as exc:
+                self.dead_letters.failed("presence", exc)
+                return
+            except Exception as exc:
+                await self.dead_letters.set_aside("presence", state.instance_id, exc, state)
+                state.dirty = state.moved = False  # not tried again every pass
+            await pacer.step()  # vehicles that connected together are due together
 
-    async def save_now(self, state: InstanceState) -> None:
-        """Several replicas: write a changed record at once (control mode decides submits)."""
-        if self.shared and state.dirty:
-            await self._write(state, state.saved_at)
+    async def _changes(
+        self, states: list[InstanceState], now: datetime
+    ) -> list[tuple[InstanceState, Presence]]:
+        """The presence changes due, once the contact other replicas wrote is read back.
 
-    async def _write(self, state: InstanceState, tick: float) -> None:
-        changed = state.dirty
+        With several replicas a copy is read back a little before it would change
+        (``read_ahead_s``), so that it never looks stale here while the vehicle is in
+        contact through another replica.
+        """
+        ahead = now + timedelta(seconds=self.settings.read_ahead_s)
+        # Most vehicles are online and fresh: one comparison each, presence_of for the rest.
+        fresh = ahead - timedelta(seconds=self.settings.stale_after_s)
+        near = [
+            s
+            for s in states
+            if not (s.presence == "online" and s.last_seen is not None and s.last_seen >= fresh)
+            and self._presence(s, ahead) != s.presence
+        ]
+        if not near:
+            return []
+        try:
+            stored = await self.repo.get_many([s.instance_id for s in near])
+        except Unavailable as exc:
+            self.dead_letters.failed("presence", exc)
+            return []
+        by_id = {d["_id"]: d for d in stored}
+        out = []
+        for state in near:
+            if (doc := by_id.get(state.instance_id)) is not None:
+                state.merge_contact(doc)
+            if (presence := self._presence(state, now)) != state.presence:
+                out.append((state, presence))
+        return out
+
+    async def _change_presence(self, state: InstanceState, presence: Presence) -> None:
+        told = await self.repo.claim_presence(state.instance_id, presence)
+        state.presence = presence
+        if not told:
+            return  # another replica saw it first and told everyone
+        self.messages.emit_now(PresenceChanged(state.instance_id, state.vehicle_id, presence))
+        self.messages.emit_now(StateWritten(state.instance_id, "instance"))
+        await self.events.record(
+            "presence",
+            vehicle_id=state.vehicle_id,
+            instance_id=state.instance_id,
+            data={"presence": presence},
+        )
+
+    async def _write(self, state: InstanceState, tick: float, *, whole: bool) -> None:
+        fields = state.to_doc() if whole else state.contact_doc()
+        fields.pop("finished_at", None)  # only finish writes it
         state.dirty = state.moved = False
         state.saved_at = tick
-        # Only contact and position moved (most writes): those two fields alone.
-        fields = state.to_doc() if changed else state.contact_doc()
-        if not self.shared:
-            await self.repo.save(state.instance_id, fields)
-            return
-        await self.repo.save_shared(state.instance_id, fields)
-        if changed:
-            self.announce(state.instance_id, "instance")
+        await self.repo.save(state.instance_id, fields)
+        if whole:
+            self.messages.emit_now(StateWritten(state.instance_id, "instance"))
 
-    # ---- several replicas -------------------------------------------------
+    # ---- this replica's copies -------------------------------------------
+    def _index(self, state: InstanceState) -> None:
+        self._by_id[state.instance_id] = state
+        self._by_vehicle[state.vehicle_id] = state
+
     def _unindex(self, state: InstanceState) -> None:
         self._by_id.pop(state.instance_id, None)
         if self._by_vehicle.get(state.vehicle_id) is state:
             self._by_vehicle.pop(state.vehicle_id)
 
     def _adopt(self, doc: dict[str, Any]) -> InstanceState:
-        """This replica's copy of a stored instance, caught up with ``doc``; an
-        unfinished one is kept (another replica may have started it)."""
+        """This replica's copy of a stored instance, caught up with ``doc``. An unfinished
+        one is kept (it may be the vehicle's newest: an older copy of the vehicle goes)."""
         state = self._by_id.get(doc["instance_id"])
         if state is None:
             state = InstanceState.from_doc(doc)
+            # The presence last told (a change since is told by the next sweep).
+            state.presence = doc.get("presence") or self._presence(state, self.clock())
             if state.finished:
+                state.presence = "finished"
                 return state  # read-only
-            state.presence = self._presence(state, self.clock())
             former = self._by_vehicle.get(state.vehicle_id)
             if former is not None:
                 self._unindex(former)  # finished elsewhere: the store has the newer one
@@ -327,17 +378,8 @@ class InstanceService:
             self._unindex(state)
         return state
 
-    async def _adopt_vehicle(self, vehicle_id: str) -> None:
-        """Catch up with the vehicle's unfinished instance in the store, wherever it began."""
-        doc = await self.repo.unfinished_for_vehicle(vehicle_id)
-        cached = self._by_vehicle.get(vehicle_id)
-        if cached is not None and (doc is None or doc["instance_id"] != cached.instance_id):
-            self._unindex(cached)  # finished on another replica
-        if doc is not None:
-            self._adopt(doc)
-
     async def refresh(self, instance_id: str) -> bool:
-        """Another replica changed the instance: catch up. Whether it is finished."""
+        """Another replica changed the instance: catch up. Whether it is finished (or gone)."""
         doc = await self.repo.get(instance_id)
         if doc is None:
             if (gone := self._by_id.get(instance_id)) is not None:
@@ -346,27 +388,6 @@ class InstanceService:
         if instance_id in self._by_id:
             self._adopt(doc)
         return doc.get("finished_at") is not None
-
-    async def _recheck(
-        self, states: list[InstanceState], now: datetime
-    ) -> list[tuple[InstanceState, Presence]]:
-        """Several replicas: the presence changes due, once the contact other replicas
-        wrote is read back (one read for all). A copy is read back a little before it
-        would change (``contact_write_s`` ahead), so that it never looks stale here
-        while the vehicle is in contact with another replica."""
-        ahead = now + timedelta(seconds=self.settings.contact_write_s)
-        near = [s for s in states if self._presence(s, ahead) != s.presence]
-        if not near:
-            return []
-        stored = await self.repo.contacts([s.instance_id for s in near])
-        by_id = {d["instance_id"]: d for d in stored}
-        out = []
-        for state in near:
-            if (doc := by_id.get(state.instance_id)) is not None:
-                state.merge_contact(doc)
-            if (presence := self._presence(state, now)) != state.presence:
-                out.append((state, presence))
-        return out
 
     async def drop_finished_before(self, before: datetime) -> int:
         return await self.repo.drop_finished_before(before)

@@ -6,7 +6,6 @@ so the HTTP routes and the WebSocket ops call the same methods.
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from typing import Any, Protocol
 
 from fleet_protocol import (
@@ -20,7 +19,9 @@ from fleet_protocol import (
     UpdateParam,
 )
 from server.domain.access import Principal
+from server.domain.events import SamplesStored
 from server.services.instances import InstanceService, InstanceState
+from server.services.messagebus import MessageBus
 from server.settings import Settings
 
 
@@ -49,14 +50,18 @@ class Leases(Protocol):
 
 class VehicleLink:
     def __init__(
-        self, settings: Settings, instances: InstanceService, telemetry: Telemetry, leases: Leases
+        self,
+        settings: Settings,
+        instances: InstanceService,
+        telemetry: Telemetry,
+        leases: Leases,
+        messages: MessageBus,
     ) -> None:
         self.settings = settings
         self.instances = instances
         self.telemetry = telemetry
         self.leases = leases
-        #: Called as ``listener(vehicle_id, samples, replayed)`` with what was stored.
-        self.sample_listeners: list[Callable[[str, list[Sample], list[bool]], None]] = []
+        self.messages = messages
 
     def failsafe(self) -> FailsafePolicy:
         return FailsafePolicy(
@@ -103,8 +108,7 @@ class VehicleLink:
         if result.latest is not None:
             self.instances.set_position(state, result.latest, result.latest_doc)
         if result.stored:
-            for listener in self.sample_listeners:
-                listener(state.vehicle_id, result.stored, result.replayed)
+            self.messages.emit_now(SamplesStored(state.vehicle_id, result.stored, result.replayed))
         return {
             "accepted": result.accepted,
             "duplicates": result.duplicates,

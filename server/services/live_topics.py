@@ -1,26 +1,27 @@
 """The topics the server alone writes, and their current state for a new subscriber.
 
 ``fleet`` (presence), ``vehicle/<id>/control``, ``vehicle/<id>/commands``,
-``vehicle/<id>/events`` and ``vehicle/<id>/telemetry``: the services report
-what changed through their listeners, and each change becomes an event on
-the bus (built only when someone may listen). See docs/live.md for the shape
-of each topic's data.
+``vehicle/<id>/events`` and ``vehicle/<id>/telemetry``: the handlers here
+turn the domain events the services emit into events on the bus (built only
+when someone may listen), so that a socket on any replica hears them. See
+docs/live.md for the shape of each topic's data.
 """
 
 from __future__ import annotations
 
-from collections.abc import Awaitable, Callable
+from collections.abc import Awaitable
 from datetime import datetime
 from typing import Any
 
 from fleet_protocol import format_ts
 from server.bus import Bus
 from server.domain.access import Principal
+from server.domain.events import ControlChanged, EventRecorded, PresenceChanged, SamplesStored
 from server.services.commands import CommandService
 from server.services.control import ControlService
 from server.services.events import EventService
 from server.services.fleet import FleetViews
-from server.services.instances import InstanceService, InstanceState
+from server.services.instances import InstanceService
 
 RECENT_EVENTS = 20
 
@@ -34,7 +35,6 @@ class ServerTopics:
         control: ControlService,
         events: EventService,
         views: FleetViews,
-        fire: Callable[[Awaitable[Any]], None],
     ) -> None:
         self.bus = bus
         self.instances = instances
@@ -42,47 +42,56 @@ class ServerTopics:
         self.control = control
         self.events = events
         self.views = views
-        self._fire = fire
-        instances.presence_listeners.append(self._on_presence)
-        control.change_listeners.append(self._on_control)
-        events.subscribe(self._on_event)
 
-    def emit(self, topic: str, data: Any) -> None:
-        """An event on a topic the server writes, to every subscriber on every replica."""
+    def emit(self, topic: str, data: Any) -> Awaitable[None] | None:
+        """An event on a topic the server writes, to every subscriber on every replica:
+        delivered here within the call; what is left to await (the other replicas)."""
         if not self.bus.remote and not self.bus.has_local(topic):
-            return  # one process and nobody listening: nothing to build
+            return None  # one process and nobody listening: nothing to build
         message = {
             "op": "event",
             "topic": topic,
             "data": data() if callable(data) else data,
             "ts": format_ts(self.instances.clock()),
         }
-        pending = self.bus.publish_here_first(topic, message)
-        if pending is not None:
-            self._fire(pending)
+        return self.bus.publish_here_first(topic, message)
 
-    def _on_presence(self, state: InstanceState, presence: str) -> None:
-        view = self.views.live_view(state).model_dump(mode="json")
-        self.emit("fleet", {"vehicles": [view]})
+    # ---- handlers of the services' events (registered by the container) ---------
+    def on_presence(self, event: PresenceChanged) -> Awaitable[None] | None:
+        state = self.instances.current_by_id(event.instance_id)
+        if state is None:
+            view: dict[str, Any] = {
+                "vehicle_id": event.vehicle_id,
+                "instance_id": event.instance_id,
+                "presence": event.presence,
+            }
+        else:
+            view = self.views.live_view(state).model_dump(mode="json")
+            view["presence"] = event.presence
+        return self.emit("fleet", {"vehicles": [view]})
 
-    def _on_control(self, instance_id: str, vehicle_id: str, info: dict[str, Any] | None) -> None:
-        data = {"instance_id": instance_id, "control": _jsonable(info)}
-        self.emit(f"vehicle/{vehicle_id}/control", data)
+    def on_control(self, event: ControlChanged) -> Awaitable[None] | None:
+        data = {"instance_id": event.instance_id, "control": _jsonable(event.control)}
+        return self.emit(f"vehicle/{event.vehicle_id}/control", data)
 
-    def _on_event(self, doc: dict[str, Any]) -> None:
+    def on_event(self, event: EventRecorded) -> Awaitable[None] | None:
+        doc = event.doc
         vehicle_id = doc.get("vehicle_id")
         if not vehicle_id:
-            return
-        event = _jsonable(doc)
-        self.emit(f"vehicle/{vehicle_id}/events", {"events": [event]})
-        if doc["kind"] == "command":
-            self.emit(f"vehicle/{vehicle_id}/commands", {"commands": [event["data"]]})
+            return None
+        entry = _jsonable(doc)
+        first = self.emit(f"vehicle/{vehicle_id}/events", {"events": [entry]})
+        if doc["kind"] != "command":
+            return first
+        second = self.emit(f"vehicle/{vehicle_id}/commands", {"commands": [entry["data"]]})
+        return None if first is None and second is None else _both(first, second)
 
-    def telemetry(self, vehicle_id: str, samples: list[Any], replayed: list[bool]) -> None:
-        topic = f"vehicle/{vehicle_id}/telemetry"
+    def on_samples(self, event: SamplesStored) -> Awaitable[None] | None:
+        topic = f"vehicle/{event.vehicle_id}/telemetry"
         if not self.bus.remote and not self.bus.has_local(topic):
-            return
-        for sample, late in zip(samples, replayed, strict=True):
+            return None
+        pending = []
+        for sample, late in zip(event.samples, event.replayed, strict=True):
 
             def data(sample: Any = sample, late: bool = late) -> dict[str, Any]:
                 out: dict[str, Any] = sample.model_dump(mode="json", exclude_none=True)
@@ -90,8 +99,11 @@ class ServerTopics:
                     out["replayed"] = True
                 return out
 
-            self.emit(topic, data)
+            if (rest := self.emit(topic, data)) is not None:
+                pending.append(rest)
+        return _both(*pending) if pending else None
 
+    # ---- snapshots --------------------------------------------------------------
     async def snapshot(self, principal: Principal, topic: str) -> Any:
         """The current state of a server topic, sent first after a subscribe."""
         if topic == "fleet":
@@ -121,6 +133,12 @@ class ServerTopics:
             )
             return {"events": [_jsonable(d) for d in docs[-RECENT_EVENTS:]]}
         return None
+
+
+async def _both(*pending: Awaitable[None] | None) -> None:
+    for rest in pending:
+        if rest is not None:
+            await rest
 
 
 def _jsonable(value: Any) -> Any:

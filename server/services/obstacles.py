@@ -18,7 +18,7 @@ from fleet_protocol import CreateObstacle, PolygonGeometry
 from server.domain.planning import Zone
 from server.errors import Conflict, Invalid, NotFound
 from server.settings import Settings
-from server.storage.driver import Doc
+from server.storage.backends import Doc
 from server.storage.obstacles import ObstaclesRepo
 
 Clock = Callable[[], datetime]

@@ -5,18 +5,25 @@ yet written (the open bucket), the latest position and the durable mark.
 
 - A sample at or below the high-water mark is a duplicate: counted, not
   stored. Batches of one vehicle run one at a time (a lock per vehicle).
-- The open bucket is inserted whole when it holds ``bucket_samples`` (in the
-  ingest call) or is ``bucket_max_age_s`` old (by :meth:`run_writer`).
+- The open bucket is inserted whole when it holds ``bucket_samples`` or
+  ``bucket_max_bytes`` (in the ingest call) or is ``bucket_max_age_s`` old
+  (by :meth:`run_writer`).
 - ``acked_through_seq`` is the high-water mark (in memory or stored).
   ``durable_through_seq`` is the highest ``seq`` in a bucket that survives a
-  crash: on MongoDB once inserted (journaled writes); on the embedded store
-  once a ``store.flush()`` begun after its insert has completed.
+  crash: on MongoDB once its insert is acknowledged with the configured write
+  concern (default majority, journaled); on the embedded store once a
+  ``store.flush()`` begun after its insert has completed.
+- The writer handles one vehicle's bucket at a time: a bucket the store
+  refuses is split, the samples it cannot hold are kept aside
+  (:mod:`server.services.dead_letters`), the rest is written, and the other
+  vehicles' buckets go on regardless.
 - The latest position is the sample with the greatest ``ts``. A sample older
   than the latest position, or older than ``offline_after_s`` when it
   arrives, is flagged ``replayed`` (it came late, from an outbox).
 - Reads show each ``seq`` once (:func:`distinct_samples`): with several
   replicas a vehicle that moves between them may have a sample stored twice.
-  On ``start_instance`` a replica of several reads the high-water mark again.
+  On ``start_instance`` the high-water mark is read from the store again
+  (the vehicle may have sent samples through another replica since).
 - -1 stands for "no sample" in ``seq`` marks (a vehicle's first ``seq`` may be 0).
 """
 
@@ -30,13 +37,16 @@ from dataclasses import dataclass, field
 from datetime import datetime, timedelta
 from typing import Any
 
+import bson
+
 from fleet_protocol import Sample, utcnow
 from server.domain.track import TRACK_PAGE_CAP, cut_page, simplify
 from server.errors import Unavailable
+from server.services.dead_letters import DeadLetters
 from server.services.pacing import Pacer
 from server.settings import Settings
-from server.storage.driver import Doc, Store
-from server.storage.telemetry import TelemetryRepo, aware, distinct_samples
+from server.storage.backends import ENCODE_ERRORS, Doc, Rejected, Store
+from server.storage.telemetry import TelemetryRepo, distinct_samples
 
 log = logging.getLogger("fleet.telemetry")
 Clock = Callable[[], datetime]
@@ -81,17 +91,33 @@ class _Vehicle:
     high: int = -1
     durable: int = -1
     pending: list[Doc] = field(default_factory=list)
+    pending_bytes: int = 0  # estimated BSON size of ``pending``
     opened_at: float = 0.0  # monotonic time of the open bucket's first sample
     unflushed: list[int] = field(default_factory=list)  # max_seq of buckets awaiting a flush
     latest: Sample | None = None
+
+
+#: BSON size of a sample's fixed fields (seq, ts, position, depth, heading, speed, battery).
+_SAMPLE_BYTES = 160
 
 
 def _stored(sample: Sample) -> Doc:
     return sample.model_dump(exclude_none=True)
 
 
+def _size(doc: Doc) -> int:
+    """The BSON size of a stored sample, near enough (exact for its ``data``)."""
+    data = doc.get("data")
+    if not data:
+        return _SAMPLE_BYTES
+    try:
+        return _SAMPLE_BYTES + len(bson.encode(data))
+    except ENCODE_ERRORS:
+        return _SAMPLE_BYTES  # refused when its bucket is written, and kept aside then
+
+
 def _sample(doc: Doc) -> Sample:
-    return Sample.model_validate({**doc, "ts": aware(doc["ts"])})
+    return Sample.model_validate(doc)
 
 
 class TelemetryService:
@@ -99,22 +125,20 @@ class TelemetryService:
         self,
         settings: Settings,
         store: Store,
+        repo: TelemetryRepo,
+        dead_letters: DeadLetters,
         clock: Clock = utcnow,
-        repo: TelemetryRepo | None = None,
     ) -> None:
         self.settings = settings
         self.store = store
+        self.repo = repo
+        self.dead_letters = dead_letters
         self.clock = clock
-        # The in-process bucket index sees this process's writes only: none with several replicas.
-        self.repo = repo or TelemetryRepo(store, use_index=False if settings.shared_state else None)
         self._vehicles: dict[str, _Vehicle] = {}
-        self._last_flush = time.monotonic()
         self._offline_after = timedelta(seconds=settings.offline_after_s)
 
     async def load(self) -> None:
-        """Indexes and the in-process bucket index (embedded). Once, after ``store.load()``."""
         await self.repo.ensure_indexes()
-        await self.repo.load()
 
     # ---- ingest -------------------------------------------------------------
     def _state(self, vehicle_id: str) -> _Vehicle:
@@ -142,7 +166,12 @@ class TelemetryService:
     ) -> IngestResult:
         state = self._vehicles.get(vehicle_id) or self._state(vehicle_id)
         cap = self.settings.bucket_samples
-        if state.loaded and not state.lock.locked() and len(state.pending) + len(samples) < cap:
+        if (
+            state.loaded
+            and not state.lock.locked()
+            and len(state.pending) + len(samples) < cap
+            and state.pending_bytes < self.settings.bucket_max_bytes
+        ):
             # The common case (known vehicle, bucket not full) awaits nothing, so it
             # cannot interleave with another ingest or the writer: no lock needed.
             return self._accept(state, samples)
@@ -151,7 +180,7 @@ class TelemetryService:
             if samples and len(state.pending) >= cap * MAX_PENDING_BUCKETS:
                 raise Unavailable("telemetry cannot be stored now; send it again shortly")
             result = self._accept(state, samples)
-            while len(state.pending) >= cap:
+            while self._full(state):
                 if not await self._write_bucket(vehicle_id, state, best_effort=True):
                     break
             result.acked_through_seq = state.high
@@ -172,6 +201,7 @@ class TelemetryService:
                 state.opened_at = time.monotonic()
             doc = _stored(sample)
             state.pending.append(doc)
+            state.pending_bytes += _size(doc)
             latest = state.latest
             result.replayed.append(
                 (latest is not None and sample.ts < latest.ts) or sample.ts < stale_before
@@ -187,26 +217,86 @@ class TelemetryService:
             result.latest = state.latest
         return result
 
+    def _full(self, state: _Vehicle) -> bool:
+        return (
+            len(state.pending) >= self.settings.bucket_samples
+            or state.pending_bytes >= self.settings.bucket_max_bytes
+        )
+
+    def _chunk(self, state: _Vehicle) -> tuple[list[Doc], int]:
+        """The oldest pending samples that make one bucket (by count and bytes)."""
+        cap, max_bytes = self.settings.bucket_samples, self.settings.bucket_max_bytes
+        size = 0
+        for i, doc in enumerate(state.pending[:cap]):
+            grown = size + _size(doc)
+            if i and grown > max_bytes:
+                return state.pending[:i], size
+            size = grown
+        return state.pending[:cap], size
+
     async def _write_bucket(
         self, vehicle_id: str, state: _Vehicle, *, best_effort: bool = False
     ) -> bool:
-        """Insert the oldest ``bucket_samples`` pending samples as one bucket (under the lock)."""
-        chunk = state.pending[: self.settings.bucket_samples]
+        """Insert the oldest pending samples as one bucket (under the vehicle's lock).
+
+        A bucket the store refuses is written sample by sample: what the store
+        cannot hold is kept aside, the rest is stored. Unavailable: the samples
+        stay pending (raised, or False with ``best_effort``).
+        """
+        chunk, size = self._chunk(state)
         try:
-            meta = await self.repo.insert(self.repo.make_bucket(vehicle_id, chunk))
+            await self.repo.insert(self.repo.make_bucket(vehicle_id, chunk))
+        except Rejected as exc:
+            try:
+                await self._write_apart(vehicle_id, chunk, exc)
+            except Unavailable:
+                if not best_effort:
+                    raise
+                return False
         except Unavailable:
             if not best_effort:
                 raise
             log.warning("telemetry of %s kept in memory: the store refused the write", vehicle_id)
             return False
         del state.pending[: len(chunk)]
+        state.pending_bytes = max(0, state.pending_bytes - size)
         if state.pending:
             state.opened_at = time.monotonic()
+        mark = int(chunk[-1]["seq"])
         if self.store.durable_on_write:
-            state.durable = max(state.durable, meta.max_seq)
+            state.durable = max(state.durable, mark)
         else:
-            state.unflushed.append(meta.max_seq)
+            state.unflushed.append(mark)
         return True
+
+    async def _write_apart(self, vehicle_id: str, chunk: list[Doc], error: Exception) -> None:
+        """A bucket the store refused: its samples one by one, those refused set aside."""
+        log.error("telemetry of %s: a bucket was refused (%s); writing it apart", vehicle_id, error)
+        good: list[Doc] = []
+        for doc in chunk:
+            try:
+                self.repo.make_bucket(vehicle_id, [doc])
+            except Rejected as exc:
+                await self._set_aside(vehicle_id, doc, exc)
+                continue
+            good.append(doc)
+        if not good:
+            return
+        try:
+            await self.repo.insert(self.repo.make_bucket(vehicle_id, good))
+            return
+        except Rejected:
+            pass  # the store itself refuses something in it: one bucket per sample
+        for doc in good:
+            try:
+                await self.repo.insert(self.repo.make_bucket(vehicle_id, [doc]))
+            except Rejected as exc:
+                await self._set_aside(vehicle_id, doc, exc)
+
+    async def _set_aside(self, vehicle_id: str, doc: Doc, error: Exception) -> None:
+        record_id = f"{vehicle_id}/{doc.get('seq')}"
+        if not await self.dead_letters.set_aside("telemetry", record_id, error, doc):
+            raise Unavailable("a refused sample could not be kept aside; it stays pending")
 
     async def last_seq(self, vehicle_id: str) -> int:
         """The vehicle's highest ``seq`` the server has (-1: none), for ``start_instance``.
@@ -216,7 +306,7 @@ class TelemetryService:
         """
         state = self._state(vehicle_id)
         async with state.lock:
-            await self._load(vehicle_id, state, again=self.settings.shared_state)
+            await self._load(vehicle_id, state, again=True)
             return state.high
 
     async def latest(self, vehicle_id: str) -> Sample | None:
@@ -231,26 +321,43 @@ class TelemetryService:
 
     # ---- writer -------------------------------------------------------------
     async def write_due(self, *, everything: bool = False) -> int:
-        """Insert every open bucket that is full or old (all of them with ``everything``)."""
+        """Insert every open bucket that is full or old (all of them with ``everything``),
+        one vehicle at a time: one that fails does not hold up the others."""
         max_age = self.settings.bucket_max_age_s
-        cap = self.settings.bucket_samples
         written = 0
         now = time.monotonic()
         pacer = Pacer()
         for vehicle_id, state in list(self._vehicles.items()):
             if not state.pending:
                 continue
-            if not everything and len(state.pending) < cap and now - state.opened_at < max_age:
+            if not everything and not self._full(state) and now - state.opened_at < max_age:
                 continue  # decided without the lock: most vehicles, most ticks
-            async with state.lock:
-                while state.pending and (
-                    everything
-                    or len(state.pending) >= self.settings.bucket_samples
-                    or time.monotonic() - state.opened_at >= max_age
-                ):
-                    await self._write_bucket(vehicle_id, state)
-                    written += 1
+            try:
+                written += await self._write_vehicle(vehicle_id, state, everything, max_age)
+            except Unavailable as exc:
+                self.dead_letters.failed("telemetry", exc)
+                break  # the store is away: the next pass tries again
+            except Exception as exc:
+                # Not the store, not a sample BSON refuses: keep the bucket aside, go on.
+                async with state.lock:
+                    chunk, size = self._chunk(state)
+                    if await self.dead_letters.set_aside("telemetry", vehicle_id, exc, chunk):
+                        del state.pending[: len(chunk)]
+                        state.pending_bytes = max(0, state.pending_bytes - size)
+                        state.unflushed.append(int(chunk[-1]["seq"]))
             await pacer.step()  # buckets that opened together age out together
+        return written
+
+    async def _write_vehicle(
+        self, vehicle_id: str, state: _Vehicle, everything: bool, max_age: float
+    ) -> int:
+        written = 0
+        async with state.lock:
+            while state.pending and (
+                everything or self._full(state) or time.monotonic() - state.opened_at >= max_age
+            ):
+                await self._write_bucket(vehicle_id, state)
+                written += 1
         return written
 
     async def make_durable(self) -> bool:
@@ -263,7 +370,6 @@ class TelemetryService:
         if not marks:
             return False
         await self.store.flush()  # everything recorded before this call is on disk after it
-        self._last_flush = time.monotonic()
         for vehicle_id, (count, mark) in marks.items():
             state = self._vehicles[vehicle_id]
             state.durable = max(state.durable, mark)
@@ -283,19 +389,10 @@ class TelemetryService:
     async def writer_step(self) -> None:
         """One pass of the writer: aged buckets inserted, then made durable."""
         await self.write_due()
-        await self.make_durable()
-
-    async def run_writer(self) -> None:
-        """Background task for the app's lifespan; cancel it, then call :meth:`flush_all`."""
-        tick = self.writer_tick_s()
-        while True:
-            try:
-                await self.writer_step()
-            except asyncio.CancelledError:
-                raise
-            except Exception:
-                log.exception("telemetry writer failed; it goes on")
-            await asyncio.sleep(tick)
+        try:
+            await self.make_durable()
+        except Exception as exc:  # the journal's disk: the marks wait for the next pass
+            self.dead_letters.failed("journal", exc)
 
     async def flush_all(self) -> None:
         """Shutdown: write every open bucket and make it durable."""
@@ -326,7 +423,7 @@ class TelemetryService:
         buckets = await self.repo.in_window(vehicle_id, start, end)
         points: list[dict[str, Any]] = []
         for s in distinct_samples(buckets):
-            ts = aware(s["ts"])
+            ts = s["ts"]
             if start <= ts < end:
                 points.append(_point(s, ts))
         # A bucket written since the tail was taken may be in both: its samples count once.
@@ -359,7 +456,7 @@ class TelemetryService:
         out: list[Doc] = []
 
         def take(s: Doc) -> bool:
-            ts = aware(s["ts"])
+            ts = s["ts"]
             if (start is None or ts >= start) and (end is None or ts < end):
                 out.append({**s, "ts": ts})
             return len(out) >= limit

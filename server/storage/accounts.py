@@ -1,9 +1,8 @@
 """Users, vehicles, gateways and API tokens (as digests).
 
 Each document's ``_id`` is its key (username, vehicle id, gateway id, token
-digest), so a lookup is a keyed read: no scan on the embedded store, where a
-fleet reconnecting after a restart would otherwise cost the square of its
-size.
+digest), so a lookup is a keyed read and a second insert of one key is
+refused by the store itself (two replicas starting at once make one admin).
 """
 
 from __future__ import annotations
@@ -11,7 +10,7 @@ from __future__ import annotations
 from datetime import datetime
 from typing import Any
 
-from server.storage.driver import Doc, Store
+from server.storage.backends import Doc, Store
 
 
 class AccountsRepo:
@@ -22,58 +21,61 @@ class AccountsRepo:
         self.gateways = store["gateways"]
 
     async def ensure_indexes(self) -> None:
-        # Small collections: lookups by key; no unique index (see ARCHITECTURE.md).
-        await self.tokens.create_index([("digest", 1)])
-        await self.users.create_index([("username", 1)])
-        await self.vehicles.create_index([("vehicle_id", 1)])
+        await self.tokens.create_index([("subject", 1), ("kind", 1)])
+        await self.tokens.create_index([("expires_at", 1)])
 
     # users
     async def user(self, username: str) -> Doc | None:
         return await self.users.get(username)
 
     async def all_users(self) -> list[Doc]:
-        return await self.users.find({}, sort=[("username", 1)], projection={"password_hash": 0})
+        return await self.users.find({}, sort=[("_id", 1)], projection={"password_hash": 0})
 
     async def insert_user(self, doc: Doc) -> None:
-        await self.users.insert_one({**doc, "_id": doc["username"]})
+        """:class:`~server.storage.Duplicate` when the username is taken."""
+        await self.users.insert({**doc, "_id": doc["username"]})
 
     async def update_user(self, username: str, fields: dict[str, Any]) -> None:
-        await self.users.set_fields(username, fields)
+        await self.users.update({"_id": username}, set=fields)
 
     # vehicles and gateways
     async def vehicle(self, vehicle_id: str) -> Doc | None:
         return await self.vehicles.get(vehicle_id)
 
     async def all_vehicles(self) -> list[Doc]:
-        return await self.vehicles.find({}, sort=[("vehicle_id", 1)])
+        return await self.vehicles.find({}, sort=[("_id", 1)])
 
     async def insert_vehicle(self, doc: Doc) -> None:
-        await self.vehicles.insert_one({**doc, "_id": doc["vehicle_id"]})
+        await self.vehicles.insert({**doc, "_id": doc["vehicle_id"]})
 
     async def gateway(self, gateway_id: str) -> Doc | None:
         return await self.gateways.get(gateway_id)
 
     async def insert_gateway(self, doc: Doc) -> None:
-        await self.gateways.insert_one({**doc, "_id": doc["gateway_id"]})
+        await self.gateways.insert({**doc, "_id": doc["gateway_id"]})
 
     # tokens
     async def token(self, digest: str) -> Doc | None:
         return await self.tokens.get(digest)
 
     async def insert_token(self, doc: Doc) -> None:
-        await self.tokens.insert_one({**doc, "_id": doc["digest"]})
+        await self.tokens.insert({**doc, "_id": doc["digest"]})
+
+    async def tokens_of(self, kind: str, subject: str) -> list[Doc]:
+        return await self.tokens.find({"subject": subject, "kind": kind})
 
     async def revoke_tokens(self, flt: dict[str, Any], at: datetime) -> list[Doc]:
         """Revoke the live tokens matching ``flt``; returns them (as they were)."""
         live = await self.tokens.find({**flt, "revoked_at": None})
         for doc in live:
-            await self.tokens.set_fields(doc["_id"], {"revoked_at": at})
+            await self.tokens.update({"_id": doc["_id"]}, set={"revoked_at": at})
         return live
 
     async def reinstate_token(self, digest: str, username: str) -> None:
-        await self.tokens.set_fields(
-            digest, {"revoked_at": None, "kind": "user", "subject": username, "expires_at": None}
+        await self.tokens.update(
+            {"_id": digest},
+            set={"revoked_at": None, "kind": "user", "subject": username, "expires_at": None},
         )
 
     async def drop_expired_tokens(self, before: datetime) -> int:
-        return await self.tokens.delete_many({"expires_at": {"$lt": before}})
+        return await self.tokens.delete({"expires_at": {"$lt": before}})

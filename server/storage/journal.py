@@ -1,11 +1,19 @@
 """Durability for the embedded store: a base snapshot plus a write-ahead journal.
 
-mongomock keeps everything in memory. Every write the repositories make is
-recorded here (BSON, in order) and appended to ``<snapshot>.journal`` on each
-:meth:`Journal.flush`, fsynced. On start the base snapshot is loaded and the
-journal replayed; then both are compacted into a new base snapshot. A flush
-costs only what was written since the last one, so it can run every few
-seconds even with a million samples stored.
+Every write the embedded store makes is encoded here first (BSON; a record
+BSON cannot hold is refused before anything changes), kept in memory, and
+appended to ``<snapshot>.journal`` by :meth:`Journal.flush`, fsynced. On
+start the base snapshot is loaded and the journal replayed; then both are
+compacted into a new base. A flush costs only what was written since the
+last one, so it can run every few seconds with a million samples stored.
+
+Both files begin with a generation number. A compaction writes the new base
+(generation N + 1) to a temporary file and renames it over the old one, then
+starts a new journal the same way. A crash between the two renames leaves a
+journal of generation N beside a base of N + 1: its writes are in the base
+already, and it is skipped. A compaction that fails leaves the previous base
+and journal as they were, and the writes it would have folded in stay
+pending for the next flush.
 """
 
 from __future__ import annotations
@@ -14,15 +22,20 @@ import asyncio
 import logging
 import os
 from collections import Counter
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
 import bson
 
-from server.storage import mock_table
-
 log = logging.getLogger("fleet.storage")
+
+_CODEC: bson.CodecOptions[Any] = bson.CodecOptions(tz_aware=False)
+#: Documents per snapshot entry.
+_CHUNK = 500
+
+Replay = Callable[[dict[str, Any]], None]
+Snapshot = Callable[[], Iterator[tuple[str, list[dict[str, Any]]]]]
 
 
 def _entries(path: Path) -> Iterator[dict[str, Any]]:
@@ -30,21 +43,42 @@ def _entries(path: Path) -> Iterator[dict[str, Any]]:
         return
     with path.open("rb") as fh:
         try:
-            yield from bson.decode_file_iter(fh, bson.CodecOptions(tz_aware=True))
+            yield from bson.decode_file_iter(fh, _CODEC)
         except bson.errors.InvalidBSON:
             # A crash may leave a torn last entry: everything before it is kept.
-            log.warning("journal %s ends in a torn entry; it is ignored", path)
+            log.warning("%s ends in a torn entry; it is ignored", path)
+
+
+def _write_file(path: Path, chunks: list[bytes]) -> None:
+    """``path`` replaced whole by ``chunks``: written to a temporary file, fsynced, renamed."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp")
+    with tmp.open("wb") as fh:
+        for chunk in chunks:
+            fh.write(chunk)
+        fh.flush()
+        os.fsync(fh.fileno())
+    os.replace(tmp, path)
+    dir_fd = os.open(path.parent, os.O_RDONLY)
+    try:
+        os.fsync(dir_fd)
+    finally:
+        os.close(dir_fd)
 
 
 class Journal:
     def __init__(self, path: Path) -> None:
         self.path = Path(path)
         self.journal_path = self.path.with_name(self.path.name + ".journal")
+        self.rejected_path = self.path.with_name(self.path.name + ".rejected")
         self._pending: list[bytes] = []
         self._lock = asyncio.Lock()
-        self._collections: set[str] = set()
+        self.generation = 0
+        self._journal_started = False
 
-    def record(self, op: str, coll: str, **fields: Any) -> None:
+    @staticmethod
+    def encode(op: str, coll: str, **fields: Any) -> bytes:
+        """One entry: raises what BSON raises for a value it cannot hold."""
         entry: dict[str, Any] = {"o": op, "c": coll}
         if "docs" in fields:
             entry["d"] = fields["docs"]
@@ -54,91 +88,115 @@ class Journal:
             entry["u"] = dict(fields["update"])
         if fields.get("upsert"):
             entry["up"] = True
-        self._collections.add(coll)
-        self._pending.append(bson.encode(entry))
+        return bson.encode(entry)
+
+    def append(self, entry: bytes) -> None:
+        self._pending.append(entry)
 
     @property
     def pending(self) -> int:
         return len(self._pending)
 
     async def flush(self) -> bool:
+        """Append what was recorded since the last flush to the journal, fsynced.
+        A failure leaves it pending (and raises)."""
         async with self._lock:
             if not self._pending:
                 return False
-            chunk, self._pending = self._pending, []
-            await asyncio.to_thread(self._append, b"".join(chunk))
+            count = len(self._pending)
+            data = b"".join(self._pending[:count])
+            if not self._journal_started:
+                data = bson.encode({"gen": self.generation}) + data
+            await asyncio.to_thread(self._append, data, not self._journal_started)
+            self._journal_started = True
+            del self._pending[:count]
             return True
 
-    def _append(self, data: bytes) -> None:
+    def _append(self, data: bytes, fresh: bool) -> None:
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        with self.journal_path.open("ab") as fh:
+        with self.journal_path.open("wb" if fresh else "ab") as fh:
             fh.write(data)
             fh.flush()
             os.fsync(fh.fileno())
 
-    async def restore(self, db: Any) -> dict[str, int]:
-        """Load the base snapshot and replay the journal into ``db``; then compact."""
+    async def restore(self, replay: Replay, snapshot: Snapshot) -> dict[str, int]:
+        """Load the base, replay its journal, then compact. Each entry that fails is
+        logged and written to ``<snapshot>.rejected``; the rest goes on."""
         counts: Counter[str] = Counter()
+        base_gen: int | None = None
         for entry in _entries(self.path):
-            coll = entry["c"]
-            await db[coll].insert_many(entry["d"])
-            counts[coll] += len(entry["d"])
+            if "gen" in entry:
+                base_gen = int(entry["gen"])
+                continue
+            if self._replay_one(replay, {"o": "insert", "c": entry["c"], "d": entry["d"]}):
+                counts[entry["c"]] += len(entry["d"])
+            else:
+                counts["rejected"] += 1
         replayed = 0
-        for entry in _entries(self.journal_path):
-            await self._replay(db, entry)
-            replayed += 1
+        journal = _entries(self.journal_path)
+        first = next(journal, None)
+        journal_gen = int(first["gen"]) if first is not None and "gen" in first else None
+        if journal_gen is not None and journal_gen != (base_gen or 0):
+            log.info(
+                "journal generation %s is folded into the base (%s) already: skipped",
+                journal_gen,
+                base_gen,
+            )
+        elif first is not None:  # a journal of this base (or of a former version: no header)
+            for entry in [first, *journal] if journal_gen is None else journal:
+                if self._replay_one(replay, entry):
+                    replayed += 1
+                else:
+                    counts["rejected"] += 1
+        self.generation = base_gen or 0
         if counts or replayed:
-            await self.compact(db)
+            await self.compact(snapshot)
         return dict(counts) | ({"journal_entries": replayed} if replayed else {})
 
-    @staticmethod
-    async def _replay(db: Any, entry: dict[str, Any]) -> None:
-        coll = db[entry["c"]]
-        op = entry["o"]
-        flt = entry.get("f")
-        if (
-            op == "update"
-            and flt is not None
-            and list(flt) == ["_id"]
-            and list(entry["u"]) == ["$set"]
-        ):
-            table = mock_table.table_of(coll)  # keyed: no scan (thousands per restart)
-            if table is not None and mock_table.set_fields(table, flt["_id"], entry["u"]["$set"]):
-                return
-        if op == "insert":
-            await coll.insert_many(entry["d"])
-        elif op == "update":
-            await coll.update_one(entry["f"], entry["u"], upsert=entry.get("up", False))
-        elif op == "replace":
-            await coll.replace_one(entry["f"], entry["d"][0], upsert=entry.get("up", False))
-        elif op == "delete":
-            await coll.delete_many(entry["f"])
+    def _replay_one(self, replay: Replay, entry: dict[str, Any]) -> bool:
+        try:
+            replay(entry)
+        except Exception as exc:
+            log.error(
+                "restore: a stored %s on %s failed (%r): set aside",
+                entry.get("o"),
+                entry.get("c"),
+                exc,
+            )
+            try:
+                with self.rejected_path.open("ab") as fh:
+                    fh.write(bson.encode({"error": repr(exc), "entry": entry}))
+            except Exception:
+                log.exception("restore: the rejected entry could not be written aside")
+            return False
+        return True
 
-    async def compact(self, db: Any) -> None:
-        """Write every collection into a new base snapshot and empty the journal."""
+    async def compact(self, snapshot: Snapshot) -> None:
+        """Write every collection into a new base and start a new, empty journal."""
         async with self._lock:
-            names = sorted(set(await db.list_collection_names()) | self._collections)
-            chunks: list[bytes] = []
-            for name in names:
-                docs = await db[name].find({}).to_list(None)
-                for i in range(0, len(docs), 500):
-                    chunks.append(bson.encode({"c": name, "d": docs[i : i + 500]}))
-            self._pending.clear()
-            await asyncio.to_thread(self._write_base, chunks)
+            generation = self.generation + 1
+            chunks = [bson.encode({"gen": generation})]
+            for name, docs in snapshot():  # taken at once: no write comes in between
+                chunks.extend(_chunks(name, docs))
+            folded = len(self._pending)  # recorded before the snapshot: in it
+            await asyncio.to_thread(_write_file, self.path, chunks)
+            self.generation = generation
+            await asyncio.to_thread(
+                _write_file, self.journal_path, [bson.encode({"gen": generation})]
+            )
+            self._journal_started = True
+            del self._pending[:folded]
 
-    def _write_base(self, chunks: list[bytes]) -> None:
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = self.path.with_name(self.path.name + ".tmp")
-        with tmp.open("wb") as fh:
-            for chunk in chunks:
-                fh.write(chunk)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, self.path)
-        # The base now holds everything the journal said.
-        with self.journal_path.open("wb") as fh:
-            fh.flush()
-            os.fsync(fh.fileno())
 
-    async def close(self) -> None:
-        await self.flush()
+def _chunks(name: str, docs: list[dict[str, Any]]) -> Iterator[bytes]:
+    for i in range(0, len(docs), _CHUNK):
+        part = docs[i : i + _CHUNK]
+        try:
+            yield bson.encode({"c": name, "d": part})
+        except Exception:
+            # Never expected (every write was encoded before it was made): keep the rest.
+            for doc in part:
+                try:
+                    yield bson.encode({"c": name, "d": [doc]})
+                except Exception as exc:
+                    log.error("snapshot: a document of %s cannot be encoded (%r)", name, exc)

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from server.storage.driver import Doc, Store
+from server.storage.backends import Doc, Store
 
 
 class ObstaclesRepo:
@@ -19,7 +19,7 @@ class ObstaclesRepo:
         return await self.obstacles.count({})
 
     async def insert(self, doc: Doc) -> None:
-        await self.obstacles.insert_one({**doc, "_id": doc["obstacle_id"]})
+        await self.obstacles.insert({**doc, "_id": doc["obstacle_id"]})
 
     async def delete(self, obstacle_id: str) -> bool:
-        return await self.obstacles.delete_many({"_id": obstacle_id}) > 0
+        return await self.obstacles.delete({"_id": obstacle_id}) > 0

@@ -30,6 +30,16 @@ class Socket:
             raise ConnectionError("socket closed")
         self.frames.append(frame)
 
+    def send_nowait(self, frame: str | bytes) -> bool:
+        """What the server's protocol offers: a send at once when nothing holds it up."""
+        if not self.gate.is_set():
+            self.entered.set()
+            return False
+        if self.fail_on is not None and len(self.frames) == self.fail_on:
+            raise ConnectionError("socket closed")
+        self.frames.append(frame)
+        return True
+
 
 async def wait_idle(outbox: Outbox) -> None:
     await asyncio.wait_for(outbox.wait_idle(), WAIT_S)
@@ -228,7 +238,7 @@ def test_max_size_must_be_positive():
 
 async def test_a_send_that_must_wait_is_finished_by_the_writer_in_order():
     socket = Socket()
-    async with Outbox(socket.send) as outbox:
+    async with Outbox(socket.send, send_nowait=socket.send_nowait) as outbox:
         outbox.put("a")  # the writer is idle: sent from put itself
         await wait_idle(outbox)
         socket.gate.clear()
@@ -245,7 +255,7 @@ async def test_a_send_that_must_wait_is_finished_by_the_writer_in_order():
 
 async def test_a_send_failing_while_the_writer_is_idle_stops_the_outbox():
     socket = Socket(fail_on=1)
-    async with Outbox(socket.send) as outbox:
+    async with Outbox(socket.send, send_nowait=socket.send_nowait) as outbox:
         outbox.put("a")
         await wait_idle(outbox)
         outbox.put("b")
@@ -257,7 +267,7 @@ async def test_a_send_failing_while_the_writer_is_idle_stops_the_outbox():
 
 async def test_a_frame_held_by_the_throttle_goes_when_due_without_another_put():
     socket = Socket()
-    async with Outbox(socket.send) as outbox:  # real clock
+    async with Outbox(socket.send, send_nowait=socket.send_nowait) as outbox:  # real clock
         await wait_idle(outbox)  # the writer is idle: puts send from put itself
         outbox.put("v1", topic="t", throttle_ms=50)
         outbox.put("v2", topic="t", throttle_ms=50)  # held back for the interval

@@ -1,8 +1,4 @@
-"""TelemetryService on the embedded store: ingest, durability, restart, retention, views.
-
-Each test runs twice: with the in-process bucket index (the embedded store's
-fast path) and with plain queries (the path real MongoDB takes).
-"""
+"""TelemetryService on each store: ingest, durability, restart, retention, views."""
 
 from __future__ import annotations
 
@@ -18,7 +14,7 @@ from server.services.telemetry import TelemetryService
 from server.settings import Settings
 from server.storage import Store, open_store
 from server.storage.telemetry import TelemetryRepo
-from tests.factories import FakeClock
+from tests.factories import FakeClock, make_dead_letters
 
 T0 = datetime(2026, 11, 22, 10, 0, 0, tzinfo=UTC)
 
@@ -36,9 +32,8 @@ def samples(seqs: range | list[int], *, t0: datetime = T0, **extra: Any) -> list
 class World:
     """A service on an embedded store at one snapshot path; ``restart`` reopens it."""
 
-    def __init__(self, settings: Settings, indexed: bool, clock: FakeClock) -> None:
+    def __init__(self, settings: Settings, clock: FakeClock) -> None:
         self.settings = settings
-        self.indexed = indexed
         self.clock = clock
         self.store: Store
         self.svc: TelemetryService
@@ -46,9 +41,9 @@ class World:
     async def open(self) -> TelemetryService:
         self.store = open_store(self.settings)
         await self.store.load()
-        repo = TelemetryRepo(self.store, use_index=self.indexed)
-        assert repo.indexed is self.indexed
-        self.svc = TelemetryService(self.settings, self.store, self.clock, repo)
+        repo = TelemetryRepo(self.store)
+        dead = make_dead_letters(self.store, self.clock)
+        self.svc = TelemetryService(self.settings, self.store, repo, dead, self.clock)
         await self.svc.load()
         return self.svc
 
@@ -62,8 +57,8 @@ class World:
         return await self.open()
 
 
-@pytest.fixture(params=[True, False], ids=["indexed", "queries"])
-async def world(request: pytest.FixtureRequest, tmp_path: Path) -> AsyncIterator[World]:
+@pytest.fixture
+async def world(tmp_path: Path) -> AsyncIterator[World]:
     settings = Settings(
         _env_file=None,
         snapshot_path=tmp_path / "store.snapshot",  # type: ignore[call-arg]
@@ -71,7 +66,7 @@ async def world(request: pytest.FixtureRequest, tmp_path: Path) -> AsyncIterator
         bucket_max_age_s=60,
         retention_s=3600,
     )
-    w = World(settings, request.param, FakeClock(T0 + timedelta(hours=1)))
+    w = World(settings, FakeClock(T0 + timedelta(hours=1)))
     await w.open()
     yield w
     await w.store.close()

@@ -14,8 +14,8 @@ import httpx
 import pytest
 import websockets
 
+from server.api.ws_ops import OpRunner
 from server.services.auth import AuthService
-from server.services.live_ops import OpRunner
 from tests.factories import ADMIN, make_user, make_vehicle, sample
 from tests.live import call, connect, recv_json, recv_until
 

@@ -1,10 +1,11 @@
-"""Live links: the WebSocket connections, their topics, and the server's own events.
+"""Live links: this replica's WebSocket connections, their topics and units.
 
-The hub keeps this replica's connections and the routing table of the
-multilayer interface, turns what the services report (presence, control,
-commands, events, telemetry) into events on the server's topics, and
-delivers every topic message through the bus, so that a socket on one
-replica hears what was published on another.
+The hub keeps the connections, each with its outbox, and the routing table
+of the multilayer interface; it subscribes each socket's topics on the bus
+(so that a socket on one replica hears what was published on another) and
+hands commands to the vehicle sockets it holds. Transport only: what to say
+comes from the services (commands to hand out, a topic's current state,
+the server's own topics in :mod:`server.services.live_topics`).
 """
 
 from __future__ import annotations
@@ -26,12 +27,11 @@ from server.bus import Bus, Message, Subscription
 from server.bus.outbox import Outbox
 from server.bus.wire import dumps
 from server.domain.access import Principal
+from server.domain.events import CommandsReady, TokensRevoked
 from server.domain.routing import RoutingTable
 from server.domain.topics import UnitRef
 from server.services.commands import CommandService
 from server.services.control import ControlService
-from server.services.events import EventService
-from server.services.fleet import FleetViews
 from server.services.instances import InstanceService, InstanceState
 from server.services.live_topics import ServerTopics
 from server.settings import Settings
@@ -47,6 +47,7 @@ class Connection:
     outbox: Outbox
     close: Callable[[int, str], Awaitable[None]]
     kind: str  # "vehicle" (vehicle and gateway tokens) or "client"
+    digest: str = ""  # the token's digest (its revocation closes the socket)
     id: str = field(default_factory=lambda: secrets.token_hex(8))
     subs: dict[tuple[str, str], Subscription] = field(default_factory=dict)
     throttle: dict[str, int] = field(default_factory=dict)
@@ -66,8 +67,7 @@ class LiveHub:
         instances: InstanceService,
         commands: CommandService,
         control: ControlService,
-        events: EventService,
-        views: FleetViews,
+        topics: ServerTopics,
     ) -> None:
         self.bus = bus
         self.instances = instances
@@ -81,9 +81,8 @@ class LiveHub:
         self._last_message: dict[str, Any] | None = None
         self._routes_due: set[str] = set()
         self._last_frame = ""
-        #: The topics the server writes (presence, control, commands, events, telemetry).
-        self.topics = ServerTopics(bus, instances, commands, control, events, views, self._fire)
-        commands.ready_listeners.append(self._on_ready)
+        #: The topics the server writes: their current state for a new subscriber.
+        self.topics = topics
 
     def _fire(self, coro: Awaitable[Any]) -> None:
         task = asyncio.ensure_future(coro)
@@ -91,6 +90,9 @@ class LiveHub:
         task.add_done_callback(self._tasks.discard)
 
     # ---- commands to vehicle sockets ------------------------------------------
+    def on_commands_ready(self, event: CommandsReady) -> None:
+        self._on_ready(event.instance_id)
+
     def _on_ready(self, instance_id: str) -> None:
         if instance_id in self._vehicle_socket:
             self._fire(self.deliver_commands(instance_id))
@@ -316,9 +318,12 @@ class LiveHub:
                 del self._vehicle_socket[instance_id]
         await conn.outbox.close()
 
-    def revoked(self, token_ids: set[str]) -> None:
+    def on_tokens_revoked(self, event: TokensRevoked) -> None:
+        """Close the sockets this replica holds for tokens revoked here or elsewhere."""
+        if not (event.token_ids or event.digests):
+            return
         for conn in list(self.connections):
-            if conn.principal.token_id in token_ids:
+            if conn.principal.token_id in event.token_ids or conn.digest in event.digests:
                 self._fire(self.close(conn, CLOSE_UNAUTHORIZED, "the token was revoked"))
 
     async def stop(self) -> None:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Awaitable, Callable, Coroutine
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from pydantic import BaseModel
 
@@ -28,12 +28,10 @@ from fleet_protocol.ws import (
     parse_client_op,
     parse_vehicle_op,
 )
+from server.api.live_hub import Connection, LiveHub
 from server.domain.topics import UnitRef, check_read, check_write, unit_for
 from server.errors import FleetError, Invalid, RateLimited
-from server.services.live import Connection
-
-if TYPE_CHECKING:
-    from server.container import Services
+from server.services.registry import Services
 
 _INSTANCE_OPS = frozenset({FinishInstanceOp, UpdateParamOp, UpdateFbMessageOp, HeartbeatOp})
 #: Topics a connection's write permissions are kept for (a client writing to ever new
@@ -44,8 +42,9 @@ _WRITABLE_KEPT = 1024
 class OpRunner:
     """Runs the ops of one connection, in the order they arrive."""
 
-    def __init__(self, services: Services, conn: Connection) -> None:
+    def __init__(self, services: Services, hub: LiveHub, conn: Connection) -> None:
         self.s = services
+        self.hub = hub
         self.conn = conn
         self._allowance = float(services.settings.ws_ops_per_s)
         self._stamp = time.monotonic()
@@ -98,7 +97,7 @@ class OpRunner:
         except FrameError as exc:
             self.conn.outbox.put(exc.reply().frame())
             return None
-        if type(op) is PublishOp and not self.s.live.bus.remote:
+        if type(op) is PublishOp and not self.hub.bus.remote:
             self._publish_now(op)
             return None
         return self.run(op)
@@ -123,7 +122,7 @@ class OpRunner:
         except FleetError as exc:
             self._refuse(None, exc)
             return None
-        return self.s.live.publish_media(header.topic, frame)
+        return self.hub.publish_media(header.topic, frame)
 
     async def run(self, op: Any, *, counted: bool = False) -> None:
         """Run one op; a batch counts once against the rate (a gateway's tick is one frame)."""
@@ -145,18 +144,18 @@ class OpRunner:
             result = await self.dispatch(op)
         except FleetError as exc:
             self._refuse(op.id, exc)
-            self.s.live.flush_routes()
+            self.hub.flush_routes()
             return
         if op.id:
             self.conn.outbox.put(AckPush.success_frame(op.id, result))
         # After the ack: the pushes the op set off.
-        self.s.live.flush_routes()
+        self.hub.flush_routes()
         if kind is StartInstanceOp:
             state = self.s.instances.current(op.vehicle_id)
             if state is not None:
-                await self.s.live.attach_instance(self.conn, state)
+                await self.hub.attach_instance(self.conn, state)
         elif kind is SubscribeOp:
-            await self.s.live.start_streams(self.conn, op.topics)
+            await self.hub.start_streams(self.conn, op.topics)
 
     def _publish_now(self, op: PublishOp) -> None:
         """:meth:`run` for a ``publish`` on a local bus, where nothing waits."""
@@ -168,14 +167,14 @@ class OpRunner:
         else:
             if op.id:
                 self.conn.outbox.put(AckPush.success_frame(op.id, None))
-        self.s.live.flush_routes()
+        self.hub.flush_routes()
 
     async def dispatch(self, op: Any) -> BaseModel | dict[str, Any] | None:
         kind = type(op)
         if kind in _INSTANCE_OPS and op.instance_id not in self.conn.instances:
             state = await self.s.instances.for_vehicle_caller(self.conn.principal, op.instance_id)
             if kind is not FinishInstanceOp:
-                await self.s.live.attach_instance(self.conn, state)
+                await self.hub.attach_instance(self.conn, state)
         handler = self._handlers.get(kind)
         if handler is None:
             raise Invalid(f"op {getattr(op, 'op', '?')} is not handled here")
@@ -202,19 +201,19 @@ class OpRunner:
 
     async def _register(self, op: RegisterOp) -> dict[str, Any]:
         check_write(self.conn.principal, op.topics)
-        self.s.live.register(self.conn, self._unit(op.vehicle_id), op.topics)
+        self.hub.register(self.conn, self._unit(op.vehicle_id), op.topics)
         return {"topics": op.topics}
 
     async def _subscribe(self, op: SubscribeOp) -> dict[str, Any]:
         principal = self.conn.principal
         check_read(principal, op.topics)
         unit = self._unit(op.vehicle_id)
-        self.s.live.subscribe(self.conn, unit, op.topics, op.throttle_ms)
+        self.hub.subscribe(self.conn, unit, op.topics, op.throttle_ms)
         return {"topics": op.topics}
 
     async def _unsubscribe(self, op: UnsubscribeOp) -> dict[str, Any]:
         unit = self._unit(op.vehicle_id)
-        await self.s.live.unsubscribe(self.conn, unit, op.topics)
+        await self.hub.unsubscribe(self.conn, unit, op.topics)
         return {"topics": op.topics}
 
     def _unit(self, vehicle_id: str | None) -> UnitRef:
@@ -239,4 +238,4 @@ class OpRunner:
         if op.topic not in self._writable:
             check_write(principal, op.topic)
             self._writable.add(op.topic)
-        return self.s.live.publish(self.conn, unit, op.topic, op.data)
+        return self.hub.publish(self.conn, unit, op.topic, op.data)

@@ -1,0 +1,90 @@
+"""What one part of the server tells the others. Pure data.
+
+A service that must let others know something emits one of these through
+the message bus (:mod:`server.services.messagebus`); the handlers are
+registered once, in the composition root (``server/container.py``), so
+that services depend on each other one way only.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Literal
+
+from server.domain.access import Principal
+from server.domain.arbitration import Lease
+from server.domain.presence import Presence
+
+#: The parts of an instance's state another replica may keep a copy of.
+StatePart = Literal["instance", "lease", "commands"]
+
+
+@dataclass(frozen=True, slots=True)
+class StateWritten:
+    """A part of an instance's state was just written to the store (other replicas
+    that keep a copy read it again)."""
+
+    instance_id: str
+    part: StatePart
+
+
+@dataclass(frozen=True, slots=True)
+class InstanceFinished:
+    instance_id: str
+    vehicle_id: str
+    actor: Principal | None
+
+
+@dataclass(frozen=True, slots=True)
+class PresenceChanged:
+    instance_id: str
+    vehicle_id: str
+    presence: Presence
+
+
+@dataclass(frozen=True, slots=True)
+class ControlChanged:
+    """Who holds control of an instance now (``control`` None: nobody)."""
+
+    instance_id: str
+    vehicle_id: str
+    control: dict[str, Any] | None
+
+
+@dataclass(frozen=True, slots=True)
+class LeaseEnded:
+    lease: Lease
+    reason: str
+
+
+@dataclass(frozen=True, slots=True)
+class CommandsReady:
+    """An instance has commands to hand out (new, or due for redelivery)."""
+
+    instance_id: str
+
+
+@dataclass(frozen=True, slots=True)
+class SamplesStored:
+    """Samples accepted for a vehicle, in the order received, and whether each came late."""
+
+    vehicle_id: str
+    samples: list[Any]
+    replayed: list[bool]
+
+
+@dataclass(frozen=True, slots=True)
+class EventRecorded:
+    """An entry of the event log (its stored document)."""
+
+    doc: dict[str, Any]
+
+
+@dataclass(frozen=True, slots=True)
+class TokensRevoked:
+    """Tokens that stopped being valid: by id (their sockets close) and digest (caches)."""
+
+    token_ids: frozenset[str]
+    digests: frozenset[str]
+    #: False when the news came from another replica (it is not sent on again).
+    local: bool = True

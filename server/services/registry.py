@@ -1,0 +1,51 @@
+"""The services of one server, built once by the composition root (``server/container.py``).
+
+Routes and sockets reach them through this one object; nothing here builds
+or wires anything.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from datetime import datetime
+
+from server.bus import Bus
+from server.services.auth import AuthService
+from server.services.commands import CommandService
+from server.services.control import ControlService
+from server.services.dead_letters import DeadLetters
+from server.services.events import EventService
+from server.services.fleet import FleetViews
+from server.services.instances import InstanceService
+from server.services.link import VehicleLink
+from server.services.live_topics import ServerTopics
+from server.services.messagebus import MessageBus
+from server.services.obstacles import ObstacleService
+from server.services.readiness import Readiness
+from server.services.replicas import ReplicaSync
+from server.services.telemetry import TelemetryService
+from server.settings import Settings
+from server.storage import Store
+
+
+@dataclass
+class Services:
+    settings: Settings
+    store: Store
+    clock: Callable[[], datetime]
+    bus: Bus
+    messages: MessageBus
+    dead_letters: DeadLetters
+    readiness: Readiness
+    auth: AuthService
+    events: EventService
+    instances: InstanceService
+    control: ControlService
+    commands: CommandService
+    obstacles: ObstacleService
+    telemetry: TelemetryService
+    link: VehicleLink
+    views: FleetViews
+    topics: ServerTopics
+    replicas: ReplicaSync
