@@ -18,11 +18,12 @@ import contextlib
 import logging
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field
-from datetime import datetime, timedelta
+from datetime import timedelta
 
 from fleet_protocol import utcnow
 from server.api.live_hub import LiveHub
 from server.bus import make_bus
+from server.domain.clock import Clock
 from server.domain.events import (
     CommandsReady,
     ControlChanged,
@@ -62,7 +63,6 @@ from server.storage.obstacles import ObstaclesRepo
 from server.storage.telemetry import TelemetryRepo
 
 log = logging.getLogger("fleet.server")
-Clock = Callable[[], datetime]
 
 #: First wait between tries to reach the store at start; it doubles up to the setting.
 RETRY_MIN_S = 0.5

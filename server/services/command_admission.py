@@ -10,13 +10,13 @@ from __future__ import annotations
 
 import asyncio
 from collections.abc import Awaitable, Callable, Mapping, Sequence
-from datetime import datetime
 from typing import Any
 
 from fleet_protocol import CommandSpec
 from server.domain import arbitration
 from server.domain import commands as life
 from server.domain.access import Principal
+from server.domain.clock import Clock
 from server.domain.planning import Zone
 from server.errors import FleetError, Forbidden, InstanceFinished, RateLimited
 from server.services.control import ControlService
@@ -41,7 +41,7 @@ class Admission:
         planner: Planner,
         zones: ZoneSource,
         lanes: Mapping[str, Lane],
-        clock: Callable[[], datetime],
+        clock: Clock,
     ) -> None:
         self.instances = instances
         self.control = control

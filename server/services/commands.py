@@ -16,7 +16,7 @@ from __future__ import annotations
 import asyncio
 import secrets
 from collections import Counter
-from collections.abc import Callable, KeysView
+from collections.abc import KeysView
 from datetime import datetime
 from typing import Any
 
@@ -24,6 +24,7 @@ from fleet_protocol import SubmitControl
 from server.domain import arbitration
 from server.domain import commands as life
 from server.domain.access import Principal
+from server.domain.clock import Clock
 from server.domain.commands import AckOutcome, Command
 from server.domain.events import CommandsReady, InstanceFinished, LeaseEnded, StateWritten
 from server.errors import ControlNotHeld, Forbidden, NotFound, RateLimited, Unavailable
@@ -52,7 +53,7 @@ class CommandService:
         messages: MessageBus,
         dead_letters: DeadLetters,
         zones: ZoneSource,
-        clock: Callable[[], datetime],
+        clock: Clock,
         planner: Planner | None = None,
     ) -> None:
         self.settings = settings

@@ -15,7 +15,7 @@ from __future__ import annotations
 import dataclasses
 import secrets
 import time
-from collections.abc import Callable, KeysView
+from collections.abc import KeysView
 from datetime import datetime, timedelta
 from typing import Any
 
@@ -23,6 +23,7 @@ from fleet_protocol import ControlInfo, format_ts
 from server.domain import arbitration as rules
 from server.domain.access import Principal
 from server.domain.arbitration import ControlRequest, Grantee, Lease
+from server.domain.clock import Clock
 from server.domain.events import ControlChanged, InstanceFinished, LeaseEnded, StateWritten
 from server.errors import Conflict, Forbidden, Unavailable
 from server.errors import InstanceFinished as Finished
@@ -50,7 +51,7 @@ class ControlService:
         events: EventService,
         messages: MessageBus,
         dead_letters: DeadLetters,
-        clock: Callable[[], datetime],
+        clock: Clock,
     ) -> None:
         self.settings = settings
         self.repo = repo

@@ -18,6 +18,7 @@ from collections.abc import Callable
 from datetime import datetime
 from typing import Any
 
+from server.domain.clock import Clock
 from server.errors import Unavailable
 from server.storage.backends import Rejected
 from server.storage.dead_letters import MAX_RAW_CHARS, DeadLettersRepo
@@ -44,7 +45,7 @@ class DeadLetters:
         self,
         repo: DeadLettersRepo,
         count: Callable[[str], None],
-        clock: Callable[[], datetime],
+        clock: Clock,
     ) -> None:
         self.repo = repo
         self._count = count

@@ -3,11 +3,11 @@
 from __future__ import annotations
 
 import secrets
-from collections.abc import Callable
 from datetime import datetime, timedelta
 from typing import Any
 
 from server.domain.access import Principal
+from server.domain.clock import Clock
 from server.domain.events import EventRecorded
 from server.services.messagebus import MessageBus
 from server.storage.events import EventsRepo
@@ -16,9 +16,7 @@ MAX_EVENTS_PER_QUERY = 10_000
 
 
 class EventService:
-    def __init__(
-        self, repo: EventsRepo, messages: MessageBus, clock: Callable[[], datetime]
-    ) -> None:
+    def __init__(self, repo: EventsRepo, messages: MessageBus, clock: Clock) -> None:
         self.repo = repo
         self.messages = messages
         self.clock = clock

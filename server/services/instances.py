@@ -15,12 +15,12 @@ from __future__ import annotations
 
 import secrets
 import time
-from collections.abc import Callable
 from datetime import datetime, timedelta
 from typing import Any
 
 from fleet_protocol import Sample, StartInstance
 from server.domain.access import Principal
+from server.domain.clock import Clock
 from server.domain.events import InstanceFinished, PresenceChanged, StateWritten
 from server.domain.presence import Presence, presence_of
 from server.errors import Conflict, Forbidden, NotFound, Unavailable
@@ -49,7 +49,7 @@ class InstanceService:
         events: EventService,
         messages: MessageBus,
         dead_letters: DeadLetters,
-        clock: Callable[[], datetime],
+        clock: Clock,
     ) -> None:
         self.settings = settings
         self.repo = repo

@@ -7,21 +7,18 @@ same set at once; there are few (``FLEET_MAX_OBSTACLES``), each small.
 from __future__ import annotations
 
 import secrets
-from collections.abc import Callable
-from datetime import datetime
 from typing import Any
 
 import shapely
 from shapely.validation import explain_validity
 
 from fleet_protocol import CreateObstacle, PolygonGeometry
+from server.domain.clock import Clock
 from server.domain.planning import Zone
 from server.errors import Conflict, Invalid, NotFound
 from server.settings import Settings
 from server.storage.backends import Doc
 from server.storage.obstacles import ObstaclesRepo
-
-Clock = Callable[[], datetime]
 
 
 def check_polygon(polygon: PolygonGeometry) -> None:

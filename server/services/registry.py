@@ -6,11 +6,10 @@ or wires anything.
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass
-from datetime import datetime
 
 from server.bus import Bus
+from server.domain.clock import Clock
 from server.services.auth import AuthService
 from server.services.commands import CommandService
 from server.services.control import ControlService
@@ -33,7 +32,7 @@ from server.storage import Store
 class Services:
     settings: Settings
     store: Store
-    clock: Callable[[], datetime]
+    clock: Clock
     bus: Bus
     messages: MessageBus
     dead_letters: DeadLetters

@@ -32,7 +32,6 @@ from __future__ import annotations
 import asyncio
 import logging
 import time
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from datetime import datetime, timedelta
 from typing import Any
@@ -40,6 +39,7 @@ from typing import Any
 import bson
 
 from fleet_protocol import Sample, utcnow
+from server.domain.clock import Clock
 from server.domain.track import TRACK_PAGE_CAP, cut_page, simplify
 from server.errors import Unavailable
 from server.services.dead_letters import DeadLetters
@@ -49,7 +49,6 @@ from server.storage.backends import ENCODE_ERRORS, Doc, Rejected, Store
 from server.storage.telemetry import TelemetryRepo, distinct_samples
 
 log = logging.getLogger("fleet.telemetry")
-Clock = Callable[[], datetime]
 
 #: Points read from the store for one downsampled track; past it the track is paged.
 SIMPLIFY_INPUT_CAP = 500_000
