@@ -2,14 +2,14 @@
 
 from __future__ import annotations
 
-from typing import Any, Literal
+from typing import Literal
 
 from pydantic import Field, ValidationInfo, field_validator, model_validator
 
 from fleet_protocol.commands import CommandObject, CommandSpec
 from fleet_protocol.common import Identifier, Sample, Timestamp, WireModel
 from fleet_protocol.upper import ControlInfo, ControlMode, InstanceRef
-from fleet_protocol.values import Text
+from fleet_protocol.values import ServedObject, Text
 
 __all__ = [
     "CancelCommand",
@@ -60,7 +60,7 @@ class ConnectInstanceResult(WireModel):
 
 
 class GetParamResult(WireModel):
-    params: dict[str, Any]
+    params: ServedObject
     position: Sample | None
     updated_at: Timestamp | None
 

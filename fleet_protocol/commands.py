@@ -2,12 +2,12 @@
 
 from __future__ import annotations
 
-from typing import Any, Literal, get_args
+from typing import Literal, get_args
 
 from pydantic import Field, ValidationError, model_validator
 
 from fleet_protocol.common import Latitude, LatLon, Longitude, Timestamp, WireModel
-from fleet_protocol.values import JsonObject, Text
+from fleet_protocol.values import JsonObject, ServedObject, Text
 
 __all__ = [
     "ACK_STATUSES",
@@ -128,7 +128,7 @@ class CommandObject(WireModel):
     instance_id: Text
     vehicle_id: Text | None = None
     type: CommandType
-    args: dict[str, Any] = Field(default_factory=dict)
+    args: ServedObject = Field(default_factory=dict)
     max_drift_m: float | None = None
     status: CommandStatus
     issued_by: Text

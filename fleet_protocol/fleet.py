@@ -2,13 +2,11 @@
 
 from __future__ import annotations
 
-from typing import Any
-
 from pydantic import Field
 
 from fleet_protocol.common import Sample, Timestamp, WireModel
 from fleet_protocol.upper import ControlInfo
-from fleet_protocol.values import Text
+from fleet_protocol.values import ServedObject, ServedObjects, Text
 
 __all__ = ["Event", "EventList", "TelemetryPage", "Track", "VehicleList", "VehicleView"]
 
@@ -31,13 +29,13 @@ class VehicleList(WireModel):
 
 class Track(WireModel):
     vehicle_id: Text
-    points: list[dict[str, Any]]
+    points: ServedObjects
     truncated: bool
     next_from: Timestamp | None = None
 
 
 class TelemetryPage(WireModel):
-    samples: list[dict[str, Any]]
+    samples: ServedObjects
     next_after_seq: int | None
 
 
@@ -48,7 +46,7 @@ class Event(WireModel):
     instance_id: Text | None = None
     at: Timestamp
     actor: Text | None = None
-    data: dict[str, Any] = Field(default_factory=dict)
+    data: ServedObject = Field(default_factory=dict)
 
 
 class EventList(WireModel):

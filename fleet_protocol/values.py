@@ -38,8 +38,20 @@ from collections.abc import Callable
 from datetime import UTC, datetime
 from typing import Annotated, Any
 
-from pydantic import AfterValidator, PlainValidator, ValidationError, WithJsonSchema
-from pydantic_core import InitErrorDetails, PydanticCustomError, to_json
+from pydantic import (
+    AfterValidator,
+    PlainValidator,
+    SerializerFunctionWrapHandler,
+    ValidationError,
+    WithJsonSchema,
+    WrapSerializer,
+)
+from pydantic_core import (
+    InitErrorDetails,
+    PydanticCustomError,
+    PydanticSerializationError,
+    to_json,
+)
 
 __all__ = [
     "MAX_INT",
@@ -54,6 +66,8 @@ __all__ = [
     "JsonValue",
     "Params",
     "SampleData",
+    "ServedObject",
+    "ServedObjects",
     "Text",
     "check_text",
     "json_problem",
@@ -336,6 +350,23 @@ def json_safe(value: Any, depth: int = 0) -> Any:
         except (OverflowError, ValueError):
             return value.isoformat()
     return json_safe(str(value), depth)
+
+
+def _serve_escaped(value: Any, handler: SerializerFunctionWrapHandler) -> Any:
+    try:
+        return handler(value)
+    except (PydanticSerializationError, UnicodeError):
+        return handler(json_safe(value))
+
+
+#: Free-form fields the server fills from the store (``Event.data``,
+#: ``GetParamResult.params``, ``TelemetryPage.samples``...): a value stored before a rule
+#: existed that JSON cannot hold is sent escaped (:func:`json_safe`) instead of failing
+#: the whole answer. One call per field; the walk only when serialising failed.
+ServedObject = Annotated[dict[str, Any], WrapSerializer(_serve_escaped, return_type=dict[str, Any])]
+ServedObjects = Annotated[
+    list[dict[str, Any]], WrapSerializer(_serve_escaped, return_type=list[dict[str, Any]])
+]
 
 
 def _key_text(key: Any) -> str:

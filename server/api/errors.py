@@ -11,6 +11,8 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
+from fleet_protocol.values import shown_text
+from server.api.responses import SafeJSONResponse
 from server.errors import FleetError, RateLimited, Unavailable
 
 log = logging.getLogger("fleet.api")
@@ -35,7 +37,7 @@ _HTTP_CODES = {
 def envelope(
     status: int, code: str, message: str, details: Any = None, headers: dict[str, str] | None = None
 ) -> JSONResponse:
-    return JSONResponse(
+    return SafeJSONResponse(
         {"error": {"code": code, "message": message, "details": details}},
         status_code=status,
         headers=headers,
@@ -51,7 +53,7 @@ def field_errors(errors: list[dict[str, Any]]) -> list[dict[str, str]]:
             loc = loc[1:]
         # A discriminated/union tag in the path is noise for the reader.
         loc = [p for p in loc if not p.startswith("function-")]
-        name = ".".join(loc) or "body"
+        name = shown_text(".".join(loc)) or "body"
         msg = str(err.get("msg", "invalid value")).removeprefix("Value error, ")
         # Command args are validated as one value: split their messages by field.
         parts = [_ARGS_PART.match(p) for p in msg.split("; ")]

@@ -2,17 +2,20 @@
 
 from __future__ import annotations
 
-import json
 from typing import Any
 
 import orjson
+
+from fleet_protocol.values import safe_dumps
 
 __all__ = ["dumps"]
 
 
 def dumps(value: Any) -> str:
-    """Compact JSON text; what orjson refuses (integers past 64 bits) goes through ``json``."""
+    """Compact JSON text. What orjson refuses (an integer past 64 bits, a lone surrogate, a
+    key that is not a string: data stored by an older version) is sent escaped, never
+    refused: :func:`fleet_protocol.values.json_safe`. NaN and Infinity become null."""
     try:
         return orjson.dumps(value).decode()
-    except TypeError:
-        return json.dumps(value, separators=(",", ":"), default=str)
+    except TypeError:  # orjson.JSONEncodeError is one
+        return safe_dumps(value)
