@@ -27,10 +27,10 @@ from pydantic import ValidationError
 from fleet_protocol import (
     ControlInfo,
     FbAck,
-    Sample,
     StartInstance,
     UpdateFbMessage,
     UpdateParam,
+    field_errors,
 )
 from fleet_protocol.common import format_ts, utcnow
 from vehicle_client.adapters.base import Adapter
@@ -240,7 +240,11 @@ class VehicleAgent:
             batch = await asyncio.to_thread(self.outbox.batch, self._cursor, size)
             params = dict(self._params)
             if batch or params:
-                body = UpdateParam(instance_id=self.instance_id, params=params, samples=batch)
+                try:
+                    body = UpdateParam(instance_id=self.instance_id, params=params, samples=batch)
+                except ValidationError as exc:
+                    await self._refused(exc, batch)
+                    continue
                 res = await self.transport.update_param(body)
                 self._contact()
                 for key, value in params.items():
@@ -255,6 +259,20 @@ class VehicleAgent:
                 if len(batch) == size and res.acked_through_seq >= top:
                     continue  # draining a backlog: next batch at once
             await self._wait(self._uplink_wake, 1.0 / self.config.rate_hz)
+
+    async def _refused(self, exc: ValidationError, batch: list[dict[str, Any]]) -> None:
+        """What the wire model refuses is never sent, so it cannot block the queue for good:
+        samples stored before a rule existed leave the outbox, bad parameters are dropped."""
+        errors = field_errors(exc)
+        reason = "; ".join(f"{e.field}: {e.message}" for e in errors[:5])
+        bad = sorted({int(e.field.split(".")[1]) for e in errors if e.field.startswith("samples.")})
+        if bad:
+            await asyncio.to_thread(self.outbox.refuse, [batch[i]["seq"] for i in bad], reason)
+        if any(e.field.split(".")[0] == "params" for e in errors):
+            log.error("%s: parameters not sent: %s", self.config.vehicle_id, reason)
+            self._params.clear()
+        elif not bad:
+            raise exc  # neither a sample nor a parameter: not the data's fault
 
     async def _downlink(self) -> None:
         assert self.instance_id is not None
@@ -314,13 +332,10 @@ class VehicleAgent:
         while True:
             fields = self.adapter.telemetry()
             if fields is not None:
+                # The outbox checks it with the wire model: a bad reading is logged, counted
+                # and left out, the good ones around it are queued.
                 sample = {**fields, "ts": format_ts(utcnow())}
-                try:
-                    Sample.model_validate({**sample, "seq": 1})  # any valid seq: checks the rest
-                except ValidationError as exc:
-                    log.error("%s: sample not stored: %s", self.config.vehicle_id, exc)
-                else:
-                    await asyncio.to_thread(self.outbox.append, sample)
+                if await asyncio.to_thread(self.outbox.append, sample) is not None:
                     self._uplink_wake.set()
             due += period
             await asyncio.sleep(max(0.0, due - loop.time()))

@@ -9,7 +9,15 @@ One SQLite file (``--outbox``) holds three tables:
   that a command delivered again, even after a restart, is not carried out
   twice.
 - ``meta``: the next ``seq``, whether it was matched with the server's
-  ``last_seq`` yet, and how many samples were dropped.
+  ``last_seq`` yet, and how many samples were dropped and refused.
+
+A sample is checked with the wire model (``fleet_protocol.Sample``, under
+the ``seq`` it gets) before it is stored: one the server would refuse (a
+value JSON or the store cannot hold, ``docs/limits.md``) would block the
+queue behind it for good, so it is refused here instead: logged with its
+``seq`` and the fields at fault (never the whole payload), counted in
+``refused``, its ``seq`` left unused. :meth:`Outbox.refuse` takes out rows
+stored before a rule existed, when the wire model refuses them on sending.
 
 Bound: at most ``max_samples`` rows (default 172,800: two days at 1 Hz,
 nearly ten hours at 5 Hz). Past it the OLDEST samples are dropped, counted
@@ -32,6 +40,11 @@ import time
 from collections.abc import Iterator, MutableMapping
 from pathlib import Path
 from typing import Any
+
+from pydantic import ValidationError
+
+from fleet_protocol import Sample
+from fleet_protocol.ws import field_errors
 
 log = logging.getLogger(__name__)
 
@@ -98,6 +111,12 @@ class Outbox:
             return self._meta("dropped", 0)
 
     @property
+    def refused(self) -> int:
+        """Samples refused by the wire model (never stored, or taken out unsent)."""
+        with self._lock:
+            return self._meta("refused", 0)
+
+    @property
     def pending(self) -> int:
         with self._lock:
             return self._count
@@ -128,13 +147,20 @@ class Outbox:
                 self._set_meta("matched", 1)
             self._set_meta("next_seq", max(next_seq, last_seq + 1))
 
-    def append(self, sample: dict[str, Any]) -> int:
-        """Store one sample under the next ``seq`` and answer that ``seq``."""
+    def append(self, sample: dict[str, Any]) -> int | None:
+        """Store one sample under the next ``seq`` and answer that ``seq``; ``None`` when
+        the wire model refuses it (logged with that ``seq``, counted in :attr:`refused`)."""
         with self._lock, self._tx():
             seq = self._meta("next_seq", 1)
-            body = json.dumps({**sample, "seq": seq}, separators=(",", ":"), default=str)
-            self._db.execute("INSERT INTO samples (seq, body) VALUES (?, ?)", (seq, body))
             self._set_meta("next_seq", seq + 1)
+            numbered = {**sample, "seq": seq}
+            try:
+                Sample.model_validate(numbered)
+            except ValidationError as exc:
+                self._count_refused([seq], _reasons(exc))
+                return None
+            body = json.dumps(numbered, separators=(",", ":"), default=str)
+            self._db.execute("INSERT INTO samples (seq, body) VALUES (?, ?)", (seq, body))
             self._count += 1
             if self._count > self.max_samples:
                 self._drop_oldest(self._count - self.max_samples)
@@ -155,6 +181,20 @@ class Outbox:
                 total,
             )
 
+    def refuse(self, seqs: list[int], reason: str) -> None:
+        """Take out stored samples the wire model refuses (stored by an older version):
+        logged with their ``seq``, counted in :attr:`refused`."""
+        with self._lock, self._tx():
+            n = self._db.executemany("DELETE FROM samples WHERE seq = ?", [(s,) for s in seqs])
+            self._count -= n.rowcount
+            self._count_refused(seqs, reason)
+
+    def _count_refused(self, seqs: list[int], reason: str) -> None:
+        total = self._meta("refused", 0) + len(seqs)
+        self._set_meta("refused", total)
+        shown = ", ".join(str(s) for s in seqs[:10]) + (", ..." if len(seqs) > 10 else "")
+        log.error("sample seq %s refused, not sent (%d refused so far): %s", shown, total, reason)
+
     def batch(self, after_seq: int = 0, limit: int = 500) -> list[dict[str, Any]]:
         """The oldest samples above ``after_seq``, at most ``limit``."""
         with self._lock:
@@ -174,6 +214,11 @@ class Outbox:
     # -- plumbing --------------------------------------------------------------
     def _tx(self) -> _Transaction:
         return _Transaction(self._db)
+
+
+def _reasons(exc: ValidationError) -> str:
+    """The fields at fault and why, without the values (a reading may be large)."""
+    return "; ".join(f"{e.field}: {e.message}" for e in field_errors(exc)[:5])
 
 
 class _Transaction:

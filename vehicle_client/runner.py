@@ -144,13 +144,14 @@ async def _status(agents: list[VehicleAgent], units: UnitServer | None) -> None:
         await asyncio.sleep(STATUS_EVERY_S)
         for a in agents:
             log.info(
-                "%s: %s, mode %s, control %s, outbox %d waiting (%d dropped), %d sent",
+                "%s: %s, mode %s, control %s, outbox %d waiting (%d dropped, %d refused), %d sent",
                 a.config.vehicle_id,
                 f"connected over {a.link_kind}" if a.stats.connected else "link down",
                 a.pilot.control_mode,
                 a.control.holder if a.control else "nobody",
                 a.outbox.pending,
                 a.outbox.dropped,
+                a.outbox.refused,
                 a.stats.samples_sent,
             )
         if units is not None:
