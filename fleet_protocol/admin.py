@@ -13,6 +13,8 @@ __all__ = [
     "CreateGateway",
     "CreateUser",
     "CreateVehicle",
+    "DeadLetter",
+    "DeadLetterList",
     "GatewayCreated",
     "LoginRequest",
     "PatchUser",
@@ -92,3 +94,17 @@ class TokenResult(WireModel):
     access_token: Text
     token_type: Literal["bearer"] = "bearer"
     expires_in: int
+
+
+class DeadLetter(WireModel):
+    """A record a background loop could not handle, kept aside (``GET /api/dead_letters``)."""
+
+    loop: Text
+    record_id: Text
+    error: Text
+    raw: Text = Field(description="a text rendering of what the record held")
+    at: Timestamp
+
+
+class DeadLetterList(WireModel):
+    dead_letters: list[DeadLetter]

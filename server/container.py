@@ -80,13 +80,15 @@ class Runtime:
     #: A fresh admin token to print once (none when ``FLEET_ADMIN_TOKEN`` is set).
     admin_token: str | None = None
     tasks: list[asyncio.Task[None]] = field(default_factory=list)
+    #: Set at shutdown: every loop ends at its next turn, even if a cancellation was lost.
+    stopping: asyncio.Event = field(default_factory=asyncio.Event)
 
     def spawn(self, name: str, fn: Callable[[], Awaitable[None]], every_s: float) -> None:
         """Run ``fn`` every ``every_s`` seconds until shutdown. Each pass handles its own
         records; what still escapes it is logged and counted, and the loop goes on."""
 
         async def loop() -> None:
-            while True:
+            while not self.stopping.is_set():
                 try:
                     await fn()
                 except asyncio.CancelledError:
@@ -94,7 +96,8 @@ class Runtime:
                 except Exception:
                     log.exception("background %s failed; it goes on", name)
                     self.metrics.background_error(name)
-                await asyncio.sleep(every_s)
+                with contextlib.suppress(TimeoutError):
+                    await asyncio.wait_for(self.stopping.wait(), every_s)
 
         self.tasks.append(asyncio.create_task(loop(), name=name))
 
@@ -256,8 +259,11 @@ async def _retry_load(runtime: Runtime) -> None:
     log.error(
         "the store cannot be reached at start-up (%s); trying again", services.readiness.reason
     )
-    while True:
-        await asyncio.sleep(wait)
+    while not runtime.stopping.is_set():
+        with contextlib.suppress(TimeoutError):
+            await asyncio.wait_for(runtime.stopping.wait(), wait)
+        if runtime.stopping.is_set():
+            return
         if await _try_load(runtime):
             log.info("start-up done after %d tries", services.readiness.attempts + 1)
             _start_background(runtime)
@@ -327,10 +333,18 @@ async def shutdown(runtime: Runtime) -> None:
             log.exception("shutdown: %s failed; the rest goes on", name)
 
 
+#: How long shutdown waits for a background loop to end.
+STOP_WAIT_S = 5.0
+
+
 async def _stop_tasks(runtime: Runtime) -> None:
+    """Stop every loop: cancelled, and told by ``stopping`` in case a cancellation is lost
+    inside a driver call (Python 3.11's ``wait_for`` can swallow one)."""
+    runtime.stopping.set()
     for task in runtime.tasks:
         task.cancel()
-    for task in runtime.tasks:
-        with contextlib.suppress(asyncio.CancelledError):
-            await task
+    if runtime.tasks:
+        _, late = await asyncio.wait(runtime.tasks, timeout=STOP_WAIT_S)
+        for task in late:
+            log.error("shutdown: background %s did not stop in time", task.get_name())
     runtime.tasks.clear()

@@ -11,12 +11,16 @@ from collections.abc import Callable
 from pathlib import Path
 
 import httpx
+import pytest
 from typer.testing import CliRunner, Result
 
 from remote_client.cli import app
 from server.settings import Settings
 from tests.factories import ADMIN_TOKEN, make_user, make_vehicle, sample, start_instance
 from tests.live import free_port, serve
+
+# Each test runs on the embedded store and on FerretDB (the real MongoDB driver).
+pytestmark = pytest.mark.usefixtures("store_backend")
 
 runner = CliRunner()
 

@@ -14,6 +14,9 @@ from server.settings import Settings
 from tests.factories import ADMIN_TOKEN, make_user, make_vehicle, sample, start_instance
 from tests.live import serve
 
+# Each test runs on the embedded store and on FerretDB (the real MongoDB driver).
+pytestmark = pytest.mark.usefixtures("store_backend")
+
 
 def _token(headers: dict[str, str]) -> str:
     return headers["Authorization"].removeprefix("Bearer ")

@@ -5,7 +5,7 @@ from __future__ import annotations
 from typing import Annotated, Any
 from urllib.parse import parse_qs
 
-from fastapi import APIRouter, Depends, Request
+from fastapi import APIRouter, Depends, Query, Request
 from fastapi.exceptions import RequestValidationError
 from pydantic import ValidationError
 
@@ -13,6 +13,7 @@ from fleet_protocol import (
     CreateGateway,
     CreateUser,
     CreateVehicle,
+    DeadLetterList,
     GatewayCreated,
     LoginRequest,
     PatchUser,
@@ -84,6 +85,20 @@ async def rotate_user_token(username: str, _: Admin, s: ServicesDep) -> UserCrea
 async def revoke_user_tokens(username: str, _: Admin, s: ServicesDep) -> dict[str, bool]:
     await s.auth.revoke_user_tokens(username)
     return {"ok": True}
+
+
+@router.get("/api/dead_letters")
+async def dead_letters(
+    _: Admin,
+    s: ServicesDep,
+    loop: Annotated[str, Query(max_length=32)] = "telemetry",
+    limit: Annotated[int, Query(ge=1, le=1000)] = 100,
+) -> DeadLetterList:
+    """What the background loops set aside (oldest first): the records they could not store
+    or handle, with why."""
+    return DeadLetterList.model_validate(
+        {"dead_letters": await s.dead_letters.of_loop(loop, limit)}
+    )
 
 
 async def _login_body(request: Request) -> LoginRequest:

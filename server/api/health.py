@@ -30,7 +30,12 @@ async def readyz(services: ServicesDep) -> JSONResponse:
         if not services.bus.healthy:
             reasons["redis"] = "Redis unreachable: other replicas are not told"
     ready = all(checks.values())
-    body = {"ready": ready, "checks": checks, "store": services.store.kind}
+    body = {
+        "ready": ready,
+        "checks": checks,
+        "store": services.store.kind,
+        "durability": services.store.durability,
+    }
     if ready:
         return JSONResponse(body)
     return JSONResponse(

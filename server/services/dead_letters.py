@@ -74,5 +74,8 @@ class DeadLetters:
             return False
         return True
 
+    async def of_loop(self, loop: str, limit: int) -> list[dict[str, Any]]:
+        return await self.repo.of_loop(loop, limit)
+
     async def drop_before(self, before: datetime) -> int:
         return await self.repo.drop_before(before)

@@ -138,6 +138,8 @@ class Store(ABC):
     kind: str
     #: Whether an acknowledged write is durable (MongoDB); else after :meth:`flush`.
     durable_on_write: bool
+    #: What makes a write durable, for people (``/readyz``).
+    durability: str
 
     def __init__(self) -> None:
         self._collections: dict[str, Collection] = {}
@@ -288,6 +290,7 @@ class MongoStore(Store):
         self, url: str, db_name: str, *, timeout_ms: int, write_w: int | str, journal: bool
     ) -> None:
         super().__init__()
+        self.durability = f"w={write_w}, j={str(journal).lower()}"
         from pymongo import AsyncMongoClient
 
         self._client: Any = AsyncMongoClient(
@@ -712,19 +715,23 @@ class EmbeddedStore(Store):
 
     def __init__(self, db_name: str, snapshot_path: Path) -> None:
         super().__init__()
+        self.durability = f"journal fsynced by each flush ({snapshot_path})"
         import mongomock_motor
 
         self._client: Any = mongomock_motor.AsyncMongoMockClient(tz_aware=True)
         self._db = self._client[db_name]
         self.journal = Journal(snapshot_path)
+        self._tables: dict[str, EmbeddedCollection] = {}
         self._loaded = False
 
     def _open(self, name: str) -> Collection:
-        return EmbeddedCollection(self, self._db[name])
+        return self.collection(name)
 
     def collection(self, name: str) -> EmbeddedCollection:
-        coll = self[name]
-        assert isinstance(coll, EmbeddedCollection)
+        """The collection's table (what the journal records and replays)."""
+        coll = self._tables.get(name)
+        if coll is None:
+            coll = self._tables[name] = EmbeddedCollection(self, self._db[name])
         return coll
 
     def encode(self, op: str, coll: str, **fields: Any) -> bytes:
@@ -767,10 +774,8 @@ class EmbeddedStore(Store):
             coll.delete_now(entry["f"], journal=False)
 
     def _snapshot(self) -> Iterator[tuple[str, list[Doc]]]:
-        for name in sorted(self._collections):
-            coll = self._collections[name]
-            assert isinstance(coll, EmbeddedCollection)
-            yield name, coll.documents()
+        for name in sorted(self._tables):
+            yield name, self._tables[name].documents()
 
     async def flush(self) -> bool:
         return await self.journal.flush()

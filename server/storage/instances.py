@@ -4,6 +4,11 @@ An instance's ``_id`` is its instance id. ``vehicle_instances`` holds one
 document per vehicle with an unfinished instance (``_id``: the vehicle id):
 the store's own key makes it one per vehicle, however many replicas start
 one at the same moment.
+
+What the vehicle sends free-form (its ``params``, and its latest sample in
+``position``, whose ``data`` is free-form) is stored packed as one BSON
+binary each: the store holds it whatever its shape (FerretDB, for one,
+refuses arrays nested in arrays, which MongoDB takes) and never reads into it.
 """
 
 from __future__ import annotations
@@ -11,7 +16,35 @@ from __future__ import annotations
 from datetime import datetime
 from typing import Any
 
-from server.storage.backends import Doc, Duplicate, Store
+import bson
+
+from server.storage.backends import ENCODE_ERRORS, Doc, Duplicate, Rejected, Store
+
+#: Fields stored packed (free-form: the store never looks inside).
+PACKED = ("params", "position")
+_CODEC: bson.CodecOptions[Any] = bson.CodecOptions(tz_aware=True)
+
+
+def _pack(fields: dict[str, Any]) -> dict[str, Any]:
+    out = dict(fields)
+    for name in PACKED:
+        value = out.get(name)
+        if value is not None:
+            try:
+                out[name] = bson.Binary(bson.encode({"v": value}))
+            except ENCODE_ERRORS as exc:
+                raise Rejected(f"{name}: {type(exc).__name__}: {exc}") from exc
+    return out
+
+
+def _unpack(doc: Doc | None) -> Doc | None:
+    if doc is None:
+        return None
+    for name in PACKED:
+        value = doc.get(name)
+        if isinstance(value, bytes):
+            doc[name] = bson.decode(value, _CODEC)["v"]
+    return doc
 
 
 class InstancesRepo:
@@ -24,16 +57,17 @@ class InstancesRepo:
         await self.instances.create_index([("finished_at", 1)])
 
     async def get(self, instance_id: str) -> Doc | None:
-        return await self.instances.get(instance_id)
+        return _unpack(await self.instances.get(instance_id))
 
     async def get_many(self, instance_ids: list[str]) -> list[Doc]:
-        return await self.instances.get_many(instance_ids)
+        return [_unpack(d) or d for d in await self.instances.get_many(instance_ids)]
 
     async def unfinished(self) -> list[Doc]:
-        return await self.instances.find({"finished_at": None})
+        return [_unpack(d) or d for d in await self.instances.find({"finished_at": None})]
 
     async def latest_for_vehicle(self, vehicle_id: str) -> Doc | None:
-        return await self.instances.find_one({"vehicle_id": vehicle_id}, sort=[("started_at", -1)])
+        doc = await self.instances.find_one({"vehicle_id": vehicle_id}, sort=[("started_at", -1)])
+        return _unpack(doc)
 
     async def current_id(self, vehicle_id: str) -> str | None:
         """The vehicle's unfinished instance, as its claim says."""
@@ -53,12 +87,12 @@ class InstancesRepo:
         await self.current.delete({"_id": vehicle_id, "instance_id": instance_id})
 
     async def insert(self, doc: Doc) -> None:
-        await self.instances.insert({**doc, "_id": doc["instance_id"]})
+        await self.instances.insert(_pack({**doc, "_id": doc["instance_id"]}))
 
     async def save(self, instance_id: str, fields: dict[str, Any]) -> None:
         """Write fields of the record; ``last_seen`` never moves back."""
         seen = fields.get("last_seen")
-        rest = {k: v for k, v in fields.items() if k != "last_seen"}
+        rest = _pack({k: v for k, v in fields.items() if k != "last_seen"})
         await self.instances.update(
             {"_id": instance_id}, set=rest, max={"last_seen": seen} if seen is not None else None
         )

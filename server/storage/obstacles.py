@@ -1,8 +1,34 @@
-"""Known fixed obstacles: one small document each, keyed by ``obstacle_id``."""
+"""Known fixed obstacles: one small document each, keyed by ``obstacle_id``.
+
+A polygon is stored as rings of ``{lon, lat}`` points rather than GeoJSON's
+arrays of arrays, which FerretDB does not hold; it is GeoJSON again when read.
+"""
 
 from __future__ import annotations
 
+from typing import Any
+
 from server.storage.backends import Doc, Store
+
+
+def _stored(polygon: dict[str, Any]) -> dict[str, Any]:
+    rings = [
+        {"points": [{"lon": p[0], "lat": p[1]} for p in ring]} for ring in polygon["coordinates"]
+    ]
+    return {"type": polygon["type"], "rings": rings}
+
+
+def _geojson(stored: dict[str, Any]) -> dict[str, Any]:
+    if "coordinates" in stored:  # written by an earlier version
+        return stored
+    rings = [[[p["lon"], p["lat"]] for p in ring["points"]] for ring in stored["rings"]]
+    return {"type": stored["type"], "coordinates": rings}
+
+
+def _read(doc: Doc | None) -> Doc | None:
+    if doc is not None:
+        doc["polygon"] = _geojson(doc["polygon"])
+    return doc
 
 
 class ObstaclesRepo:
@@ -10,16 +36,18 @@ class ObstaclesRepo:
         self.obstacles = store["obstacles"]
 
     async def all(self) -> list[Doc]:
-        return await self.obstacles.find({}, sort=[("created_at", 1), ("_id", 1)])
+        docs = await self.obstacles.find({}, sort=[("created_at", 1), ("_id", 1)])
+        return [_read(d) or d for d in docs]
 
     async def get(self, obstacle_id: str) -> Doc | None:
-        return await self.obstacles.get(obstacle_id)
+        return _read(await self.obstacles.get(obstacle_id))
 
     async def count(self) -> int:
         return await self.obstacles.count({})
 
     async def insert(self, doc: Doc) -> None:
-        await self.obstacles.insert({**doc, "_id": doc["obstacle_id"]})
+        stored = {**doc, "_id": doc["obstacle_id"], "polygon": _stored(doc["polygon"])}
+        await self.obstacles.insert(stored)
 
     async def delete(self, obstacle_id: str) -> bool:
         return await self.obstacles.delete({"_id": obstacle_id}) > 0

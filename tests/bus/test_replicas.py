@@ -1,25 +1,23 @@
 """Two server replicas joined by a real Redis: operator events cross, Redis loss degrades.
 
-Replicas share state only through MongoDB, so the command path across
-replicas runs when FLEET_TEST_MONGO_URL is given; topic traffic between
-users needs no shared state (the bootstrap admin exists on both).
-test_replicas_shared_store.py runs the command path on one shared embedded
-store in one process.
+Replicas share state only through MongoDB: the command path across replicas
+runs on FerretDB (or FLEET_TEST_MONGO_URL); topic traffic between users needs
+no shared state (the bootstrap admin exists on both).
+test_replicas_processes.py runs two fleet-server processes.
 """
 
 from __future__ import annotations
 
 import asyncio
-import os
 from collections.abc import Callable
 
 import httpx
-import pytest
 
 from server.settings import Settings
 from tests.bus.conftest import RedisServer
 from tests.factories import ADMIN, ADMIN_TOKEN, make_user, make_vehicle
 from tests.live import call, connect, recv_until, serve
+from tests.stores import MongoTarget
 
 
 async def _get(url: str) -> httpx.Response:
@@ -76,17 +74,14 @@ async def test_redis_going_away_degrades_to_local_and_shows_in_readyz(
                 await asyncio.sleep(0.2)
 
 
-@pytest.mark.mongo
-@pytest.mark.skipif(
-    not os.environ.get("FLEET_TEST_MONGO_URL"),
-    reason="FLEET_TEST_MONGO_URL not set: replicas share state only via MongoDB",
-)
 async def test_command_accepted_on_a_reaches_vehicle_on_b(
-    make_settings: Callable[..., Settings], redis_server: RedisServer
+    make_settings: Callable[..., Settings], redis_server: RedisServer, mongo_url: MongoTarget
 ) -> None:
-    mongo = os.environ["FLEET_TEST_MONGO_URL"]
-    db = f"fleet_replicas_{os.getpid()}"
-    common = {"redis_url": redis_server.url, "mongo_url": mongo, "db_name": db}
+    common = {
+        "redis_url": redis_server.url,
+        "mongo_url": mongo_url.url,
+        "db_name": mongo_url.db_name,
+    }
     async with serve(make_settings(**common)) as a, serve(make_settings(**common)) as b:
         async with httpx.AsyncClient(base_url=a, timeout=10) as api_a:
             vid, vh = await make_vehicle(api_a)

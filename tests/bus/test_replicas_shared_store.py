@@ -30,6 +30,9 @@ from tests.bus.conftest import RedisServer
 from tests.factories import ADMIN, make_user, make_vehicle
 from tests.live import call, connect, recv_until, serve
 
+# Each test runs on the embedded store and on FerretDB (the real MongoDB driver).
+pytestmark = pytest.mark.usefixtures("store_backend")
+
 STALE_S = 1.5
 OFFLINE_S = 3.0
 

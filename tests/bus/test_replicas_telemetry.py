@@ -10,11 +10,15 @@ from __future__ import annotations
 from collections.abc import Callable
 
 import httpx
+import pytest
 
 from server.settings import Settings
 from tests.bus.conftest import RedisServer
 from tests.bus.test_replicas_shared_store import two_replicas
 from tests.factories import ADMIN, make_vehicle, sample, start_instance
+
+# Each test runs on the embedded store and on FerretDB (the real MongoDB driver).
+pytestmark = pytest.mark.usefixtures("store_backend")
 
 
 async def _send(api: httpx.AsyncClient, headers: dict[str, str], iid: str, seqs: range) -> int:

@@ -3,8 +3,12 @@
 from __future__ import annotations
 
 import httpx
+import pytest
 
 from tests.factories import ADMIN, bearer, make_user, make_vehicle, start_instance
+
+# Each test runs on the embedded store and on FerretDB (the real MongoDB driver).
+pytestmark = pytest.mark.usefixtures("store_backend")
 
 
 async def test_no_token_is_401_in_the_envelope(client: httpx.AsyncClient) -> None:

@@ -12,6 +12,9 @@ from server.app import create_app
 from server.settings import Settings
 from tests.factories import ADMIN, make_vehicle, start_instance
 
+# Each test runs on the embedded store and on FerretDB (the real MongoDB driver).
+pytestmark = pytest.mark.usefixtures("store_backend")
+
 GARBAGE: list[object] = [
     None,
     0,

@@ -11,6 +11,9 @@ from server.settings import Settings
 from tests.factories import ADMIN
 from tests.server.commanding import GO_TO, STOP, World, eventually, statuses, world
 
+# Each test runs on the embedded store and on FerretDB (the real MongoDB driver).
+pytestmark = pytest.mark.usefixtures("store_backend")
+
 KEEP = {"type": "keep_station", "args": {}}
 
 

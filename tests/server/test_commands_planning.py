@@ -10,6 +10,9 @@ from server.domain.geo import from_local, to_local
 from server.settings import Settings
 from tests.server.commanding import World, world
 
+# Each test runs on the embedded store and on FerretDB (the real MongoDB driver).
+pytestmark = pytest.mark.usefixtures("store_backend")
+
 ORIGIN = (43.9, 15.4)
 
 

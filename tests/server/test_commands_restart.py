@@ -4,9 +4,14 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
+import pytest
+
 from server.settings import Settings
 from tests.factories import FakeClock
 from tests.server.commanding import GO_TO, statuses, world
+
+# Each test runs on the embedded store and on FerretDB (the real MongoDB driver).
+pytestmark = pytest.mark.usefixtures("store_backend")
 
 
 async def test_queues_and_leases_survive_a_clean_restart(

@@ -13,6 +13,9 @@ from server.settings import Settings
 from tests.factories import ADMIN
 from tests.server.commanding import GO_TO, STOP, World, eventually, world
 
+# Each test runs on the embedded store and on FerretDB (the real MongoDB driver).
+pytestmark = pytest.mark.usefixtures("store_backend")
+
 
 @pytest.fixture
 async def w(make_settings: Callable[..., Settings]) -> AsyncIterator[World]:

@@ -1,9 +1,9 @@
-"""Health, metrics, and the embedded store surviving a restart; MongoDB when given."""
+"""Health, metrics, and the store (embedded, and FerretDB through the real driver)
+surviving a restart; an unreachable MongoDB."""
 
 from __future__ import annotations
 
 import asyncio
-import os
 import socket
 from collections.abc import Callable
 
@@ -30,7 +30,8 @@ def _app_client(app: object) -> httpx.AsyncClient:
     return httpx.AsyncClient(transport=httpx.ASGITransport(app=app), base_url="http://t")  # type: ignore[arg-type]
 
 
-async def test_embedded_store_survives_a_clean_restart(
+@pytest.mark.usefixtures("store_backend")
+async def test_the_store_survives_a_clean_restart(
     make_settings: Callable[..., Settings],
 ) -> None:
     settings = make_settings()
@@ -89,26 +90,3 @@ async def test_unreachable_mongodb_is_503_not_a_hang(
         r = await asyncio.wait_for(c.get("/api/vehicles", headers=ADMIN), 30)
         assert r.status_code == 503
         assert r.json()["error"]["code"] == "unavailable" and r.headers["Retry-After"]
-
-
-@pytest.mark.mongo
-@pytest.mark.skipif(
-    not os.environ.get("FLEET_TEST_MONGO_URL"),
-    reason="FLEET_TEST_MONGO_URL not set: no MongoDB server on this machine",
-)
-async def test_real_mongodb_round_trip(make_settings: Callable[..., Settings]) -> None:
-    app = create_app(
-        make_settings(
-            mongo_url=os.environ["FLEET_TEST_MONGO_URL"], db_name=f"fleet_test_{os.getpid()}"
-        )
-    )
-    async with LifespanManager(app) as m, _app_client(m.app) as c:
-        assert (await c.get("/readyz")).json()["store"] == "mongodb"
-        vid, vh = await make_vehicle(c)
-        iid = (await start_instance(c, vid, vh))["instance_id"]
-        r = await c.post(
-            "/upper/update_param",
-            headers=vh,
-            json={"instance_id": iid, "samples": [sample(1), sample(2)]},
-        )
-        assert r.json()["durable_through_seq"] == 2

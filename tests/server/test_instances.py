@@ -3,8 +3,12 @@
 from __future__ import annotations
 
 import httpx
+import pytest
 
 from tests.factories import ADMIN, FakeClock, make_user, make_vehicle, sample, start_instance
+
+# Each test runs on the embedded store and on FerretDB (the real MongoDB driver).
+pytestmark = pytest.mark.usefixtures("store_backend")
 
 
 async def test_start_returns_the_contract_fields(client: httpx.AsyncClient) -> None:

@@ -17,6 +17,9 @@ from server.settings import Settings
 from tests.factories import ADMIN, make_user
 from tests.server.commanding import World, world
 
+# Each test runs on the embedded store and on FerretDB (the real MongoDB driver).
+pytestmark = pytest.mark.usefixtures("store_backend")
+
 ORIGIN = (43.9, 15.4)
 
 

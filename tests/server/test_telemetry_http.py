@@ -9,8 +9,12 @@ from datetime import UTC, datetime, timedelta
 from typing import Any
 
 import httpx
+import pytest
 
 from tests.factories import ADMIN, make_user, make_vehicle, sample, start_instance
+
+# Each test runs on the embedded store and on FerretDB (the real MongoDB driver).
+pytestmark = pytest.mark.usefixtures("store_backend")
 
 T0 = datetime(2026, 11, 22, 10, 0, 0, tzinfo=UTC)  # sample(n) is at T0 + n s
 WINDOW = {"from": "2026-11-22T09:00:00.000Z", "to": "2026-11-22T11:00:00.000Z"}

@@ -1,4 +1,5 @@
-"""TelemetryService on each store: ingest, durability, restart, retention, views."""
+"""TelemetryService on each store (the embedded one and FerretDB, through the real
+MongoDB driver): ingest, durability, restart, retention, views."""
 
 from __future__ import annotations
 
@@ -15,6 +16,7 @@ from server.settings import Settings
 from server.storage import Store, open_store
 from server.storage.telemetry import TelemetryRepo
 from tests.factories import FakeClock, make_dead_letters
+from tests.stores import StoreBackend
 
 T0 = datetime(2026, 11, 22, 10, 0, 0, tzinfo=UTC)
 
@@ -58,13 +60,14 @@ class World:
 
 
 @pytest.fixture
-async def world(tmp_path: Path) -> AsyncIterator[World]:
+async def world(tmp_path: Path, store_backend: StoreBackend) -> AsyncIterator[World]:
     settings = Settings(
         _env_file=None,
         snapshot_path=tmp_path / "store.snapshot",  # type: ignore[call-arg]
         bucket_samples=5,
         bucket_max_age_s=60,
         retention_s=3600,
+        **store_backend.settings,
     )
     w = World(settings, FakeClock(T0 + timedelta(hours=1)))
     await w.open()
@@ -99,14 +102,17 @@ async def test_vehicles_are_numbered_apart(world: World) -> None:
     assert (other.accepted, other.duplicates) == (3, 0)
 
 
-async def test_durable_only_after_a_flush_that_follows_the_insert(world: World) -> None:
+async def test_durable_only_after_a_write_the_store_makes_durable(world: World) -> None:
     result = await world.svc.ingest("usv-1", "i1", samples(range(1, 8)))  # one full bucket of 5
-    assert (result.acked_through_seq, result.durable_through_seq) == (7, -1)
-    assert await world.svc.make_durable() is True
+    if world.store.durable_on_write:  # MongoDB: acknowledged with majority and the journal
+        assert (result.acked_through_seq, result.durable_through_seq) == (7, 5)
+        assert await world.svc.make_durable() is False
+    else:  # embedded: once the journal holding the bucket is flushed
+        assert (result.acked_through_seq, result.durable_through_seq) == (7, -1)
+        assert await world.svc.make_durable() is True
     assert world.svc.durable_through_seq("usv-1") == 5  # the open bucket (6, 7) is not stored
     assert await world.svc.write_due() == 0  # not old yet (bucket_max_age_s = 60)
     assert await world.svc.write_due(everything=True) == 1
-    assert world.svc.durable_through_seq("usv-1") == 5
     await world.svc.make_durable()
     later = await world.svc.ingest("usv-1", "i1", [])
     assert (later.acked_through_seq, later.durable_through_seq) == (7, 7)
@@ -116,11 +122,13 @@ async def test_what_was_durable_survives_a_crash(world: World) -> None:
     await world.svc.ingest("usv-1", "i1", samples(range(1, 6)))
     await world.svc.make_durable()
     assert world.svc.durable_through_seq("usv-1") == 5
-    await world.svc.ingest("usv-1", "i1", samples(range(6, 11)))  # inserted, never flushed
+    await world.svc.ingest("usv-1", "i1", samples(range(6, 11)))  # a bucket, not flushed
+    durable = world.svc.durable_through_seq("usv-1")
+    assert durable == (10 if world.store.durable_on_write else 5)
     svc = await world.crash()
     page, _ = await svc.page("usv-1", limit=100)
-    assert seqs_of(page) == [1, 2, 3, 4, 5]
-    assert await svc.last_seq("usv-1") == 5
+    assert seqs_of(page) == list(range(1, durable + 1))
+    assert await svc.last_seq("usv-1") == durable
 
 
 async def test_restart_keeps_every_sample_and_the_high_water_mark(world: World) -> None:

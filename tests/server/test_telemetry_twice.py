@@ -19,6 +19,7 @@ from contextlib import asynccontextmanager
 from typing import Any
 
 import httpx
+import pytest
 from asgi_lifespan import LifespanManager
 
 from fleet_protocol import Sample
@@ -27,6 +28,9 @@ from server.services.telemetry import TelemetryService
 from server.settings import Settings
 from server.storage.telemetry import TelemetryRepo
 from tests.factories import ADMIN, make_vehicle, sample, start_instance
+
+# Each test runs on the embedded store and on FerretDB (the real MongoDB driver).
+pytestmark = pytest.mark.usefixtures("store_backend")
 
 OURS = 80.0  # battery_pct of the samples the vehicle sends to this app
 THEIRS = 11.0  # battery_pct of the other replica's copies

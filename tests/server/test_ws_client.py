@@ -15,6 +15,9 @@ from server.settings import Settings
 from tests.factories import ADMIN, make_user, make_vehicle, sample
 from tests.live import call, connect, recv_until, serve
 
+# Each test runs on the embedded store and on FerretDB (the real MongoDB driver).
+pytestmark = pytest.mark.usefixtures("store_backend")
+
 CAPS = ["stop", "go_to", "keep_station", "follow_path"]
 
 

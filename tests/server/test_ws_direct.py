@@ -19,6 +19,9 @@ from server.services.auth import AuthService
 from tests.factories import ADMIN, make_user, make_vehicle, sample
 from tests.live import call, connect, recv_json, recv_until
 
+# Each test runs on the embedded store and on FerretDB (the real MongoDB driver).
+pytestmark = pytest.mark.usefixtures("store_backend")
+
 CAPS = ["stop", "go_to", "keep_station", "follow_path"]
 
 

@@ -11,6 +11,9 @@ import websockets
 from tests.factories import ADMIN, ADMIN_TOKEN, make_user, make_vehicle, sample
 from tests.live import call, connect, recv_until, ws_url
 
+# Each test runs on the embedded store and on FerretDB (the real MongoDB driver).
+pytestmark = pytest.mark.usefixtures("store_backend")
+
 CAPS = ["stop", "go_to", "keep_station", "follow_path"]
 
 
