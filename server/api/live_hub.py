@@ -23,8 +23,8 @@ from fleet_protocol.common import now_ts
 from fleet_protocol.links import CLOSE_REPLACED, CLOSE_UNAUTHORIZED
 from fleet_protocol.topics import is_media_topic
 from fleet_protocol.ws import CommandPush, ControlPush, EventPush, RoutesPush
+from server.api.outbox import Outbox
 from server.bus import Bus, Message, Subscription
-from server.bus.outbox import Outbox
 from server.bus.wire import dumps
 from server.domain.access import Principal
 from server.domain.events import CommandsReady, TokensRevoked

@@ -23,9 +23,9 @@ from starlette.datastructures import Headers, QueryParams
 from fleet_protocol.links import CLOSE_FORBIDDEN, CLOSE_TRY_AGAIN, CLOSE_UNAUTHORIZED
 from server.api.deps import bearer_token
 from server.api.live_hub import Connection, LiveHub
+from server.api.outbox import Frame, Outbox
 from server.api.ws_direct import DIRECT
 from server.api.ws_ops import OpRunner
-from server.bus.outbox import Frame, Outbox
 from server.errors import FleetError, Unauthorized
 from server.services.auth import digest
 from server.services.registry import Services

@@ -7,7 +7,7 @@ import json
 
 import pytest
 
-from server.bus.outbox import Outbox
+from server.api.outbox import Outbox
 
 WAIT_S = 5.0
 

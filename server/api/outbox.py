@@ -39,7 +39,7 @@ from types import TracebackType
 from typing import Any, Self
 
 from fleet_protocol.ws import LaggingPush
-from server.bus.throttle import Throttle
+from server.api.throttle import Throttle
 
 __all__ = ["DEFAULT_MAX_QUEUE", "Frame", "Outbox"]
 
