@@ -21,6 +21,9 @@ from server.settings import Settings
 from tests.factories import ADMIN, make_vehicle, sample, start_instance
 from tests.live import call, connect, recv_until, serve
 
+# Each test on the embedded store and on FerretDB: what reaches the store is what it holds.
+pytestmark = pytest.mark.usefixtures("store_backend")
+
 DEADLINE_S = 15.0
 
 
