@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import math
 import time
+from collections.abc import Mapping
 from datetime import UTC, datetime
-from typing import Annotated
+from typing import Annotated, Any
 
 from pydantic import (
     AfterValidator,
@@ -21,6 +23,7 @@ from fleet_protocol.values import (
     MAX_TIMESTAMP,
     MIN_TIMESTAMP,
     SampleData,
+    json_safe,
 )
 
 __all__ = [
@@ -152,3 +155,16 @@ class Sample(WireModel):
     speed_mps: float | None = Field(default=None, ge=0, le=200, allow_inf_nan=False)
     battery_pct: float | None = Field(default=None, ge=0, le=100, allow_inf_nan=False)
     data: SampleData = None
+
+    @classmethod
+    def from_stored(cls, doc: Mapping[str, Any]) -> Sample:
+        """A sample as the server stored it, not checked again (it was, when it came in).
+        One an older version stored that breaks a rule is served escaped: what JSON
+        cannot hold in ``data`` replaced (``json_safe``), a non-finite number as null."""
+        fields = {k: v for k, v in doc.items() if k in cls.model_fields}
+        for name, value in fields.items():
+            if isinstance(value, float) and not math.isfinite(value):
+                fields[name] = None
+        if fields.get("data") is not None:
+            fields["data"] = json_safe(fields["data"])
+        return cls.model_construct(**fields)

@@ -76,7 +76,7 @@ async def track(
         return Response(track_formats.gpx(result), media_type=media, headers=headers)
     if fmt == "csv":
         return Response(track_formats.csv_text(result), media_type=media, headers=headers)
-    body = Track(
+    body = Track.model_construct(  # from the store: checked when it came in
         vehicle_id=vehicle_id,
         points=track_formats.json_points(result),
         truncated=result.truncated,

@@ -275,11 +275,16 @@ class LiveHub:
         self._routes_due |= changed
 
     def flush_routes(self) -> None:
-        """Send ``routes`` to each unit whose part changed (after the op's ack)."""
+        """Send ``routes`` to each unit whose part changed (after the op's ack).
+
+        A gateway's own part goes before its units': the gateway relays a unit's
+        part to it, and the unit may publish at once on what it learned, so the
+        gateway must know by then what to forward up.
+        """
         if not self._routes_due:
             return
         due, self._routes_due = self._routes_due, set()
-        for unit_id in due:
+        for unit_id in sorted(due, key=lambda u: (not u.startswith("gateway:"), u)):
             conn = self._unit_conn.get(unit_id)
             if conn is not None and not conn.closed and unit_id in self.routing:
                 view = self.routing.view(unit_id)

@@ -75,7 +75,7 @@ class FleetViews:
             vehicle_type=state.vehicle_type,
             presence=self.instances.presence(state),
             instance_id=state.instance_id,
-            position=Sample.model_validate(state.position) if state.position else None,
+            position=Sample.from_stored(state.position) if state.position else None,
             control=self.leases.lease_info(state.instance_id),
             control_mode=state.control_mode,
             last_seen=state.last_seen,
@@ -104,6 +104,6 @@ class FleetViews:
             params = {k: v for k, v in params.items() if k in names}
         return GetParamResult(
             params=params,
-            position=Sample.model_validate(state.position) if state.position else None,
+            position=Sample.from_stored(state.position) if state.position else None,
             updated_at=state.params_updated_at,
         )

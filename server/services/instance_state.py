@@ -37,7 +37,7 @@ class InstanceState:
     def position_json(self) -> dict[str, Any] | None:
         if self.position is None:
             return None
-        return Sample.model_validate(self.position).model_dump(mode="json", exclude_none=True)
+        return Sample.from_stored(self.position).model_dump(mode="json", exclude_none=True)
 
     def to_doc(self) -> dict[str, Any]:
         return {

@@ -116,7 +116,7 @@ def _size(doc: Doc) -> int:
 
 
 def _sample(doc: Doc) -> Sample:
-    return Sample.model_validate(doc)
+    return Sample.from_stored(doc)
 
 
 class TelemetryService:

@@ -7,6 +7,7 @@ import asyncio
 import json
 import math
 from collections.abc import AsyncIterator, Callable
+from datetime import UTC, datetime
 from typing import Any
 
 import httpx
@@ -285,6 +286,37 @@ async def test_stored_values_json_cannot_hold_are_served_escaped_over_http(
     r = await durable_client.get(f"/api/vehicles/{vid}/telemetry", headers=ADMIN)
     assert r.status_code == 200, r.text
     assert strict_loads(r.content)["samples"][0]["data"] == ESCAPED
+
+
+async def test_a_stored_position_that_breaks_a_rule_is_served_escaped_not_500(
+    durable_client: httpx.AsyncClient,
+) -> None:
+    """A latest position an older version stored (a year-1 time, data JSON cannot hold) is
+    in the vehicle list, its view and get_param, escaped: never a 500."""
+    c = durable_client
+    vid, vh = await make_vehicle(c)
+    iid = (await start_instance(c, vid, vh))["instance_id"]
+    services = c.app.state.services  # type: ignore[attr-defined]
+    state = services.instances.current_by_id(iid)
+    state.position = {
+        **sample(7, ts=datetime(1, 1, 1, tzinfo=UTC)),
+        "ts": datetime(1, 1, 1, tzinfo=UTC),
+        "heading_deg": math.nan,
+        "data": STORED,
+    }
+    for path, params in (
+        ("/api/vehicles", None),
+        (f"/api/vehicles/{vid}", None),
+        ("/client/get_param", {"instance_id": iid}),
+    ):
+        r = await c.get(path, headers=ADMIN, params=params)
+        assert r.status_code == 200, (path, r.text)
+        body = strict_loads(r.content)
+        position = body.get("position") or next(
+            v["position"] for v in body["vehicles"] if v["vehicle_id"] == vid
+        )
+        assert position["seq"] == 7 and position["data"] == ESCAPED, path
+        assert position["ts"].startswith("0001-01-01") and position.get("heading_deg") is None
 
 
 def test_the_http_encoders_escape_instead_of_failing() -> None:
