@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import dataclasses
 import secrets
-import time
 from collections.abc import KeysView
 from datetime import datetime, timedelta
 from typing import Any
@@ -38,7 +37,7 @@ from server.storage.control import ControlRepo
 #: Tries of a compare-and-set on a lease that other replicas keep changing.
 _CAS_TRIES = 5
 #: How often unanswered control requests are looked for in the store.
-_REQUEST_SWEEP_S = 5.0
+_REQUEST_SWEEP = timedelta(seconds=1)
 
 
 class ControlService:
@@ -62,7 +61,7 @@ class ControlService:
         self.dead_letters = dead_letters
         self.clock = clock
         self._leases: dict[str, Lease] = {}
-        self._requests_swept = 0.0
+        self._requests_swept: datetime | None = None
 
     async def load(self) -> None:
         await self.repo.ensure_indexes()
@@ -207,9 +206,8 @@ class ControlService:
             except Exception as exc:
                 await self.dead_letters.set_aside("leases", lease.instance_id, exc, lease)
                 self._leases.pop(lease.instance_id, None)  # not tried again every pass
-        tick = time.monotonic()
-        if tick - self._requests_swept >= _REQUEST_SWEEP_S:
-            self._requests_swept = tick
+        if self._requests_swept is None or now - self._requests_swept >= _REQUEST_SWEEP:
+            self._requests_swept = now
             too_old = now - timedelta(seconds=self.settings.control_request_ttl_s)
             try:
                 for doc in await self.repo.drop_requests_before(too_old):
