@@ -35,7 +35,7 @@ async def _visible_vehicle(
     user: Viewer,
     s: ServicesDep,
 ) -> str:
-    await s.views.visible_vehicle(user, vehicle_id)  # 404 unknown, 403 not for this caller
+    await s.views.visible_vehicle(user, vehicle_id)  # 404: unknown, or not for this caller
     return vehicle_id
 
 

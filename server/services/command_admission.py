@@ -18,7 +18,7 @@ from server.domain import commands as life
 from server.domain.access import Principal
 from server.domain.clock import Clock
 from server.domain.planning import Zone
-from server.errors import FleetError, Forbidden, InstanceFinished, RateLimited
+from server.errors import FleetError, InstanceFinished, NotFound, RateLimited
 from server.services.control import ControlService
 from server.services.instances import InstanceService, InstanceState
 from server.services.lanes import Lane
@@ -87,8 +87,8 @@ class Admission:
 
     def admit(self, principal: Principal, state: InstanceState, spec: CommandSpec) -> None:
         """Check one instance takes this command from this caller now."""
-        if not principal.can_see(state.vehicle_id):
-            raise Forbidden(f"no access to vehicle {state.vehicle_id}")
+        if not principal.can_see(state.vehicle_id):  # as an unknown one (docs/security.md)
+            raise NotFound(f"no instance {state.instance_id}")
         if state.finished:
             raise InstanceFinished(f"instance {state.instance_id} is finished")
         life.check_capability(spec.type, state.capabilities)

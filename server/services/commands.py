@@ -27,7 +27,7 @@ from server.domain.access import Principal
 from server.domain.clock import Clock
 from server.domain.commands import AckOutcome, Command
 from server.domain.events import CommandsReady, InstanceFinished, LeaseEnded, StateWritten
-from server.errors import ControlNotHeld, Forbidden, NotFound, RateLimited, Unavailable
+from server.errors import ControlNotHeld, NotFound, RateLimited, Unavailable
 from server.services.command_admission import Admission, ZoneSource
 from server.services.control import ControlService
 from server.services.dead_letters import DeadLetters
@@ -139,7 +139,7 @@ class CommandService:
     async def cancel(self, principal: Principal, command_id: str) -> Command:
         cmd = await self._find(command_id)
         if not principal.can_see(cmd.vehicle_id):
-            raise Forbidden(f"no access to vehicle {cmd.vehicle_id}")
+            raise NotFound(f"no command {command_id}")  # as an unknown one (docs/security.md)
         if cmd.final:
             return cmd
         lease = await self.control.current(cmd.instance_id)
@@ -155,10 +155,8 @@ class CommandService:
 
     async def get(self, principal: Principal, command_id: str) -> Command:
         cmd = await self._read(command_id)
-        if cmd is None:
-            raise NotFound(f"no command {command_id}")
-        if not principal.can_see(cmd.vehicle_id):
-            raise Forbidden(f"no access to vehicle {cmd.vehicle_id}")
+        if cmd is None or not principal.can_see(cmd.vehicle_id):
+            raise NotFound(f"no command {command_id}")  # unknown, or not for this caller
         return cmd
 
     async def recent(self, principal: Principal, instance_id: str) -> tuple[str, list[Command]]:

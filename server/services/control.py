@@ -95,7 +95,7 @@ class ControlService:
     ) -> list[dict[str, Any]]:
         """The pending requests this caller may answer (a manager of the vehicle, an admin)."""
         if instance_id is not None:
-            await self.instances.find(instance_id)  # an unknown instance is a 404
+            await self.instances.for_viewer(principal, instance_id)  # unknown or unseen: 404
             docs = await self.repo.requests_of(instance_id)
         else:
             docs = await self.repo.all_requests()

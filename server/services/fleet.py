@@ -6,7 +6,7 @@ from typing import Any
 
 from fleet_protocol import ConnectInstance, GetParamResult, InstanceView, Sample, VehicleView
 from server.domain.access import Principal
-from server.errors import Forbidden, NotFound
+from server.errors import NotFound
 from server.services.auth import AuthService
 from server.services.instances import InstanceService, InstanceState
 from server.services.link import Leases
@@ -51,11 +51,11 @@ class FleetViews:
         return self._vehicle_view(meta, await self.instances.current_or_latest(vehicle_id))
 
     async def visible_vehicle(self, principal: Principal, vehicle_id: str) -> dict[str, Any]:
-        meta = await self.auth.vehicle_meta(vehicle_id)
+        """The vehicle's record, if the caller may see it: if not, it is not found, as an
+        unknown one is (docs/security.md)."""
+        meta = await self.auth.vehicle_meta(vehicle_id) if principal.can_see(vehicle_id) else None
         if meta is None:
             raise NotFound(f"no vehicle {vehicle_id}")
-        if not principal.can_see(vehicle_id):
-            raise Forbidden(f"no access to vehicle {vehicle_id}")
         return meta
 
     def _vehicle_view(self, meta: dict[str, Any], state: InstanceState | None) -> VehicleView:

@@ -85,18 +85,21 @@ class InstanceService:
         return self._adopt(doc)
 
     async def for_vehicle_caller(self, principal: Principal, instance_id: str) -> InstanceState:
-        """The instance a vehicle (or its gateway) calls about; it must be live."""
+        """The instance a vehicle (or its gateway) calls about; it must be live. Another
+        vehicle's is not found, as an unknown one is (docs/security.md)."""
         state = await self.find(instance_id)
         if not principal.acts_for(state.vehicle_id):
-            raise Forbidden(f"this token does not act for vehicle {state.vehicle_id}")
+            raise NotFound(f"no instance {instance_id}")
         if state.finished:
             raise Finished(f"instance {instance_id} is finished")
         return state
 
     async def for_viewer(self, principal: Principal, instance_id: str) -> InstanceState:
+        """The instance, if the caller may see its vehicle: if not, it is not found, as an
+        unknown one is (docs/security.md)."""
         state = await self.fresh(instance_id)
         if not principal.can_see(state.vehicle_id):
-            raise Forbidden(f"no access to vehicle {state.vehicle_id}")
+            raise NotFound(f"no instance {instance_id}")
         return state
 
     def current_by_id(self, instance_id: str) -> InstanceState | None:

@@ -170,7 +170,7 @@ async def test_get_control_refusals(w: World) -> None:
     cases: list[tuple[dict[str, str], dict[str, str | int], int]] = [
         ({}, {"instance_id": v.instance_id}, 401),
         (op.headers, {"instance_id": v.instance_id}, 403),
-        (other.headers, {"instance_id": v.instance_id}, 403),
+        (other.headers, {"instance_id": v.instance_id}, 404),  # not its own: as if none
         (v.headers, {"instance_id": "i-nope"}, 404),
         (v.headers, {"instance_id": v.instance_id, "wait_s": 31}, 422),
         (v.headers, {"instance_id": v.instance_id, "wait_s": "soon"}, 422),
@@ -188,7 +188,7 @@ async def test_update_fbmessage_refusals(w: World) -> None:
     cases = [
         ({}, good, 401),
         (ADMIN, good, 403),
-        (other.headers, good, 403),
+        (other.headers, good, 404),
         (v.headers, {"instance_id": "i-nope"}, 404),
         (v.headers, {**good, "control_mode": "asleep"}, 422),
         (v.headers, {**good, "acks": [{"command_id": "c-1", "status": "queued"}]}, 422),
@@ -259,7 +259,7 @@ async def test_cancel_command_refusals(w: World) -> None:
     cases = [
         ({}, {"command_id": cid}, 401),
         (viewer.headers, {"command_id": cid}, 403),
-        (stranger.headers, {"command_id": cid}, 403),
+        (stranger.headers, {"command_id": cid}, 404),  # as an unknown command
         (bystander.headers, {"command_id": cid}, 409),
         (op.headers, {"command_id": "c-nope"}, 404),
         (op.headers, {"command_id": ""}, 422),
@@ -297,14 +297,14 @@ async def test_get_fbmessage_and_get_command_refusals(w: World) -> None:
     r = await w.http.get(
         "/client/get_fbmessage", headers=stranger.headers, params={"instance_id": v.instance_id}
     )
-    assert r.status_code == 403
+    assert r.status_code == 404
     r = await w.http.get(
         "/client/get_fbmessage", headers=op.headers, params={"instance_id": "i-nope"}
     )
     assert r.status_code == 404
     r = await w.http.get("/client/get_fbmessage", headers=op.headers)
     assert r.status_code == 422
-    assert (await w.http.get(f"/api/commands/{cid}", headers=stranger.headers)).status_code == 403
+    assert (await w.http.get(f"/api/commands/{cid}", headers=stranger.headers)).status_code == 404
     assert (await w.http.get("/api/commands/c-nope", headers=ADMIN)).status_code == 404
     assert (await w.http.get(f"/api/commands/{cid}")).status_code == 401
 

@@ -79,7 +79,7 @@ async def test_request_control_refusals(w: World) -> None:
     cases = [
         ({}, {"instance_id": v.instance_id}, 401),
         (viewer.headers, {"instance_id": v.instance_id}, 403),
-        (stranger.headers, {"instance_id": v.instance_id}, 403),
+        (stranger.headers, {"instance_id": v.instance_id}, 404),  # as if there were none
         (v.headers, {"instance_id": v.instance_id}, 403),
         (op.headers, {"instance_id": "i-nope"}, 404),
         (op.headers, {}, 422),
@@ -99,7 +99,7 @@ async def test_grant_refusals(w: World) -> None:
     cases = [
         ({}, good, 401, "unauthorized"),
         (op.headers, good, 403, "forbidden"),
-        (other_boss.headers, good, 403, "forbidden"),
+        (other_boss.headers, good, 404, "not_found"),  # not its vehicle: as if none
         (ADMIN, {**good, "user": viewer.username}, 422, "invalid"),
         (ADMIN, {**good, "user": outsider.username}, 422, "invalid"),
         (ADMIN, {**good, "user": "nobody"}, 422, "invalid"),
@@ -162,7 +162,8 @@ async def test_revoke_refusals(w: World) -> None:
     v = await w.vehicle()
     op = await w.operator_in_control(v)
     other_boss = await w.person("manager")
-    for headers, status in (({}, 401), (op.headers, 403), (other_boss.headers, 403)):
+    # the operator sees the vehicle but may not revoke (403); the other manager does not see it
+    for headers, status in (({}, 401), (op.headers, 403), (other_boss.headers, 404)):
         r = await post(w, "revoke_control", headers, instance_id=v.instance_id)
         assert r.status_code == status, r.text
     assert (await w.submit(op, [v], GO_TO)).status_code == 202  # still held

@@ -91,12 +91,17 @@ async def test_unregistered_vehicle_cannot_start(client: httpx.AsyncClient) -> N
     assert r.status_code == 403
 
 
-async def test_another_vehicles_instance_is_403(client: httpx.AsyncClient) -> None:
+async def test_another_vehicles_instance_is_404(client: httpx.AsyncClient) -> None:
     v1, h1 = await make_vehicle(client)
     _, h2 = await make_vehicle(client)
     iid = (await start_instance(client, v1, h1))["instance_id"]
     r = await client.post("/upper/heartbeat", headers=h2, json={"instance_id": iid})
-    assert r.status_code == 403
+    assert r.status_code == 404  # as an unknown one: its existence is not told
+    assert r.json()["error"] == {
+        "code": "not_found",
+        "message": f"no instance {iid}",
+        "details": None,
+    }
 
 
 async def test_params_merge_and_position(client: httpx.AsyncClient) -> None:
@@ -135,9 +140,9 @@ async def test_viewer_sees_only_assigned_vehicles(client: httpx.AsyncClient) -> 
     assert [v["vehicle_id"] for v in listed] == [v1]
     assert listed[0]["presence"] == "offline" and listed[0]["instance_id"] is None
     r = await client.get("/client/get_param", headers=viewer, params={"instance_id": i2})
-    assert r.status_code == 403
+    assert r.status_code == 404
     r = await client.post("/client/connect_instance", headers=viewer, json={"vehicle_id": v2})
-    assert r.status_code == 403
+    assert r.status_code == 404
 
 
 async def test_connect_by_vehicle_id(client: httpx.AsyncClient) -> None:
