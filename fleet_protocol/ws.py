@@ -57,6 +57,7 @@ __all__ = [
     "MAX_OP_ID_CHARS",
     "MAX_TOPICS_PER_OP",
     "AckPush",
+    "AuthOp",
     "BatchOp",
     "ClientOp",
     "CommandPush",
@@ -154,6 +155,15 @@ class PublishOp(_UnitOp):
     topic: Topic
     #: Any JSON value the store and JSON can hold (``fleet_protocol.values``).
     data: JsonValue = None
+
+
+class AuthOp(_Op):
+    """The first frame of a socket opened with no token in a header or in the URL (a
+    browser cannot set headers, and a URL ends up in logs and histories): the token,
+    then the socket is used as any other. Nothing else is read before it."""
+
+    op: Literal["auth"] = "auth"
+    token: Text = Field(min_length=1, max_length=512)
 
 
 _SingleVehicleOp = Annotated[

@@ -5,12 +5,12 @@ from __future__ import annotations
 import ctypes
 import ctypes.util
 import gc
-import logging
 from typing import Any
 
 import typer
 import uvicorn
 
+from server.logs import log_config
 from server.settings import Settings
 
 
@@ -45,9 +45,6 @@ def run(settings: Settings) -> None:
     from server.api.ws_direct import uvicorn_ws_options
     from server.app import create_app
 
-    logging.basicConfig(
-        level=settings.log_level.upper(), format="%(asctime)s %(levelname)s %(name)s: %(message)s"
-    )
     app = create_app(settings)
     _settle_gc()
     _settle_malloc(settings.ws_max_binary_bytes)
@@ -56,6 +53,7 @@ def run(settings: Settings) -> None:
         host=settings.host,
         port=settings.port,
         log_level=settings.log_level,
+        log_config=log_config(settings.log_level),  # no token in any line (server/logs.py)
         access_log=False,
         **uvicorn_ws_options(),
         # Open long polls (up to 30 s) must not hold a stop up: they are cut after this.

@@ -20,6 +20,7 @@ import uvicorn
 
 from server.api.ws_direct import uvicorn_ws_options
 from server.app import create_app
+from server.logs import log_config
 from server.services.auth import new_token
 from server.settings import Settings
 
@@ -88,6 +89,7 @@ async def main() -> None:
             host=settings.host,
             port=settings.port,
             log_level="warning",
+            log_config=log_config("warning"),  # no token in any line (server/logs.py)
             **uvicorn_ws_options(),
         )
     )

@@ -101,6 +101,17 @@ class Settings(BaseSettings):
     ws_queue_size: int = Field(
         default=1000, ge=10, description="frames waiting per WebSocket before the oldest drop"
     )
+    ws_queue_bytes: int = Field(
+        default=8 * 2**20,
+        ge=65_536,
+        description="bytes waiting per WebSocket before it is closed (4429: reading too slowly)",
+    )
+    ws_auth_wait_s: float = Field(
+        default=10.0,
+        gt=0,
+        le=300,
+        description="a socket opened without a token has this long to send its auth frame",
+    )
     ws_ops_per_s: float = Field(
         default=500.0, gt=0, description="ops per second per WebSocket before rate_limited"
     )

@@ -29,6 +29,7 @@ LAYERS = {
     "server.errors": ("errors", 0),  # leaves every layer may use
     "server.settings": ("settings", 0),
     "server.metrics": ("metrics", 0),
+    "server.logs": ("logs", 0),
 }
 
 

@@ -295,6 +295,10 @@ class LiveHub:
         self.connections.add(conn)
         conn.outbox.start()
 
+    def close_soon(self, conn: Connection, code: int, reason: str) -> None:
+        """:meth:`close` from code that cannot wait (an outbox giving up on its reader)."""
+        self._fire(self.close(conn, code, reason))
+
     async def close(self, conn: Connection, code: int, reason: str) -> None:
         if conn.closed:
             return

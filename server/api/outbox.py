@@ -11,7 +11,10 @@ must wait is sent by the writer.
 - **Bounded.** With ``max_size`` frames waiting, a new frame drops the
   oldest waiting frame that is not critical; the drops are counted and the
   client is told before the next frame with ``{"op": "lagging",
-  "dropped": n}``.
+  "dropped": n}``. With more than ``max_bytes`` waiting (a reader too slow for
+  what it subscribed to), the outbox gives up: everything waiting is let go at
+  once, nothing more is taken, and ``on_overflow`` is called (the socket is
+  closed with a code that says so).
 - **Critical frames** (a ``stop`` command push) are never dropped, and go
   before every other waiting frame.
 - **Latest wins** (binary media topics): a new frame on a topic replaces the
@@ -64,6 +67,8 @@ class Outbox:
         *,
         send_nowait: Callable[[Frame], bool] | None = None,
         max_size: int = DEFAULT_MAX_QUEUE,
+        max_bytes: int | None = None,
+        on_overflow: Callable[[], None] | None = None,
         clock: Callable[[], float] = time.monotonic,
     ) -> None:
         if max_size < 1:
@@ -71,6 +76,12 @@ class Outbox:
         self._send = send
         self._send_nowait = send_nowait
         self.max_size = max_size
+        self.max_bytes = max_bytes
+        self._on_overflow = on_overflow
+        #: Size of the frames waiting (characters of a text frame, bytes of a binary one).
+        self.queued_bytes = 0
+        #: The reader fell ``max_bytes`` behind: the outbox let everything go.
+        self.overflowed = False
         self._clock = clock
         self._critical: deque[_Entry] = deque()
         self._normal: deque[_Entry] = deque()
@@ -123,11 +134,15 @@ class Outbox:
             return  # nothing waited or was held back: the frame went out at once, unqueued
         if critical:
             self._critical.append(_Entry(frame, None))
+            self.queued_bytes += len(frame)
         elif topic is not None and throttle_ms > 0:
             if self._throttle.offer(topic, (frame, latest_wins), throttle_ms / 1000, self._clock()):
                 self._enqueue(frame, topic, latest_wins)
         else:
             self._enqueue(frame, topic, latest_wins)
+        if self.max_bytes is not None and self.queued_bytes > self.max_bytes:
+            self._overflow()
+            return
         if self._parked and self._send_nowait is not None and self._send_eagerly():
             return
         self._idle.clear()
@@ -145,6 +160,7 @@ class Outbox:
         if latest_wins and topic is not None:
             waiting = self._latest.get(topic)
             if waiting is not None:
+                self.queued_bytes += len(frame) - len(waiting.frame)
                 waiting.frame = frame
                 self.superseded += 1
                 return
@@ -153,13 +169,33 @@ class Outbox:
                 self._count_drop()  # only critical frames wait: the new one goes
                 return
             oldest = self._normal.popleft()
+            self.queued_bytes -= len(oldest.frame)
             if oldest.topic is not None and self._latest.get(oldest.topic) is oldest:
                 del self._latest[oldest.topic]
             self._count_drop()
         entry = _Entry(frame, topic)
         self._normal.append(entry)
+        self.queued_bytes += len(frame)
         if latest_wins and topic is not None:
             self._latest[topic] = entry
+
+    def _overflow(self) -> None:
+        """The reader is ``max_bytes`` behind: let everything go, take nothing more."""
+        self.overflowed = True
+        self._release()
+        self.closed.set()
+        self._idle.set()
+        self._wakeup.set()
+        log.info("outbox: over %s bytes waiting; the reader is too slow", self.max_bytes)
+        if self._on_overflow is not None:
+            self._on_overflow()
+
+    def _release(self) -> None:
+        self._critical.clear()
+        self._normal.clear()
+        self._latest.clear()
+        self._throttle = Throttle()
+        self.queued_bytes = 0
 
     def _count_drop(self) -> None:
         self.dropped += 1
@@ -172,7 +208,7 @@ class Outbox:
             self._task = asyncio.create_task(self._write(), name="outbox-writer")
 
     async def close(self) -> None:
-        """Stop the writer; frames still waiting are not sent."""
+        """Stop the writer; frames still waiting are not sent, and let go."""
         if self._task is not None:
             self._task.cancel()
             with contextlib.suppress(asyncio.CancelledError):
@@ -180,6 +216,7 @@ class Outbox:
             self._task = None
         self.closed.set()
         self._idle.set()
+        self._release()
 
     async def wait_idle(self) -> None:
         """Until nothing waits or is held back (or the writer stopped)."""
@@ -202,13 +239,16 @@ class Outbox:
             for topic, (frame, latest_wins) in self._throttle.due(self._clock()):
                 self._enqueue(frame, topic, latest_wins)
         if self._critical:
-            return self._critical.popleft().frame
+            frame = self._critical.popleft().frame
+            self.queued_bytes -= len(frame)
+            return frame
         if self._unreported_drops:
             frame = LaggingPush(dropped=self._unreported_drops, total=self.dropped).frame()
             self._unreported_drops = 0
             return frame
         if self._normal:
             entry = self._normal.popleft()
+            self.queued_bytes -= len(entry.frame)
             if entry.topic is not None and self._latest.get(entry.topic) is entry:
                 del self._latest[entry.topic]
             return entry.frame
@@ -226,6 +266,7 @@ class Outbox:
         while (frame := self._next()) is not None:
             if not self._try_send(frame):
                 self._critical.appendleft(_Entry(frame, None))  # first, in its order
+                self.queued_bytes += len(frame)
                 return False
             if self.closed.is_set():
                 return True  # the send failed: the outbox is closed

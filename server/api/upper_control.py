@@ -2,15 +2,40 @@
 
 from __future__ import annotations
 
-from typing import Annotated
+import asyncio
+import contextlib
+from collections.abc import Awaitable
+from typing import Annotated, TypeVar
 
 from fastapi import APIRouter, Query
 
 from fleet_protocol import GetControlResult, UpdateFbMessage, UpdateFbMessageResult
 from server.api.deps import ServicesDep, VehicleCaller
 from server.api.responses import ModelResponse
+from server.domain.access import Principal
+from server.errors import Unauthorized
+from server.services.registry import Services
+
+T = TypeVar("T")
 
 router = APIRouter(prefix="/upper", tags=["vehicle"])
+
+
+async def _unless_revoked(s: Services, caller: Principal, poll: Awaitable[T]) -> T:
+    """``poll``, unless the caller's token is revoked or expires first: then 401 at once
+    (an open long poll must not hand out a command to a token that no longer stands)."""
+    waiting = asyncio.ensure_future(poll)
+    gone = asyncio.ensure_future(s.auth.until_invalid(caller))
+    try:
+        done, _ = await asyncio.wait({waiting, gone}, return_when=asyncio.FIRST_COMPLETED)
+    finally:
+        gone.cancel()
+    if waiting in done:
+        return waiting.result()
+    waiting.cancel()
+    with contextlib.suppress(asyncio.CancelledError):
+        await waiting
+    raise Unauthorized("the token was revoked or expired during the long poll")
 
 
 @router.get("/get_control", response_model=GetControlResult)
@@ -20,7 +45,7 @@ async def get_control(
     s: ServicesDep,
     wait_s: Annotated[float, Query(ge=0, le=30, allow_inf_nan=False)] = 0,
 ) -> ModelResponse:
-    commands = await s.commands.get_control(caller, instance_id, wait_s)
+    commands = await _unless_revoked(s, caller, s.commands.get_control(caller, instance_id, wait_s))
     return ModelResponse(
         GetControlResult.model_validate({"commands": [c.wire() for c in commands]})
     )

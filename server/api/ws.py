@@ -12,15 +12,22 @@ messages are the ASGI WebSocket ones (``websocket.connect``, ``.accept``,
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import logging
 from collections import deque
 from collections.abc import Awaitable, Callable, MutableMapping
 from typing import Any
 
+from pydantic import ValidationError
 from starlette.datastructures import Headers, QueryParams
 
-from fleet_protocol.links import CLOSE_FORBIDDEN, CLOSE_TRY_AGAIN, CLOSE_UNAUTHORIZED
+from fleet_protocol import utcnow
+from fleet_protocol.links import (
+    CLOSE_FORBIDDEN,
+    CLOSE_TOO_SLOW,
+    CLOSE_TRY_AGAIN,
+    CLOSE_UNAUTHORIZED,
+)
+from fleet_protocol.ws import AckPush, AuthOp
 from server.api.deps import bearer_token
 from server.api.live_hub import Connection, LiveHub
 from server.api.outbox import Frame, Outbox
@@ -38,12 +45,17 @@ Send = Callable[[MutableMapping[str, Any]], Awaitable[None]]
 LIVE_PATHS = {"/ws/vehicle": "vehicle", "/ws/client": "client"}
 #: The WebSocket close code for a fault of the server's (RFC 6455: internal error).
 CLOSE_INTERNAL_ERROR = 1011
+#: How long a closing handshake may wait on a socket that does not take it before the
+#: connection is dropped.
+CLOSE_WAIT_S = 2.0
 
 log = logging.getLogger("fleet.live")
 
 
 def _token(scope: Scope) -> str | None:
-    """The bearer token, or ``?token=`` on the URL (browsers cannot set headers)."""
+    """The bearer token, or ``?token=`` on the URL; None: the first frame will carry it
+    (``{"op": "auth", "token": ...}``, the way for browsers, which cannot set headers and
+    should not put secrets in URLs)."""
     query = QueryParams(scope.get("query_string", b"").decode("latin-1"))
     return bearer_token(Headers(scope=scope)) or query.get("token") or None
 
@@ -57,11 +69,29 @@ async def serve_live(
         return
     await send({"type": "websocket.accept"})
 
+    direct = scope.get("extensions", {}).get(DIRECT)
+
     async def close(code: int, reason: str) -> None:
-        with contextlib.suppress(Exception):  # already closed, or the client went
-            await send({"type": "websocket.close", "code": code, "reason": reason})
+        try:  # a reader that does not read holds the closing handshake up: not for long
+            await asyncio.wait_for(
+                send({"type": "websocket.close", "code": code, "reason": reason}), CLOSE_WAIT_S
+            )
+        except TimeoutError:
+            if direct is not None:
+                direct["abort"]()
+        except Exception:  # already closed, or the client went
+            pass
 
     token = _token(scope)
+    auth_id: str | None = None
+    if token is None:  # no header, no ?token=: the first frame says who it is
+        first = await _first_frame(receive, services.settings.ws_auth_wait_s)
+        if first is None:
+            await close(
+                CLOSE_UNAUTHORIZED, 'a token is required: send {"op": "auth", "token": ...}'
+            )
+            return
+        token, auth_id = first.token, first.id
     try:
         services.readiness.require()
         principal = await services.auth.authenticate(token)
@@ -83,14 +113,29 @@ async def serve_live(
 
     assert token is not None  # authenticate refuses a missing one
     token_key = digest(token)  # hashed once
-    direct = scope.get("extensions", {}).get(DIRECT)
+    settings = services.settings
+
+    def too_slow() -> None:
+        reason = f"reading too slowly: over {settings.ws_queue_bytes} bytes waited"
+        hub.close_soon(conn, CLOSE_TOO_SLOW, reason)
+
     outbox = Outbox(
         push,
         send_nowait=direct["send_nowait"] if direct is not None else None,
-        max_size=services.settings.ws_queue_size,
+        max_size=settings.ws_queue_size,
+        max_bytes=settings.ws_queue_bytes,
+        on_overflow=too_slow,
     )
     conn = Connection(principal, outbox, close, kind, digest=token_key)
     hub.add(conn)
+    expiry = None
+    if principal.expires_at is not None:  # a session token: the socket ends with it
+        left = (principal.expires_at - utcnow()).total_seconds()
+        expiry = asyncio.get_running_loop().call_later(
+            max(0.0, left), hub.close_soon, conn, CLOSE_UNAUTHORIZED, "the token has expired"
+        )
+    if auth_id is not None:
+        outbox.put(AckPush.success_frame(auth_id, {"kind": principal.kind}))
     frames = _Frames(services, hub, conn, token_key)
     inbox = None if direct is None else _DirectInbox(frames, direct)
     try:
@@ -117,7 +162,25 @@ async def serve_live(
         log.exception("live socket: handling a message failed")
         await hub.close(conn, CLOSE_INTERNAL_ERROR, "internal error")
     finally:
+        if expiry is not None:
+            expiry.cancel()
         await hub.drop(conn)
+
+
+async def _first_frame(receive: Receive, wait_s: float) -> AuthOp | None:
+    """The ``auth`` op a socket opened without a token sends first; None if it sends
+    anything else, nothing within ``wait_s``, or goes."""
+    try:
+        message = await asyncio.wait_for(receive(), wait_s)
+    except TimeoutError:
+        return None
+    text = message.get("text") if message["type"] == "websocket.receive" else None
+    if not isinstance(text, str) or len(text) > 4096:
+        return None
+    try:
+        return AuthOp.model_validate_json(text)
+    except ValidationError:
+        return None
 
 
 class _Frames:

@@ -19,7 +19,8 @@ handle first. ``pause()`` and ``resume()`` stop and restart reading from the
 socket, for an app whose handling of a message has to wait.
 ``send_nowait(message)`` writes a text or binary message at once when the
 transport is not asking the writer to wait, and says whether it did (the
-socket's outbox sends the rest through ``send`` as usual). Without the
+socket's outbox sends the rest through ``send`` as usual); ``abort()`` drops
+the connection at once. Without the
 extension (another server, Starlette's test client) the app uses ``receive``
 and ``send`` as usual.
 
@@ -59,6 +60,7 @@ class LiveWebSocketProtocol(WebSocketsSansIOProtocol):
                 "pause": self._pause,
                 "resume": self._resume,
                 "send_nowait": self._send_nowait,
+                "abort": self._abort,
             }
 
     def _attach(self, on_message: Callable[[Message, int], None]) -> list[Message]:
@@ -101,6 +103,12 @@ class LiveWebSocketProtocol(WebSocketsSansIOProtocol):
             self.conn.send_binary(message)
         self.transport.write(b"".join(self.conn.data_to_send()))
         return True
+
+    def _abort(self) -> None:
+        """Drop the connection at once, unsent data and all (a reader that does not read
+        would hold a closing handshake up for ever)."""
+        if not self.transport.is_closing():
+            self.transport.abort()
 
     def data_received(self, data: bytes) -> None:
         self._rank = 0

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from datetime import datetime
 from typing import Literal
 
 PrincipalKind = Literal["user", "vehicle", "gateway"]
@@ -18,6 +19,8 @@ class Principal:
     role: str | None = None  # users only
     vehicles: frozenset[str] = field(default_factory=frozenset)
     token_id: str = ""
+    #: When the token stops being valid (a session's); None: until revoked.
+    expires_at: datetime | None = None
 
     @property
     def is_admin(self) -> bool:

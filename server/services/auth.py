@@ -83,6 +83,9 @@ class AuthService:
         self._hasher = PasswordHasher()
         self._cache: dict[str, _Cached] = {}
         self._buckets: dict[str, _Bucket] = {}
+        #: token id -> set when it is revoked, while someone waits on it (long polls).
+        self._revoked: dict[str, asyncio.Event] = {}
+        self._waiting: dict[str, int] = {}
 
     async def load(self) -> None:
         await self.repo.ensure_indexes()
@@ -123,23 +126,21 @@ class AuthService:
         expires = doc.get("expires_at")
         if expires is not None and expires <= utcnow():
             raise Unauthorized("the token has expired")
-        kind, subject = doc["kind"], doc["subject"]
+        kind, subject, token_id = doc["kind"], doc["subject"], doc["token_id"]
         if kind == "user":
             user = await self.repo.user(subject)
             if user is None or user.get("disabled"):
                 raise Unauthorized("the account is disabled")
-            principal = Principal(
-                "user", subject, user["role"], frozenset(user.get("vehicles", [])), doc["token_id"]
-            )
+            vehicles = frozenset(user.get("vehicles", []))
+            principal = Principal("user", subject, user["role"], vehicles, token_id, expires)
         elif kind == "gateway":
             gw = await self.repo.gateway(subject)
             if gw is None:
                 raise Unauthorized("the gateway no longer exists")
-            principal = Principal(
-                "gateway", subject, None, frozenset(gw.get("vehicles", [])), doc["token_id"]
-            )
+            vehicles = frozenset(gw.get("vehicles", []))
+            principal = Principal("gateway", subject, None, vehicles, token_id, expires)
         else:
-            principal = Principal("vehicle", subject, None, frozenset({subject}), doc["token_id"])
+            principal = Principal("vehicle", subject, None, frozenset({subject}), token_id, expires)
         return principal, expires.timestamp() if expires is not None else None
 
     def check_rate(self, principal: Principal) -> None:
@@ -188,15 +189,35 @@ class AuthService:
         self._forget({doc["digest"] for doc in revoked}, {doc["token_id"] for doc in revoked})
 
     def _forget(self, digests: set[str], token_ids: set[str]) -> None:
-        for key in digests:
-            self._cache.pop(key, None)
+        self.forget(frozenset(digests), frozenset(token_ids))
         if digests or token_ids:
             self.messages.emit_now(TokensRevoked(frozenset(token_ids), frozenset(digests)))
 
-    def forget(self, digests: frozenset[str]) -> None:
-        """Another replica revoked these tokens: drop them from the cache."""
+    def forget(self, digests: frozenset[str], token_ids: frozenset[str] = frozenset()) -> None:
+        """These tokens were revoked (here or on another replica): drop them from the
+        cache, and end what waits on them (:meth:`until_invalid`)."""
         for key in digests:
             self._cache.pop(key, None)
+        for token_id in token_ids:
+            if (waiting := self._revoked.get(token_id)) is not None:
+                waiting.set()
+
+    async def until_invalid(self, principal: Principal) -> None:
+        """Return when ``principal``'s token is revoked or expires (a long poll ends then)."""
+        token_id = principal.token_id
+        event = self._revoked.setdefault(token_id, asyncio.Event())
+        self._waiting[token_id] = self._waiting.get(token_id, 0) + 1
+        timeout = None
+        if principal.expires_at is not None:
+            timeout = max(0.0, (principal.expires_at - utcnow()).total_seconds())
+        try:
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(event.wait(), timeout)
+        finally:
+            self._waiting[token_id] -= 1
+            if not self._waiting[token_id]:
+                del self._waiting[token_id]
+                self._revoked.pop(token_id, None)
 
     def forget_all(self) -> None:
         """Revocations may have been missed (the bus was down): ask the store again."""

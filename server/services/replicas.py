@@ -117,7 +117,7 @@ class ReplicaSync:
             return
         digests = _strings(message.get("digests"))
         token_ids = _strings(message.get("token_ids"))
-        self.auth.forget(digests)
+        self.auth.forget(digests, token_ids)
         self.messages.emit_now(TokensRevoked(token_ids, digests, local=False))
 
     async def _run(self) -> None:

@@ -28,7 +28,9 @@ async def _close_code(ws: websockets.ClientConnection) -> int | None:
 
 
 async def test_no_token_closes_4401(base: str) -> None:
+    """Without a token the first frame must be ``auth``: anything else closes it."""
     async with websockets.connect(ws_url(base, "/ws/vehicle")) as ws:
+        await ws.send(json.dumps({"op": "heartbeat", "id": "h", "instance_id": "i-1"}))
         assert await _close_code(ws) == 4401
 
 
