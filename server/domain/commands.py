@@ -16,7 +16,7 @@ from typing import Any
 
 from fleet_protocol import FINAL_STATUSES, MOTION_TYPES
 from server.domain.geo import haversine_m
-from server.errors import CapabilityMissing, FleetError
+from server.errors import CapabilityMissing, ControlNotHeld, FleetError, Forbidden
 
 #: Position of each status along the life cycle; every final status ranks last.
 RANK = {"queued": 0, "delivered": 1, "accepted": 2, "executing": 3}
@@ -51,6 +51,8 @@ class Command:
     history: list[dict[str, Any]] = field(default_factory=list)
     delivered_at: datetime | None = None
     deliveries: int = 0
+    #: Issued by a manager of the vehicle or an admin: a stop of theirs is theirs to undo.
+    by_manager: bool = False
 
     @property
     def final(self) -> bool:
@@ -103,6 +105,7 @@ class Command:
             issued_from=list(self.issued_from) if self.issued_from else None,
             delivered_at=self.delivered_at,
             deliveries=self.deliveries,
+            by_manager=self.by_manager,
         )
         return doc
 
@@ -126,6 +129,7 @@ class Command:
             history=[dict(h) for h in doc.get("history") or []],
             delivered_at=doc.get("delivered_at"),
             deliveries=int(doc.get("deliveries") or 0),
+            by_manager=bool(doc.get("by_manager")),
         )
 
 
@@ -142,6 +146,7 @@ def new_command(
     seq: int,
     max_drift_m: float | None = None,
     position: dict[str, Any] | None = None,
+    by_manager: bool = False,
 ) -> Command:
     cmd = Command(
         command_id=command_id,
@@ -155,6 +160,7 @@ def new_command(
         seq=seq,
         max_drift_m=max_drift_m,
         issued_from=(float(position["lat"]), float(position["lon"])) if position else None,
+        by_manager=by_manager,
     )
     cmd.note("queued", now)
     return cmd
@@ -300,6 +306,21 @@ def supersede(cmds: list[Command], stop: Command, now: datetime) -> list[Command
             cmd.move("cancelled", now, "superseded_by_stop")
             gone.append(cmd)
     return gone
+
+
+def check_cancel(cmd: Command, who: str, *, holds: bool, manages: bool) -> None:
+    """Whether ``who`` may cancel ``cmd``: a manager of the vehicle or an admin
+    (``manages``) always; else its issuer or the control holder (``holds``), except a
+    stop a manager or an admin sent: nobody of lesser standing undoes it (403)."""
+    if manages:
+        return
+    if cmd.is_stop and cmd.by_manager:
+        raise Forbidden(
+            "a stop sent by a manager or an admin is cancelled only by a manager of the "
+            "vehicle or an admin"
+        )
+    if not (cmd.issued_by == who or holds):
+        raise ControlNotHeld("only its issuer, the control holder or a manager cancels it")
 
 
 def cancel(cmd: Command, now: datetime, detail: str) -> bool:

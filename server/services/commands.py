@@ -27,7 +27,7 @@ from server.domain.access import Principal
 from server.domain.clock import Clock
 from server.domain.commands import AckOutcome, Command
 from server.domain.events import CommandsReady, InstanceFinished, LeaseEnded, StateWritten
-from server.errors import ControlNotHeld, NotFound, RateLimited, Unavailable
+from server.errors import NotFound, RateLimited, Unavailable
 from server.services.command_admission import Admission, ZoneSource
 from server.services.control import ControlService
 from server.services.dead_letters import DeadLetters
@@ -114,6 +114,7 @@ class CommandService:
                     seq=self._seq,
                     max_drift_m=body.command.max_drift_m,
                     position=state.position,
+                    by_manager=arbitration.may_grant(principal, state.vehicle_id),
                 )
             )
         superseded: list[Command] = []
@@ -143,12 +144,12 @@ class CommandService:
         if cmd.final:
             return cmd
         lease = await self.control.current(cmd.instance_id)
-        if not (
-            cmd.issued_by == principal.name
-            or arbitration.holds(lease, principal.name, self.clock())
-            or arbitration.may_grant(principal, cmd.vehicle_id)
-        ):
-            raise ControlNotHeld("only its issuer, the control holder or a manager cancels it")
+        life.check_cancel(
+            cmd,
+            principal.name,
+            holds=arbitration.holds(lease, principal.name, self.clock()),
+            manages=arbitration.may_grant(principal, cmd.vehicle_id),
+        )
         if life.cancel(cmd, self.clock(), f"by {principal.name}"):
             await self._finished(cmd, actor=principal)
         return cmd

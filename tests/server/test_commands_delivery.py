@@ -4,12 +4,13 @@ from __future__ import annotations
 
 import asyncio
 from collections.abc import AsyncIterator, Callable
+from typing import Any
 
 import pytest
 
 from server.settings import Settings
 from tests.factories import ADMIN
-from tests.server.commanding import GO_TO, STOP, World, eventually, statuses, world
+from tests.server.commanding import GO_TO, STOP, Person, World, eventually, statuses, world
 
 # Each test runs on the embedded store and on FerretDB (the real MongoDB driver).
 pytestmark = pytest.mark.usefixtures("store_backend")
@@ -269,6 +270,50 @@ async def test_cancel_command_refusals(w: World) -> None:
         r = await w.http.post("/client/cancel_command", headers=headers, json=body)
         assert r.status_code == status, (body, r.text)
     assert (await w.command(cid))["status"] == "queued"
+
+
+async def _cancel(w: World, who: dict[str, str], command_id: str) -> tuple[int, dict[str, Any]]:
+    r = await w.http.post("/client/cancel_command", headers=who, json={"command_id": command_id})
+    return r.status_code, r.json()
+
+
+async def test_a_managers_stop_is_not_cancelled_by_the_holder(w: World) -> None:
+    """The field manager stops the vehicle: the operator holding control may not undo it
+    (403, a question of standing); the manager who sent it, another manager of the
+    vehicle or an admin may."""
+    v = await w.vehicle()
+    holder = await w.operator_in_control(v)
+    boss, other_boss = await w.person("manager", v), await w.person("manager", v)
+    stops = [await w.queued(boss, v, STOP) for _ in range(4)]
+    status, body = await _cancel(w, holder.headers, stops[0])
+    assert status == 403, body
+    assert body["error"]["code"] == "forbidden"
+    assert "manager" in body["error"]["message"]
+    assert (await w.command(stops[0]))["status"] == "queued"
+    assert [c["command_id"] for c in await w.poll(v)] == stops  # the vehicle still gets it
+    for who, stop in zip((boss.headers, other_boss.headers, ADMIN), stops[1:], strict=True):
+        status, body = await _cancel(w, who, stop)
+        assert (status, body["status"]) == (200, "cancelled"), body
+
+
+async def test_an_admins_stop_is_not_cancelled_by_the_holder_either(w: World) -> None:
+    v = await w.vehicle()
+    holder = await w.operator_in_control(v)
+    boss = await w.person("manager", v)
+    admin = Person("admin", ADMIN)
+    stop, other = [await w.queued(admin, v, STOP) for _ in range(2)]
+    assert (await _cancel(w, holder.headers, stop))[0] == 403
+    assert (await _cancel(w, boss.headers, stop))[1]["status"] == "cancelled"
+    assert (await _cancel(w, ADMIN, other))[1]["status"] == "cancelled"
+
+
+async def test_an_operators_stop_is_still_cancelled_by_the_holder(w: World) -> None:
+    v = await w.vehicle()
+    holder = await w.operator_in_control(v)
+    other_op = await w.person("operator", v)
+    stop = await w.queued(other_op, v, STOP)  # any operator with access may stop
+    status, body = await _cancel(w, holder.headers, stop)
+    assert (status, body["status"]) == (200, "cancelled"), body
 
 
 async def test_get_fbmessage_shows_the_mode_and_recent_commands(w: World) -> None:
