@@ -29,7 +29,7 @@ from fleet_protocol.ws import (
     parse_vehicle_op,
 )
 from server.api.live_hub import Connection, LiveHub
-from server.domain.topics import UnitRef, check_read, check_write, unit_for
+from server.domain.topics import UnitRef, check_read, check_write, gateways_named, unit_for
 from server.errors import FleetError, Invalid, RateLimited
 from server.services.registry import Services
 
@@ -206,7 +206,9 @@ class OpRunner:
 
     async def _subscribe(self, op: SubscribeOp) -> dict[str, Any]:
         principal = self.conn.principal
-        check_read(principal, op.topics)
+        named = gateways_named(op.topics)
+        gateways = await self.s.auth.gateway_vehicles(named) if named else None
+        check_read(principal, op.topics, gateways)
         unit = self._unit(op.vehicle_id)
         self.hub.subscribe(self.conn, unit, op.topics, op.throttle_ms)
         return {"topics": op.topics}

@@ -11,13 +11,17 @@ Writing:
 - under ``gateway/<gateway_id>/`` only that gateway;
 - nothing else.
 
-Reading:
+Reading (every namespace has an owner):
 
 - ``vehicle/<id>/...`` needs read access to that vehicle (a user assigned to
   it or an admin, the vehicle itself, a gateway listing it);
-- ``fleet`` is for users (the server filters presence per user);
-- ``user/...`` and ``gateway/...`` are readable by every authenticated unit:
-  that is how a cloud worker's results reach operators and vehicles.
+- ``user/<username>/...``: that user and admins; and a user's topic about a
+  vehicle, ``user/<username>/<name>/<vehicle_id>[/...]`` (a cloud worker's
+  results, the multilayer paper's offloading), also whoever may read that
+  vehicle: that is how a worker's results reach the vehicle and its operators;
+- ``gateway/<gateway_id>/...``: that gateway, its units (the vehicles it
+  lists), whoever may read one of them, and admins;
+- ``fleet`` is for users (the server filters presence per user).
 
 The caller is anything shaped like :class:`Actor` (``server.domain.access.Principal``
 is). Unit identities for the routing table come from :func:`unit_for`.
@@ -25,7 +29,7 @@ is). Unit identities for the routing table come from :func:`unit_for`.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Literal, Protocol
 
@@ -39,6 +43,7 @@ __all__ = [
     "can_write",
     "check_read",
     "check_write",
+    "gateways_named",
     "read_refusal",
     "unit_for",
     "write_refusal",
@@ -55,6 +60,9 @@ class Actor(Protocol):
 
     @property
     def name(self) -> str: ...
+
+    @property
+    def is_admin(self) -> bool: ...
 
     def can_see(self, vehicle_id: str) -> bool: ...
 
@@ -83,8 +91,13 @@ def write_refusal(actor: Actor, topic: str) -> str | None:
     return None
 
 
-def read_refusal(actor: Actor, topic: str) -> str | None:
-    """Why ``actor`` may not subscribe to ``topic``; ``None`` if it may."""
+#: The vehicles each gateway named in the topics lists (resolved by the caller).
+Gateways = Mapping[str, frozenset[str]]
+
+
+def read_refusal(actor: Actor, topic: str, gateways: Gateways | None = None) -> str | None:
+    """Why ``actor`` may not subscribe to ``topic``; ``None`` if it may. ``gateways``: the
+    vehicles of each gateway a ``gateway/...`` topic names (unknown ones: none)."""
     segments = split_topic(topic)
     namespace = segments[0]
     if namespace == "fleet":
@@ -94,17 +107,34 @@ def read_refusal(actor: Actor, topic: str) -> str | None:
     if len(segments) < 3:
         return f"a topic under '{namespace}/' is '{namespace}/<id>/<name>'"
     owner = segments[1]
-    if namespace == "vehicle" and not (actor.can_see(owner) or actor.acts_for(owner)):
-        return f"no read access to vehicle {owner}"
-    return None
+    if namespace == "vehicle":
+        return None if _reads_vehicle(actor, owner) else f"no read access to vehicle {owner}"
+    if actor.is_admin:
+        return None
+    if namespace == "user":
+        if actor.kind == "user" and actor.name == owner:
+            return None
+        if len(segments) >= 4 and _reads_vehicle(actor, segments[3]):
+            return None  # a user's results about a vehicle its readers may read
+        return f"only {owner} (and admins) read 'user/{owner}/', but for a vehicle's readers"
+    units = (gateways or {}).get(owner, frozenset())
+    if actor.kind == "gateway" and actor.name == owner:
+        return None
+    if any(_reads_vehicle(actor, vehicle_id) for vehicle_id in units):
+        return None
+    return f"only gateway {owner}, its units and their readers read 'gateway/{owner}/'"
+
+
+def _reads_vehicle(actor: Actor, vehicle_id: str) -> bool:
+    return actor.can_see(vehicle_id) or actor.acts_for(vehicle_id)
 
 
 def can_write(actor: Actor, topic: str) -> bool:
     return write_refusal(actor, topic) is None
 
 
-def can_read(actor: Actor, topic: str) -> bool:
-    return read_refusal(actor, topic) is None
+def can_read(actor: Actor, topic: str, gateways: Gateways | None = None) -> bool:
+    return read_refusal(actor, topic, gateways) is None
 
 
 def check_write(actor: Actor, topics: str | list[str]) -> None:
@@ -112,9 +142,14 @@ def check_write(actor: Actor, topics: str | list[str]) -> None:
     _check(write_refusal, actor, topics)
 
 
-def check_read(actor: Actor, topics: str | list[str]) -> None:
+def check_read(actor: Actor, topics: str | list[str], gateways: Gateways | None = None) -> None:
     """``Forbidden`` naming the first topic ``actor`` may not read."""
-    _check(read_refusal, actor, topics)
+    _check(lambda a, t: read_refusal(a, t, gateways), actor, topics)
+
+
+def gateways_named(topics: list[str]) -> set[str]:
+    """The gateways whose namespace ``topics`` read (their vehicles decide who may)."""
+    return {t.split("/")[1] for t in topics if t.startswith("gateway/") and t.count("/") >= 2}
 
 
 def _check(rule: Callable[[Actor, str], str | None], actor: Actor, topics: str | list[str]) -> None:

@@ -375,6 +375,14 @@ class AuthService:
     async def all_vehicle_meta(self) -> list[dict[str, Any]]:
         return await self.repo.all_vehicles()
 
+    async def gateway_vehicles(self, gateway_ids: set[str]) -> dict[str, frozenset[str]]:
+        """The vehicles each of these gateways lists (an unknown gateway: none)."""
+        out: dict[str, frozenset[str]] = {}
+        for gateway_id in gateway_ids:
+            doc = await self.repo.gateway(gateway_id)
+            out[gateway_id] = frozenset(doc.get("vehicles", [])) if doc else frozenset()
+        return out
+
     async def user_access(self, username: str) -> tuple[str, frozenset[str]] | None:
         user = await self.repo.user(username)
         if user is None or user.get("disabled"):

@@ -207,7 +207,7 @@ def test_gateway_forwards_its_units_topics_on_demand(
     agent = AgentProcess(server, token, "unused", tmp_path / "gw.db")
     agent.args = [*agent.args[:3], "gateway", "--config", str(config)]
     agent.start()
-    sonar, plan = "vehicle/gwu-a/sonar_depth", "user/op-gwu/plan"
+    sonar, plan = "vehicle/gwu-a/sonar_depth", "user/op-gwu/plan/gwu-b"  # a plan for gwu-b
 
     async def scenario() -> None:
         unit = f"ws://127.0.0.1:{port}/?vehicle_id="

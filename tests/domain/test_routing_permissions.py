@@ -24,6 +24,10 @@ class Caller:
     vehicles: frozenset[str] = field(default_factory=frozenset)
     admin: bool = False
 
+    @property
+    def is_admin(self) -> bool:
+        return self.kind == "user" and self.admin
+
     def can_see(self, vehicle_id: str) -> bool:
         if self.kind == "vehicle":
             return vehicle_id == self.name
@@ -102,10 +106,37 @@ def test_fleet_is_readable_by_users_only():
     assert not can_read(gateway(), "fleet")
 
 
-def test_results_under_user_and_gateway_are_readable_by_all():
-    for caller in (vehicle(), gateway(), user("bob")):
-        assert can_read(caller, "user/worker/seg/mask")
-        assert can_read(caller, "gateway/gw-9/status")
+def test_a_user_namespace_is_read_by_that_user_and_admins():
+    assert can_read(user("worker"), "user/worker/seg/mask")
+    assert can_read(user("root", admin=True), "user/worker/seg/mask")
+    for caller in (vehicle(), gateway(), user("bob", "usv-1")):
+        assert not can_read(caller, "user/worker/plan")
+        assert not can_read(caller, "user/worker/seg/mask")
+
+
+def test_a_users_topic_about_a_vehicle_is_read_by_the_vehicles_readers():
+    """The offloading case: a worker's results about usv-1 reach usv-1 and its readers."""
+    topic = "user/worker/segmentation/usv-1"
+    for caller in (vehicle("usv-1"), gateway("gw", "usv-1"), user("ana", "usv-1")):
+        assert can_read(caller, topic)
+        assert can_read(caller, topic + "/mask")
+    for caller in (vehicle("usv-2"), gateway("gw", "usv-2"), user("bob", "usv-2")):
+        assert not can_read(caller, topic)
+
+
+def test_a_gateway_namespace_is_read_by_it_its_units_their_readers_and_admins():
+    gateways = {"gw-9": frozenset({"usv-1", "auv-2"})}
+    topic = "gateway/gw-9/status"
+    for caller in (
+        gateway("gw-9", "usv-1"),
+        vehicle("auv-2"),
+        user("ana", "usv-1"),
+        user("root", admin=True),
+    ):
+        assert can_read(caller, topic, gateways), caller
+    for caller in (gateway("gw-8", "usv-1"), vehicle("usv-3"), user("bob", "usv-3"), user("eve")):
+        assert not can_read(caller, topic, gateways), caller
+    assert not can_read(user("ana", "usv-1"), "gateway/gw-unknown/status", gateways)
 
 
 def test_checks_raise_forbidden_naming_the_topic():

@@ -168,7 +168,10 @@ async def test_units_register_subscribe_and_publish(base: str, api: httpx.AsyncC
         got = await recv_until(w, lambda f: f["op"] == "event" and not f.get("snapshot"))
         assert got["data"] == {"depth_m": 12.5} and got["source"] == f"vehicle:{vid}"
         # exactly the subscribers: the bystander hears nothing, the publisher no echo
-        await call(bystander, "subscribe", "q", topics=[f"user/{worker}/results"])
+        results = f"user/{worker}/results/{vid}"  # the worker's results about the vehicle
+        refused = await call(bystander, "subscribe", "q0", topics=[f"user/{worker}/results"])
+        assert refused["ok"] is False and refused["error"]["code"] == "forbidden"  # its own
+        await call(bystander, "subscribe", "q", topics=[results])
         with pytest.raises(TimeoutError):
             await recv_until(
                 bystander, lambda f: f["op"] == "event" and not f.get("snapshot"), within_s=0.5
@@ -176,7 +179,7 @@ async def test_units_register_subscribe_and_publish(base: str, api: httpx.AsyncC
         # namespaces: a user writes only under user/<name>/, never into a vehicle's
         nack = await call(w, "publish", "x", topic=topic, data={})
         assert nack["ok"] is False and nack["error"]["code"] == "forbidden"
-        ok = await call(w, "publish", "y", topic=f"user/{worker}/results", data={"n": 1})
+        ok = await call(w, "publish", "y", topic=results, data={"n": 1})
         assert ok["ok"] is True
         got = await recv_until(bystander, lambda f: f["op"] == "event" and not f.get("snapshot"))
         assert got["data"] == {"n": 1}
