@@ -5,6 +5,7 @@ from __future__ import annotations
 __all__ = [
     "CLOSE_FORBIDDEN",
     "CLOSE_REPLACED",
+    "CLOSE_TOO_BIG",
     "CLOSE_TOO_SLOW",
     "CLOSE_TRY_AGAIN",
     "CLOSE_UNAUTHORIZED",
@@ -26,6 +27,8 @@ CLOSE_FORBIDDEN = 4403
 CLOSE_REPLACED = 4409
 #: The server cannot check the token now (its store is down): try again later.
 CLOSE_TRY_AGAIN = 1013
+#: A frame over the server's size bound (RFC 6455: message too big).
+CLOSE_TOO_BIG = 1009
 #: The client read too slowly: more than the server's ``FLEET_WS_QUEUE_BYTES`` waited for
 #: it. Reconnect, and subscribe to less (or with ``throttle_ms``).
 CLOSE_TOO_SLOW = 4429

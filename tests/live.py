@@ -27,13 +27,17 @@ def free_port() -> int:
 
 @asynccontextmanager
 async def serve(
-    settings: Settings, store: Store | None = None, port: int | None = None
+    settings: Settings,
+    store: Store | None = None,
+    port: int | None = None,
+    app: Any = None,
 ) -> AsyncIterator[str]:
     """Yields the base URL (``http://127.0.0.1:PORT``) while the server runs (on ``store``
-    when given: the caller's open store, which it closes; on ``port`` when given)."""
+    when given: the caller's open store, which it closes; on ``port`` when given; ``app``:
+    the app to serve, made by the caller who wants to reach its services)."""
     port = port or free_port()
     config = uvicorn.Config(
-        create_app(settings, store=store),
+        app or create_app(settings, store=store),
         host="127.0.0.1",
         port=port,
         log_level="warning",

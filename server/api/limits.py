@@ -8,10 +8,6 @@ from typing import Any
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 
-class BodyTooLarge(Exception):
-    pass
-
-
 def _envelope(limit: int) -> bytes:
     return json.dumps(
         {
@@ -25,6 +21,10 @@ def _envelope(limit: int) -> bytes:
 
 
 class BodyLimit:
+    """413 for a body over ``max_bytes``: at once from its ``Content-Length``, or, for a
+    body sent without one (chunked), once the bytes read pass the bound, before the app
+    has seen any of it (the body is gathered first, at most ``max_bytes`` of it)."""
+
     def __init__(self, app: ASGIApp, max_bytes: int) -> None:
         self.app = app
         self.max_bytes = max_bytes
@@ -33,38 +33,65 @@ class BodyLimit:
         if scope["type"] != "http":
             await self.app(scope, receive, send)
             return
+        length = None
         for name, value in scope.get("headers", []):
             if name == b"content-length":
                 try:
-                    too_big = int(value) > self.max_bytes
+                    length = int(value)
                 except ValueError:
-                    too_big = False
-                if too_big:
-                    await self._reject(send)
-                    return
-        seen = 0
-        started = False
+                    length = None
+        if length is not None:
+            if length > self.max_bytes:
+                await self._reject(send)
+                return
+            await self.app(scope, self._counted(receive), send)
+            return
+        gathered = await self._gather(receive)
+        if gathered is None:
+            await self._reject(send)
+            return
+        await self.app(scope, self._replay(gathered, receive), send)
 
-        async def limited_receive() -> Message:
+    def _counted(self, receive: Receive) -> Receive:
+        """A body that lies about its length is cut off at the bound all the same."""
+        seen = 0
+
+        async def limited() -> Message:
             nonlocal seen
             message = await receive()
             if message["type"] == "http.request":
                 seen += len(message.get("body", b""))
                 if seen > self.max_bytes:
-                    raise BodyTooLarge
+                    return {"type": "http.disconnect"}
             return message
 
-        async def tracking_send(message: Message) -> None:
-            nonlocal started
-            if message["type"] == "http.response.start":
-                started = True
-            await send(message)
+        return limited
 
-        try:
-            await self.app(scope, limited_receive, tracking_send)
-        except BodyTooLarge:
-            if not started:
-                await self._reject(send)
+    async def _gather(self, receive: Receive) -> list[Message] | None:
+        """The request's messages up to the end of its body; None past the bound."""
+        messages: list[Message] = []
+        seen = 0
+        while True:
+            message = await receive()
+            messages.append(message)
+            if message["type"] != "http.request":
+                return messages  # the client went
+            seen += len(message.get("body", b""))
+            if seen > self.max_bytes:
+                return None
+            if not message.get("more_body", False):
+                return messages
+
+    @staticmethod
+    def _replay(messages: list[Message], receive: Receive) -> Receive:
+        pending = list(messages)
+
+        async def replay() -> Message:
+            if pending:
+                return pending.pop(0)
+            return await receive()
+
+        return replay
 
     async def _reject(self, send: Send) -> None:
         body = _envelope(self.max_bytes)

@@ -9,6 +9,7 @@ from typing import Any
 from pydantic import BaseModel
 
 from fleet_protocol import ErrorBody, UpdateFbMessageResult
+from fleet_protocol.links import CLOSE_TOO_BIG
 from fleet_protocol.media import decode_media_frame
 from fleet_protocol.topics import is_media_topic
 from fleet_protocol.ws import (
@@ -87,31 +88,49 @@ class OpRunner:
     def text_now(self, frame: str) -> Coroutine[Any, Any, None] | None:
         """Handle a text frame within this call where nothing has to wait: a refusal, or
         a ``publish`` on a bus that does not leave the process (the hot path). Otherwise
-        the coroutine that handles it, not started."""
+        the coroutine that handles it, not started.
+
+        Every frame counts against the socket's rate, a malformed one too; one over the
+        size bound closes the socket (1009)."""
         if len(frame) > self._max_text:
-            message = f"a JSON frame has at most {self._max_text} bytes"
-            self._reply(None, ErrorBody(code="too_large", message=message))
+            self.hub.close_soon(
+                self.conn, CLOSE_TOO_BIG, f"a JSON frame has at most {self._max_text} bytes"
+            )
             return None
         try:
             op = self._parse(frame)
         except FrameError as exc:
+            if self._over_rate(None):
+                return None
             self.conn.outbox.put(exc.reply().frame())
+            return None
+        if self._over_rate(op.id):
             return None
         if type(op) is PublishOp and not self.hub.bus.remote:
             self._publish_now(op)
             return None
         return self.run(op)
 
+    def _over_rate(self, op_id: str | None) -> bool:
+        """Count one frame against the rate; when over it, refuse the frame (True)."""
+        try:
+            self._rate()
+        except FleetError as exc:
+            self._reply(op_id, ErrorBody(code=exc.code, message=exc.message))
+            return True
+        return False
+
     def binary_now(self, frame: bytes) -> Awaitable[None] | None:
         """A media frame, like :meth:`text_now`: delivered here within this call; what is
         left to await when the bus also takes it to other replicas."""
+        limit = self.s.settings.ws_max_binary_bytes
+        if len(frame) > limit:
+            self.hub.close_soon(
+                self.conn, CLOSE_TOO_BIG, f"a binary frame has at most {limit} bytes"
+            )
+            return None
         try:
             self._rate()
-            if len(frame) > self.s.settings.ws_max_binary_bytes:
-                raise Invalid(
-                    f"a binary frame has at most {self.s.settings.ws_max_binary_bytes} bytes",
-                    code="too_large",
-                )
             header, _ = decode_media_frame(frame)
             if not is_media_topic(header.topic):
                 raise Invalid(f"{header.topic} is not a media topic; send JSON on it")
@@ -124,23 +143,17 @@ class OpRunner:
             return None
         return self.hub.publish_media(header.topic, frame)
 
-    async def run(self, op: Any, *, counted: bool = False) -> None:
-        """Run one op; a batch counts once against the rate (a gateway's tick is one frame)."""
+    async def run(self, op: Any) -> None:
+        """Run one op (its frame was counted against the rate: a batch, a gateway's tick,
+        counts once)."""
         kind = type(op)  # parsed ops are exactly these classes: no isinstance walk
         if kind is BatchOp:
-            try:
-                self._rate()
-            except FleetError as exc:
-                self._reply(op.id, ErrorBody(code=exc.code, message=exc.message))
-                return
             for inner in op.ops:
-                await self.run(inner, counted=True)
+                await self.run(inner)
             if op.id:
                 self.conn.outbox.put(AckPush.success(op.id, {"count": len(op.ops)}).frame())
             return
         try:
-            if not counted:
-                self._rate()
             result = await self.dispatch(op)
         except FleetError as exc:
             self._refuse(op.id, exc)
@@ -160,7 +173,6 @@ class OpRunner:
     def _publish_now(self, op: PublishOp) -> None:
         """:meth:`run` for a ``publish`` on a local bus, where nothing waits."""
         try:
-            self._rate()
             self._publish_local(op)
         except FleetError as exc:
             self._refuse(op.id, exc)

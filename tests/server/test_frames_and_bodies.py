@@ -1,0 +1,74 @@
+"""Bodies and frames a careless or hostile client sends: a real uvicorn serving the app.
+
+An over-size body is 413, chunked or not; an over-size frame closes the socket with
+1009; a malformed frame gets an error in the contract's envelope and the socket goes on
+(never 1011); every frame counts toward the socket's rate, the malformed ones too."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import AsyncIterator, Callable
+
+import httpx
+import pytest
+import websockets
+
+from server.settings import Settings
+from tests.factories import ADMIN, ADMIN_TOKEN
+from tests.live import call, connect, recv_until, serve
+
+pytestmark = pytest.mark.usefixtures("store_backend")
+
+
+@pytest.fixture
+async def base(make_settings: Callable[..., Settings]) -> AsyncIterator[str]:
+    settings = make_settings(max_body_bytes=4096, ws_max_text_bytes=65_536, ws_ops_per_s=20)
+    async with serve(settings) as url:
+        yield url
+
+
+async def chunks(total: int, size: int = 1024) -> AsyncIterator[bytes]:
+    """A JSON body sent chunked (no Content-Length)."""
+    body = json.dumps({"vehicle_id": "usv-big", "name": "x" * total}).encode()
+    for i in range(0, len(body), size):
+        yield body[i : i + size]
+
+
+async def test_a_chunked_body_over_the_bound_is_413(base: str) -> None:
+    headers = {**ADMIN, "content-type": "application/json"}
+    async with httpx.AsyncClient(base_url=base, timeout=10) as api:
+        r = await api.post("/api/vehicles", headers=headers, content=chunks(10_000))
+        assert r.status_code == 413, r.text
+        assert r.json()["error"]["code"] == "too_large"
+        r = await api.post("/api/vehicles", headers=headers, content=chunks(100))
+        assert r.status_code == 201, r.text  # under the bound, chunked: served as usual
+
+
+async def test_an_over_size_frame_closes_the_socket_with_1009(base: str) -> None:
+    async with await connect(base, "/ws/client", ADMIN_TOKEN) as ws:
+        await ws.send(json.dumps({"op": "publish", "topic": "user/admin/x", "data": "y" * 70_000}))
+        with pytest.raises(websockets.ConnectionClosed):
+            await recv_until(ws, lambda f: False, within_s=10)
+        assert ws.close_code == 1009
+
+
+async def test_a_frame_nested_1000_deep_is_an_error_not_1011(base: str) -> None:
+    deep = "[" * 1000 + "]" * 1000
+    async with await connect(base, "/ws/client", ADMIN_TOKEN) as ws:
+        await ws.send('{"op": "publish", "id": "d", "topic": "user/admin/x", "data": ' + deep + "}")
+        reply = await recv_until(ws, lambda f: f.get("id") == "d" or f["op"] == "error")
+        assert reply.get("ok") is False or reply["op"] == "error", reply
+        assert set(reply["error"]) >= {"code", "message"}
+        assert (await call(ws, "subscribe", "s", topics=["fleet"]))["ok"] is True  # goes on
+
+
+async def test_every_frame_counts_toward_the_rate_malformed_ones_too(base: str) -> None:
+    async with await connect(base, "/ws/client", ADMIN_TOKEN) as ws:
+        for _ in range(60):  # three times the rate of 20 a second, at once
+            await ws.send("this is not json")
+        codes = []
+        for _ in range(60):
+            reply = await recv_until(ws, lambda f: f["op"] == "error")
+            codes.append(reply["error"]["code"])
+        assert "rate_limited" in codes and codes.count("rate_limited") >= 30, codes
+        assert codes[0] == "invalid"  # within the rate: told what was wrong
