@@ -5,7 +5,7 @@ from __future__ import annotations
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from fastapi import FastAPI
 from fastapi.staticfiles import StaticFiles
@@ -25,6 +25,7 @@ from server.api import (
     upper_control,
 )
 from server.api.limits import BodyLimit
+from server.api.openapi import document_errors
 from server.api.ws import LIVE_PATHS, serve_live
 from server.metrics import Metrics, MetricsMiddleware
 from server.settings import Settings
@@ -39,6 +40,12 @@ WEB_DIR = Path(__file__).parent / "web"
 class FleetApp(FastAPI):
     """The FastAPI app, with the live sockets (``/ws/vehicle``, ``/ws/client``) served
     straight from the ASGI call: see :mod:`server.api.ws` for why."""
+
+    def openapi(self) -> dict[str, Any]:
+        """FastAPI's document, with every error answer a route may give (``api/openapi``)."""
+        if not self.openapi_schema:
+            self.openapi_schema = document_errors(super().openapi())
+        return self.openapi_schema
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         if scope["type"] == "websocket" and scope["path"] in LIVE_PATHS:
