@@ -34,6 +34,7 @@ from server.domain.events import (
     SamplesStored,
     StateWritten,
     TokensRevoked,
+    UserChanged,
 )
 from server.metrics import Metrics
 from server.services.auth import AuthService
@@ -122,7 +123,7 @@ async def build(
     def news_flows() -> bool:
         return not bus.remote or bus.healthy
 
-    auth = AuthService(settings, AccountsRepo(store), messages, news_flows)
+    auth = AuthService(settings, AccountsRepo(store), messages, news_flows, clock)
     events = EventService(EventsRepo(store), messages, clock)
     instances = InstanceService(
         settings, InstancesRepo(store), auth, events, messages, dead_letters, clock
@@ -172,6 +173,7 @@ async def build(
     messages.register(InstanceFinished, control.on_instance_finished)
     messages.register(InstanceFinished, commands.on_instance_finished)
     messages.register(LeaseEnded, commands.on_lease_end)
+    messages.register(UserChanged, control.on_user_changed)
     messages.register(PresenceChanged, topics.on_presence)
     messages.register(ControlChanged, topics.on_control)
     messages.register(EventRecorded, topics.on_event)
@@ -298,6 +300,7 @@ async def _retention(services: Services) -> None:
         ("instances", lambda: services.instances.drop_finished_before(before)),
         ("dead_letters", lambda: services.dead_letters.drop_before(before)),
         ("tokens", lambda: services.auth.repo.drop_expired_tokens(now)),
+        ("login_attempts", lambda: services.auth.drop_old_login_attempts(now)),
     ]
     for name, step in steps:
         try:

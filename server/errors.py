@@ -67,8 +67,8 @@ class RateLimited(FleetError):
     status = 429
     code = "rate_limited"
 
-    def __init__(self, message: str, *, retry_after_s: float = 1.0) -> None:
-        super().__init__(message)
+    def __init__(self, message: str, *, retry_after_s: float = 1.0, details: Any = None) -> None:
+        super().__init__(message, details=details)
         self.retry_after_s = retry_after_s
 
 

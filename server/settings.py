@@ -66,6 +66,24 @@ class Settings(BaseSettings):
     token_ttl_s: int = Field(
         default=12 * 3600, ge=60, description="lifetime of a token from /auth/token"
     )
+    login_window_s: float = Field(
+        default=300.0,
+        gt=0,
+        description="/auth/token: failed logins are counted over this sliding window "
+        "(kept in the store, so every replica counts the same ones)",
+    )
+    login_failures_per_address: int = Field(
+        default=10,
+        ge=1,
+        description="/auth/token: failed logins from one client address (IPv6: one /64) "
+        "within login_window_s; past it, 429 rate_limited with Retry-After",
+    )
+    login_failures_per_user: int = Field(
+        default=20,
+        ge=1,
+        description="/auth/token: failed logins for one username, from any address, "
+        "within login_window_s; past it, 429 rate_limited with Retry-After",
+    )
     bucket_samples: int = Field(
         default=200, ge=1, le=10_000, description="telemetry samples per stored bucket"
     )

@@ -45,10 +45,29 @@ async def rotate_vehicle_token(vehicle_id: str, _: Admin, s: ServicesDep) -> Veh
     )
 
 
+@router.post("/api/vehicles/{vehicle_id}/revoke_tokens")
+async def revoke_vehicle_tokens(vehicle_id: str, _: Admin, s: ServicesDep) -> dict[str, bool]:
+    await s.auth.revoke_vehicle_tokens(vehicle_id)
+    return {"ok": True}
+
+
 @router.post("/api/gateways", status_code=201)
 async def create_gateway(body: CreateGateway, _: Admin, s: ServicesDep) -> GatewayCreated:
     token = await s.auth.create_gateway(body)
     return GatewayCreated(gateway_id=body.gateway_id, token=token, vehicles=body.vehicles)
+
+
+@router.post("/api/gateways/{gateway_id}/rotate_token")
+async def rotate_gateway_token(gateway_id: str, _: Admin, s: ServicesDep) -> GatewayCreated:
+    token = await s.auth.rotate_gateway_token(gateway_id)
+    gateway = await s.auth.get_gateway(gateway_id)
+    return GatewayCreated(gateway_id=gateway_id, token=token, vehicles=gateway["vehicles"])
+
+
+@router.post("/api/gateways/{gateway_id}/revoke_tokens")
+async def revoke_gateway_tokens(gateway_id: str, _: Admin, s: ServicesDep) -> dict[str, bool]:
+    await s.auth.revoke_gateway_tokens(gateway_id)
+    return {"ok": True}
 
 
 @router.post("/api/users", status_code=201)
@@ -68,8 +87,8 @@ async def get_user(username: str, _: Admin, s: ServicesDep) -> UserView:
 
 
 @router.patch("/api/users/{username}")
-async def patch_user(username: str, body: PatchUser, _: Admin, s: ServicesDep) -> UserView:
-    return _user_view(await s.auth.patch_user(username, body))
+async def patch_user(username: str, body: PatchUser, admin: Admin, s: ServicesDep) -> UserView:
+    return _user_view(await s.auth.patch_user(username, body, admin))
 
 
 @router.post("/api/users/{username}/rotate_token")
@@ -124,7 +143,18 @@ _LOGIN_SCHEMA = {
 }
 
 
-@router.post("/auth/token", tags=["auth"], openapi_extra=_LOGIN_SCHEMA)
-async def login(body: Annotated[LoginRequest, Depends(_login_body)], s: ServicesDep) -> TokenResult:
-    token, ttl = await s.auth.login(body.username, body.password)
+@router.post(
+    "/auth/token",
+    tags=["auth"],
+    openapi_extra=_LOGIN_SCHEMA,
+    responses={429: {"description": "too many failed logins (Retry-After says when to retry)"}},
+)
+async def login(
+    body: Annotated[LoginRequest, Depends(_login_body)], request: Request, s: ServicesDep
+) -> TokenResult:
+    """A session token for a username and password. Failed attempts are limited per client
+    address and per username (``docs/security.md``)."""
+    s.readiness.require()
+    address = request.client.host if request.client is not None else None
+    token, ttl = await s.auth.login(body.username, body.password, address)
     return TokenResult(access_token=token, expires_in=ttl)

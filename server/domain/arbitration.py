@@ -81,21 +81,28 @@ def check_granter(principal: Principal, vehicle_id: str) -> None:
         raise Forbidden(f"only a manager of vehicle {vehicle_id}, or an admin, grants its control")
 
 
-def check_grantee(grantee: Grantee | None, username: str, vehicle_id: str) -> Grantee:
-    def refuse(why: str) -> Invalid:
-        return Invalid(
-            f"cannot grant control to {username}: {why}",
-            details=[{"field": "user", "message": why}],
-        )
-
+def cannot_hold(grantee: Grantee | None, vehicle_id: str) -> tuple[str, str] | None:
+    """Why this user may not hold control of the vehicle (a reason code and a sentence),
+    or None when it may: an operator or above, enabled, with access to the vehicle."""
     if grantee is None:
-        raise refuse("no such user")
+        return "holder_unknown", "no such user"
     if grantee.disabled:
-        raise refuse("the account is disabled")
+        return "holder_disabled", "the account is disabled"
     if ROLE_RANK.get(grantee.role, -1) < ROLE_RANK["operator"]:
-        raise refuse(f"a {grantee.role} cannot hold control; an operator or above can")
+        return "holder_demoted", f"a {grantee.role} cannot hold control; an operator or above can"
     if not grantee.can_see(vehicle_id):
-        raise refuse(f"the user has no access to vehicle {vehicle_id}")
+        return "holder_lost_vehicle", f"the user has no access to vehicle {vehicle_id}"
+    return None
+
+
+def check_grantee(grantee: Grantee | None, username: str, vehicle_id: str) -> Grantee:
+    why = cannot_hold(grantee, vehicle_id)
+    if why is not None:
+        raise Invalid(
+            f"cannot grant control to {username}: {why[1]}",
+            details=[{"field": "user", "message": why[1]}],
+        )
+    assert grantee is not None
     return grantee
 
 

@@ -88,3 +88,12 @@ class TokensRevoked:
     digests: frozenset[str]
     #: False when the news came from another replica (it is not sent on again).
     local: bool = True
+
+
+@dataclass(frozen=True, slots=True)
+class UserChanged:
+    """A user's role, vehicles or ``disabled`` changed (an admin's PATCH): whatever the
+    user held under the former rights and may no longer hold ends (its leases)."""
+
+    username: str
+    actor: Principal | None = None

@@ -8,6 +8,13 @@ the bus, within milliseconds). While that news cannot travel (the bus to the
 other replicas is down), an entry is trusted for at most
 :data:`UNCONFIRMED_TRUST_S` before the store is asked again, so that a
 revocation takes effect everywhere within that time.
+
+``/auth/token`` answers an unknown user, or one without a password, after the
+same argon2 work as a known one (against a dummy hash), and counts failed
+attempts per client address and per username in the store (every replica
+counts the same ones): past ``FLEET_LOGIN_FAILURES_PER_ADDRESS`` or
+``FLEET_LOGIN_FAILURES_PER_USER`` within ``FLEET_LOGIN_WINDOW_S`` it is 429
+``rate_limited`` with ``Retry-After``, without looking at the password.
 """
 
 from __future__ import annotations
@@ -15,12 +22,14 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import hashlib
+import ipaddress
 import logging
+import math
 import secrets
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
-from datetime import timedelta
+from datetime import datetime, timedelta
 from typing import Any
 
 from argon2 import PasswordHasher
@@ -28,7 +37,8 @@ from argon2.exceptions import InvalidHashError, VerificationError
 
 from fleet_protocol import CreateGateway, CreateUser, CreateVehicle, PatchUser, utcnow
 from server.domain.access import Principal
-from server.domain.events import TokensRevoked
+from server.domain.clock import Clock
+from server.domain.events import TokensRevoked, UserChanged
 from server.errors import Conflict, Invalid, NotFound, RateLimited, Unauthorized
 from server.services.messagebus import MessageBus
 from server.settings import Settings
@@ -48,6 +58,23 @@ def digest(token: str) -> str:
 
 def new_token() -> str:
     return TOKEN_PREFIX + secrets.token_urlsafe(32)
+
+
+def client_key(host: str | None) -> str:
+    """What failed logins are counted by for a client address: the address itself, an
+    IPv6 one by its /64 (one subscriber's share: it has them all), an IPv4 one mapped in
+    IPv6 as IPv4."""
+    if not host:
+        return "unknown"
+    try:
+        addr = ipaddress.ip_address(host)
+    except ValueError:
+        return host[:64]
+    if isinstance(addr, ipaddress.IPv6Address):
+        if addr.ipv4_mapped is not None:
+            return str(addr.ipv4_mapped)
+        return str(ipaddress.IPv6Network((addr, 64), strict=False))
+    return str(addr)
 
 
 @dataclass
@@ -74,10 +101,12 @@ class AuthService:
         repo: AccountsRepo,
         messages: MessageBus,
         news_flows: Callable[[], bool] = lambda: True,
+        clock: Clock = utcnow,
     ) -> None:
         self.settings = settings
         self.repo = repo
         self.messages = messages
+        self.clock = clock
         #: Whether revocations made on other replicas reach this one now (the bus is up).
         self._news_flows = news_flows
         self._hasher = PasswordHasher()
@@ -86,6 +115,8 @@ class AuthService:
         #: token id -> set when it is revoked, while someone waits on it (long polls).
         self._revoked: dict[str, asyncio.Event] = {}
         self._waiting: dict[str, int] = {}
+        #: What an unknown user's password is checked against (made once, on first use).
+        self._dummy_hash: str | None = None
 
     async def load(self) -> None:
         await self.repo.ensure_indexes()
@@ -259,19 +290,88 @@ class AuthService:
         await self._revoke({"subject": BOOTSTRAP_ADMIN, "purpose": "bootstrap"})
         return await self._issue("user", BOOTSTRAP_ADMIN, purpose="bootstrap")
 
-    async def login(self, username: str, password: str) -> tuple[str, int]:
+    # ---- login --------------------------------------------------------
+    async def login(self, username: str, password: str, address: str | None) -> tuple[str, int]:
+        """A session token for a right password; 401 otherwise, after the same work
+        whether the user exists or not; 429 past the failed-login limits.
+
+        The attempt is recorded before the password is checked and counted again after,
+        so that a burst of attempts at once gets no more checks than the limit; a
+        successful one is deleted (only failures count), a refused one too.
+        """
+        now = self.clock()
+        attempt: dict[str, Any] = {
+            "attempt_id": secrets.token_hex(12),
+            "address": client_key(address),
+            "user": username,
+            "at": now,
+        }
+        await self._check_login_limits(attempt, now, recorded=False)
+        await self.repo.insert_login_attempt(attempt)
+        try:
+            await self._check_login_limits(attempt, now, recorded=True)
+        except RateLimited:
+            await self.repo.drop_login_attempt(attempt["attempt_id"])
+            raise
         user = await self.repo.user(username)
-        stored = (user or {}).get("password_hash")
-        ok = False
-        if stored:
-            try:
-                ok = await asyncio.to_thread(self._hasher.verify, stored, password)
-            except (VerificationError, InvalidHashError):
-                ok = False
+        ok = await self._password_matches((user or {}).get("password_hash"), password)
         if not ok or user is None or user.get("disabled"):
-            raise Unauthorized("wrong username or password")
+            raise Unauthorized("wrong username or password")  # the attempt stays: a failure
+        await self.repo.drop_login_attempt(attempt["attempt_id"])
         ttl = self.settings.token_ttl_s
         return await self._issue("user", username, ttl_s=ttl, purpose="session"), ttl
+
+    async def _password_matches(self, stored: str | None, password: str) -> bool:
+        """argon2 verification, against a dummy hash when there is no stored one (unknown
+        user, user without a password): the answer takes as long either way."""
+        if not stored:
+            if self._dummy_hash is None:
+                self._dummy_hash = await asyncio.to_thread(
+                    self._hasher.hash, secrets.token_urlsafe(32)
+                )
+            await self._verify(self._dummy_hash, password)
+            return False  # whatever was sent
+        return await self._verify(stored, password)
+
+    async def _verify(self, stored: str, password: str) -> bool:
+        try:
+            return bool(await asyncio.to_thread(self._hasher.verify, stored, password))
+        except (VerificationError, InvalidHashError):
+            return False
+
+    async def _check_login_limits(
+        self, attempt: dict[str, Any], now: datetime, *, recorded: bool
+    ) -> None:
+        """429 when the attempt's address or user is past its limit of failures in the
+        window (``recorded``: the attempt itself is among those counted)."""
+        since = now - timedelta(seconds=self.settings.login_window_s)
+        limits = (
+            ("address", self.settings.login_failures_per_address, "from this address"),
+            ("user", self.settings.login_failures_per_user, "for this user"),
+        )
+        for field, limit, whose in limits:
+            count = await self.repo.count_login_attempts(field, attempt[field], since)
+            if recorded:
+                count -= 1  # the others, this one aside
+            if count < limit:
+                continue
+            # Free again once enough of the oldest leave the window for one more attempt.
+            oldest = await self.repo.login_attempts_of(
+                field, attempt[field], since, count - limit + 1
+            )
+            free_at = oldest[-1]["at"] + timedelta(seconds=self.settings.login_window_s)
+            wait = max(1, math.ceil((free_at - now).total_seconds()))
+            raise RateLimited(
+                f"too many failed logins {whose}; try again in {wait} s",
+                retry_after_s=wait,
+                details={"limit": field, "retry_after_s": wait},
+            )
+
+    async def drop_old_login_attempts(self, now: datetime) -> int:
+        """Forget the attempts older than the window (the retention loop)."""
+        return await self.repo.drop_login_attempts_before(
+            now - timedelta(seconds=self.settings.login_window_s)
+        )
 
     # ---- administration -------------------------------------------------
     async def create_vehicle(self, body: CreateVehicle) -> str:
@@ -289,10 +389,27 @@ class AuthService:
         return await self._issue("vehicle", body.vehicle_id)
 
     async def rotate_vehicle_token(self, vehicle_id: str) -> str:
+        await self.revoke_vehicle_tokens(vehicle_id)
+        return await self._issue("vehicle", vehicle_id)
+
+    async def revoke_vehicle_tokens(self, vehicle_id: str) -> None:
         if await self.repo.vehicle(vehicle_id) is None:
             raise NotFound(f"no vehicle {vehicle_id}")
         await self._revoke({"kind": "vehicle", "subject": vehicle_id})
-        return await self._issue("vehicle", vehicle_id)
+
+    async def get_gateway(self, gateway_id: str) -> dict[str, Any]:
+        gateway = await self.repo.gateway(gateway_id)
+        if gateway is None:
+            raise NotFound(f"no gateway {gateway_id}")
+        return gateway
+
+    async def rotate_gateway_token(self, gateway_id: str) -> str:
+        await self.revoke_gateway_tokens(gateway_id)
+        return await self._issue("gateway", gateway_id)
+
+    async def revoke_gateway_tokens(self, gateway_id: str) -> None:
+        await self.get_gateway(gateway_id)
+        await self._revoke({"kind": "gateway", "subject": gateway_id})
 
     async def create_gateway(self, body: CreateGateway) -> str:
         await self._require_vehicles(body.vehicles)
@@ -348,7 +465,13 @@ class AuthService:
             raise NotFound(f"no user {username}")
         return user
 
-    async def patch_user(self, username: str, body: PatchUser) -> dict[str, Any]:
+    async def patch_user(
+        self, username: str, body: PatchUser, actor: Principal | None = None
+    ) -> dict[str, Any]:
+        """Change a user. A new password, or disabling, ends the user's sessions (tokens
+        from ``/auth/token``) but the one ``actor`` made this call with; the API token
+        stays. A change of role, vehicles or ``disabled`` goes out as
+        :class:`~server.domain.events.UserChanged` (leases the user may no longer hold end)."""
         await self.get_user(username)
         fields: dict[str, Any] = body.model_dump(exclude_none=True, exclude={"password"})
         if body.vehicles is not None:
@@ -358,8 +481,19 @@ class AuthService:
             fields["password_hash"] = await self._hash(body.password)
         if fields:
             await self.repo.update_user(username, fields)
+        if body.password is not None or body.disabled:
+            await self._end_sessions(username, keep=actor)
         await self._forget_subject("user", username)
+        if body.role is not None or body.vehicles is not None or body.disabled is not None:
+            await self.messages.emit(UserChanged(username, actor))
         return await self.get_user(username)
+
+    async def _end_sessions(self, username: str, keep: Principal | None) -> None:
+        """Revoke the user's session tokens, but the one ``keep`` holds if it is theirs."""
+        flt: dict[str, Any] = {"kind": "user", "subject": username, "purpose": "session"}
+        if keep is not None and keep.kind == "user" and keep.name == username:
+            flt["token_id"] = {"$ne": keep.token_id}
+        await self._revoke(flt)
 
     async def revoke_user_tokens(self, username: str) -> None:
         await self.get_user(username)
@@ -374,6 +508,13 @@ class AuthService:
 
     async def all_vehicle_meta(self) -> list[dict[str, Any]]:
         return await self.repo.all_vehicles()
+
+    async def user_rights(self, username: str) -> tuple[str, frozenset[str], bool] | None:
+        """``(role, vehicles, disabled)`` of a user; None when there is no such user."""
+        user = await self.repo.user(username)
+        if user is None:
+            return None
+        return user["role"], frozenset(user.get("vehicles", [])), bool(user.get("disabled"))
 
     async def gateway_vehicles(self, gateway_ids: set[str]) -> dict[str, frozenset[str]]:
         """The vehicles each of these gateways lists (an unknown gateway: none)."""

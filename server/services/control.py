@@ -8,6 +8,9 @@ or expiring one lease at once, one does it and the other reads the result.
 When a lease ends, :class:`~server.domain.events.LeaseEnded` goes out (the
 command queue cancels the former holder's commands), and
 :class:`~server.domain.events.ControlChanged` tells who holds control now.
+A user whose rights change (:class:`~server.domain.events.UserChanged`: role,
+vehicles, disabled) loses the leases and pending requests the new rights no
+longer allow.
 """
 
 from __future__ import annotations
@@ -23,7 +26,13 @@ from server.domain import arbitration as rules
 from server.domain.access import Principal
 from server.domain.arbitration import ControlRequest, Grantee, Lease
 from server.domain.clock import Clock
-from server.domain.events import ControlChanged, InstanceFinished, LeaseEnded, StateWritten
+from server.domain.events import (
+    ControlChanged,
+    InstanceFinished,
+    LeaseEnded,
+    StateWritten,
+    UserChanged,
+)
 from server.errors import Conflict, Forbidden, Unavailable
 from server.errors import InstanceFinished as Finished
 from server.services.auth import AuthService
@@ -223,6 +232,30 @@ class ControlService:
                 instance_id=lease.instance_id,
                 data={"holder": lease.holder},
             )
+
+    async def on_user_changed(self, event: UserChanged) -> None:
+        """End the leases the user holds and may no longer hold (demoted below operator,
+        the vehicle taken away, disabled), through :meth:`_end` (their queued commands are
+        cancelled, the vehicle told); drop such pending requests too."""
+        rights = await self.auth.user_rights(event.username)
+        grantee = Grantee(event.username, *rights) if rights is not None else None
+        for doc in await self.repo.leases_held_by(event.username):
+            lease = Lease.from_doc(doc)
+            why = rules.cannot_hold(grantee, lease.vehicle_id)
+            if why is None or not lease.live(self.clock()):
+                continue  # still allowed; or past its expiry: the sweep ends it
+            if await self._end(lease, why[0]):
+                await self.events.record(
+                    "control_revoke",
+                    vehicle_id=lease.vehicle_id,
+                    instance_id=lease.instance_id,
+                    actor=event.actor,
+                    data={"holder": lease.holder, "reason": why[0], "why": why[1]},
+                )
+        for doc in await self.repo.requests_by(event.username):
+            if rules.cannot_hold(grantee, doc["vehicle_id"]) is not None:
+                if await self.repo.drop_request(doc["instance_id"], event.username):
+                    self.messages.emit_now(StateWritten(doc["instance_id"], "lease"))
 
     async def on_instance_finished(self, event: InstanceFinished) -> None:
         await self.repo.drop_requests(event.instance_id)

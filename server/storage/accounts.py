@@ -3,6 +3,10 @@
 Each document's ``_id`` is its key (username, vehicle id, gateway id, token
 digest), so a lookup is a keyed read and a second insert of one key is
 refused by the store itself (two replicas starting at once make one admin).
+
+``login_attempts`` holds one document per ``/auth/token`` attempt under way
+or failed (``{address, user, at}``; a successful one is deleted), counted by
+address and by user over a sliding window, and dropped once older than it.
 """
 
 from __future__ import annotations
@@ -19,10 +23,14 @@ class AccountsRepo:
         self.tokens = store["tokens"]
         self.vehicles = store["vehicles"]
         self.gateways = store["gateways"]
+        self.login_attempts = store["login_attempts"]
 
     async def ensure_indexes(self) -> None:
         await self.tokens.create_index([("subject", 1), ("kind", 1)])
         await self.tokens.create_index([("expires_at", 1)])
+        await self.login_attempts.create_index([("address", 1), ("at", 1)])
+        await self.login_attempts.create_index([("user", 1), ("at", 1)])
+        await self.login_attempts.create_index([("at", 1)])
 
     # users
     async def user(self, username: str) -> Doc | None:
@@ -79,3 +87,25 @@ class AccountsRepo:
 
     async def drop_expired_tokens(self, before: datetime) -> int:
         return await self.tokens.delete({"expires_at": {"$lt": before}})
+
+    # login attempts
+    async def insert_login_attempt(self, doc: Doc) -> None:
+        await self.login_attempts.insert({**doc, "_id": doc["attempt_id"]})
+
+    async def drop_login_attempt(self, attempt_id: str) -> None:
+        await self.login_attempts.delete({"_id": attempt_id})
+
+    async def count_login_attempts(self, field: str, value: str, since: datetime) -> int:
+        """Attempts of this ``address`` or ``user`` later than ``since``."""
+        return await self.login_attempts.count({field: value, "at": {"$gt": since}})
+
+    async def login_attempts_of(
+        self, field: str, value: str, since: datetime, limit: int
+    ) -> list[Doc]:
+        """The oldest ``limit`` attempts of this ``address`` or ``user`` later than ``since``."""
+        return await self.login_attempts.find(
+            {field: value, "at": {"$gt": since}}, sort=[("at", 1)], limit=limit
+        )
+
+    async def drop_login_attempts_before(self, before: datetime) -> int:
+        return await self.login_attempts.delete({"at": {"$lte": before}})

@@ -30,6 +30,10 @@ class ControlRepo:
     async def lease_of(self, instance_id: str) -> Doc | None:
         return await self.leases.get(instance_id)
 
+    async def leases_held_by(self, username: str) -> list[Doc]:
+        """The leases this user holds (a scan: one lease per instance at most)."""
+        return await self.leases.find({"holder": username})
+
     async def put_lease(self, doc: Doc, read_rev: int | None) -> bool:
         """Write the lease if it is still as read (``read_rev``; None: there was none)."""
         doc = {**doc, "_id": doc["instance_id"]}
@@ -67,6 +71,10 @@ class ControlRepo:
 
     async def drop_requests(self, instance_id: str) -> None:
         await self.requests.delete({"instance_id": instance_id})
+
+    async def requests_by(self, username: str) -> list[Doc]:
+        """The requests this user has pending (a scan: bounded per instance)."""
+        return await self.requests.find({"username": username})
 
     async def drop_requests_before(self, before: datetime) -> list[Doc]:
         old = await self.requests.find({"requested_at": {"$lt": before}})

@@ -14,6 +14,12 @@ journal of generation N beside a base of N + 1: its writes are in the base
 already, and it is skipped. A compaction that fails leaves the previous base
 and journal as they were, and the writes it would have folded in stay
 pending for the next flush.
+
+The files hold every user, token digest and password hash: they are made
+readable by their owner only (0600), and the folder, when made here, too
+(0700). A folder that exists already is left as it is (it may be shared);
+a file a former version made with other modes is set to 0600 when next
+written.
 """
 
 from __future__ import annotations
@@ -24,7 +30,7 @@ import os
 from collections import Counter
 from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO
 
 import bson
 
@@ -36,6 +42,29 @@ _CHUNK = 500
 
 Replay = Callable[[dict[str, Any]], None]
 Snapshot = Callable[[], Iterator[tuple[str, list[dict[str, Any]]]]]
+
+#: The data files: the owner reads and writes them, nobody else.
+FILE_MODE = 0o600
+#: The folder they are in, when it is made here.
+DIR_MODE = 0o700
+
+
+def _private_dir(path: Path) -> None:
+    """Make ``path`` (and its parents) if missing; the last one owner-only."""
+    path.mkdir(mode=DIR_MODE, parents=True, exist_ok=True)
+
+
+def _open_private(path: Path, *, append: bool) -> BinaryIO:
+    """``path`` opened for writing (appending or from empty), owner-only whatever mode it
+    had (a file an older version made, created under any umask)."""
+    flags = os.O_WRONLY | os.O_CREAT | (os.O_APPEND if append else os.O_TRUNC)
+    fd = os.open(path, flags, FILE_MODE)
+    try:
+        os.fchmod(fd, FILE_MODE)
+        return os.fdopen(fd, "ab" if append else "wb")
+    except BaseException:
+        os.close(fd)
+        raise
 
 
 def _entries(path: Path) -> Iterator[dict[str, Any]]:
@@ -51,9 +80,9 @@ def _entries(path: Path) -> Iterator[dict[str, Any]]:
 
 def _write_file(path: Path, chunks: list[bytes]) -> None:
     """``path`` replaced whole by ``chunks``: written to a temporary file, fsynced, renamed."""
-    path.parent.mkdir(parents=True, exist_ok=True)
+    _private_dir(path.parent)
     tmp = path.with_name(path.name + ".tmp")
-    with tmp.open("wb") as fh:
+    with _open_private(tmp, append=False) as fh:
         for chunk in chunks:
             fh.write(chunk)
         fh.flush()
@@ -113,8 +142,8 @@ class Journal:
             return True
 
     def _append(self, data: bytes, fresh: bool) -> None:
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        with self.journal_path.open("wb" if fresh else "ab") as fh:
+        _private_dir(self.path.parent)
+        with _open_private(self.journal_path, append=not fresh) as fh:
             fh.write(data)
             fh.flush()
             os.fsync(fh.fileno())
@@ -164,7 +193,8 @@ class Journal:
                 exc,
             )
             try:
-                with self.rejected_path.open("ab") as fh:
+                _private_dir(self.path.parent)
+                with _open_private(self.rejected_path, append=True) as fh:
                     fh.write(bson.encode({"error": repr(exc), "entry": entry}))
             except Exception:
                 log.exception("restore: the rejected entry could not be written aside")
