@@ -1,0 +1,512 @@
+"""Who may call what: every route of the OpenAPI document and every WebSocket op, against
+every kind of caller, with the outcome expected in each cell.
+
+The rows are checked against the app's own OpenAPI document and the wire models' op
+unions: a route or op added later without a row here fails this test. Each cell runs in
+a world of its own (fresh ids), so that one caller's success does not change the next
+one's answer.
+
+Callers: no token, a viewer, an operator holding the vehicle's lease, the vehicle's
+field manager, an admin, the vehicle, a foreign vehicle, a gateway listing the vehicle, a
+revoked token and an expired one.
+"""
+
+from __future__ import annotations
+
+import itertools
+import json
+from collections.abc import AsyncIterator, Callable
+from dataclasses import dataclass
+from datetime import timedelta
+from typing import Any, get_args
+
+import httpx
+import pytest
+import websockets
+from asgi_lifespan import LifespanManager
+
+from fleet_protocol import ClientOp, VehicleOp, utcnow
+from server.app import create_app
+from server.services.auth import digest, new_token
+from server.settings import Settings
+from tests.factories import ADMIN, bearer, sample
+from tests.live import recv_until, serve, ws_url
+
+CALLERS = (
+    "anon",
+    "viewer",
+    "operator",
+    "manager",
+    "admin",
+    "vehicle",
+    "foreign",
+    "gateway",
+    "revoked",
+    "expired",
+)
+_n = itertools.count(1)
+PASSWORD = "correct horse battery"
+
+
+@dataclass
+class World:
+    """One cell's world: a vehicle (its instance, lease held by the operator, a command, a
+    pending request), a foreign vehicle, a gateway, people, an obstacle, dead tokens."""
+
+    n: int
+    vid: str
+    iid: str
+    command_id: str
+    gateway_id: str
+    obstacle_id: str
+    password_user: str
+    tokens: dict[str, str | None]
+
+    def headers(self, caller: str) -> dict[str, str]:
+        token = self.tokens[caller]
+        return bearer(token) if token else {}
+
+
+async def build(c: httpx.AsyncClient, app: Any) -> World:
+    n = next(_n)
+    tokens: dict[str, str | None] = {"anon": None, "admin": ADMIN["Authorization"][7:]}
+
+    async def post(path: str, body: dict[str, Any], headers: dict[str, str] = ADMIN) -> Any:
+        r = await c.post(path, headers=headers, json=body)
+        assert r.is_success, (path, r.text)
+        return r.json()
+
+    vid, fid, gid = f"mv-{n}", f"mf-{n}", f"mg-{n}"
+    tokens["vehicle"] = (await post("/api/vehicles", {"vehicle_id": vid}))["token"]
+    tokens["foreign"] = (await post("/api/vehicles", {"vehicle_id": fid}))["token"]
+    tokens["gateway"] = (await post("/api/gateways", {"gateway_id": gid, "vehicles": [vid]}))[
+        "token"
+    ]
+    caps = ["stop", "go_to", "keep_station", "follow_path"]
+    vh = bearer(tokens["vehicle"] or "")
+    iid = (await post("/upper/start_instance", {"vehicle_id": vid, "capabilities": caps}, vh))[
+        "instance_id"
+    ]
+    await post("/upper/start_instance", {"vehicle_id": fid}, bearer(tokens["foreign"] or ""))
+    for role in ("viewer", "operator", "manager"):
+        body = {"username": f"{role}-{n}", "role": role, "vehicles": [vid]}
+        tokens[role] = (await post("/api/users", body))["token"]
+    revoked = (await post("/api/users", {"username": f"gone-{n}", "role": "operator"}))["token"]
+    await post(f"/api/users/gone-{n}/revoke_tokens", {})
+    tokens["revoked"] = revoked
+    password_user = "pw"  # one per app (hashing a password costs a tenth of a second)
+    if (await c.get("/api/users/pw", headers=ADMIN)).status_code == 404:
+        await post(
+            "/api/users", {"username": password_user, "role": "viewer", "password": PASSWORD}
+        )
+    tokens["expired"] = await expired_session(app, f"viewer-{n}")
+    await post(
+        "/client/grant_control",
+        {"instance_id": iid, "user": f"operator-{n}", "duration_s": 600},
+    )
+    command_id = (
+        await post(
+            "/client/submit_control",
+            {"instance_ids": [iid], "command": {"type": "go_to", "args": {"lat": 1, "lon": 2}}},
+            bearer(tokens["operator"] or ""),
+        )
+    )["commands"][0]["command_id"]
+    await post("/client/request_control", {"instance_id": iid}, bearer(tokens["manager"] or ""))
+    polygon = {"type": "Polygon", "coordinates": [[[1, 1], [1, 2], [2, 2], [2, 1], [1, 1]]]}
+    obstacle_id = (await post("/api/obstacles", {"name": "pier", "polygon": polygon}))[
+        "obstacle_id"
+    ]
+    return World(n, vid, iid, command_id, gid, obstacle_id, password_user, tokens)
+
+
+async def expired_session(app: Any, username: str) -> str:
+    """A session token of ``username`` that expired a minute ago (as /auth/token makes them)."""
+    token = new_token()
+    now = utcnow()
+    await app.state.services.auth.repo.insert_token(
+        {
+            "token_id": f"t-exp-{username}",
+            "digest": digest(token),
+            "kind": "user",
+            "subject": username,
+            "purpose": "session",
+            "created_at": now - timedelta(hours=1),
+            "expires_at": now - timedelta(minutes=1),
+            "revoked_at": None,
+        }
+    )
+    return token
+
+
+Call = Callable[[World], tuple[str, dict[str, Any]]]
+
+
+def get(path: str, **params: Any) -> Callable[[World], tuple[str, dict[str, Any]]]:
+    return lambda w: (path.format(w=w), {"params": {k: v.format(w=w) for k, v in params.items()}})
+
+
+def post(path: str, body: Callable[[World], Any] | None = None) -> Call:
+    return lambda w: (path.format(w=w), {"json": body(w) if body else {}})
+
+
+USERS = {"viewer": 200, "operator": 200, "manager": 200, "admin": 200}
+KINDS = {"vehicle": 403, "foreign": 403, "gateway": 403}
+DEAD = {"anon": 401, "revoked": 401, "expired": 401}
+
+
+def everyone(status: int) -> dict[str, int]:
+    return dict.fromkeys(CALLERS, status)
+
+
+def users(**cells: int) -> dict[str, int]:
+    """A route for users: the vehicles' tokens are refused, the dead ones are 401."""
+    return {**DEAD, **KINDS, **USERS, **cells}
+
+
+def admin(status: int = 200) -> dict[str, int]:
+    return users(viewer=403, operator=403, manager=403, admin=status)
+
+
+def upper(**cells: int) -> dict[str, int]:
+    """A route for vehicles and gateways: the users' tokens are refused."""
+    return {**DEAD, **dict.fromkeys(USERS, 403), "vehicle": 200, "gateway": 200, **cells}
+
+
+def go_to(w: World) -> dict[str, Any]:
+    return {"instance_ids": [w.iid], "command": {"type": "go_to", "args": {"lat": 1, "lon": 2}}}
+
+
+def patch(path: str, body: dict[str, Any]) -> Call:
+    return lambda w: (path.format(w=w), {"json": body, "method": "PATCH"})
+
+
+def delete(path: str) -> Call:
+    return lambda w: (path.format(w=w), {"method": "DELETE"})
+
+
+#: (method, path) -> (how to call it in a world, the outcome per caller).
+ROWS: dict[tuple[str, str], tuple[Call, dict[str, int]]] = {
+    ("GET", "/healthz"): (get("/healthz"), everyone(200)),
+    ("GET", "/readyz"): (get("/readyz"), everyone(200)),
+    ("GET", "/metrics"): (get("/metrics"), everyone(200)),
+    ("POST", "/auth/token"): (
+        post(
+            "/auth/token",
+            lambda w: {"username": w.password_user, "password": "correct horse battery"},
+        ),
+        everyone(200),  # the password decides, not the bearer
+    ),
+    ("GET", "/api/vehicles"): (get("/api/vehicles"), users()),
+    ("POST", "/api/vehicles"): (
+        post("/api/vehicles", lambda w: {"vehicle_id": f"new-{w.n}"}),
+        admin(201),
+    ),
+    ("GET", "/api/vehicles/{vehicle_id}"): (get("/api/vehicles/{w.vid}"), users()),
+    ("POST", "/api/vehicles/{vehicle_id}/rotate_token"): (
+        post("/api/vehicles/{w.vid}/rotate_token"),
+        admin(),
+    ),
+    ("POST", "/api/vehicles/{vehicle_id}/revoke_tokens"): (
+        post("/api/vehicles/{w.vid}/revoke_tokens"),
+        admin(),
+    ),
+    ("GET", "/api/vehicles/{vehicle_id}/telemetry"): (
+        get("/api/vehicles/{w.vid}/telemetry"),
+        users(),
+    ),
+    ("GET", "/api/vehicles/{vehicle_id}/track"): (get("/api/vehicles/{w.vid}/track"), users()),
+    ("GET", "/api/commands/{command_id}"): (get("/api/commands/{w.command_id}"), users()),
+    ("GET", "/api/events"): (get("/api/events"), users()),
+    ("GET", "/api/dead_letters"): (get("/api/dead_letters"), admin()),
+    ("POST", "/api/gateways"): (
+        post("/api/gateways", lambda w: {"gateway_id": f"gnew-{w.n}", "vehicles": [w.vid]}),
+        admin(201),
+    ),
+    ("POST", "/api/gateways/{gateway_id}/rotate_token"): (
+        post("/api/gateways/{w.gateway_id}/rotate_token"),
+        admin(),
+    ),
+    ("POST", "/api/gateways/{gateway_id}/revoke_tokens"): (
+        post("/api/gateways/{w.gateway_id}/revoke_tokens"),
+        admin(),
+    ),
+    ("GET", "/api/obstacles"): (get("/api/obstacles"), users()),
+    ("POST", "/api/obstacles"): (
+        post(
+            "/api/obstacles",
+            lambda w: {
+                "name": "buoy",
+                "polygon": {
+                    "type": "Polygon",
+                    "coordinates": [[[5, 5], [5, 6], [6, 6], [6, 5], [5, 5]]],
+                },
+            },
+        ),
+        admin(201),
+    ),
+    ("DELETE", "/api/obstacles/{obstacle_id}"): (
+        delete("/api/obstacles/{w.obstacle_id}"),
+        admin(),
+    ),
+    ("GET", "/api/users"): (get("/api/users"), admin()),
+    ("POST", "/api/users"): (
+        post("/api/users", lambda w: {"username": f"new-{w.n}", "role": "viewer"}),
+        admin(201),
+    ),
+    ("GET", "/api/users/{username}"): (get("/api/users/viewer-{w.n}"), admin()),
+    ("PATCH", "/api/users/{username}"): (
+        patch("/api/users/viewer-{w.n}", {"vehicles": []}),
+        admin(),
+    ),
+    ("POST", "/api/users/{username}/revoke_tokens"): (
+        post("/api/users/viewer-{w.n}/revoke_tokens"),
+        admin(),
+    ),
+    ("POST", "/api/users/{username}/rotate_token"): (
+        post("/api/users/viewer-{w.n}/rotate_token"),
+        admin(),
+    ),
+    ("POST", "/client/connect_instance"): (
+        post("/client/connect_instance", lambda w: {"instance_id": w.iid}),
+        users(),
+    ),
+    ("GET", "/client/get_param"): (get("/client/get_param", instance_id="{w.iid}"), users()),
+    ("GET", "/client/get_fbmessage"): (
+        get("/client/get_fbmessage", instance_id="{w.iid}"),
+        users(),
+    ),
+    ("POST", "/client/submit_control"): (
+        post("/client/submit_control", go_to),
+        users(viewer=403, operator=202, manager=409, admin=409),  # the operator holds it
+    ),
+    ("POST", "/client/cancel_command"): (
+        post("/client/cancel_command", lambda w: {"command_id": w.command_id}),
+        users(viewer=403),  # its issuer (the holder), the manager, an admin
+    ),
+    ("POST", "/client/request_control"): (
+        post("/client/request_control", lambda w: {"instance_id": w.iid}),
+        users(viewer=403),
+    ),
+    ("GET", "/client/control_requests"): (get("/client/control_requests"), users()),
+    ("POST", "/client/grant_control"): (
+        post(
+            "/client/grant_control",
+            lambda w: {"instance_id": w.iid, "user": f"operator-{w.n}", "duration_s": 60},
+        ),
+        users(viewer=403, operator=403),
+    ),
+    ("POST", "/client/revoke_control"): (
+        post("/client/revoke_control", lambda w: {"instance_id": w.iid}),
+        users(viewer=403, operator=403),
+    ),
+    ("POST", "/client/release_control"): (
+        post("/client/release_control", lambda w: {"instance_id": w.iid}),
+        users(viewer=403, manager=409, admin=409),  # only the holder releases
+    ),
+    ("POST", "/upper/start_instance"): (
+        post("/upper/start_instance", lambda w: {"vehicle_id": w.vid}),
+        upper(foreign=403),  # it does not act for that vehicle
+    ),
+    ("POST", "/upper/finish_instance"): (
+        post("/upper/finish_instance", lambda w: {"instance_id": w.iid}),
+        upper(foreign=404),  # another vehicle's instance is not the foreign one's to see
+    ),
+    ("POST", "/upper/heartbeat"): (
+        post("/upper/heartbeat", lambda w: {"instance_id": w.iid}),
+        upper(foreign=404),
+    ),
+    ("POST", "/upper/update_param"): (
+        post(
+            "/upper/update_param",
+            lambda w: {"instance_id": w.iid, "samples": [sample(1)], "params": {"mode": "x"}},
+        ),
+        upper(foreign=404),
+    ),
+    ("POST", "/upper/update_fbmessage"): (
+        post(
+            "/upper/update_fbmessage",
+            lambda w: {
+                "instance_id": w.iid,
+                "acks": [{"command_id": w.command_id, "status": "accepted"}],
+            },
+        ),
+        upper(foreign=404),
+    ),
+    ("GET", "/upper/get_control"): (
+        get("/upper/get_control", instance_id="{w.iid}"),
+        upper(foreign=404),
+    ),
+}
+
+
+@pytest.fixture
+async def app_client(make_settings: Callable[..., Settings]) -> AsyncIterator[tuple[Any, Any]]:
+    app = create_app(make_settings())
+    async with LifespanManager(app) as m:
+        transport = httpx.ASGITransport(app=m.app)
+        async with httpx.AsyncClient(transport=transport, base_url="http://t") as c:
+            yield app, c
+
+
+def test_every_route_of_the_document_has_a_row() -> None:
+    document = create_app(Settings(_env_file=None)).openapi()
+    routes = {
+        (method.upper(), path)
+        for path, item in document["paths"].items()
+        for method in item
+        if method in ("get", "post", "put", "patch", "delete")
+    }
+    assert routes - set(ROWS) == set(), "a route without a row: say who may call it"
+    assert set(ROWS) - routes == set(), "a row for a route that is gone"
+
+
+@pytest.mark.parametrize(("method", "path"), sorted(ROWS))
+async def test_each_caller_gets_what_its_cell_says(
+    app_client: tuple[Any, httpx.AsyncClient], method: str, path: str
+) -> None:
+    app, c = app_client
+    call, expected = ROWS[(method, path)]
+    assert set(expected) == set(CALLERS), f"{method} {path}: a cell is missing"
+    got = {}
+    for caller in CALLERS:
+        world = await build(c, app)
+        url, kwargs = call(world)
+        verb = kwargs.pop("method", method)
+        r = await c.request(verb, url, headers=world.headers(caller), **kwargs)
+        got[caller] = r.status_code
+        if r.status_code >= 400 and path not in ("/metrics",):
+            assert set(r.json()["error"]) == {"code", "message", "details"}, r.text
+    assert got == expected
+
+
+# ---- the sockets --------------------------------------------------------------------
+
+
+#: Every op of /ws/vehicle and /ws/client: what it is sent as, per socket.
+def op_names(union: Any) -> set[str]:
+    """The ``op`` of every model in a (nested, annotated) union of the wire models."""
+    if isinstance(union, type) and "op" in getattr(union, "model_fields", {}):
+        return {union.model_fields["op"].default}
+    return set().union(*(op_names(arg) for arg in get_args(union) if not _is_field(arg)))
+
+
+def _is_field(arg: Any) -> bool:
+    return type(arg).__name__ == "FieldInfo"
+
+
+VEHICLE_OPS = op_names(VehicleOp)
+CLIENT_OPS = op_names(ClientOp)
+
+#: op -> (the frame in a world, the answer per caller: "ok" or an error code). Callers
+#: that cannot open the socket at all are in SOCKET_REFUSALS.
+VEHICLE_ROWS: dict[str, tuple[Callable[[World], dict[str, Any]], dict[str, str]]] = {
+    "start_instance": (
+        lambda w: {"vehicle_id": w.vid},
+        {"vehicle": "ok", "gateway": "ok", "foreign": "forbidden"},
+    ),
+    "heartbeat": (
+        lambda w: {"instance_id": w.iid},
+        {"vehicle": "ok", "gateway": "ok", "foreign": "not_found"},
+    ),
+    "update_param": (
+        lambda w: {"instance_id": w.iid, "samples": [sample(1)]},
+        {"vehicle": "ok", "gateway": "ok", "foreign": "not_found"},
+    ),
+    "update_fbmessage": (
+        lambda w: {"instance_id": w.iid, "acks": []},
+        {"vehicle": "ok", "gateway": "ok", "foreign": "not_found"},
+    ),
+    "finish_instance": (
+        lambda w: {"instance_id": w.iid},
+        {"vehicle": "ok", "gateway": "ok", "foreign": "not_found"},
+    ),
+    "register": (
+        lambda w: {"topics": [f"vehicle/{w.vid}/sonar"], "vehicle_id": w.vid},
+        {"vehicle": "ok", "gateway": "ok", "foreign": "forbidden"},
+    ),
+    "subscribe": (
+        lambda w: {"topics": [f"vehicle/{w.vid}/telemetry"]},
+        {"vehicle": "ok", "gateway": "ok", "foreign": "forbidden"},
+    ),
+    "unsubscribe": (
+        lambda w: {"topics": [f"vehicle/{w.vid}/telemetry"]},
+        {"vehicle": "ok", "gateway": "ok", "foreign": "ok"},  # nothing to leave: harmless
+    ),
+    "publish": (
+        lambda w: {"topic": f"vehicle/{w.vid}/sonar", "data": 1},
+        {"vehicle": "ok", "gateway": "ok", "foreign": "forbidden"},
+    ),
+    "batch": (
+        lambda w: {"ops": [{"op": "heartbeat", "instance_id": w.iid}]},
+        {"vehicle": "ok", "gateway": "ok", "foreign": "ok"},  # the inner op answers apart
+    ),
+}
+CLIENT_ROWS: dict[str, tuple[Callable[[World], dict[str, Any]], dict[str, str]]] = {
+    "subscribe": (
+        lambda w: {"topics": ["fleet", f"vehicle/{w.vid}/telemetry"]},
+        {"viewer": "ok", "operator": "ok", "manager": "ok", "admin": "ok"},
+    ),
+    "unsubscribe": (
+        lambda w: {"topics": ["fleet"]},
+        {"viewer": "ok", "operator": "ok", "manager": "ok", "admin": "ok"},
+    ),
+    "register": (
+        lambda w: {"topics": [f"user/viewer-{w.n}/notes"]},
+        {"viewer": "ok", "operator": "forbidden", "manager": "forbidden", "admin": "forbidden"},
+    ),
+    "publish": (
+        lambda w: {"topic": f"user/viewer-{w.n}/notes", "data": {"n": 1}},
+        {"viewer": "ok", "operator": "forbidden", "manager": "forbidden", "admin": "forbidden"},
+    ),
+}
+#: Who cannot open each socket, and the close code.
+SOCKET_REFUSALS = {
+    "/ws/vehicle": {
+        **{c: 4401 for c in ("anon", "revoked", "expired")},
+        **{c: 4403 for c in ("viewer", "operator", "manager", "admin")},
+    },
+    "/ws/client": {
+        **{c: 4401 for c in ("anon", "revoked", "expired")},
+        **{c: 4403 for c in ("vehicle", "foreign", "gateway")},
+    },
+}
+
+
+def test_every_op_has_a_row() -> None:
+    assert VEHICLE_OPS == set(VEHICLE_ROWS), "a /ws/vehicle op without a row"
+    assert CLIENT_OPS == set(CLIENT_ROWS), "a /ws/client op without a row"
+    for path, rows in (("/ws/vehicle", VEHICLE_ROWS), ("/ws/client", CLIENT_ROWS)):
+        for op, (_, cells) in rows.items():
+            assert set(cells) | set(SOCKET_REFUSALS[path]) == set(CALLERS), (path, op)
+
+
+@pytest.mark.slow
+async def test_each_caller_gets_what_its_socket_cell_says(
+    make_settings: Callable[..., Settings],
+) -> None:
+    app = create_app(make_settings())
+    async with serve(Settings(), app=app) as base, httpx.AsyncClient(base_url=base) as c:
+        for path, rows in (("/ws/vehicle", VEHICLE_ROWS), ("/ws/client", CLIENT_ROWS)):
+            for caller, code in SOCKET_REFUSALS[path].items():
+                world = await build(c, app)
+                async with websockets.connect(ws_url(base, path)) as ws:
+                    token = world.tokens[caller]
+                    if token is not None:
+                        await ws.send(json.dumps({"op": "auth", "token": token}))
+                    else:
+                        await ws.send(json.dumps({"op": "subscribe", "topics": ["fleet"]}))
+                    with pytest.raises(websockets.ConnectionClosed):
+                        await recv_until(ws, lambda f: False, within_s=10)
+                    assert ws.close_code == code, (path, caller)
+            for op, (frame, cells) in sorted(rows.items()):
+                got = {}
+                for caller in cells:
+                    world = await build(c, app)
+                    async with websockets.connect(ws_url(base, path)) as ws:
+                        auth = {"op": "auth", "id": "a", "token": world.tokens[caller]}
+                        await ws.send(json.dumps(auth))
+                        assert (await recv_until(ws, lambda f: f.get("id") == "a"))["ok"]
+                        await ws.send(json.dumps({"op": op, "id": "x", **frame(world)}))
+                        ack = await recv_until(ws, lambda f: f.get("id") == "x")
+                        got[caller] = "ok" if ack["ok"] else ack["error"]["code"]
+                assert got == cells, (path, op)
