@@ -122,7 +122,8 @@ async def test_a_camera_frame_goes_up_only_once_someone_upstream_subscribed(
     make_settings: Callable[..., Settings],
 ) -> None:
     async with gateway(make_settings) as w:
-        cam, note = f"vehicle/{w.a}/camera/front", f"user/{w.operator}/note"
+        # The operator's note is about unit b: b may read it (a user's own namespace).
+        cam, note = f"vehicle/{w.a}/camera/front", f"user/{w.operator}/note/{w.b}"
         async with w.unit(w.a) as ua, w.unit(w.b) as ub:
             assert (await ack(ua, "register", "r", topics=[cam]))["ok"] is True
             assert (await ack(ub, "subscribe", "s", topics=[cam, note]))["ok"] is True
@@ -160,7 +161,7 @@ async def test_a_frame_from_above_reaches_the_unit_subscribed_to_it(
     make_settings: Callable[..., Settings],
 ) -> None:
     async with gateway(make_settings) as w:
-        mask = f"user/{w.operator}/image/mask"
+        mask = f"user/{w.operator}/image/{w.b}"  # an image for unit b (its to read)
         async with w.unit(w.b) as ub, await w.operator_ws() as op:
             assert (await ack(ub, "subscribe", "s", topics=[mask]))["ok"] is True
             got = await send_until_received(op, mask, ub, "mask")

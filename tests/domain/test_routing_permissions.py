@@ -134,7 +134,7 @@ def test_a_gateway_namespace_is_read_by_it_its_units_their_readers_and_admins():
         user("root", admin=True),
     ):
         assert can_read(caller, topic, gateways), caller
-    for caller in (gateway("gw-8", "usv-1"), vehicle("usv-3"), user("bob", "usv-3"), user("eve")):
+    for caller in (gateway("gw-8", "usv-3"), vehicle("usv-3"), user("bob", "usv-3"), user("eve")):
         assert not can_read(caller, topic, gateways), caller
     assert not can_read(user("ana", "usv-1"), "gateway/gw-unknown/status", gateways)
 
