@@ -210,6 +210,11 @@ def _register_gauges(runtime: Runtime) -> None:
         "fleet_commands", "active commands by status", commands_by_status, "status"
     )
     runtime.metrics.live_gauge(
+        "fleet_plans_running",
+        "paths being planned (follow_path with plan), at most FLEET_PLAN_WORKERS",
+        lambda: {"": float(services.commands.admission.planning.running)},
+    )
+    runtime.metrics.live_gauge(
         "fleet_ws_connections",
         "open WebSocket connections",
         lambda: {"": float(len(runtime.hub.connections))},

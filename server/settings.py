@@ -49,6 +49,20 @@ class Settings(BaseSettings):
     max_obstacles: int = Field(
         default=1000, ge=0, description="known fixed obstacles (POST /api/obstacles) at most"
     )
+    plan_timeout_s: float = Field(
+        default=5.0,
+        gt=0,
+        le=300,
+        description="follow_path with plan: the time one submit may spend planning "
+        "(waiting for a planner included); past it, 422",
+    )
+    plan_workers: int = Field(
+        default=2,
+        ge=1,
+        le=32,
+        description="paths planned at once (each in a thread of its own); a submit waits for "
+        "one up to plan_timeout_s, then 429",
+    )
     retention_s: float = Field(
         default=7 * DAY_S,
         gt=0,

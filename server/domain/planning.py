@@ -14,16 +14,21 @@ segments that keep every clearance, shortest path by Dijkstra.
 Fixed obstacles join a leg's graph lazily: first those the straight leg
 crosses, then any the route found crosses, until a route crosses none. A
 harbour full of piers thus costs only the piers near the way.
+
+Bounded: a graph of at most :data:`MAX_ROUTE_NODES` nodes (its distances held
+in one square array, searched by Dijkstra in it), and a :class:`Deadline` the
+planner looks at between steps (each leg, each obstacle, each block of
+:data:`SEGMENTS_PER_STEP` segments checked): past it, :class:`OutOfTime`. A
+thread cannot be stopped from outside; this one stops itself.
 """
 
 from __future__ import annotations
 
 import functools
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
-import networkx as nx
 import numpy as np
 import shapely
 
@@ -39,6 +44,10 @@ CORNER_GAP_M = 0.25
 TOUCH_M = 1e-3
 #: Segments per quarter circle where a polygon is grown round a corner.
 ARC_SEGMENTS = 4
+#: Nodes of one leg's graph at most (their distances: a square array of this side).
+MAX_ROUTE_NODES = 2000
+#: Segments checked against the obstacles at once, between two looks at the deadline.
+SEGMENTS_PER_STEP = 16_384
 
 LatLon = tuple[float, float]
 XY = tuple[float, float]
@@ -46,6 +55,26 @@ XY = tuple[float, float]
 
 class NoPath(ValueError):
     """No path keeps the clearance (a waypoint is too close to an obstacle, or enclosed)."""
+
+
+class OutOfTime(Exception):
+    """The planning went past its deadline."""
+
+
+@dataclass(frozen=True)
+class Deadline:
+    """When the planner gives up: ``at`` on the scale of ``clock`` (seconds)."""
+
+    at: float
+    clock: Callable[[], float]
+
+    def check(self) -> None:
+        if self.clock() >= self.at:
+            raise OutOfTime
+
+
+#: No deadline: plan however long it takes.
+NO_DEADLINE = Deadline(math.inf, lambda: 0.0)
 
 
 @dataclass(frozen=True)
@@ -116,10 +145,13 @@ def plan_path(
     waypoints: Sequence[LatLon],
     obstacles: Sequence[Obstacle],
     zones: Sequence[Zone] = (),
+    deadline: Deadline = NO_DEADLINE,
 ) -> list[LatLon]:
     """The path through ``waypoints`` in order, from ``start`` (or the first waypoint).
 
     The result begins with the first point after ``start`` and ends with the last waypoint.
+    Raises :class:`NoPath` (no way keeps the clearances, or the way round has more than
+    :data:`MAX_ROUTE_NODES` corners) or :class:`OutOfTime` (past ``deadline``).
     """
     if not waypoints:
         raise NoPath("no waypoints")
@@ -127,31 +159,61 @@ def plan_path(
     lat0, lon0 = origin
     centres = [to_local(o.lat, o.lon, lat0, lon0) for o in obstacles]
     radii = [o.radius_m for o in obstacles]
-    areas = [_Area(z, lat0, lon0) for z in zones]
-    for index, (lat, lon) in enumerate(waypoints):
-        x, y = to_local(lat, lon, lat0, lon0)
-        for (cx, cy), r, obstacle in zip(centres, radii, obstacles, strict=True):
-            if math.hypot(x - cx, y - cy) < r:
-                raise NoPath(
-                    f"waypoint {index} is within {r:g} m of {obstacle.name or 'an obstacle'}"
-                )
-        for area in areas:
-            if area.holds(x, y):
-                raise NoPath(
-                    f"waypoint {index} is inside {area.label} "
-                    f"or within its clearance of {area.clearance:g} m"
-                )
+    areas = []
+    for z in zones:
+        deadline.check()
+        areas.append(_Area(z, lat0, lon0))
     points = [to_local(lat, lon, lat0, lon0) for lat, lon in waypoints]
+    _check_waypoints(np.array(points), centres, radii, obstacles, areas, deadline)
     here = to_local(*origin, lat0, lon0) if start is not None else points[0]
     out: list[XY] = [] if start is not None else [points[0]]
     for goal in points if start is not None else points[1:]:
-        out.extend(_leg(here, goal, centres, radii, areas)[1:])
+        deadline.check()
+        out.extend(_leg(here, goal, centres, radii, areas, deadline)[1:])
         here = goal
     return [from_local(x, y, lat0, lon0) for x, y in out]
 
 
+def _check_waypoints(
+    xy: np.ndarray,
+    centres: list[XY],
+    radii: list[float],
+    obstacles: Sequence[Obstacle],
+    areas: list[_Area],
+    deadline: Deadline,
+) -> None:
+    """:class:`NoPath` naming the first waypoint within a disc or an area (a disc first,
+    then an area, each in the order given)."""
+    in_disc = np.zeros((len(xy), len(centres)), dtype=bool)
+    if centres:
+        c, r = np.array(centres), np.array(radii)
+        in_disc = np.hypot(xy[:, None, 0] - c[None, :, 0], xy[:, None, 1] - c[None, :, 1]) < r
+    in_area = np.zeros((len(xy), len(areas)), dtype=bool)
+    for k, area in enumerate(areas):
+        deadline.check()
+        in_area[:, k] = shapely.intersects_xy(area.keep_out, xy[:, 0], xy[:, 1])
+    bad = np.flatnonzero(in_disc.any(axis=1) | in_area.any(axis=1))
+    if not len(bad):
+        return
+    index = int(bad[0])
+    if in_disc[index].any():
+        k = int(np.argmax(in_disc[index]))
+        raise NoPath(
+            f"waypoint {index} is within {radii[k]:g} m of {obstacles[k].name or 'an obstacle'}"
+        )
+    area = areas[int(np.argmax(in_area[index]))]
+    raise NoPath(
+        f"waypoint {index} is inside {area.label} or within its clearance of {area.clearance:g} m"
+    )
+
+
 def _leg(
-    start: XY, goal: XY, centres: list[XY], radii: list[float], areas: list[_Area]
+    start: XY,
+    goal: XY,
+    centres: list[XY],
+    radii: list[float],
+    areas: list[_Area],
+    deadline: Deadline,
 ) -> list[XY]:
     # An obstacle the leg starts in is one the vehicle is leaving: it does not block this leg.
     keep = [
@@ -161,7 +223,7 @@ def _leg(
     left = [a for a in areas if not a.holds(*start)]
     active: list[_Area] = []
     while True:
-        route = _route(start, goal, cs, rs, active)
+        route = _route(start, goal, cs, rs, active, deadline)
         line = shapely.LineString(route)
         crossed = [a for a in left if a not in active and a.keep_out.intersects(line)]
         if not crossed:
@@ -169,7 +231,9 @@ def _leg(
         active.extend(crossed)
 
 
-def _route(start: XY, goal: XY, cs: list[XY], rs: list[float], areas: list[_Area]) -> list[XY]:
+def _route(
+    start: XY, goal: XY, cs: list[XY], rs: list[float], areas: list[_Area], deadline: Deadline
+) -> list[XY]:
     """Shortest way from ``start`` to ``goal`` round the discs and ``areas``."""
     if _clear(np.array([start]), np.array([goal]), cs, rs, areas)[0]:
         return [start, goal]
@@ -180,42 +244,98 @@ def _route(start: XY, goal: XY, cs: list[XY], rs: list[float], areas: list[_Area
             angle = 2 * math.pi * k / SIDES
             candidates.append((cx + ring * math.cos(angle), cy + ring * math.sin(angle)))
     for area in areas:
+        deadline.check()
         candidates.extend(area.corners)
-    nodes: list[XY] = [start, goal]
-    for node in candidates:
-        if all(math.dist(node, c) >= rr for c, rr in zip(cs, rs, strict=True)) and not any(
-            a.holds(*node) for a in areas
-        ):
-            nodes.append(node)
+    nodes = np.array([start, goal, *_outside(candidates, cs, rs, areas)])
+    if len(nodes) > MAX_ROUTE_NODES:
+        raise NoPath(
+            f"the way round has {len(nodes)} corners; at most {MAX_ROUTE_NODES} are planned "
+            "round (fewer or simpler obstacles near the path)"
+        )
+    # Distances between the nodes a segment joins clear of everything, inf elsewhere.
+    weights = np.full((len(nodes), len(nodes)), np.inf)
     first, second = np.triu_indices(len(nodes), k=1)
-    xy = np.array(nodes)
-    clear = _clear(xy[first], xy[second], cs, rs, areas)
-    first, second = first[clear], second[clear]
-    lengths = np.hypot(*(xy[first] - xy[second]).T)
-    graph = nx.Graph()
-    graph.add_weighted_edges_from(
-        zip(first.tolist(), second.tolist(), lengths.tolist(), strict=True)
-    )
-    try:
-        route = nx.shortest_path(graph, 0, 1, weight="weight")
-    except (nx.NetworkXNoPath, nx.NodeNotFound):
-        raise NoPath("no way round the obstacles keeps the clearance") from None
-    return [nodes[i] for i in route]
+    for lo in range(0, len(first), SEGMENTS_PER_STEP):
+        deadline.check()
+        a, b = first[lo : lo + SEGMENTS_PER_STEP], second[lo : lo + SEGMENTS_PER_STEP]
+        clear = _clear(nodes[a], nodes[b], cs, rs, areas)
+        a, b = a[clear], b[clear]
+        weights[a, b] = weights[b, a] = np.hypot(*(nodes[a] - nodes[b]).T)
+    route = _shortest(weights, deadline)
+    if route is None:
+        raise NoPath("no way round the obstacles keeps the clearance")
+    return [(float(nodes[i][0]), float(nodes[i][1])) for i in route]
+
+
+def _outside(candidates: list[XY], cs: list[XY], rs: list[float], areas: list[_Area]) -> list[XY]:
+    """The candidate corners outside every disc and every area."""
+    if not candidates:
+        return []
+    xy = np.array(candidates)
+    ok = np.ones(len(xy), dtype=bool)
+    for (cx, cy), r in zip(cs, rs, strict=True):
+        ok &= np.hypot(xy[:, 0] - cx, xy[:, 1] - cy) >= r
+    for area in areas:
+        ok &= ~shapely.intersects_xy(area.keep_out, xy[:, 0], xy[:, 1])
+    return [(float(x), float(y)) for x, y in xy[ok]]
+
+
+def _shortest(weights: np.ndarray, deadline: Deadline) -> list[int] | None:
+    """Dijkstra from node 0 to node 1 over a square array of edge lengths (inf: no edge);
+    the nodes of the shortest route, or None when 1 cannot be reached."""
+    n = len(weights)
+    dist = np.full(n, np.inf)
+    dist[0] = 0.0
+    before = np.full(n, -1)
+    open_ = np.ones(n, dtype=bool)
+    for step in range(n):
+        if step % 256 == 0:
+            deadline.check()
+        u = int(np.argmin(np.where(open_, dist, np.inf)))
+        if not open_[u] or dist[u] == np.inf:
+            return None
+        if u == 1:
+            break
+        open_[u] = False
+        through = dist[u] + weights[u]
+        better = open_ & (through < dist)
+        dist[better] = through[better]
+        before[better] = u
+    route = [1]
+    while route[-1] != 0:
+        route.append(int(before[route[-1]]))
+    return route[::-1]
 
 
 def _clear(
     a: np.ndarray, b: np.ndarray, centres: list[XY], radii: list[float], areas: list[_Area]
 ) -> np.ndarray:
     """For each segment a[k]-b[k]: whether it keeps every disc's radius and stays out of
-    every area."""
+    every area.
+
+    Worked out in arrays as far as it goes (a disc: the distance to each segment; an area:
+    the segments' middles in it, the segments clear of its bounding box); shapely's
+    segments are made only for the few left to look at, since every object made costs
+    the garbage collector's time too (a server holds many).
+    """
     ok = np.ones(len(a), dtype=bool)
     if not centres and not areas:
         return ok
-    lines = shapely.linestrings(np.stack([a, b], axis=1))
+    step = b - a
+    length2 = np.maximum((step * step).sum(axis=1), 1e-18)
     for (cx, cy), r in zip(centres, radii, strict=True):
-        ok &= shapely.distance(lines, shapely.Point(cx, cy)) >= r * 0.999
+        t = np.clip(((cx - a[:, 0]) * step[:, 0] + (cy - a[:, 1]) * step[:, 1]) / length2, 0, 1)
+        ok &= np.hypot(a[:, 0] + t * step[:, 0] - cx, a[:, 1] + t * step[:, 1] - cy) >= r * 0.999
     middles = (a + b) / 2
     for area in areas:
         ok &= ~shapely.intersects_xy(area.keep_out, middles[:, 0], middles[:, 1])
-        ok[ok] = ~shapely.intersects(area.keep_out, lines[ok])
+    low, high = np.minimum(a, b), np.maximum(a, b)
+    for area in areas:
+        x0, y0, x1, y1 = area.keep_out.bounds
+        near = np.flatnonzero(
+            ok & (low[:, 0] <= x1) & (high[:, 0] >= x0) & (low[:, 1] <= y1) & (high[:, 1] >= y0)
+        )
+        if len(near):
+            lines = shapely.linestrings(np.stack([a[near], b[near]], axis=1))
+            ok[near] = ~shapely.intersects(area.keep_out, lines)
     return ok

@@ -8,7 +8,6 @@ record and lease are read from the store first.
 
 from __future__ import annotations
 
-import asyncio
 from collections.abc import Awaitable, Callable, Mapping, Sequence
 from typing import Any
 
@@ -22,7 +21,7 @@ from server.errors import FleetError, InstanceFinished, NotFound, RateLimited
 from server.services.control import ControlService
 from server.services.instances import InstanceService, InstanceState
 from server.services.lanes import Lane
-from server.services.planning import Planner
+from server.services.planning import Planning
 
 #: Motion commands waiting on one instance; ``stop`` is never refused by this bound.
 MAX_ACTIVE_PER_INSTANCE = 256
@@ -38,14 +37,14 @@ class Admission:
         self,
         instances: InstanceService,
         control: ControlService,
-        planner: Planner,
+        planning: Planning,
         zones: ZoneSource,
         lanes: Mapping[str, Lane],
         clock: Clock,
     ) -> None:
         self.instances = instances
         self.control = control
-        self.planner = planner
+        self.planning = planning
         self.zones = zones
         self.lanes = lanes
         self.clock = clock
@@ -106,11 +105,13 @@ class Admission:
     async def args_for(
         self, targets: list[Target], spec: CommandSpec
     ) -> tuple[dict[str, dict[str, Any]], list[Refusal]]:
-        """Each target's args: planned (off the event loop) if asked, the obstacles read
-        once for all of them; a target the planner refuses is a refusal."""
+        """Each target's args: planned if asked (off the event loop, all of them within
+        one deadline), the obstacles read once for all of them; a target the planner
+        refuses is a refusal."""
         plan = spec.type == "follow_path" and bool(spec.args.get("plan"))
         zones = await self.zones() if plan else ()
         others_all = await self.instances.everyone() if plan else []
+        deadline = self.planning.deadline()
         by_instance: dict[str, dict[str, Any]] = {}
         refusals: list[Refusal] = []
         for index, state in targets:
@@ -118,7 +119,7 @@ class Admission:
             if plan:
                 others = [s for s in others_all if s.instance_id != state.instance_id]
                 try:
-                    args = await asyncio.to_thread(self.planner, state, args, others, zones)
+                    args = await self.planning.plan(state, args, others, zones, deadline)
                 except FleetError as exc:
                     refusals.append((index, state.instance_id, exc))
                     continue

@@ -35,7 +35,7 @@ from server.services.events import EventService
 from server.services.instances import InstanceService, InstanceState
 from server.services.lanes import Lane
 from server.services.messagebus import MessageBus
-from server.services.planning import Planner, vehicle_planner
+from server.services.planning import Planner, Planning, vehicle_planner
 from server.settings import Settings
 from server.storage.commands import CommandsRepo
 
@@ -69,7 +69,11 @@ class CommandService:
         self.admission = Admission(
             instances,
             control,
-            planner or vehicle_planner(settings.safety_radius_m),
+            Planning(
+                planner or vehicle_planner(settings.safety_radius_m),
+                settings.plan_timeout_s,
+                settings.plan_workers,
+            ),
             zones,
             self._lanes,
             clock,

@@ -8,7 +8,15 @@ import math
 import pytest
 
 from server.domain.geo import from_local, to_local
-from server.domain.planning import NoPath, Obstacle, plan_path
+from server.domain.planning import (
+    MAX_ROUTE_NODES,
+    SIDES,
+    Deadline,
+    NoPath,
+    Obstacle,
+    OutOfTime,
+    plan_path,
+)
 
 ORIGIN = (43.9, 15.4)
 
@@ -91,3 +99,26 @@ def test_an_enclosed_goal_cannot_be_reached() -> None:
     ]
     with pytest.raises(NoPath):
         plan_path(ORIGIN, [at(100, 0)], ring)
+
+
+def test_past_the_deadline_the_planner_stops() -> None:
+    late = Deadline(at=1.0, clock=lambda: 2.0)
+    with pytest.raises(OutOfTime):
+        plan_path(ORIGIN, [at(100, 0)], [Obstacle(*at(50, 0), 5)], deadline=late)
+
+
+def test_the_deadline_is_looked_at_while_a_leg_is_worked_out() -> None:
+    looks = itertools.count()
+    # The first look (before the only leg) is in time, the next (within the leg) is not.
+    deadline = Deadline(at=1.0, clock=lambda: float(next(looks)))
+    with pytest.raises(OutOfTime):
+        plan_path(ORIGIN, [at(100, 0)], [Obstacle(*at(50, 0), 5)], deadline=deadline)
+
+
+def test_a_way_round_with_too_many_corners_is_refused() -> None:
+    discs = MAX_ROUTE_NODES // SIDES + 1  # each disc brings SIDES corners
+    others = [Obstacle(*at(50, 0), 5)] + [
+        Obstacle(*at(-1000 + 40 * (k % 50), 200 + 40 * (k // 50)), 5) for k in range(discs)
+    ]
+    with pytest.raises(NoPath, match=f"at most {MAX_ROUTE_NODES}"):
+        plan_path(ORIGIN, [at(100, 0)], others)
