@@ -93,6 +93,7 @@ class FleetViews:
             if found is None:
                 raise NotFound(f"vehicle {body.vehicle_id} has not started an instance yet")
             state = found
+        await self.leases.current(state.instance_id)  # one instance: its lease as stored now
         return self.instance_view(state)
 
     async def params(

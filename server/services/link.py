@@ -47,6 +47,9 @@ class Telemetry(Protocol):
 class Leases(Protocol):
     def lease_info(self, instance_id: str) -> ControlInfo | None: ...
 
+    async def current(self, instance_id: str) -> Any:
+        """The lease as the store has it now (the copy behind ``lease_info`` caught up)."""
+
 
 class VehicleLink:
     def __init__(

@@ -171,7 +171,7 @@ async def test_a_vehicle_on_a_and_operators_on_b(
                     seen.append((r.json()["instance"]["control"] or {}).get("holder"))
                 return seen == [holder, holder]
 
-            await until(both_report_the_holder, 5)
+            await until(both_report_the_holder, 10)
 
             # A token revoked on A is refused on B within a second, open socket included.
             viewer = await on_a.post(
