@@ -1,6 +1,6 @@
 """An async Python client for fleet-cloud's operator side, the one ``fleetctl`` runs on.
 
-Each method is one call of the contract (``../shared/design/API.md``) and
+Each method is one call of the contract (``docs/api.md``) and
 returns its JSON answer as the contract spells it; a refusal raises
 :class:`FleetApiError` with the error envelope's ``code``, ``message`` and
 ``details``. Network failures are httpx's (``httpx.HTTPError``) and, for
@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import json
 from collections.abc import AsyncGenerator, Sequence
+from dataclasses import dataclass
 from types import TracebackType
 from typing import Any, Self
 
@@ -55,6 +56,43 @@ class FleetApiError(Exception):
             return cls(response.status_code, error["code"], error["message"], error.get("details"))
         except (ValueError, KeyError, TypeError):
             return cls(response.status_code, "http_error", response.text[:500])
+
+
+class UnknownVehicle(FleetApiError):
+    """No vehicle (nor instance) the caller can see goes by that id or name. Found by the
+    client, not refused by the server: ``status`` 404 as the server's would be."""
+
+    def __init__(self, ref: str, message: str | None = None) -> None:
+        message = message or f"no vehicle with the id or name {ref!r} among those you can see"
+        super().__init__(404, "not_found", message)
+        self.ref = ref
+
+
+class AmbiguousName(FleetApiError):
+    """Several vehicles go by that name: give a vehicle id (``details`` lists them)."""
+
+    def __init__(self, ref: str, matches: Sequence[Body]) -> None:
+        ids = ", ".join(v["vehicle_id"] for v in matches)
+        super().__init__(
+            409,
+            "ambiguous_name",
+            f"{len(matches)} vehicles are named {ref!r} ({ids}): give a vehicle id",
+            [{"field": "vehicle", "message": v["vehicle_id"]} for v in matches],
+        )
+        self.ref = ref
+
+
+def shown_status(command: Body) -> str:
+    """A command's status as people read it: ``superseded`` for one a ``stop`` cancelled
+    (``cancelled`` with the detail ``superseded_by_stop``), else its status."""
+    history = command.get("history") or []
+    if (
+        command.get("status") == "cancelled"
+        and history
+        and history[-1].get("detail") == "superseded_by_stop"
+    ):
+        return "superseded"
+    return str(command.get("status"))
 
 
 class FleetClient:
@@ -98,6 +136,78 @@ class FleetClient:
         body: Body = await self.call("GET", "/api/vehicles")
         return body
 
+    async def vehicle(self, vehicle_id: str) -> Body:
+        """One vehicle's view (``GET /api/vehicles/{vehicle_id}``)."""
+        body: Body = await self.call("GET", f"/api/vehicles/{vehicle_id}")
+        return body
+
+    async def connect(
+        self, instance_id: str | None = None, *, vehicle_id: str | None = None
+    ) -> Body:
+        """``connect_instance``: ``{"instance": {...}}`` of an instance, or of a vehicle's
+        current (or latest) one."""
+        body = _given(instance_id=instance_id, vehicle_id=vehicle_id)
+        answer: Body = await self.call("POST", "/client/connect_instance", json=body)
+        return answer
+
+    async def params(self, instance_id: str, names: Sequence[str] | None = None) -> Body:
+        """``get_param``: ``{"params", "position", "updated_at"}`` (``names``: only those)."""
+        query = {"instance_id": instance_id}
+        if names:
+            query["names"] = ",".join(names)
+        body: Body = await self.call("GET", "/client/get_param", params=query)
+        return body
+
+    # ---- names: a vehicle's display name works wherever its id does --------------
+    async def resolve_vehicles(self, refs: Sequence[str]) -> list[Body]:
+        """The view of the vehicle each of ``refs`` names: its ``vehicle_id``, else its
+        display name (exactly, then ignoring case). One ``GET /api/vehicles`` for all.
+        Raises :class:`UnknownVehicle` or :class:`AmbiguousName`."""
+        fleet = (await self.vehicles())["vehicles"]
+        return [pick_vehicle(ref, fleet) for ref in refs]
+
+    async def vehicle_id_of(self, ref: str) -> str:
+        return str((await self.resolve_vehicles([ref]))[0]["vehicle_id"])
+
+    async def instance_ids_of(self, refs: Sequence[str]) -> list[str]:
+        """The instance each of ``refs`` names: a vehicle (id or display name) stands for
+        its current instance; an instance id is itself. Raises :class:`UnknownVehicle`
+        (nothing by that name, or a vehicle that never started an instance) or
+        :class:`AmbiguousName`."""
+        fleet = (await self.vehicles())["vehicles"]
+        current = {v["instance_id"] for v in fleet if v.get("instance_id")}
+        out = []
+        for ref in refs:
+            if ref in current and not any(v["vehicle_id"] == ref for v in fleet):
+                out.append(ref)
+                continue
+            try:
+                vehicle = pick_vehicle(ref, fleet)
+            except UnknownVehicle:
+                out.append(await self._older_instance(ref))
+                continue
+            if not vehicle.get("instance_id"):
+                raise UnknownVehicle(
+                    ref, f"vehicle {vehicle['vehicle_id']} has not started an instance yet"
+                )
+            out.append(vehicle["instance_id"])
+        return out
+
+    async def instance_id_of(self, ref: str) -> str:
+        return (await self.instance_ids_of([ref]))[0]
+
+    async def _older_instance(self, ref: str) -> str:
+        """``ref`` when the server knows it as an instance (one no longer current)."""
+        try:
+            await self.connect(ref)
+        except FleetApiError as exc:
+            if exc.status in (404, 422):
+                raise UnknownVehicle(
+                    ref, f"no vehicle id, vehicle name or instance id {ref!r} that you can see"
+                ) from None
+            raise
+        return ref
+
     async def telemetry_pages(
         self,
         vehicle_id: str,
@@ -105,9 +215,11 @@ class FleetClient:
         since: str | None = None,
         until: str | None = None,
         page: int = 10_000,
+        after: int = 0,
     ) -> AsyncGenerator[list[Body], None]:
-        """Every stored sample of a vehicle in ``seq`` order, ``page`` samples at a time."""
-        query: Body = {"limit": page, "after_seq": 0}
+        """Every stored sample of a vehicle in ``seq`` order (those after ``after``),
+        ``page`` samples at a time."""
+        query: Body = {"limit": page, "after_seq": after}
         query.update({k: v for k, v in (("from", since), ("to", until)) if v})
         while True:
             body = await self.call("GET", f"/api/vehicles/{vehicle_id}/telemetry", params=query)
@@ -115,6 +227,59 @@ class FleetClient:
             if body.get("next_after_seq") is None:
                 return
             query["after_seq"] = body["next_after_seq"]
+
+    async def track_pages(
+        self,
+        vehicle_id: str,
+        *,
+        since: str,
+        until: str,
+        fmt: str = "json",
+        max_points: int | None = None,
+    ) -> AsyncGenerator[TrackPage, None]:
+        """The track from ``since`` (inclusive) to ``until`` (exclusive) in ``fmt``
+        (``json``, ``geojson``, ``gpx``, ``csv``), one server page at a time: each page
+        starts where the one before was cut (``next_from``). With ``max_points``, one
+        page downsampled to that many points."""
+        query: Body = {"from": since, "to": until, "format": fmt}
+        if max_points is not None:
+            query["max_points"] = max_points
+        while True:
+            response = await self._http.get(
+                f"/api/vehicles/{vehicle_id}/track", params=query, headers=self._headers
+            )
+            if response.status_code >= 400:
+                raise FleetApiError.of(response)
+            if fmt == "json":
+                content: Body | str = response.json()
+                next_from = content.get("next_from") if isinstance(content, dict) else None
+            else:
+                content = response.text
+                next_from = response.headers.get("X-Track-Next-From")
+            yield TrackPage(content, next_from)
+            if not next_from:
+                return
+            query["from"] = next_from
+
+    async def event_log(
+        self,
+        *,
+        vehicle_id: str | None = None,
+        kind: str | None = None,
+        since: str | None = None,
+        until: str | None = None,
+        limit: int = 1000,
+    ) -> Body:
+        """``GET /api/events``: ``{"events": [...]}``, oldest first."""
+        query = _given(vehicle_id=vehicle_id, kind=kind, limit=limit)
+        query.update({k: v for k, v in (("from", since), ("to", until)) if v})
+        body: Body = await self.call("GET", "/api/events", params=query)
+        return body
+
+    async def command(self, command_id: str) -> Body:
+        """``GET /api/commands/{command_id}``: the command object."""
+        body: Body = await self.call("GET", f"/api/commands/{command_id}")
+        return body
 
     # ---- missions --------------------------------------------------------------
     async def submit(self, instance_ids: Sequence[str], command: Body, ttl_s: int = 30) -> Body:
@@ -204,6 +369,65 @@ class FleetClient:
         body: Body = await self.call("POST", f"/client/{route}", json={"instance_id": instance_id})
         return body
 
+    # ---- administration (admins) -----------------------------------------------
+    async def users(self) -> Body:
+        """``{"users": [{username, role, vehicles, disabled, created_at}, ...]}``."""
+        body: Body = await self.call("GET", "/api/users")
+        return body
+
+    async def create_user(
+        self,
+        username: str,
+        role: str,
+        vehicles: Sequence[str] = (),
+        *,
+        password: str | None = None,
+    ) -> Body:
+        """``{username, role, token, vehicles}``: the token is shown this once."""
+        body = _given(username=username, role=role, vehicles=list(vehicles), password=password)
+        answer: Body = await self.call("POST", "/api/users", json=body)
+        return answer
+
+    async def update_user(
+        self,
+        username: str,
+        *,
+        role: str | None = None,
+        vehicles: Sequence[str] | None = None,
+        disabled: bool | None = None,
+        password: str | None = None,
+    ) -> Body:
+        """``PATCH /api/users/{username}``: only the fields given change; the user's view."""
+        listed = list(vehicles) if vehicles is not None else None
+        body = _given(role=role, vehicles=listed, disabled=disabled, password=password)
+        answer: Body = await self.call("PATCH", f"/api/users/{username}", json=body)
+        return answer
+
+    async def create_vehicle(
+        self, vehicle_id: str, name: str = "", vehicle_type: str = "usv"
+    ) -> Body:
+        """``{vehicle_id, token}``: the vehicle's token, shown this once."""
+        body = {"vehicle_id": vehicle_id, "name": name, "vehicle_type": vehicle_type}
+        answer: Body = await self.call("POST", "/api/vehicles", json=body)
+        return answer
+
+    async def create_gateway(self, gateway_id: str, vehicles: Sequence[str]) -> Body:
+        """``{gateway_id, token, vehicles}``: the gateway's token, shown this once."""
+        body = {"gateway_id": gateway_id, "vehicles": list(vehicles)}
+        answer: Body = await self.call("POST", "/api/gateways", json=body)
+        return answer
+
+    async def rotate_token(self, kind: str, subject: str) -> Body:
+        """A new token for a ``vehicle``, ``gateway`` or ``user``, every former one revoked
+        (the answer of ``POST /api/{kind}s/{subject}/rotate_token``)."""
+        body: Body = await self.call("POST", f"/api/{_plural(kind)}/{subject}/rotate_token")
+        return body
+
+    async def revoke_tokens(self, kind: str, subject: str) -> Body:
+        """Every token of a ``vehicle``, ``gateway`` or ``user`` revoked: ``{"ok": true}``."""
+        body: Body = await self.call("POST", f"/api/{_plural(kind)}/{subject}/revoke_tokens")
+        return body
+
     # ---- live --------------------------------------------------------------------
     async def events(
         self, topics: Sequence[str], *, throttle_ms: int = 0
@@ -240,6 +464,42 @@ class FleetClient:
                 closing = REFUSING_CLOSE_CODES.get(exc.rcvd.code) if exc.rcvd else None
                 if closing is not None and exc.rcvd is not None:
                     raise FleetApiError(closing, "refused", exc.rcvd.reason) from None
+
+
+@dataclass(frozen=True)
+class TrackPage:
+    """One page of a track: the JSON answer (``fmt`` json) or the text (the others), and
+    where the next page starts (``None``: this was the last)."""
+
+    content: Body | str
+    next_from: str | None
+
+
+def pick_vehicle(ref: str, fleet: Sequence[Body]) -> Body:
+    """The vehicle whose id is ``ref``, else the one named ``ref`` (exactly, then ignoring
+    case)."""
+    for vehicle in fleet:
+        if vehicle["vehicle_id"] == ref:
+            return vehicle
+    named = [v for v in fleet if v.get("name") == ref]
+    if not named:
+        folded = ref.casefold()
+        named = [v for v in fleet if str(v.get("name", "")).casefold() == folded]
+    if len(named) > 1:
+        raise AmbiguousName(ref, named)
+    if not named:
+        raise UnknownVehicle(ref)
+    return named[0]
+
+
+_KINDS = {"vehicle": "vehicles", "gateway": "gateways", "user": "users"}
+
+
+def _plural(kind: str) -> str:
+    try:
+        return _KINDS[kind]
+    except KeyError:
+        raise ValueError(f"kind is vehicle, gateway or user, not {kind!r}") from None
 
 
 def _given(**fields: Any) -> Body:
