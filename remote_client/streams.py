@@ -13,6 +13,7 @@ import typer
 import websockets
 from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
 
+from remote_client.lines import event_lines
 from remote_client.output import errors
 from remote_client.sdk import FleetApiError, FleetClient
 
@@ -105,20 +106,10 @@ async def watch(fleet: FleetClient, follow: Follow) -> None:
 
 
 def print_event(push: dict[str, Any], as_json: bool) -> None:
-    """An event as one JSON line, or for people: time, topic, data (``fleet``: a line per
-    vehicle)."""
+    """An event as one JSON line (``--json``), or as readable lines (``remote_client.lines``:
+    one per event; the ``fleet`` topic's current state, one per vehicle)."""
     if as_json:
         print(json.dumps(push), flush=True)
         return
-    head = f"{push.get('ts') or '-'} {push['topic']}" + (
-        " (current)" if push.get("snapshot") else ""
-    )
-    data = push.get("data")
-    if push["topic"] == "fleet" and isinstance(data, dict):  # a line per vehicle
-        for v in data.get("vehicles", []):
-            pos = v.get("position") or {}
-            where = f"{pos['lat']:.5f},{pos['lon']:.5f}" if "lat" in pos else "-"
-            holder = (v.get("control") or {}).get("holder", "-")
-            print(f"{head} {v['vehicle_id']} {v['presence']} {where} control={holder}", flush=True)
-        return
-    print(f"{head} {json.dumps(data, separators=(',', ':'))}", flush=True)
+    for line in event_lines(push):
+        print(line, flush=True)

@@ -6,28 +6,21 @@ import asyncio
 import csv
 import json
 import os
+import re
 import sys
 from collections.abc import Callable
 from pathlib import Path
 
 import httpx
 import pytest
-from typer.testing import CliRunner, Result
 
-from remote_client.cli import app
 from server.settings import Settings
 from tests.factories import ADMIN_TOKEN, make_user, make_vehicle, sample, start_instance
+from tests.fleetctl_run import fleetctl as _fleetctl
 from tests.live import free_port, serve
 
 # Each test runs on the embedded store and on FerretDB (the real MongoDB driver).
 pytestmark = pytest.mark.usefixtures("store_backend")
-
-runner = CliRunner()
-
-
-async def _fleetctl(base: str, token: str, *args: str) -> Result:
-    env = {"FLEET_SERVER": base, "FLEET_TOKEN": token}
-    return await asyncio.to_thread(runner.invoke, app, list(args), env=env)
 
 
 async def test_an_operator_lists_is_refused_then_granted_and_commands(
@@ -153,7 +146,7 @@ async def test_watch_prints_the_current_state_then_changes(
 
         fleet = await _fleetctl(base, ADMIN_TOKEN, "watch", "--seconds", "0.5")
         assert fleet.exit_code == 0, fleet.output
-        assert fleet.stdout.startswith("- fleet (current)") and vid in fleet.stdout
+        assert fleet.stdout.startswith(f"current fleet {vid} online 43.94000,15.44000")
 
         _, viewer = await make_user(c, "viewer", vehicles=[])
         blind = await _fleetctl(
@@ -224,3 +217,93 @@ async def test_watch_takes_a_lost_link_up_again(make_settings: Callable[..., Set
     assert first["snapshot"] is True and second["snapshot"] is True  # the current state, again
     assert vid in json.dumps(second["data"])
     assert "link lost" in (await watcher.stderr.read()).decode()
+
+
+async def _named(c: httpx.AsyncClient, vid: str, vh: dict[str, str], name: str) -> str:
+    """Start an instance that announces ``name`` as the vehicle's display name."""
+    body = {"vehicle_id": vid, "name": name, "vehicle_type": "usv",
+            "capabilities": ["stop", "go_to", "keep_station", "follow_path"]}  # fmt: skip
+    r = await c.post("/upper/start_instance", headers=vh, json=body)
+    assert r.status_code == 200, r.text
+    return str(r.json()["instance_id"])
+
+
+async def test_a_vehicle_name_works_wherever_an_id_does(
+    make_settings: Callable[..., Settings],
+) -> None:
+    async with serve(make_settings()) as base, httpx.AsyncClient(base_url=base) as c:
+        vid, vh = await make_vehicle(c)
+        iid = await _named(c, vid, vh, "H2OmniX Alpha")
+        twin_a, th = await make_vehicle(c)
+        await _named(c, twin_a, th, "Twin")
+        twin_b, tbh = await make_vehicle(c)
+        await _named(c, twin_b, tbh, "twin")
+        _, op = await make_user(c, "operator", vehicles=[vid], username="nora")
+        nora = op["Authorization"].removeprefix("Bearer ")
+
+        asked = await _fleetctl(base, nora, "request", "H2OmniX Alpha", "--json")
+        assert asked.exit_code == 0, asked.output
+        assert json.loads(asked.stdout)["instance_id"] == iid
+        pending = await _fleetctl(base, ADMIN_TOKEN, "requests", "h2omnix alpha", "--json")
+        assert [r["username"] for r in json.loads(pending.stdout)["requests"]] == ["nora"]
+        granted = await _fleetctl(base, ADMIN_TOKEN, "grant", "H2OmniX Alpha", "nora")
+        assert granted.exit_code == 0 and f"nora holds {iid}" in granted.stdout
+
+        went = await _fleetctl(base, nora, "goto", "H2OmniX Alpha", "43.95", "-15.45", "--json")
+        assert went.exit_code == 0, went.output
+        go_id = json.loads(went.stdout)["commands"][0]["command_id"]
+        held = await _fleetctl(base, nora, "station", vid, "--json")  # the id works as before
+        assert json.loads(held.stdout)["commands"][0]["instance_id"] == iid
+        followed = await _fleetctl(base, nora, "path", "H2OmniX Alpha", "43.9,15.4", "--json")
+        assert followed.exit_code == 0, followed.output
+        assert (await _fleetctl(base, nora, "stop", "H2OmniX Alpha")).exit_code == 0
+
+        listed = await _fleetctl(base, nora, "commands", "H2OmniX Alpha")
+        assert listed.exit_code == 0, listed.output
+        row = next(line for line in listed.stdout.splitlines() if go_id in line)
+        assert "superseded" in row and "cancelled" not in row  # a stop took its place
+        as_json = json.loads((await _fleetctl(base, nora, "commands", iid, "--json")).stdout)
+        assert {c["status"] for c in as_json["commands"] if c["type"] != "stop"} == {"cancelled"}
+
+        assert (await _fleetctl(base, nora, "release", "H2OmniX Alpha")).exit_code == 0
+        assert (await _fleetctl(base, ADMIN_TOKEN, "grant", vid, "nora")).exit_code == 0
+        assert (await _fleetctl(base, ADMIN_TOKEN, "revoke", "H2OmniX Alpha")).exit_code == 0
+
+        unknown = await _fleetctl(base, nora, "goto", "Zulu", "43.9", "15.4")
+        assert unknown.exit_code == 1 and "404 not_found" in unknown.stderr
+        assert "'Zulu'" in unknown.stderr and unknown.stdout == ""
+        hidden = await _fleetctl(base, nora, "stop", "Twin")  # not hers: not found
+        assert hidden.exit_code == 1 and "not_found" in hidden.stderr
+        ambiguous = await _fleetctl(base, ADMIN_TOKEN, "stop", "TWIN")
+        assert ambiguous.exit_code == 2 and "ambiguous_name" in ambiguous.stderr
+        assert twin_a in ambiguous.stderr and twin_b in ambiguous.stderr
+        exact = await _fleetctl(base, ADMIN_TOKEN, "stop", "Twin", "--json")
+        assert exact.exit_code == 0  # the exact name is one vehicle
+
+
+async def test_watch_prints_a_readable_line_per_event_and_takes_names(
+    make_settings: Callable[..., Settings],
+) -> None:
+    async with serve(make_settings()) as base, httpx.AsyncClient(base_url=base) as c:
+        vid, vh = await make_vehicle(c)
+        iid = await _named(c, vid, vh, "Kestrel")
+        seq = 1
+        body = {"instance_id": iid, "samples": [sample(seq, speed_mps=1.5, battery_pct=80.0)]}
+        assert (await c.post("/upper/update_param", headers=vh, json=body)).is_success
+        watching = asyncio.create_task(
+            _fleetctl(base, ADMIN_TOKEN, "watch", "vehicle/Kestrel/telemetry", "--count", "2")
+        )
+        async with asyncio.timeout(20):
+            while not watching.done():
+                seq += 1
+                body = {"instance_id": iid, "samples": [sample(seq, speed_mps=1.5, battery_pct=80)]}
+                assert (await c.post("/upper/update_param", headers=vh, json=body)).is_success
+                await asyncio.wait({watching}, timeout=0.05)
+        result = watching.result()
+        assert result.exit_code == 0, result.output
+        first, second = result.stdout.splitlines()
+        # (the samples' times are the factory's, long past: the server calls them replayed)
+        line = r"{} {} telemetry #\d+ 43\.94000,15\.44000 1\.5 m/s 80% battery( \(replayed\))?"
+        assert re.fullmatch(line.format("current", vid), first), first  # the latest sample
+        assert re.fullmatch(line.format(r"\d\d:\d\d:\d\dZ", vid), second), second
+        assert "{" not in result.stdout  # lines for people, not JSON

@@ -36,8 +36,9 @@ def test_dockerfile_runs_the_server_on_port_8000() -> None:
 def test_extras_keep_the_agent_light() -> None:
     meta = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
     agent = " ".join(meta["optional-dependencies"]["agent"])
-    for heavy in ("fastapi", "pymongo", "mongomock", "shapely", "uvicorn"):
+    for heavy in ("fastapi", "pymongo", "mongomock", "shapely", "uvicorn", "matplotlib"):
         assert heavy not in agent
+    assert any(d.startswith("matplotlib") for d in meta["optional-dependencies"]["operator"])
     assert set(meta["scripts"]) == {"fleet-server", "fleet-agent", "fleetctl"}
 
 

@@ -1,0 +1,93 @@
+"""What every ``fleetctl`` command shares: its options, the session it runs in, exit codes,
+and printing answers for people or for scripts.
+
+Exit codes: 0 done; 1 the server (or the fleet, for a vehicle name nobody goes by)
+refused; 2 a server error or bad arguments (an ambiguous name among them);
+3 the server cannot be reached.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+from collections.abc import Awaitable, Callable
+from datetime import UTC, datetime
+from typing import Any, NoReturn, TypeVar
+
+import httpx
+import typer
+
+from remote_client import streams
+from remote_client.output import console, errors
+from remote_client.sdk import AmbiguousName, FleetApiError, FleetClient
+from remote_client.times import BadTime, when_text
+
+ServerOpt = typer.Option("http://127.0.0.1:8000", envvar="FLEET_SERVER", help="server URL")
+TokenOpt = typer.Option(..., envvar="FLEET_TOKEN", help="API token (FLEET_TOKEN)")
+JsonOpt = typer.Option(False, "--json", help="print JSON for scripts")
+SinceOpt = typer.Option(
+    None, "--since", "--from", help="start: 10m, 2h, 1d (that long ago), or ISO 8601 (inclusive)"
+)
+UntilOpt = typer.Option(
+    None, "--until", "--to", help="end: 10m, 2h (that long ago), now, or ISO 8601 (exclusive)"
+)
+
+T = TypeVar("T")
+
+#: Exit codes.
+REFUSED, FAILED, UNREACHABLE = 1, 2, 3
+
+
+def run(server: str, token: str, action: Callable[[FleetClient], Awaitable[T]]) -> T:
+    """``action`` on a :class:`FleetClient` session; a refusal or a network failure is
+    printed on stderr and becomes the exit code."""
+
+    async def session() -> T:
+        async with FleetClient(server, token) as fleet:
+            return await action(fleet)
+
+    try:
+        return asyncio.run(session())
+    except httpx.HTTPError as exc:
+        errors.print(f"cannot reach {server}: {exc}", style="red", markup=False)
+        raise typer.Exit(UNREACHABLE) from None
+    except AmbiguousName as exc:
+        streams.print_refusal(exc)
+        raise typer.Exit(FAILED) from None
+    except FleetApiError as exc:
+        streams.print_refusal(exc)
+        raise typer.Exit(REFUSED if exc.status < 500 else FAILED) from None
+
+
+def fail(message: str) -> NoReturn:
+    """Bad arguments: the message on stderr, exit 2."""
+    errors.print(message, style="red", markup=False, highlight=False)
+    raise typer.Exit(FAILED)
+
+
+def window(
+    since: str | None, until: str | None, now: datetime | None = None
+) -> tuple[str | None, str | None]:
+    """``--since`` / ``--until`` as the wire's times (one ``now`` for both)."""
+    now = now or datetime.now(UTC)
+    try:
+        return when_text(since, now), when_text(until, now)
+    except BadTime as exc:
+        fail(str(exc))
+
+
+def say(data: Any, as_json: bool, text: str) -> None:
+    """The answer: its JSON for scripts, else ``text`` for people."""
+    print(json.dumps(data, indent=2) if as_json else text)
+
+
+def dump(data: Any) -> None:
+    print(json.dumps(data, indent=2))
+
+
+def print_queued(data: dict[str, Any], as_json: bool) -> None:
+    if as_json:
+        dump(data)
+        return
+    for c in data["commands"]:
+        console.print(f"{c['instance_id']}: {c['command_id']} {c['status']}", highlight=False)

@@ -1,0 +1,48 @@
+"""Points in time as people type them: ``10m`` (ten minutes ago), ``2h``, ``1d12h``, ``now``,
+or an ISO 8601 time (``2026-11-22T10:00``, no offset meaning UTC). Pure."""
+
+from __future__ import annotations
+
+import re
+from datetime import UTC, datetime, timedelta
+
+from fleet_protocol.common import format_ts
+
+__all__ = ["BadTime", "parse_when", "when_text"]
+
+_UNITS = {"s": 1, "m": 60, "h": 3600, "d": 86_400, "w": 604_800}
+#: One or more NUMBER+UNIT parts, largest first or not: ``90s``, ``1h30m``, ``1.5h``.
+_RELATIVE = re.compile(r"^-?((?:\d+(?:\.\d+)?[smhdw])+)(?:\s*ago)?$")
+_PART = re.compile(r"(\d+(?:\.\d+)?)([smhdw])")
+
+
+class BadTime(ValueError):
+    """The text is neither a relative time nor an ISO 8601 one."""
+
+
+def parse_when(text: str, now: datetime | None = None) -> datetime:
+    """The time ``text`` names, in UTC. Relative times count back from ``now`` (the local
+    clock by default): ``10m`` is ten minutes ago."""
+    now = now or datetime.now(UTC)
+    spoken = text.strip().lower()
+    if spoken == "now":
+        return now
+    relative = _RELATIVE.match(spoken.replace(" ", ""))
+    if relative:
+        seconds = sum(float(n) * _UNITS[u] for n, u in _PART.findall(relative.group(1)))
+        return now - timedelta(seconds=seconds)
+    try:
+        when = datetime.fromisoformat(text.strip().replace("Z", "+00:00").replace("z", "+00:00"))
+    except ValueError:
+        raise BadTime(
+            f"not a time: {text!r} (give 30s, 10m, 2h, 1d, 1h30m, now, or ISO 8601 "
+            "like 2026-11-22T10:00:00Z)"
+        ) from None
+    return when.replace(tzinfo=UTC) if when.tzinfo is None else when.astimezone(UTC)
+
+
+def when_text(text: str | None, now: datetime | None = None) -> str | None:
+    """``parse_when`` as the wire writes times (ISO 8601 UTC, milliseconds), or None."""
+    if text is None:
+        return None
+    return format_ts(parse_when(text, now))

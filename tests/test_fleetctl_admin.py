@@ -1,0 +1,158 @@
+"""``fleetctl vehicles``, ``gateways`` and ``users`` against a real server: registering, the
+token printed alone on stdout, issuing a new one and revoking them, disabling a user."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+
+import httpx
+import pytest
+
+from server.settings import Settings
+from tests.factories import ADMIN_TOKEN, bearer, make_user, make_vehicle
+from tests.fleetctl_run import fleetctl, token_of
+from tests.live import serve
+
+# Each test runs on the embedded store and on FerretDB (the real MongoDB driver).
+pytestmark = pytest.mark.usefixtures("store_backend")
+
+
+async def _starts(c: httpx.AsyncClient, vehicle_id: str, token: str) -> int:
+    """The status ``start_instance`` answers a vehicle (or gateway) token."""
+    body = {"vehicle_id": vehicle_id, "name": "", "vehicle_type": "usv", "capabilities": []}
+    return (await c.post("/upper/start_instance", headers=bearer(token), json=body)).status_code
+
+
+async def test_vehicles_are_registered_and_their_tokens_issued_and_revoked(
+    make_settings: Callable[..., Settings],
+) -> None:
+    async with serve(make_settings()) as base, httpx.AsyncClient(base_url=base) as c:
+        added = await fleetctl(base, ADMIN_TOKEN, "vehicles", "add", "cli-usv", "--name", "Delta")
+        assert added.exit_code == 0, added.output
+        first = added.stdout.strip()
+        assert added.stdout == first + "\n" and first.startswith("fct_")  # the token alone
+        assert "shown this once" in added.stderr and "FLEET_AGENT_TOKEN" in added.stderr
+        assert await _starts(c, "cli-usv", first) == 200
+
+        table = await fleetctl(base, ADMIN_TOKEN, "vehicles")  # no subcommand: the list
+        assert table.exit_code == 0 and "cli-usv" in table.stdout and "Delta" in table.stdout
+        listed = await fleetctl(base, ADMIN_TOKEN, "vehicles", "list", "--json")
+        [view] = json.loads(listed.stdout)["vehicles"]
+        assert (view["vehicle_id"], view["presence"]) == ("cli-usv", "online")
+        assert json.loads((await fleetctl(base, ADMIN_TOKEN, "vehicles", "--json")).stdout) == {
+            "vehicles": [view]
+        }
+
+        issued = await fleetctl(base, ADMIN_TOKEN, "vehicles", "token", "Delta")  # by name
+        assert issued.exit_code == 0, issued.output
+        second = issued.stdout.strip()
+        assert "former ones are revoked" in issued.stderr
+        assert await _starts(c, "cli-usv", first) == 401
+        assert await _starts(c, "cli-usv", second) == 200
+
+        revoked = await fleetctl(base, ADMIN_TOKEN, "vehicles", "revoke", "delta")
+        assert revoked.exit_code == 0 and "every token of vehicle cli-usv revoked" in revoked.stdout
+        assert await _starts(c, "cli-usv", second) == 401
+        third = await fleetctl(base, ADMIN_TOKEN, "vehicles", "token", "cli-usv", "--json")
+        answer = json.loads(third.stdout)
+        assert answer["vehicle_id"] == "cli-usv" and await _starts(c, "cli-usv", answer["token"])
+
+        taken = await fleetctl(base, ADMIN_TOKEN, "vehicles", "add", "cli-usv")
+        assert taken.exit_code == 1 and "409" in taken.stderr and taken.stdout == ""
+        bad_id = await fleetctl(base, ADMIN_TOKEN, "vehicles", "add", "Not An Id")
+        assert bad_id.exit_code == 1 and "422 invalid" in bad_id.stderr
+        nobody = await fleetctl(base, ADMIN_TOKEN, "vehicles", "token", "Zulu")
+        assert nobody.exit_code == 1 and "'Zulu'" in nobody.stderr
+        _, op = await make_user(c, "operator", vehicles=["cli-usv"])
+        refused = await fleetctl(base, token_of(op), "vehicles", "add", "cli-usv-2")
+        assert refused.exit_code == 1 and "403 forbidden" in refused.stderr
+        assert (await fleetctl(base, token_of(op), "vehicles")).exit_code == 0  # lists its own
+        no_token = await fleetctl(base, "", "vehicles")
+        assert no_token.exit_code == 2
+
+
+async def test_gateways_are_registered_and_their_tokens_issued_and_revoked(
+    make_settings: Callable[..., Settings],
+) -> None:
+    async with serve(make_settings()) as base, httpx.AsyncClient(base_url=base) as c:
+        vid, _ = await make_vehicle(c)
+        added = await fleetctl(base, ADMIN_TOKEN, "gateways", "add", "cli-gw", "--vehicle", vid)
+        assert added.exit_code == 0, added.output
+        first = added.stdout.strip()
+        assert f"registered for {vid}" in added.stderr
+        assert await _starts(c, vid, first) == 200
+
+        issued = await fleetctl(base, ADMIN_TOKEN, "gateways", "token", "cli-gw", "--json")
+        answer = json.loads(issued.stdout)
+        assert answer["vehicles"] == [vid]
+        assert await _starts(c, vid, first) == 401
+        assert await _starts(c, vid, answer["token"]) == 200
+        revoked = await fleetctl(base, ADMIN_TOKEN, "gateways", "revoke", "cli-gw")
+        assert revoked.exit_code == 0 and "every token of gateway cli-gw" in revoked.stdout
+        assert await _starts(c, vid, answer["token"]) == 401
+
+        unknown = await fleetctl(base, ADMIN_TOKEN, "gateways", "token", "no-gw")
+        assert unknown.exit_code == 1 and "404" in unknown.stderr
+        none = await fleetctl(base, ADMIN_TOKEN, "gateways", "add", "gw-2", "--vehicle", "Zulu")
+        assert none.exit_code == 1 and "'Zulu'" in none.stderr
+
+
+async def test_users_are_added_changed_disabled_and_their_tokens_issued_and_revoked(
+    make_settings: Callable[..., Settings],
+) -> None:
+    async with serve(make_settings()) as base, httpx.AsyncClient(base_url=base) as c:
+        vid, _ = await make_vehicle(c)
+        added = await fleetctl(
+            base, ADMIN_TOKEN, "users", "add", "ana", "--role", "operator", "--vehicle", vid
+        )
+        assert added.exit_code == 0, added.output
+        ana = added.stdout.strip()
+        assert f"user ana (operator; {vid}) created" in added.stderr
+        seen = await fleetctl(base, ana, "vehicles", "--json")
+        assert [v["vehicle_id"] for v in json.loads(seen.stdout)["vehicles"]] == [vid]
+
+        table = await fleetctl(base, ADMIN_TOKEN, "users")  # no subcommand: the list
+        row = next(line for line in table.stdout.splitlines() if "ana" in line)
+        assert "operator" in row and vid in row and "active" in row
+        assert (await fleetctl(base, ADMIN_TOKEN, "users", "list")).stdout == table.stdout
+
+        demoted = await fleetctl(base, ADMIN_TOKEN, "users", "set", "ana", "--role", "viewer")
+        assert demoted.exit_code == 0 and demoted.stdout.startswith("ana: viewer, active")
+        emptied = await fleetctl(
+            base, ADMIN_TOKEN, "users", "set", "ana", "--no-vehicles", "--json"
+        )
+        assert json.loads(emptied.stdout)["vehicles"] == []
+        given = await fleetctl(base, ADMIN_TOKEN, "users", "set", "ana", "--vehicle", vid.upper())
+        assert given.exit_code == 0 and vid in given.stdout  # the vehicle's name (its id, upper)
+
+        disabled = await fleetctl(base, ADMIN_TOKEN, "users", "disable", "ana")
+        assert disabled.exit_code == 0 and "disabled" in disabled.stdout
+        shut = await fleetctl(base, ana, "vehicles")
+        assert shut.exit_code == 1 and "401" in shut.stderr
+        assert (await fleetctl(base, ADMIN_TOKEN, "users", "enable", "ana")).exit_code == 0
+        assert (await fleetctl(base, ana, "vehicles")).exit_code == 0
+
+        issued = await fleetctl(base, ADMIN_TOKEN, "users", "token", "ana")
+        fresh = issued.stdout.strip()
+        assert (await fleetctl(base, ana, "vehicles")).exit_code == 1
+        assert (await fleetctl(base, fresh, "vehicles")).exit_code == 0
+        revoked = await fleetctl(base, ADMIN_TOKEN, "users", "revoke", "ana", "--json")
+        assert json.loads(revoked.stdout) == {"ok": True}
+        assert (await fleetctl(base, fresh, "vehicles")).exit_code == 1
+
+        with_password = await fleetctl(
+            base, ADMIN_TOKEN, "users", "add", "bo", "--ask-password", input="s3cret\ns3cret\n"
+        )
+        assert with_password.exit_code == 0, with_password.output
+        login = await c.post("/auth/token", json={"username": "bo", "password": "s3cret"})
+        assert login.status_code == 200 and login.json()["token_type"] == "bearer"
+
+        bad_role = await fleetctl(base, ADMIN_TOKEN, "users", "add", "cy", "--role", "captain")
+        assert bad_role.exit_code == 2 and "viewer, operator, manager, admin" in bad_role.stderr
+        nothing = await fleetctl(base, ADMIN_TOKEN, "users", "set", "bo")
+        assert nothing.exit_code == 2 and "nothing to change" in nothing.stderr
+        unknown = await fleetctl(base, ADMIN_TOKEN, "users", "disable", "nobody")
+        assert unknown.exit_code == 1 and "404" in unknown.stderr
+        not_admin = await fleetctl(base, fresh, "users")
+        assert not_admin.exit_code == 1
