@@ -3,6 +3,16 @@
 Starts the server, registers three vehicles near Biograd na Moru (43.94 N,
 15.44 E) if they are not yet there, runs one fleet-agent process each, and
 prints the dashboard URL and an admin token. Ctrl-C stops everything.
+
+The demo keeps its world in ``data/`` (the store's snapshot and each vehicle's
+outbox): started again, it finds its vehicles, and each simulated vehicle
+starts where the server last saw it, not back at its first position.
+
+Tokens, as ``fleet-server`` does: with no ``FLEET_ADMIN_TOKEN``, each start
+makes a fresh admin token, prints it, and revokes the one printed at the
+start before; with ``FLEET_ADMIN_TOKEN`` set, that one is the admin's and
+nothing is printed. Each vehicle gets a fresh token at each start (its former
+ones revoked), handed to its agent in the environment, never printed.
 """
 
 from __future__ import annotations
@@ -21,7 +31,6 @@ import uvicorn
 from server.api.ws_direct import uvicorn_ws_options
 from server.app import create_app
 from server.logs import log_config
-from server.services.auth import new_token
 from server.settings import Settings
 
 DATA = Path("data")
@@ -49,9 +58,30 @@ async def _register(base: str, admin: str) -> dict[str, str]:
     return tokens
 
 
-def _start_agents(base: str, tokens: dict[str, str]) -> list[subprocess.Popen[bytes]]:
+async def _last_positions(base: str, admin: str) -> dict[str, tuple[float, float]]:
+    """Where the server last saw each vehicle (a world kept from an earlier run)."""
+    headers = {"Authorization": f"Bearer {admin}"}
+    async with httpx.AsyncClient(base_url=base, headers=headers, timeout=10) as client:
+        r = await client.get("/api/vehicles")
+        r.raise_for_status()
+    return {
+        v["vehicle_id"]: (v["position"]["lat"], v["position"]["lon"])
+        for v in r.json()["vehicles"]
+        if v.get("position")
+    }
+
+
+def start_positions(last: dict[str, tuple[float, float]]) -> dict[str, tuple[float, float]]:
+    """Each demo vehicle's start: where it was last seen, else its first position."""
+    return {vid: last.get(vid, (lat, lon)) for vid, _, lat, lon in VEHICLES}
+
+
+def _start_agents(
+    base: str, tokens: dict[str, str], starts: dict[str, tuple[float, float]]
+) -> list[subprocess.Popen[bytes]]:
     procs = []
-    for vehicle_id, _, lat, lon in VEHICLES:
+    for vehicle_id, _, _, _ in VEHICLES:
+        lat, lon = starts[vehicle_id]
         env = {**os.environ, "FLEET_AGENT_TOKEN": tokens[vehicle_id]}  # not on the command line
         procs.append(
             subprocess.Popen(
@@ -81,11 +111,10 @@ def _start_agents(base: str, tokens: dict[str, str]) -> list[subprocess.Popen[by
 
 async def main() -> None:
     settings = Settings()
-    admin = settings.admin_token.get_secret_value() if settings.admin_token else new_token()
-    settings = settings.model_copy(update={"admin_token": Settings(admin_token=admin).admin_token})
+    app = create_app(settings)
     server = uvicorn.Server(
         uvicorn.Config(
-            create_app(settings),
+            app,
             host=settings.host,
             port=settings.port,
             log_level="warning",
@@ -99,11 +128,23 @@ async def main() -> None:
             return  # it failed to start (port taken?): uvicorn said why
         await asyncio.sleep(0.05)
     base = f"http://{settings.host}:{settings.port}"
-    agents = _start_agents(base, await _register(base, admin))
+    await _ready(base, serving)
+    given = settings.admin_token
+    # No FLEET_ADMIN_TOKEN: the one the server made at this start (and printed).
+    admin = given.get_secret_value() if given else app.state.runtime.admin_token
+    if admin is None:  # the store never became ready: the server said why
+        server.should_exit = True
+        await serving
+        return
+    starts = start_positions(await _last_positions(base, admin))
+    agents = _start_agents(base, await _register(base, admin), starts)
     print(f"\nfleet-cloud demo is running (embedded store in {settings.snapshot_path})")
     print(f"  dashboard:   {base}/")
     print(f"  API docs:    {base}/docs")
-    print(f"  admin token: {admin}")
+    if given:
+        print("  admin token: the one in FLEET_ADMIN_TOKEN")
+    else:
+        print(f"  admin token: {admin}   (new at each start; the one before is revoked)")
     print(f"  vehicles:    {', '.join(v[0] for v in VEHICLES)} (simulated, near Biograd na Moru)")
     print("Ctrl-C to stop.\n", flush=True)
     try:
@@ -116,6 +157,16 @@ async def main() -> None:
                 proc.wait(timeout=5)
             if proc.poll() is None:
                 proc.kill()
+
+
+async def _ready(base: str, serving: asyncio.Task[None], within_s: float = 60.0) -> None:
+    """Until the server has loaded its store (``/readyz``): its admin token is made then."""
+    async with httpx.AsyncClient(base_url=base, timeout=5) as client, asyncio.timeout(within_s):
+        while not serving.done():
+            with contextlib.suppress(httpx.HTTPError):
+                if (await client.get("/readyz")).status_code == 200:
+                    return
+            await asyncio.sleep(0.1)
 
 
 def _stop_as_on_ctrl_c(signum: int, frame: object) -> None:
