@@ -157,8 +157,9 @@ def commands(
         return
     table = Table("type")
     table.add_column("status", no_wrap=True, min_width=len("superseded"))
-    for name in ("issued by", "issued at", "last detail"):
-        table.add_column(name)
+    table.add_column("issued by")
+    table.add_column("issued at (UTC)", no_wrap=True)
+    table.add_column("last detail")
     table.add_column("command", no_wrap=True)  # whole: the id cancel takes
     for c in data["commands"]:
         detail = next((h.get("detail") for h in reversed(c["history"]) if h.get("detail")), None)
@@ -166,7 +167,7 @@ def commands(
             c["type"],
             shown_status(c),
             c["issued_by"],
-            c["issued_at"],
+            c["issued_at"][5:19].replace("T", " "),  # 11-22 10:00:01
             detail or "-",
             c["command_id"],
         )

@@ -64,11 +64,15 @@ def _list_vehicles(server: str, token: str, as_json: bool) -> None:
     if as_json:
         dump(data)
         return
+    # The numbers whole; the name wraps. Instance ids only with --json: every command
+    # takes the vehicle's id or name and finds its current instance.
     table = Table()
     table.add_column("vehicle", no_wrap=True)
-    for name in ("name", "type", "presence", "position", "control"):
-        table.add_column(name)
-    table.add_column("instance", no_wrap=True)  # whole: the id the other commands take
+    table.add_column("name")
+    table.add_column("type")
+    table.add_column("presence", no_wrap=True)
+    table.add_column("position", no_wrap=True)
+    table.add_column("control")
     for v in data["vehicles"]:
         ctl = v.get("control")
         table.add_row(
@@ -78,7 +82,6 @@ def _list_vehicles(server: str, token: str, as_json: bool) -> None:
             v["presence"],
             position_text(v.get("position")),
             ctl["holder"] if ctl else "-",
-            v.get("instance_id") or "-",
         )
     console.print(table)
 
