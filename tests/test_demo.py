@@ -15,7 +15,6 @@ import re
 import signal
 import subprocess
 import sys
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -23,6 +22,7 @@ import httpx
 import psutil
 
 from tests.agent.procs import free_port, wait_until
+from tests.demo_run import admin_token, start_demo, stop_demo, vehicles, wait_online
 
 
 def test_demo_serves_three_simulated_vehicles_and_stops_them_on_sigterm(tmp_path: Path) -> None:
@@ -77,35 +77,6 @@ def test_demo_serves_three_simulated_vehicles_and_stops_them_on_sigterm(tmp_path
                 agent.kill()
 
 
-def _demo(tmp_path: Path, port: int, log: Path) -> subprocess.Popen[bytes]:
-    env = {
-        **os.environ,
-        "FLEET_HOST": "127.0.0.1",
-        "FLEET_PORT": str(port),
-        "FLEET_SNAPSHOT_PATH": str(tmp_path / "data" / "fleet-store.snapshot"),
-    }
-    for name in ("FLEET_MONGO_URL", "FLEET_REDIS_URL", "FLEET_ADMIN_TOKEN"):
-        env.pop(name, None)
-    with log.open("wb") as out:
-        return subprocess.Popen(
-            [sys.executable, "-m", "server.demo"], cwd=tmp_path, env=env, stdout=out, stderr=out
-        )
-
-
-def _stop(demo: subprocess.Popen[bytes]) -> None:
-    """SIGTERM, as a process manager would; its agents go with it."""
-    agents = psutil.Process(demo.pid).children(recursive=True) if demo.poll() is None else []
-    demo.send_signal(signal.SIGTERM)
-    try:
-        demo.wait(timeout=30)
-    finally:
-        if demo.poll() is None:
-            demo.kill()
-        _, alive = psutil.wait_procs(agents, timeout=15)
-        for agent in alive:
-            agent.kill()
-
-
 def _metres(a: tuple[float, float], b: tuple[float, float]) -> float:
     north = (a[0] - b[0]) * 111_320.0
     east = (a[1] - b[1]) * 111_320.0 * math.cos(math.radians(a[0]))
@@ -121,32 +92,12 @@ def test_a_restarted_demo_resumes_its_vehicles_where_they_were_with_a_new_admin_
     base = f"http://127.0.0.1:{port}"
     first_start = (43.9400, 15.4400)  # demo-usv-1's first position (server/demo.py)
 
-    def banner(log: Path) -> Callable[[], str | None]:
-        def token() -> str | None:
-            found = re.search(r"admin token: (\S+)", log.read_text(errors="replace"))
-            return found.group(1) if found else None
-
-        return token
-
-    def fleet(token: str) -> dict[str, dict[str, Any]]:
-        r = httpx.get(f"{base}/api/vehicles", headers={"Authorization": f"Bearer {token}"})
-        r.raise_for_status()
-        return {v["vehicle_id"]: v for v in r.json()["vehicles"]}
-
-    demo = _demo(tmp_path, port, tmp_path / "first.log")
+    demo = start_demo(tmp_path, port, tmp_path / "first.log")
     try:
-        first = wait_until(banner(tmp_path / "first.log"), "the first run's banner", 60)
+        first = admin_token(tmp_path / "first.log")
         headers = {"Authorization": f"Bearer {first}"}
-        usv1 = wait_until(
-            lambda: (
-                (v := fleet(first)["demo-usv-1"])["presence"] == "online"
-                and v.get("position")
-                and v
-            ),
-            "demo-usv-1 online with a position",
-            60,
-        )
-        iid = usv1["instance_id"]
+        wait_online(base, first, ["demo-usv-1"])
+        iid = vehicles(base, first)["demo-usv-1"]["instance_id"]
         body = {"instance_id": iid, "user": "admin", "duration_s": 600}
         assert httpx.post(f"{base}/client/grant_control", headers=headers, json=body).is_success
         order = {"instance_ids": [iid], "command": {"type": "go_to",
@@ -154,27 +105,27 @@ def test_a_restarted_demo_resumes_its_vehicles_where_they_were_with_a_new_admin_
         assert httpx.post(f"{base}/client/submit_control", headers=headers, json=order).is_success
 
         def moved() -> tuple[float, float] | None:
-            pos = fleet(first)["demo-usv-1"]["position"]
+            pos = vehicles(base, first)["demo-usv-1"]["position"]
             here = (pos["lat"], pos["lon"])
             return here if _metres(here, first_start) > 5 else None
 
         wait_until(moved, "demo-usv-1 five metres on its way north", 90)
     finally:
-        _stop(demo)
+        stop_demo(demo)
 
-    demo = _demo(tmp_path, port, tmp_path / "second.log")
+    demo = start_demo(tmp_path, port, tmp_path / "second.log")
     try:
-        second = wait_until(banner(tmp_path / "second.log"), "the second run's banner", 60)
+        second = admin_token(tmp_path / "second.log")
         assert second != first
         old = httpx.get(f"{base}/api/vehicles", headers={"Authorization": f"Bearer {first}"})
         assert old.status_code == 401  # the token printed before is revoked
-        stored = fleet(second)["demo-usv-1"]
+        stored = vehicles(base, second)["demo-usv-1"]
         last_seen = (stored["position"]["lat"], stored["position"]["lon"])
         assert _metres(last_seen, first_start) > 5
         seq_before = stored["position"]["seq"]
 
         def sample_of_the_second_run() -> dict[str, Any] | None:
-            v = fleet(second)["demo-usv-1"]
+            v = vehicles(base, second)["demo-usv-1"]
             return v if v["presence"] == "online" and v["position"]["seq"] > seq_before else None
 
         resumed = wait_until(sample_of_the_second_run, "a sample of the second run", 60)
@@ -182,4 +133,4 @@ def test_a_restarted_demo_resumes_its_vehicles_where_they_were_with_a_new_admin_
         assert _metres(here, last_seen) < 2.0, (here, last_seen)  # where it was left
         assert _metres(here, first_start) > 4.0  # not back at its first position
     finally:
-        _stop(demo)
+        stop_demo(demo)
