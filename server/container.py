@@ -25,6 +25,7 @@ from server.api.live_hub import LiveHub
 from server.bus import make_bus
 from server.domain.clock import Clock
 from server.domain.events import (
+    CommandMoved,
     CommandsReady,
     ControlChanged,
     EventRecorded,
@@ -177,6 +178,7 @@ async def build(
     messages.register(PresenceChanged, topics.on_presence)
     messages.register(ControlChanged, topics.on_control)
     messages.register(EventRecorded, topics.on_event)
+    messages.register(CommandMoved, topics.on_command_moved)
     messages.register(SamplesStored, topics.on_samples)
     messages.register(SamplesStored, lambda e: metrics.samples.inc(len(e.samples)))
     messages.register(CommandsReady, hub.on_commands_ready)

@@ -65,6 +65,20 @@ class CommandsReady:
 
 
 @dataclass(frozen=True, slots=True)
+class CommandMoved:
+    """A command moved on without ending (handed out, accepted, executing): its last
+    history entry says how. The start and the end of a command are events of the log
+    (``EventRecorded``, kind ``command``)."""
+
+    vehicle_id: str
+    command_id: str
+    type: str
+    status: str
+    detail: str | None
+    progress: float | None
+
+
+@dataclass(frozen=True, slots=True)
 class SamplesStored:
     """Samples accepted for a vehicle, in the order received, and whether each came late."""
 

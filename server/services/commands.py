@@ -26,7 +26,13 @@ from server.domain import commands as life
 from server.domain.access import Principal
 from server.domain.clock import Clock
 from server.domain.commands import AckOutcome, Command
-from server.domain.events import CommandsReady, InstanceFinished, LeaseEnded, StateWritten
+from server.domain.events import (
+    CommandMoved,
+    CommandsReady,
+    InstanceFinished,
+    LeaseEnded,
+    StateWritten,
+)
 from server.errors import NotFound, RateLimited, Unavailable
 from server.services.command_admission import Admission, ZoneSource
 from server.services.control import ControlService
@@ -233,6 +239,8 @@ class CommandService:
                 lane.retire(cmd)
         if handed:
             self.messages.emit_now(StateWritten(state.instance_id, "commands"))
+            for cmd in handed:
+                self._moved(cmd)
         return handed
 
     async def acknowledge(
@@ -257,6 +265,7 @@ class CommandService:
             if cmd is None:
                 abort.append(ack.command_id)  # unknown here: never to be carried out
                 continue
+            was = cmd.status
             outcome = life.apply_ack(cmd, ack.status, now, progress=ack.progress, detail=ack.detail)
             if outcome is AckOutcome.LATE:
                 await self.repo.note_history(cmd.command_id, cmd.history)
@@ -267,6 +276,8 @@ class CommandService:
             elif cmd.command_id in lane.active and not await self.repo.save_active(cmd.to_doc()):
                 await self._catch_up(cmd)  # it ended on another replica meanwhile
                 lane.retire(cmd)
+            elif cmd.status != was:
+                self._moved(cmd)
         if acks:
             self.messages.emit_now(StateWritten(state.instance_id, "commands"))
         abort.extend(lane.take_aborts())
@@ -422,6 +433,19 @@ class CommandService:
         self.messages.emit_now(StateWritten(cmd.instance_id, "commands"))
         last = cmd.history[-1] if cmd.history else {}
         await self._audit(cmd, actor, detail=last.get("detail"))
+
+    def _moved(self, cmd: Command) -> None:
+        last = cmd.history[-1] if cmd.history else {}
+        self.messages.emit_now(
+            CommandMoved(
+                cmd.vehicle_id,
+                cmd.command_id,
+                cmd.type,
+                cmd.status,
+                last.get("detail"),
+                cmd.progress,
+            )
+        )
 
     async def _audit(self, cmd: Command, actor: Principal | None, **data: Any) -> None:
         await self.events.record(

@@ -16,7 +16,13 @@ from typing import Any
 from fleet_protocol import format_ts
 from server.bus import Bus
 from server.domain.access import Principal
-from server.domain.events import ControlChanged, EventRecorded, PresenceChanged, SamplesStored
+from server.domain.events import (
+    CommandMoved,
+    ControlChanged,
+    EventRecorded,
+    PresenceChanged,
+    SamplesStored,
+)
 from server.services.commands import CommandService
 from server.services.control import ControlService
 from server.services.events import EventService
@@ -85,6 +91,17 @@ class ServerTopics:
             return first
         second = self.emit(f"vehicle/{vehicle_id}/commands", {"commands": [entry["data"]]})
         return None if first is None and second is None else _both(first, second)
+
+    def on_command_moved(self, event: CommandMoved) -> Awaitable[None] | None:
+        """A step between a command's start and its end (those two come as events)."""
+        moved = {
+            "command_id": event.command_id,
+            "type": event.type,
+            "status": event.status,
+            "detail": event.detail,
+            "progress": event.progress,
+        }
+        return self.emit(f"vehicle/{event.vehicle_id}/commands", {"commands": [moved]})
 
     def on_samples(self, event: SamplesStored) -> Awaitable[None] | None:
         topic = f"vehicle/{event.vehicle_id}/telemetry"

@@ -147,6 +147,38 @@ async def test_commands_and_control_topics(base: str, api: httpx.AsyncClient) ->
         assert seen["data"]["commands"][0]["command_id"] == command_id
 
 
+async def test_each_step_of_a_command_is_on_its_topic(base: str, api: httpx.AsyncClient) -> None:
+    vid, vh, iid = await _vehicle_with_instance(api)
+    user, op = await make_user(api, "operator", [vid])
+    body = {"instance_id": iid, "user": user, "duration_s": 60}
+    assert (await api.post("/client/grant_control", headers=ADMIN, json=body)).status_code == 200
+    topic = f"vehicle/{vid}/commands"
+    async with await connect(base, "/ws/client", tok(op)) as ws:
+        await call(ws, "subscribe", "s", topics=[topic])
+        await recv_until(ws, lambda f: f.get("topic") == topic and f.get("snapshot"))
+        r = await api.post(
+            "/client/submit_control",
+            headers=op,
+            json={"instance_ids": [iid], "command": {"type": "keep_station", "args": {}}},
+        )
+        command_id = r.json()["commands"][0]["command_id"]
+        r = await api.get("/upper/get_control", headers=vh, params={"instance_id": iid})
+        assert [c["command_id"] for c in r.json()["commands"]] == [command_id]
+        for status in ("accepted", "executing", "done"):
+            ack = {"command_id": command_id, "status": status, "progress": 0.5}
+            r = await api.post(
+                "/upper/update_fbmessage", headers=vh, json={"instance_id": iid, "acks": [ack]}
+            )
+            assert r.status_code == 200, r.text
+        steps: list[str] = []
+        while not steps or steps[-1] != "done":
+            event = await recv_until(ws, lambda f: f.get("topic") == topic)
+            moved = event["data"]["commands"][0]
+            assert moved["command_id"] == command_id
+            steps.append(moved["status"])
+        assert steps == ["queued", "delivered", "accepted", "executing", "done"]
+
+
 async def test_units_register_subscribe_and_publish(base: str, api: httpx.AsyncClient) -> None:
     vid, vh, _ = await _vehicle_with_instance(api)
     worker, wh = await make_user(api, "viewer", [vid])
