@@ -10,6 +10,7 @@ from fleet_protocol.common import Identifier, Timestamp, WireModel
 from fleet_protocol.values import Text
 
 __all__ = [
+    "CallerView",
     "CreateGateway",
     "CreateUser",
     "CreateVehicle",
@@ -64,6 +65,17 @@ class UserCreated(WireModel):
     role: Role
     token: Text
     vehicles: list[Text] = Field(default_factory=list)
+
+
+class CallerView(WireModel):
+    """``GET /api/me``: the user a token acts for (what the console shows and offers)."""
+
+    username: Text
+    role: Role
+    vehicles: list[Text] = Field(description="the vehicles assigned (an admin sees every one)")
+    expires_at: Timestamp | None = Field(
+        default=None, description="when the token ends (a session's); null: until revoked"
+    )
 
 
 class UserView(WireModel):

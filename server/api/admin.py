@@ -10,6 +10,7 @@ from fastapi.exceptions import RequestValidationError
 from pydantic import ValidationError
 
 from fleet_protocol import (
+    CallerView,
     CreateGateway,
     CreateUser,
     CreateVehicle,
@@ -23,7 +24,7 @@ from fleet_protocol import (
     UserView,
     VehicleCreated,
 )
-from server.api.deps import Admin, ServicesDep
+from server.api.deps import Admin, ServicesDep, Viewer
 
 router = APIRouter(tags=["admin"])
 
@@ -117,6 +118,19 @@ async def dead_letters(
     or handle, with why."""
     return DeadLetterList.model_validate(
         {"dead_letters": await s.dead_letters.of_loop(loop, limit)}
+    )
+
+
+@router.get("/api/me", tags=["auth"])
+async def me(user: Viewer) -> CallerView:
+    """The user the token acts for: name, role, assigned vehicles, when the token ends."""
+    return CallerView.model_validate(
+        {
+            "username": user.name,
+            "role": user.role,
+            "vehicles": sorted(user.vehicles),
+            "expires_at": user.expires_at,
+        }
     )
 
 
