@@ -2,7 +2,7 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test lint bench chaos soak clean ferretdb
+.PHONY: demo test lint bench chaos soak clean ferretdb web
 
 # FerretDB (MongoDB's wire protocol over SQLite), built from the Go module proxy at the
 # version pinned in tools/ferretdb/go.mod: the tests' real MongoDB-driver path runs on it.
@@ -16,15 +16,26 @@ $(STAMP): pyproject.toml
 	$(PY) -m pip install -q -e '.[all]'
 	touch $(STAMP)
 
+# The console's third-party files (Leaflet, Swagger UI), pinned in server/web/package-lock.json
+# and served by the server from server/web/node_modules: no CDN, no bundler. Their install
+# scripts are not run (none is needed; swagger-ui-dist's would report the install).
+WEB_STAMP := server/web/node_modules/.package-lock.json
+
+$(WEB_STAMP): server/web/package.json server/web/package-lock.json
+	cd server/web && npm ci --ignore-scripts --no-audit --no-fund
+	touch $(WEB_STAMP)
+
+web: $(WEB_STAMP)
+
 $(FERRETDB_BIN):
 	tools/ferretdb/build.sh $(FERRETDB_BIN)
 
 ferretdb: $(FERRETDB_BIN)
 
-demo: $(STAMP)
+demo: $(STAMP) $(WEB_STAMP)
 	$(PY) -m server.demo
 
-test: $(STAMP) $(FERRETDB_BIN)
+test: $(STAMP) $(FERRETDB_BIN) $(WEB_STAMP)
 	FLEET_FERRETDB_BIN=$(abspath $(FERRETDB_BIN)) $(PY) -m pytest -q $(PYTEST_ARGS)
 
 lint: $(STAMP)

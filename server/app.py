@@ -4,17 +4,16 @@ from __future__ import annotations
 
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
-from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from fastapi import FastAPI
-from fastapi.staticfiles import StaticFiles
 
 from fleet_protocol import utcnow
 from server import container
 from server.api import (
     admin,
     client,
+    console,
     control,
     errors,
     fleet,
@@ -33,8 +32,6 @@ from server.storage import Store
 
 if TYPE_CHECKING:
     from starlette.types import Receive, Scope, Send
-
-WEB_DIR = Path(__file__).parent / "web"
 
 
 class FleetApp(FastAPI):
@@ -84,6 +81,8 @@ def create_app(
         version="0.1.0",
         summary="Monitor and command fleets of unmanned marine vehicles",
         lifespan=lifespan,
+        docs_url=None,  # served by console.install from the server's own files (no CDN)
+        redoc_url=None,
     )
     metrics = Metrics()  # not bound to a loop: built here so the middleware can hold it
     errors.install(app)
@@ -91,8 +90,7 @@ def create_app(
     for module in (upper, upper_control, client, control, fleet, health, admin, obstacles):
         app.include_router(module.router)
     app.include_router(fleet_telemetry.router)
-    if WEB_DIR.is_dir() and any(WEB_DIR.iterdir()):
-        app.mount("/", StaticFiles(directory=WEB_DIR, html=True), name="web")
+    console.install(app, settings)
     app.add_middleware(MetricsMiddleware, metrics=metrics)
     app.add_middleware(BodyLimit, max_bytes=settings.max_body_bytes)
     return app

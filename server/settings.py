@@ -174,6 +174,20 @@ class Settings(BaseSettings):
         default=30.0, gt=0, description="longest wait between tries to reach the store at start"
     )
     log_level: str = Field(default="info", description="log level")
+    map_tile_url: str | None = Field(
+        default=None,
+        max_length=2048,
+        description="console: a raster tile URL ({z}/{x}/{y}) drawn under the map's offline "
+        "grid; unset: the grid, zones and obstacles only (works with no internet)",
+    )
+    map_tile_attribution: str = Field(
+        default="", max_length=512, description="console: the credit shown with map_tile_url"
+    )
+    web_vendor_dir: Path | None = Field(
+        default=None,
+        description="where `npm ci` put leaflet and swagger-ui-dist (a node_modules folder); "
+        "unset: server/web/node_modules beside the code",
+    )
 
     @property
     def embedded(self) -> bool:

@@ -1,0 +1,80 @@
+"""The console's files (``/``), the assets it and Swagger UI take from npm (``/vendor/``),
+Swagger UI at ``/docs`` and the console's settings (``/console/config.json``).
+
+Nothing here reaches outside the server: Leaflet and swagger-ui-dist are installed by
+``npm ci`` in ``server/web`` (``make web``) and served from there, so the console and
+``/docs`` work on a laptop with no internet. These routes need no token (the files hold
+no data; every call the console makes for data carries the user's token) and are left
+out of the OpenAPI document.
+"""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+from fastapi import APIRouter, FastAPI
+from fastapi.openapi.docs import get_swagger_ui_html
+from fastapi.responses import HTMLResponse
+from fastapi.staticfiles import StaticFiles
+
+from server.settings import Settings
+
+log = logging.getLogger("fleet.server")
+
+WEB_DIR = Path(__file__).resolve().parent.parent / "web"
+CONSOLE_DIR = WEB_DIR / "console"
+#: URL prefix -> the folder of an npm package it serves (under node_modules).
+VENDOR = {"/vendor/leaflet": "leaflet/dist", "/vendor/swagger-ui": "swagger-ui-dist"}
+
+
+def vendor_dir(settings: Settings) -> Path:
+    return settings.web_vendor_dir or WEB_DIR / "node_modules"
+
+
+def console_config(settings: Settings) -> dict[str, str | None]:
+    """What the console reads before it draws the map."""
+    return {
+        "tile_url": settings.map_tile_url,
+        "tile_attribution": settings.map_tile_attribution,
+    }
+
+
+def router(settings: Settings, openapi_url: str) -> APIRouter:
+    routes = APIRouter(include_in_schema=False)
+
+    @routes.get("/docs")
+    async def swagger_ui() -> HTMLResponse:
+        return get_swagger_ui_html(
+            openapi_url=openapi_url,
+            title="fleet-cloud API",
+            swagger_js_url="/vendor/swagger-ui/swagger-ui-bundle.js",
+            swagger_css_url="/vendor/swagger-ui/swagger-ui.css",
+            swagger_favicon_url="/vendor/swagger-ui/favicon-32x32.png",
+        )
+
+    @routes.get("/console/config.json")
+    async def config() -> dict[str, str | None]:
+        return console_config(settings)
+
+    return routes
+
+
+def install(app: FastAPI, settings: Settings) -> None:
+    """Swagger UI and the console's routes, then the static files (mounted last: ``/``
+    takes whatever no route took)."""
+    app.include_router(router(settings, app.openapi_url or "/openapi.json"))
+    modules = vendor_dir(settings)
+    missing = [p for p in VENDOR.values() if not (modules / p).is_dir()]
+    if missing:
+        log.warning(
+            "console assets missing in %s (%s): run `npm ci` in server/web (make web); "
+            "until then the console's map and /docs cannot load",
+            modules,
+            ", ".join(missing),
+        )
+    for prefix, package in VENDOR.items():
+        if (modules / package).is_dir():
+            app.mount(prefix, StaticFiles(directory=modules / package))
+    if CONSOLE_DIR.is_dir():
+        app.mount("/", StaticFiles(directory=CONSOLE_DIR, html=True), name="web")

@@ -1,0 +1,93 @@
+// HTTP calls to the server with the session's token (Authorization: Bearer), and the
+// token itself, kept in sessionStorage (gone when the tab closes).
+
+const TOKEN_KEY = "fleet-token";
+
+export function savedToken() {
+  return sessionStorage.getItem(TOKEN_KEY);
+}
+
+export function saveToken(token) {
+  if (token) sessionStorage.setItem(TOKEN_KEY, token);
+  else sessionStorage.removeItem(TOKEN_KEY);
+}
+
+/** A refusal or failure, with the contract's error code, message and details. */
+export class ApiError extends Error {
+  constructor(status, code, message, details) {
+    super(message);
+    this.status = status;
+    this.code = code;
+    this.details = details;
+  }
+
+  /** The message, with the first detail's when it names an instance or a field. */
+  explain() {
+    const first = Array.isArray(this.details) ? this.details[0] : null;
+    if (first && first.message && first.message !== this.message) {
+      return `${this.message}: ${first.message}`;
+    }
+    return this.message;
+  }
+}
+
+/** POST /auth/token: a session token for a username and password. */
+export async function login(username, password) {
+  const r = await fetch("/auth/token", {
+    method: "POST",
+    headers: { "content-type": "application/json" },
+    body: JSON.stringify({ username, password }),
+  });
+  const body = await r.json().catch(() => ({}));
+  if (!r.ok) throw toError(r.status, body);
+  return body.access_token;
+}
+
+function toError(status, body) {
+  const e = (body && body.error) || {};
+  return new ApiError(status, e.code || `http_${status}`, e.message || `HTTP ${status}`, e.details);
+}
+
+export class Api {
+  /** onUnauthorized: called once the server says the token is no good (401). */
+  constructor(token, onUnauthorized) {
+    this.token = token;
+    this.onUnauthorized = onUnauthorized;
+  }
+
+  async request(method, path, { body, query, raw = false } = {}) {
+    const url = new URL(path, location.origin);
+    for (const [k, v] of Object.entries(query || {})) {
+      if (v !== undefined && v !== null && v !== "") url.searchParams.set(k, v);
+    }
+    const headers = { Authorization: `Bearer ${this.token}` };
+    if (body !== undefined) headers["content-type"] = "application/json";
+    let r;
+    try {
+      r = await fetch(url, {
+        method,
+        headers,
+        body: body === undefined ? undefined : JSON.stringify(body),
+      });
+    } catch (e) {
+      throw new ApiError(0, "unreachable", "the server cannot be reached", null);
+    }
+    if (r.status === 401) this.onUnauthorized();
+    if (!r.ok) throw toError(r.status, await r.json().catch(() => ({})));
+    return raw ? r.text() : r.json();
+  }
+
+  get(path, query) {
+    return this.request("GET", path, { query });
+  }
+
+  post(path, body) {
+    return this.request("POST", path, { body });
+  }
+
+  /** POST /client/submit_control; the commands queued (one per instance). */
+  async submit(instanceIds, type, args, ttlS = 120) {
+    const body = { instance_ids: instanceIds, command: { type, args }, ttl_s: ttlS };
+    return (await this.post("/client/submit_control", body)).commands;
+  }
+}

@@ -1,0 +1,209 @@
+// What the console knows of the fleet, kept from the live topics (docs/live.md gives each
+// topic's data): the vehicles' views, their trails, commands, events and leases. Pure
+// state: it tells its listeners what changed and draws nothing.
+
+export const TRAIL_MINUTES = 5;
+const RECENT_EVENTS = 50;
+const RECENT_COMMANDS = 30;
+const FINAL = new Set(["done", "failed", "rejected", "expired", "cancelled"]);
+
+/** A command's stage as the console names it (the contract's status, "accepted" read as
+ * "acked", a cancelled command that a stop superseded as "superseded"). */
+export function stageOf(status, detail) {
+  if (status === "cancelled" && detail === "superseded_by_stop") return "superseded";
+  if (status === "accepted") return "acked";
+  return status;
+}
+
+export function isFinal(status) {
+  return FINAL.has(status);
+}
+
+/** The stages a command went through, from its history (each status once, in order). */
+function stagesFromHistory(history) {
+  const stages = [];
+  for (const h of history || []) {
+    if (h.status.startsWith("ack:")) continue; // an ack recorded and ignored
+    const stage = stageOf(h.status, h.detail);
+    if (stages[stages.length - 1] !== stage) stages.push(stage);
+  }
+  return stages;
+}
+
+function lastDetail(history) {
+  const last = (history || [])[history.length - 1];
+  return last ? last.detail : null;
+}
+
+function ms(ts) {
+  return ts ? Date.parse(ts) : NaN;
+}
+
+export class Fleet extends EventTarget {
+  constructor() {
+    super();
+    /** vehicle_id -> vehicle record */
+    this.vehicles = new Map();
+  }
+
+  vehicle(id) {
+    let v = this.vehicles.get(id);
+    if (!v) {
+      v = {
+        id,
+        view: { vehicle_id: id, name: id, presence: "offline" },
+        trail: [],
+        commands: new Map(),
+        events: [],
+        control: null,
+        index: this.vehicles.size,
+      };
+      this.vehicles.set(id, v);
+    }
+    return v;
+  }
+
+  changed(id, what) {
+    this.dispatchEvent(new CustomEvent("change", { detail: { id, what } }));
+  }
+
+  /** The ``fleet`` topic: every vehicle (snapshot) or the one that changed. */
+  applyFleet(data, snapshot) {
+    for (const view of data.vehicles || []) {
+      const known = this.vehicles.has(view.vehicle_id);
+      const v = this.vehicle(view.vehicle_id);
+      v.view = { ...v.view, ...view };
+      if (view.control !== undefined) v.control = view.control;
+      if (view.position) this.addToTrail(v, view.position);
+      if (!known) this.dispatchEvent(new CustomEvent("added", { detail: { id: v.id } }));
+      this.changed(v.id, "view");
+    }
+    if (snapshot) this.dispatchEvent(new CustomEvent("snapshot"));
+  }
+
+  applyTelemetry(id, sample) {
+    if (!sample) return;
+    const v = this.vehicle(id);
+    const latest = v.view.position;
+    if (!latest || !(ms(sample.ts) < ms(latest.ts))) v.view.position = sample;
+    this.addToTrail(v, sample);
+    this.changed(id, "position");
+  }
+
+  /** Older samples (the track of the last minutes, read once when the console starts). */
+  seedTrail(id, points) {
+    const v = this.vehicle(id);
+    for (const p of points) this.addToTrail(v, p);
+    this.changed(id, "trail");
+  }
+
+  addToTrail(v, sample) {
+    const t = ms(sample.ts);
+    if (!Number.isFinite(t) || sample.lat == null || sample.lon == null) return;
+    const trail = v.trail;
+    const point = { t, lat: sample.lat, lon: sample.lon };
+    if (!trail.length || trail[trail.length - 1].t < t) trail.push(point);
+    else if (!trail.some((p) => p.t === t)) {
+      trail.push(point);
+      trail.sort((a, b) => a.t - b.t);
+    }
+    const since = Date.now() - TRAIL_MINUTES * 60000;
+    while (trail.length && trail[0].t < since) trail.shift();
+  }
+
+  applyControl(id, data) {
+    const v = this.vehicle(id);
+    v.control = data.control || null;
+    v.view.control = v.control;
+    this.changed(id, "control");
+  }
+
+  /** ``vehicle/<id>/commands``: whole command objects (snapshot) or one step of one. */
+  applyCommands(id, data, snapshot) {
+    const v = this.vehicle(id);
+    if (snapshot) v.commands.clear();
+    for (const c of data.commands || []) {
+      const had = v.commands.get(c.command_id);
+      const cmd = had || { command_id: c.command_id, type: c.type, stages: [], args: null };
+      if (c.history) {
+        cmd.stages = stagesFromHistory(c.history);
+        cmd.detail = lastDetail(c.history);
+        cmd.issued_by = c.issued_by;
+        cmd.issued_at = c.issued_at;
+      }
+      if (c.args) cmd.args = c.args;
+      if (c.progress != null) cmd.progress = c.progress;
+      cmd.status = c.status;
+      if (c.detail !== undefined) cmd.detail = c.detail;
+      cmd.stage = stageOf(cmd.status, cmd.detail);
+      if (cmd.stages[cmd.stages.length - 1] !== cmd.stage) cmd.stages.push(cmd.stage);
+      cmd.updatedAt = Date.now();
+      if (!cmd.issued_at) cmd.issued_at = new Date().toISOString();
+      v.commands.set(cmd.command_id, cmd);
+      if (!had) this.dispatchEvent(new CustomEvent("command", { detail: { id, cmd } }));
+    }
+    for (const old of this.recentCommands(id).slice(RECENT_COMMANDS)) {
+      v.commands.delete(old.command_id);
+    }
+    this.changed(id, "commands");
+  }
+
+  /** A command this console just submitted (its args are known here first). */
+  noteSubmitted(id, commandId, type, args, user) {
+    const v = this.vehicle(id);
+    const cmd = v.commands.get(commandId);
+    if (cmd) {
+      cmd.args = cmd.args || args;
+      cmd.issued_by = cmd.issued_by || user;
+    } else {
+      v.commands.set(commandId, {
+        command_id: commandId, type, args, status: "queued", stage: "queued",
+        stages: ["queued"], issued_by: user, issued_at: new Date().toISOString(),
+      });
+    }
+    this.changed(id, "commands");
+  }
+
+  applyEvents(id, data, snapshot) {
+    const v = this.vehicle(id);
+    if (snapshot) v.events = [];
+    for (const e of data.events || []) {
+      if (!v.events.some((x) => x.event_id === e.event_id)) v.events.push(e);
+    }
+    v.events.sort((a, b) => ms(a.at) - ms(b.at));
+    v.events = v.events.slice(-RECENT_EVENTS);
+    this.changed(id, "events");
+    if (!snapshot) {
+      for (const e of data.events || []) {
+        this.dispatchEvent(new CustomEvent("event", { detail: { id, event: e } }));
+      }
+    }
+  }
+
+  /** Commands newest first. */
+  recentCommands(id) {
+    const v = this.vehicles.get(id);
+    if (!v) return [];
+    return [...v.commands.values()].sort((a, b) => ms(b.issued_at) - ms(a.issued_at));
+  }
+
+  /** The command to show beside the vehicle: the newest one. */
+  latestCommand(id) {
+    return this.recentCommands(id)[0] || null;
+  }
+
+  /** When the vehicle was last heard of (its last contact or its latest sample). */
+  lastContact(id) {
+    const v = this.vehicles.get(id);
+    if (!v) return NaN;
+    const seen = ms(v.view.last_seen);
+    const sample = v.view.position ? ms(v.view.position.ts) : NaN;
+    if (Number.isNaN(seen)) return sample;
+    if (Number.isNaN(sample)) return seen;
+    return Math.max(seen, sample);
+  }
+}
+
+export function topicsOf(id) {
+  return ["telemetry", "commands", "events", "control"].map((k) => `vehicle/${id}/${k}`);
+}

@@ -1,0 +1,437 @@
+// The console: log in, open the live link, and tie the map, the panels and the tools
+// together. `window.fleetConsole` holds the pieces (for a look from the browser's
+// developer tools, and for the browser tests).
+
+import { Api, login, saveToken, savedToken } from "./api.js";
+import { Fleet, TRAIL_MINUTES, topicsOf } from "./fleet.js";
+import { LiveLink } from "./live.js";
+import { ControlPanel, FleetTable, VehiclePanel } from "./panels.js";
+import { ago, confirmAction, h, toast, until } from "./ui.js";
+
+const $ = (id) => document.getElementById(id);
+const PHONE = window.matchMedia("(max-width: 760px)");
+
+// ---- logging in ----------------------------------------------------------------------
+
+function showLogin(message = "") {
+  $("app").hidden = true;
+  $("login").hidden = false;
+  $("login-error").textContent = message;
+  $("login-user").focus();
+}
+
+async function start(token) {
+  let me;
+  const api = new Api(token, () => {
+    saveToken(null);
+    location.reload();
+  });
+  try {
+    me = await api.get("/api/me");
+  } catch (e) {
+    saveToken(null);
+    return showLogin(e.status === 401 ? "" : e.message);
+  }
+  const config = await fetch("/console/config.json").then((r) => r.json()).catch(() => ({}));
+  let MapView;
+  try {
+    ({ MapView } = await import("./map.js"));
+  } catch (e) {
+    document.body.replaceChildren(h("p.fatal", {},
+      "The map library is missing on this server: run `npm ci` in server/web (make web)."));
+    return undefined;
+  }
+  $("login").hidden = true;
+  $("app").hidden = false;
+  return new Console(api, me, config, MapView);
+}
+
+$("login-form").addEventListener("submit", async (e) => {
+  e.preventDefault();
+  try {
+    const token = await login($("login-user").value.trim(), $("login-password").value);
+    saveToken(token);
+    $("login-password").value = "";
+    await start(token);
+  } catch (err) {
+    $("login-error").textContent = err.message;
+  }
+});
+
+$("login-token-go").addEventListener("click", async () => {
+  const token = $("login-token").value.trim();
+  if (!token) return;
+  saveToken(token);
+  $("login-token").value = "";
+  await start(token);
+});
+
+// ---- the console ----------------------------------------------------------------------
+
+class Console {
+  constructor(api, me, config, MapView) {
+    this.api = api;
+    this.me = me;
+    this.app = $("app");
+    this.fleet = new Fleet();
+    this.selection = new Set();
+    this.focused = null;
+    this.tool = null;
+    this.draftPath = [];
+    window.fleetConsole = this;
+
+    $("who").textContent = `${me.username} · ${me.role}`;
+    this.map = new MapView($("map"), config, this.fleet, {
+      onPick: (id, additive) => this.pick(id, additive),
+      onMapClick: (latlng) => this.mapClicked(latlng),
+    });
+    this.table = new FleetTable(this);
+    this.vehiclePanel = new VehiclePanel(this);
+    this.controlPanel = new ControlPanel(this);
+    this.wireTabs();
+    this.wireTools();
+
+    this.fleet.addEventListener("added", (e) => {
+      this.live.subscribe(topicsOf(e.detail.id));
+      this.seedTrail(e.detail.id);
+    });
+    this.fleet.addEventListener("snapshot", () => {
+      if (!this.map.fitted) this.map.fitFleet();
+    });
+    this.fleet.addEventListener("change", (e) => {
+      if (e.detail.what === "view" && this.selection.has(e.detail.id)) this.selectionChanged();
+    });
+    this.live = new LiveLink({
+      token: api.token,
+      pingTopic: `user/${me.username}/console-ping`,
+      onEvent: (topic, data, snapshot) => this.onEvent(topic, data, snapshot),
+      onState: (state, info) => this.linkState(state, info),
+    });
+    this.live.subscribe(["fleet"]);
+    this.live.start();
+    this.loadShapes();
+    this.controlPanel.loadRequests();
+    this.controlPanel.draw();
+    setInterval(() => this.tick(), 1000);
+    import("./replay.js").then(({ Replay }) => {
+      this.replay = new Replay(this);
+      this.replay.drawChoices();
+      this.fleet.addEventListener("added", () => this.replay.drawChoices());
+    });
+  }
+
+  onEvent(topic, data, snapshot) {
+    if (topic === "fleet") return this.fleet.applyFleet(data, snapshot);
+    const [, id, kind] = topic.split("/");
+    if (kind === "telemetry") this.fleet.applyTelemetry(id, data);
+    else if (kind === "commands") this.fleet.applyCommands(id, data, snapshot);
+    else if (kind === "events") this.fleet.applyEvents(id, data, snapshot);
+    else if (kind === "control") this.fleet.applyControl(id, data);
+    return undefined;
+  }
+
+  linkState(state, info) {
+    const link = $("link");
+    link.dataset.state = state;
+    this.app.dataset.link = state;
+    if (state === "live") {
+      link.textContent = "live";
+      if (this.wasLost) {
+        toast("link back: the view is up to date again", "ok");
+        for (const id of this.fleet.vehicles.keys()) this.seedTrail(id);
+        this.loadShapes();
+      }
+      this.wasLost = false;
+    } else if (state === "lost") {
+      this.wasLost = true;
+      link.textContent = `link lost · reconnecting in ${Math.ceil(info.retryInMs / 1000)} s`;
+    } else if (state === "refused") {
+      link.textContent = "refused: log in again";
+      saveToken(null);
+      setTimeout(() => location.reload(), 1500);
+    } else {
+      link.textContent = this.wasLost ? "link lost · reconnecting…" : "connecting…";
+    }
+  }
+
+  /** Once a second: the "ago" and "until" texts move on (no call to the server). */
+  tick() {
+    const now = Date.now();
+    for (const el of document.querySelectorAll("[data-since]")) {
+      el.textContent = ago(+el.dataset.since, now);
+    }
+    for (const el of document.querySelectorAll("[data-until]")) {
+      el.textContent = `(${until(el.dataset.until, now)})`;
+    }
+  }
+
+  async seedTrail(id) {
+    const from = new Date(Date.now() - TRAIL_MINUTES * 60000).toISOString();
+    try {
+      const track = await this.api.get(`/api/vehicles/${encodeURIComponent(id)}/track`, {
+        from, max_points: 600,
+      });
+      this.fleet.seedTrail(id, track.points);
+    } catch {
+      // no trail yet: the live samples draw one
+    }
+  }
+
+  /** Zones (when the server has them), obstacles. */
+  async loadShapes() {
+    try {
+      this.map.setZones((await this.api.get("/api/zones")).zones || []);
+    } catch (e) {
+      if (e.status !== 404) console.warn("zones:", e.message);
+    }
+    try {
+      this.map.setObstacles((await this.api.get("/api/obstacles")).obstacles || []);
+    } catch (e) {
+      console.warn("obstacles:", e.message);
+    }
+  }
+
+  // ---- selection ----------------------------------------------------------------------
+  pick(id, additive) {
+    if (additive) {
+      if (this.selection.has(id)) this.selection.delete(id);
+      else this.selection.add(id);
+    } else {
+      this.selection = new Set([id]);
+    }
+    if (this.selection.has(id)) {
+      this.focused = id;
+      this.vehiclePanel.show(id);
+      if (!additive && !PHONE.matches) this.showTab("vehicle");
+    }
+    this.selectionChanged();
+  }
+
+  selectionChanged() {
+    this.map.setSelected(this.selection);
+    this.table.render();
+    const n = this.selection.size;
+    $("actions").hidden = n === 0 || this.app.dataset.replay === "on";
+    const names = [...this.selection].map((id) => this.fleet.vehicles.get(id)?.view.name || id);
+    $("selection").textContent = n ? `${n} selected: ${names.join(", ")}` : "";
+    $("stop-selected").textContent = n > 1 ? `Stop ${n}` : "Stop";
+    if (!n) this.setTool(null);
+  }
+
+  // ---- tabs ---------------------------------------------------------------------------
+  wireTabs() {
+    for (const b of document.querySelectorAll("[data-tab]")) {
+      b.addEventListener("click", () => this.showTab(b.dataset.tab));
+    }
+    this.showTab(PHONE.matches ? "map" : "fleet");
+    PHONE.addEventListener("change", () => this.map.map.invalidateSize());
+  }
+
+  showTab(tab) {
+    this.app.dataset.tab = tab;
+    for (const b of document.querySelectorAll("[data-tab]")) {
+      b.setAttribute("aria-selected", String(b.dataset.tab === tab));
+    }
+    if (tab === "map") requestAnimationFrame(() => this.map.map.invalidateSize());
+    if (tab === "control") this.controlPanel.loadRequests();
+    if (tab === "replay" && this.replay) this.replay.drawChoices();
+    if (tab === "vehicle") this.vehiclePanel.show(this.focused);
+  }
+
+  // ---- tools --------------------------------------------------------------------------
+  wireTools() {
+    for (const b of document.querySelectorAll("[data-tool]")) {
+      b.addEventListener("click", () => this.setTool(this.tool === b.dataset.tool ? null : b.dataset.tool));
+    }
+    $("hold").addEventListener("click", () => this.send("keep_station", { radius_m: this.radius() }));
+    $("stop-selected").addEventListener("click", () => this.stopSelected());
+    $("stop-all").addEventListener("click", () => this.stopAll());
+    $("path-undo").addEventListener("click", () => {
+      this.draftPath.pop();
+      this.drawDraft();
+    });
+    $("path-cancel").addEventListener("click", () => this.setTool(null));
+    $("path-send").addEventListener("click", () => this.sendPath());
+    $("logout").addEventListener("click", () => {
+      this.live.stop();
+      saveToken(null);
+      location.reload();
+    });
+    document.addEventListener("keydown", (e) => {
+      if (e.key === "Escape" && this.tool) this.setTool(null);
+    });
+  }
+
+  setTool(tool) {
+    this.tool = tool;
+    for (const b of document.querySelectorAll("[data-tool]")) {
+      b.classList.toggle("active", b.dataset.tool === tool);
+      b.setAttribute("aria-pressed", String(b.dataset.tool === tool));
+    }
+    const hints = {
+      go_to: "Click the map where the selected vehicles should go (Esc: cancel).",
+      station: "Click the map where the selected vehicles should keep station (Esc: cancel).",
+      path: "Click the map to add waypoints, then Send path (Esc: cancel).",
+    };
+    $("tool-hint").hidden = !tool;
+    $("tool-hint").textContent = hints[tool] || "";
+    $("path-bar").hidden = tool !== "path";
+    this.app.dataset.tool = tool || "";
+    if (tool === "path") this.map.map.doubleClickZoom.disable();
+    else this.map.map.doubleClickZoom.enable();
+    if (tool !== "path") {
+      this.draftPath = [];
+      this.drawDraft();
+    }
+  }
+
+  drawDraft() {
+    this.map.showDraft(this.draftPath.map((p) => [p.lat, p.lon]));
+    $("path-count").textContent = `${this.draftPath.length} waypoint${this.draftPath.length === 1 ? "" : "s"}`;
+  }
+
+  mapClicked(latlng) {
+    const point = { lat: +latlng.lat.toFixed(7), lon: +latlng.lng.toFixed(7) };
+    if (this.tool === "go_to") {
+      this.map.flash(latlng);
+      this.send("go_to", { ...point, ...this.speedArg() });
+      this.setTool(null);
+    } else if (this.tool === "station") {
+      this.map.flash(latlng);
+      this.send("keep_station", { ...point, radius_m: this.radius() });
+      this.setTool(null);
+    } else if (this.tool === "path") {
+      this.draftPath.push(point);
+      this.drawDraft();
+    }
+  }
+
+  speedArg() {
+    const speed = parseFloat($("opt-speed").value);
+    return Number.isFinite(speed) && speed > 0 ? { speed_mps: speed } : {};
+  }
+
+  radius() {
+    const r = parseFloat($("opt-radius").value);
+    return Number.isFinite(r) && r > 0 ? r : 5;
+  }
+
+  async sendPath() {
+    if (!this.draftPath.length) return toast("click the map to add waypoints first", "error");
+    const args = { waypoints: this.draftPath, ...this.speedArg() };
+    if ($("path-plan").checked) args.plan = true;
+    if (await this.send("follow_path", args)) this.setTool(null);
+    return undefined;
+  }
+
+  targets(ids) {
+    const out = [];
+    for (const id of ids) {
+      const v = this.fleet.vehicles.get(id);
+      if (v && v.view.instance_id && v.view.presence !== "finished") out.push(v);
+    }
+    return out;
+  }
+
+  /** Submit one command to every selected vehicle (all or nothing, as the server does). */
+  async send(type, args, ids = this.selection) {
+    const vehicles = this.targets(ids);
+    if (!vehicles.length) {
+      toast("no selected vehicle is running", "error");
+      return false;
+    }
+    try {
+      const made = await this.api.submit(vehicles.map((v) => v.view.instance_id), type, args);
+      for (const c of made) {
+        const v = vehicles.find((x) => x.view.instance_id === c.instance_id);
+        if (v) this.fleet.noteSubmitted(v.id, c.command_id, type, args, this.me.username);
+      }
+      toast(`${type} queued for ${vehicles.map((v) => v.view.name || v.id).join(", ")}`, "ok");
+      return true;
+    } catch (e) {
+      this.refused(type, e, vehicles);
+      return false;
+    }
+  }
+
+  refused(type, e, vehicles) {
+    const first = Array.isArray(e.details) ? e.details[0] : null;
+    const code = (first && first.code) || e.code;
+    if (code === "control_not_held") {
+      const v = vehicles.find((x) => first && x.view.instance_id === first.instance_id) || vehicles[0];
+      toast(`${type} refused: you do not hold control of ${v.view.name || v.id}`, "error", {
+        label: "Request control",
+        run: () => this.requestControl(v.id),
+      });
+    } else {
+      toast(`${type} refused: ${e.explain()}`, "error");
+    }
+  }
+
+  async stopSelected() {
+    const vehicles = this.targets(this.selection);
+    if (!vehicles.length) return toast("no selected vehicle is running", "error");
+    const names = vehicles.map((v) => v.view.name || v.id).join(", ");
+    const ok = await confirmAction({
+      title: vehicles.length > 1 ? `Stop ${vehicles.length} vehicles?` : `Stop ${names}?`,
+      text: `${names} will stop at once; missions queued and not yet started are cancelled.`,
+      confirm: vehicles.length > 1 ? `Stop ${vehicles.length} vehicles` : "Stop it",
+    });
+    if (ok) await this.send("stop", {}, vehicles.map((v) => v.id));
+    return undefined;
+  }
+
+  async stopAll() {
+    const running = this.targets(this.fleet.vehicles.keys());
+    const ok = await confirmAction({
+      title: "Stop every vehicle?",
+      text: `Every vehicle you can see (${running.length} running) stops at once; ` +
+        "missions queued and not yet started are cancelled.",
+      confirm: "Stop all vehicles",
+    });
+    if (!ok) return;
+    try {
+      const made = await this.api.submit(["*"], "stop", {});
+      for (const c of made) {
+        const v = running.find((x) => x.view.instance_id === c.instance_id);
+        if (v) this.fleet.noteSubmitted(v.id, c.command_id, "stop", {}, this.me.username);
+      }
+      toast(`stop sent to ${made.length} vehicle(s)`, "ok");
+    } catch (e) {
+      toast(`stop refused: ${e.explain()}`, "error");
+    }
+  }
+
+  async requestControl(id) {
+    const v = this.fleet.vehicles.get(id);
+    try {
+      await this.api.post("/client/request_control", { instance_id: v.view.instance_id });
+      toast(`control of ${v.view.name || id} requested: the field manager decides`, "ok");
+    } catch (e) {
+      toast(`request refused: ${e.explain()}`, "error");
+    }
+  }
+
+  async releaseControl(id) {
+    const v = this.fleet.vehicles.get(id);
+    try {
+      await this.api.post("/client/release_control", { instance_id: v.view.instance_id });
+      toast(`control of ${v.view.name || id} released`, "ok");
+    } catch (e) {
+      toast(`release refused: ${e.explain()}`, "error");
+    }
+  }
+
+  async cancelCommand(commandId) {
+    try {
+      await this.api.post("/client/cancel_command", { command_id: commandId });
+    } catch (e) {
+      toast(`cancel refused: ${e.explain()}`, "error");
+    }
+  }
+}
+
+// ---- start ---------------------------------------------------------------------------------
+const token = savedToken();
+if (token) start(token);
+else showLogin();

@@ -1,0 +1,398 @@
+// The map: Leaflet with an offline base (a metric grid and a scale bar; a tile layer only
+// when the server names one), the zones, obstacles and planned paths as vector layers,
+// and each vehicle as a marker pointing along its heading, coloured by presence, with a
+// label placed clear of its neighbours and a trail of the last minutes.
+
+import * as L from "/vendor/leaflet/leaflet-src.esm.js";
+import { isFinal } from "./fleet.js";
+import { placeLabels } from "./labels.js";
+
+export { L };
+
+const M_PER_DEG = 111320;
+const TRAIL_COLOURS = ["#1565c0", "#c2185b", "#00838f", "#6a1b9a", "#ef6c00", "#2e7d32",
+  "#ad1457", "#4e342e"];
+
+export function colourOf(index) {
+  return TRAIL_COLOURS[index % TRAIL_COLOURS.length];
+}
+
+function escapeHtml(text) {
+  return String(text).replace(/[&<>"']/g, (c) => `&#${c.charCodeAt(0)};`);
+}
+
+/** 1, 2 or 5 times a power of ten: the grid step nearest ``metres`` (by ratio). */
+export function niceStep(metres) {
+  const p = 10 ** Math.floor(Math.log10(metres));
+  let best = p;
+  for (const m of [1, 2, 5, 10]) {
+    if (Math.abs(Math.log(m * p / metres)) < Math.abs(Math.log(best / metres))) best = m * p;
+  }
+  return best;
+}
+
+/** A metric grid drawn for the view: lines every 1, 2 or 5 x 10^n metres, about 90 px
+ * apart, every fifth one stronger. Needs no tiles and no network. */
+const MetricGrid = L.Layer.extend({
+  onAdd(map) {
+    this._group = L.layerGroup().addTo(map);
+    this._renderer = L.svg({ pane: "grid", padding: 0.2 });
+    map.on("moveend zoomend resize", this._draw, this);
+    this._draw();
+  },
+  onRemove(map) {
+    map.off("moveend zoomend resize", this._draw, this);
+    map.removeLayer(this._group);
+    if (this.onStep) this.onStep(null);
+  },
+  _draw() {
+    const map = this._map;
+    const size = map.getSize();
+    if (!size.x || !size.y) return;
+    const centre = map.getCenter();
+    const a = map.containerPointToLatLng([0, size.y / 2]);
+    const b = map.containerPointToLatLng([size.x, size.y / 2]);
+    const mPerPx = map.distance(a, b) / size.x;
+    const step = niceStep(mPerPx * 90);
+    const latStep = step / M_PER_DEG;
+    const cos = Math.cos((Math.round(centre.lat * 10) / 10) * (Math.PI / 180));
+    const lonStep = step / (M_PER_DEG * Math.max(cos, 0.01));
+    const bounds = map.getBounds().pad(0.2);
+    this._group.clearLayers();
+    const lines = [];
+    const south = bounds.getSouth();
+    const north = bounds.getNorth();
+    const west = bounds.getWest();
+    const east = bounds.getEast();
+    for (let i = Math.ceil(west / lonStep); i * lonStep <= east && lines.length < 400; i += 1) {
+      lines.push([[[south, i * lonStep], [north, i * lonStep]], i % 5 === 0]);
+    }
+    for (let j = Math.ceil(south / latStep); j * latStep <= north && lines.length < 800; j += 1) {
+      lines.push([[[j * latStep, west], [j * latStep, east]], j % 5 === 0]);
+    }
+    for (const [points, major] of lines) {
+      L.polyline(points, {
+        renderer: this._renderer,
+        interactive: false,
+        className: major ? "grid-line major" : "grid-line",
+      }).addTo(this._group);
+    }
+    if (this.onStep) this.onStep(step);
+  },
+});
+
+/** A corner note saying how far apart the grid's lines are. */
+const GridNote = L.Control.extend({
+  options: { position: "topleft" },
+  onAdd() {
+    this._el = L.DomUtil.create("div", "grid-note");
+    return this._el;
+  },
+  show(step) {
+    if (!this._el) return;
+    if (step == null) this._el.textContent = "";
+    else this._el.textContent = `grid ${step >= 1000 ? `${step / 1000} km` : `${step} m`}`;
+  },
+});
+
+function arrowHtml(view, label) {
+  return `<svg class="arrow" viewBox="-13 -13 26 26" aria-hidden="true">
+      <circle class="halo" r="12"></circle>
+      <path d="M0,-10 L7,8 L0,4 L-7,8 Z"></path></svg>
+    <div class="vlabel">${label}</div>`;
+}
+
+export class MapView {
+  /**
+   * fleet: the Fleet state. onPick(id, additive): a vehicle clicked (shift, ctrl or
+   * cmd held: added to the selection). onMapClick(latlng): a click on the map itself.
+   */
+  constructor(el, config, fleet, { onPick, onMapClick }) {
+    this.fleet = fleet;
+    this.onPick = onPick;
+    this.selected = new Set();
+    this.markers = new Map();
+    this.trails = new Map();
+    this.missions = new Map();
+    this.fitted = false;
+    this.live = true;
+
+    const map = L.map(el, { maxZoom: 22, minZoom: 2, zoomSnap: 0.5, worldCopyJump: true });
+    this.map = map;
+    map.createPane("grid").style.zIndex = 250;
+    map.setView([0, 0], 3);
+    L.control.scale({ imperial: false, maxWidth: 160, position: "topleft" }).addTo(map);
+
+    const grid = new MetricGrid();
+    const note = new GridNote().addTo(map);
+    grid.onStep = (step) => note.show(step);
+    grid.addTo(map);
+    const bases = {};
+    if (config.tile_url) {
+      const tiles = L.tileLayer(config.tile_url, {
+        attribution: config.tile_attribution || "",
+        maxZoom: 22,
+        maxNativeZoom: 19,
+      });
+      tiles.addTo(map);
+      bases.Tiles = tiles;
+    }
+    this.zones = L.featureGroup().addTo(map);
+    this.obstacles = L.featureGroup().addTo(map);
+    this.paths = L.featureGroup().addTo(map);
+    this.trailLayer = L.featureGroup().addTo(map);
+    this.vehicleLayer = L.featureGroup().addTo(map);
+    this.draft = L.featureGroup().addTo(map);
+    this.layers = L.control
+      .layers(null, {
+        Grid: grid,
+        ...bases,
+        Zones: this.zones,
+        Obstacles: this.obstacles,
+        "Planned paths": this.paths,
+        Trails: this.trailLayer,
+      }, { collapsed: true })
+      .addTo(map);
+
+    map.on("click", (e) => onMapClick(e.latlng));
+    map.on("zoomend moveend resize", () => this.scheduleLabels());
+    fleet.addEventListener("change", (e) => this.update(e.detail.id, e.detail.what));
+  }
+
+  // ---- vehicles ---------------------------------------------------------------
+  update(id, what) {
+    const v = this.fleet.vehicles.get(id);
+    if (!v) return;
+    const p = v.view.position;
+    if (p && p.lat != null) this.placeMarker(v, p);
+    this.updateTrail(v);
+    if (what === "commands" || what === "position" || what === "view") this.updateMission(v);
+    this.scheduleLabels();
+  }
+
+  placeMarker(v, p) {
+    let m = this.markers.get(v.id);
+    const latlng = [p.lat, p.lon];
+    if (!m) {
+      const icon = L.divIcon({
+        className: "vicon",
+        html: arrowHtml(v.view, ""),
+        iconSize: [26, 26],
+        iconAnchor: [13, 13],
+      });
+      m = L.marker(latlng, { icon, title: v.id, keyboard: true, riseOnHover: true });
+      m.on("click", (e) => {
+        const ev = e.originalEvent || {};
+        this.onPick(v.id, Boolean(ev.shiftKey || ev.ctrlKey || ev.metaKey));
+      });
+      m.addTo(this.vehicleLayer);
+      this.markers.set(v.id, m);
+    } else {
+      m.setLatLng(latlng);
+    }
+    this.decorate(v, m);
+  }
+
+  decorate(v, m) {
+    const el = m.getElement();
+    if (!el) return;
+    const view = v.view;
+    el.dataset.vehicle = v.id;
+    el.dataset.presence = view.presence || "offline";
+    el.dataset.lat = view.position ? view.position.lat : "";
+    el.dataset.lon = view.position ? view.position.lon : "";
+    el.classList.toggle("selected", this.selected.has(v.id));
+    const heading = view.position && view.position.heading_deg != null
+      ? view.position.heading_deg : 0;
+    el.querySelector("path").setAttribute("transform", `rotate(${heading})`);
+    el.style.setProperty("--trail", colourOf(v.index));
+    const cmd = this.fleet.latestCommand(v.id);
+    const chip = cmd
+      ? `<span class="chip stage-${cmd.stage}">${escapeHtml(cmd.type)} · ${escapeHtml(cmd.stage)}</span>`
+      : "";
+    const failsafe = view.control_mode === "failsafe" || view.control_mode === "local"
+      ? `<span class="chip stage-failed">${view.control_mode}</span>` : "";
+    const html = `<b>${escapeHtml(view.name || v.id)}</b>${chip}${failsafe}`;
+    const label = el.querySelector(".vlabel");
+    if (label.innerHTML !== html) {
+      label.innerHTML = html;
+      delete label.dataset.w; // measured again
+    }
+  }
+
+  updateTrail(v) {
+    let line = this.trails.get(v.id);
+    const points = v.trail.map((p) => [p.lat, p.lon]);
+    if (!line) {
+      line = L.polyline(points, {
+        color: colourOf(v.index), weight: 3, opacity: 0.7, interactive: false,
+        className: "trail",
+      }).addTo(this.trailLayer);
+      this.trails.set(v.id, line);
+    } else {
+      line.setLatLngs(points);
+    }
+  }
+
+  /** The active command drawn on the map: a path, a go_to's target, a station's circle. */
+  updateMission(v) {
+    const old = this.missions.get(v.id);
+    if (old) this.paths.removeLayer(old);
+    const group = L.layerGroup();
+    const colour = colourOf(v.index);
+    const here = v.view.position;
+    for (const cmd of this.fleet.recentCommands(v.id)) {
+      if (isFinal(cmd.status) || !cmd.args) continue;
+      const a = cmd.args;
+      if (cmd.type === "follow_path") {
+        const pts = (a.path || a.waypoints || []).map((w) => [w.lat, w.lon]);
+        if (here) pts.unshift([here.lat, here.lon]);
+        L.polyline(pts, { color: colour, weight: 2, dashArray: "6 6", className: "planned" })
+          .bindTooltip(`${v.view.name || v.id}: ${a.path ? "planned path" : "path"}`)
+          .addTo(group);
+        for (const w of a.waypoints || []) {
+          L.circleMarker([w.lat, w.lon], { radius: 4, color: colour, fillOpacity: 1 })
+            .addTo(group);
+        }
+      } else if (cmd.type === "go_to" && a.lat != null) {
+        if (here) {
+          L.polyline([[here.lat, here.lon], [a.lat, a.lon]], {
+            color: colour, weight: 2, dashArray: "4 6", className: "planned",
+          }).addTo(group);
+        }
+        L.circleMarker([a.lat, a.lon], { radius: 6, color: colour, fill: false, weight: 2 })
+          .bindTooltip(`${v.view.name || v.id}: go to`)
+          .addTo(group);
+      } else if (cmd.type === "keep_station") {
+        const at = a.lat != null ? [a.lat, a.lon] : here ? [here.lat, here.lon] : null;
+        if (at) {
+          L.circle(at, { radius: a.radius_m || 2, color: colour, weight: 2, dashArray: "3 4" })
+            .addTo(group);
+        }
+      }
+    }
+    group.addTo(this.paths);
+    this.missions.set(v.id, group);
+  }
+
+  setSelected(ids) {
+    this.selected = new Set(ids);
+    for (const [id, m] of this.markers) {
+      const el = m.getElement();
+      if (el) el.classList.toggle("selected", this.selected.has(id));
+    }
+  }
+
+  /** Show the live markers, or hide them while a replay is on. */
+  showLive(on) {
+    this.live = on;
+    for (const layer of [this.vehicleLayer, this.trailLayer, this.paths]) {
+      if (on) layer.addTo(this.map);
+      else this.map.removeLayer(layer);
+    }
+    if (on) this.scheduleLabels();
+  }
+
+  fitFleet() {
+    const pts = [...this.fleet.vehicles.values()]
+      .map((v) => v.view.position)
+      .filter((p) => p && p.lat != null)
+      .map((p) => [p.lat, p.lon]);
+    if (!pts.length) return false;
+    if (pts.length === 1) this.map.setView(pts[0], 17);
+    else this.map.fitBounds(L.latLngBounds(pts).pad(0.6), { maxZoom: 18 });
+    this.fitted = true;
+    return true;
+  }
+
+  focus(id) {
+    const v = this.fleet.vehicles.get(id);
+    if (v && v.view.position) this.map.panTo([v.view.position.lat, v.view.position.lon]);
+  }
+
+  // ---- labels -----------------------------------------------------------------
+  scheduleLabels() {
+    if (this.labelsPending) return;
+    this.labelsPending = true;
+    requestAnimationFrame(() => {
+      this.labelsPending = false;
+      this.placeAllLabels();
+    });
+  }
+
+  placeAllLabels() {
+    if (!this.live) return;
+    const anchors = [];
+    const labels = new Map();
+    for (const [id, m] of this.markers) {
+      const el = m.getElement();
+      if (!el) continue;
+      const label = el.querySelector(".vlabel");
+      if (!label.dataset.w) {
+        label.dataset.w = label.offsetWidth;
+        label.dataset.h = label.offsetHeight;
+      }
+      const pt = this.map.latLngToContainerPoint(m.getLatLng());
+      anchors.push({ id, x: pt.x, y: pt.y, w: +label.dataset.w, h: +label.dataset.h });
+      labels.set(id, label);
+    }
+    for (const [id, { dx, dy }] of placeLabels(anchors, 13)) {
+      const label = labels.get(id);
+      label.style.left = `${13 + dx}px`;
+      label.style.top = `${13 + dy}px`;
+    }
+  }
+
+  // ---- the server's shapes ------------------------------------------------------
+  setZones(zones) {
+    this.zones.clearLayers();
+    for (const z of zones) {
+      const shape = L.geoJSON(z.polygon, {
+        style: {
+          className: `zone zone-${z.kind}`,
+          color: z.kind === "no_go" ? "#c62828" : "#1565c0",
+          weight: 2,
+          dashArray: z.kind === "no_go" ? null : "8 6",
+          fillOpacity: z.kind === "no_go" ? 0.18 : 0.03,
+        },
+        interactive: true,
+      });
+      const who = z.vehicles && z.vehicles.length ? ` (${z.vehicles.join(", ")})` : "";
+      const kind = z.kind === "no_go" ? "no-go zone" : "operating area";
+      shape.bindTooltip(`${escapeHtml(z.name || z.zone_id)}: ${kind}${escapeHtml(who)}`);
+      shape.addTo(this.zones);
+    }
+  }
+
+  setObstacles(obstacles) {
+    this.obstacles.clearLayers();
+    for (const o of obstacles) {
+      L.geoJSON(o.polygon, {
+        style: { className: "obstacle", color: "#5d4037", weight: 1, fillOpacity: 0.45 },
+      })
+        .bindTooltip(`${escapeHtml(o.name)} (obstacle, clearance ${o.clearance_m} m)`)
+        .addTo(this.obstacles);
+    }
+  }
+
+  // ---- drawing a path ----------------------------------------------------------------
+  showDraft(points) {
+    this.draft.clearLayers();
+    if (!points.length) return;
+    L.polyline(points, { color: "#ef6c00", weight: 3, dashArray: "2 6", className: "draft" })
+      .addTo(this.draft);
+    points.forEach((p, i) => {
+      L.marker(p, {
+        icon: L.divIcon({ className: "waypoint", html: `${i + 1}`, iconSize: [20, 20] }),
+        interactive: false,
+      }).addTo(this.draft);
+    });
+  }
+
+  /** A short-lived mark where the user clicked (a go_to's or a station's point). */
+  flash(latlng) {
+    const mark = L.circleMarker(latlng, { radius: 10, color: "#ef6c00", weight: 3, fill: false })
+      .addTo(this.draft);
+    setTimeout(() => this.draft.removeLayer(mark), 1500);
+  }
+}

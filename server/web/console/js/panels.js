@@ -1,0 +1,389 @@
+// The side panels: the fleet table, the vehicle panel (parameters, presence, control,
+// recent commands and events) and the control panel (a field manager's requests, grants
+// and leases; an operator's own). Each redraws from the Fleet state when it changes.
+
+import { isFinal } from "./fleet.js";
+import { ago, clock, dateTime, h, toast, until } from "./ui.js";
+
+const DURATIONS = [
+  [300, "5 min"], [900, "15 min"], [1800, "30 min"], [3600, "1 h"], [7200, "2 h"],
+  [14400, "4 h"], [28800, "8 h"], [86400, "24 h"],
+];
+
+function presenceBadge(presence) {
+  return h(`span.presence.p-${presence || "offline"}`, {}, presence || "unknown");
+}
+
+function chip(cmd) {
+  if (!cmd) return "–";
+  return h(`span.chip.stage-${cmd.stage}`, {}, `${cmd.type} · ${cmd.stage}`);
+}
+
+function holderText(control, me) {
+  if (!control) return "nobody";
+  return control.holder === me.username ? "you" : control.holder;
+}
+
+/** Redraw at most once a frame, however many changes come in. */
+function throttled(fn) {
+  let pending = false;
+  return () => {
+    if (pending) return;
+    pending = true;
+    requestAnimationFrame(() => {
+      pending = false;
+      fn();
+    });
+  };
+}
+
+// ---- the fleet table ------------------------------------------------------------------
+
+export class FleetTable {
+  constructor(ctx) {
+    this.ctx = ctx;
+    this.body = document.querySelector("#fleet-table tbody");
+    this.render = throttled(() => this.draw());
+    ctx.fleet.addEventListener("change", this.render);
+  }
+
+  draw() {
+    const { fleet, me } = this.ctx;
+    const rows = [...fleet.vehicles.values()].sort((a, b) => (a.id < b.id ? -1 : 1));
+    this.body.replaceChildren(
+      ...rows.map((v) => {
+        const p = v.view.position;
+        const selected = this.ctx.selection.has(v.id);
+        const row = h(
+          "tr",
+          {
+            dataset: { vehicle: v.id },
+            class: selected ? "selected" : "",
+            onclick: (e) => {
+              if (e.target.type === "checkbox") return;
+              this.ctx.pick(v.id, e.shiftKey || e.ctrlKey || e.metaKey);
+            },
+          },
+          h("td", {}, h("input", {
+            type: "checkbox",
+            checked: selected,
+            "aria-label": `select ${v.id}`,
+            onchange: () => this.ctx.pick(v.id, true),
+          })),
+          h("td", {}, h("b", {}, v.view.name || v.id), h("br"), h("small", {}, v.id)),
+          h("td", {}, presenceBadge(v.view.presence), h("br"),
+            h("small.ago", { dataset: { since: fleet.lastContact(v.id) } },
+              ago(fleet.lastContact(v.id)))),
+          h("td", {}, p && p.battery_pct != null ? `${p.battery_pct.toFixed(0)} %` : "–"),
+          h("td", {}, holderText(v.control, me)),
+          h("td", {}, chip(fleet.latestCommand(v.id))),
+        );
+        return row;
+      }),
+    );
+  }
+}
+
+// ---- one vehicle ------------------------------------------------------------------------
+
+export class VehiclePanel {
+  constructor(ctx) {
+    this.ctx = ctx;
+    this.el = document.getElementById("vehicle-pane");
+    this.id = null;
+    this.params = null;
+    this.render = throttled(() => this.draw());
+    ctx.fleet.addEventListener("change", (e) => {
+      if (e.detail.id === this.id) this.render();
+    });
+  }
+
+  show(id) {
+    if (id !== this.id) {
+      this.id = id;
+      this.params = null;
+      this.loadParams();
+    }
+    this.render();
+  }
+
+  async loadParams() {
+    const v = this.ctx.fleet.vehicles.get(this.id);
+    if (!v || !v.view.instance_id) return;
+    const id = this.id;
+    try {
+      const got = await this.ctx.api.get("/client/get_param", { instance_id: v.view.instance_id });
+      if (id !== this.id) return;
+      this.params = got;
+      this.render();
+    } catch (e) {
+      this.params = { error: e.message };
+      this.render();
+    }
+  }
+
+  draw() {
+    const { fleet, me } = this.ctx;
+    const v = fleet.vehicles.get(this.id);
+    if (!v) {
+      this.el.replaceChildren(h("p.hint", {}, "Select a vehicle on the map or in the fleet."));
+      return;
+    }
+    const view = v.view;
+    const p = view.position || {};
+    const num = (x, unit, digits = 1) => (x == null ? "–" : `${Number(x).toFixed(digits)} ${unit}`);
+    const contact = fleet.lastContact(v.id);
+    const control = v.control;
+    const mine = control && control.holder === me.username;
+    const controlRow = h(
+      "div.control-line",
+      {},
+      control
+        ? [h("b", {}, holderText(control, me)), ` holds control until ${clock(control.expires_at)} `,
+          h("small.until", { dataset: { until: control.expires_at } }, `(${until(control.expires_at)})`),
+          control.granted_by ? h("small", {}, ` granted by ${control.granted_by}`) : null]
+        : "nobody holds control",
+      me.role !== "viewer" && !mine && view.instance_id
+        ? h("button", { onclick: () => this.ctx.requestControl(v.id) }, "Request control") : null,
+      mine ? h("button", { onclick: () => this.ctx.releaseControl(v.id) }, "Release") : null,
+    );
+    const failsafe = view.failsafe
+      ? h("p.failsafe", {}, h("b", {}, "link-loss policy: "), describeData(view.failsafe),
+        view.failsafe_acked === false ? " (not yet acknowledged by the vehicle)" : "")
+      : null;
+    this.el.replaceChildren(...[
+      h("h2", {}, view.name || v.id, " ", presenceBadge(view.presence)),
+      h("p.sub", {}, `${v.id} · ${view.vehicle_type || "vehicle"} · mode ${view.control_mode || "–"}`),
+      h("p", {}, "last contact ", h("b.ago", { dataset: { since: contact } }, ago(contact)),
+        ` (${clock(contact)})`),
+      failsafe,
+      controlRow,
+      h("dl.readings", {},
+        h("dt", {}, "position"), h("dd", {}, p.lat != null ? `${p.lat.toFixed(6)}, ${p.lon.toFixed(6)}` : "–"),
+        h("dt", {}, "heading"), h("dd", {}, num(p.heading_deg, "°", 0)),
+        h("dt", {}, "speed"), h("dd", {}, num(p.speed_mps, "m/s")),
+        h("dt", {}, "battery"), h("dd", {}, num(p.battery_pct, "%", 0)),
+        p.depth_m != null ? [h("dt", {}, "depth"), h("dd", {}, num(p.depth_m, "m"))] : null),
+      h("h3", {}, "Parameters ", h("button.quiet", { onclick: () => this.loadParams() }, "refresh")),
+      this.paramsTable(),
+      h("h3", {}, "Recent commands"),
+      this.commandList(v),
+      h("h3", {}, "Recent events"),
+      h("ol.events", {}, ...[...v.events].reverse().slice(0, 20).map((e) => h("li", {},
+        h("time", {}, clock(e.at)), " ", h("b", {}, e.kind), " ", describeEvent(e)))),
+    ].filter(Boolean));
+  }
+
+  paramsTable() {
+    if (!this.params) return h("p.hint", {}, "loading…");
+    if (this.params.error) return h("p.error", {}, this.params.error);
+    const entries = Object.entries(this.params.params || {});
+    if (!entries.length) return h("p.hint", {}, "none reported");
+    return h("table.params", {}, ...entries.map(([k, val]) => h("tr", {}, h("th", {}, k),
+      h("td", {}, typeof val === "object" ? JSON.stringify(val) : String(val)))));
+  }
+
+  commandList(v) {
+    const cmds = this.ctx.fleet.recentCommands(v.id).slice(0, 12);
+    if (!cmds.length) return h("p.hint", {}, "none");
+    return h("ol.commands", {}, ...cmds.map((c) => h(
+      "li",
+      { dataset: { command: c.command_id, stage: c.stage } },
+      h("b", {}, c.type), " ", h("span.steps", {}, c.stages.join(" → ")),
+      c.progress != null && !isFinal(c.status) ? ` ${Math.round(c.progress * 100)} %` : "",
+      h("br"),
+      h("small", {}, `${clock(c.issued_at)}${c.issued_by ? ` by ${c.issued_by}` : ""}`,
+        c.detail ? ` · ${c.detail}` : ""),
+      !isFinal(c.status) && this.ctx.me.role !== "viewer"
+        ? h("button.quiet", { onclick: () => this.ctx.cancelCommand(c.command_id) }, "cancel")
+        : null,
+    )));
+  }
+}
+
+export function describeEvent(e) {
+  const d = e.data || {};
+  if (e.kind === "command") {
+    const stage = d.status === "cancelled" && d.detail === "superseded_by_stop"
+      ? "superseded" : d.status;
+    return `${d.type || ""} ${stage || ""}${d.detail && stage !== "superseded" ? ` (${d.detail})` : ""}` +
+      (e.actor ? ` by ${e.actor.replace(/^user:/, "")}` : "");
+  }
+  if (e.kind.startsWith("control_")) {
+    const who = d.holder || d.user || d.username || "";
+    return `${who}${e.actor ? ` (by ${e.actor.replace(/^user:/, "")})` : ""}`;
+  }
+  if (e.kind === "presence") return d.presence || "";
+  return describeData(d);
+}
+
+/** An object as "key value · key value" (nulls left out, nested values as JSON). */
+export function describeData(d) {
+  return Object.entries(d || {})
+    .filter(([, v]) => v !== null && v !== undefined)
+    .map(([k, v]) => `${k.replace(/_/g, " ")} ${typeof v === "object" ? JSON.stringify(v) : v}`)
+    .join(" · ")
+    .slice(0, 160);
+}
+
+// ---- control: requests, grants, leases -------------------------------------------------------
+
+export class ControlPanel {
+  constructor(ctx) {
+    this.ctx = ctx;
+    this.el = document.getElementById("control-pane");
+    this.requests = [];
+    this.caps = new Map();
+    this.render = throttled(() => this.draw());
+    ctx.fleet.addEventListener("change", (e) => {
+      if (e.detail.what === "control" || e.detail.what === "view") this.render();
+    });
+    ctx.fleet.addEventListener("event", (e) => {
+      if (e.detail.event.kind.startsWith("control_")) this.loadRequests();
+    });
+  }
+
+  get manages() {
+    return this.ctx.me.role === "manager" || this.ctx.me.role === "admin";
+  }
+
+  managed(id) {
+    const me = this.ctx.me;
+    return me.role === "admin" || (me.role === "manager" && me.vehicles.includes(id));
+  }
+
+  async loadRequests() {
+    if (!this.manages) return;
+    try {
+      this.requests = (await this.ctx.api.get("/client/control_requests")).requests || [];
+    } catch (e) {
+      toast(`control requests: ${e.message}`, "error");
+    }
+    this.render();
+  }
+
+  async capabilities(v) {
+    if (this.caps.has(v.id) || !v.view.instance_id) return;
+    this.caps.set(v.id, null);
+    try {
+      const got = await this.ctx.api.post("/client/connect_instance", { vehicle_id: v.id });
+      this.caps.set(v.id, got.instance.capabilities || []);
+      this.render();
+    } catch {
+      this.caps.delete(v.id);
+    }
+  }
+
+  vehicleOf(instanceId) {
+    return [...this.ctx.fleet.vehicles.values()].find((v) => v.view.instance_id === instanceId);
+  }
+
+  durationSelect(name) {
+    return h("select", { name, "aria-label": "duration" },
+      ...DURATIONS.map(([s, label]) => h("option", { value: s, selected: s === 3600 }, label)));
+  }
+
+  draw() {
+    const parts = [h("h2", {}, "Control")];
+    if (this.manages) parts.push(this.requestSection(), this.grantForm());
+    parts.push(this.leaseSection());
+    this.el.replaceChildren(...parts);
+  }
+
+  requestSection() {
+    const items = this.requests.map((r) => {
+      const v = this.vehicleOf(r.instance_id);
+      const name = v ? v.view.name || v.id : r.instance_id;
+      const form = h("form.request", {
+        dataset: { user: r.username, vehicle: v ? v.id : "" },
+        onsubmit: (e) => {
+          e.preventDefault();
+          this.grant(r.instance_id, r.username, +e.target.duration.value);
+        },
+      },
+      h("div", {}, h("b", {}, r.username), " asks for ", h("b", {}, name),
+        h("br"), h("small", {}, `since ${clock(r.requested_at)}`)),
+      h("div.row", {}, this.durationSelect("duration"),
+        h("button.primary", { type: "submit" }, "Grant")));
+      return h("li", {}, form);
+    });
+    return h("section.requests", {},
+      h("h3", {}, `Requests for control (${this.requests.length})`),
+      items.length ? h("ul.cards", {}, ...items) : h("p.hint", {}, "none pending"));
+  }
+
+  grantForm() {
+    const vehicles = [...this.ctx.fleet.vehicles.values()].filter(
+      (v) => this.managed(v.id) && v.view.instance_id && v.view.presence !== "finished",
+    );
+    return h("details.grant", {},
+      h("summary", {}, "Grant control to someone"),
+      h("form", {
+        onsubmit: (e) => {
+          e.preventDefault();
+          const f = e.target;
+          const v = this.ctx.fleet.vehicles.get(f.vehicle.value);
+          this.grant(v.view.instance_id, f.user.value.trim(), +f.duration.value);
+        },
+      },
+      h("label", {}, "vehicle ", h("select", { name: "vehicle" },
+        ...vehicles.map((v) => h("option", { value: v.id }, v.view.name || v.id)))),
+      h("label", {}, "user ", h("input", { name: "user", required: true, autocomplete: "off" })),
+      h("label", {}, "for ", this.durationSelect("duration")),
+      h("button.primary", { type: "submit" }, "Grant")));
+  }
+
+  leaseSection() {
+    const { fleet, me } = this.ctx;
+    const rows = [...fleet.vehicles.values()]
+      .filter((v) => v.view.presence !== "finished" || v.control)
+      .sort((a, b) => (a.id < b.id ? -1 : 1))
+      .map((v) => {
+        const c = v.control;
+        const mine = c && c.holder === me.username;
+        if (c) this.capabilities(v);
+        const caps = (this.caps.get(v.id) || []).filter((k) => k !== "stop");
+        return h("li.lease", { dataset: { vehicle: v.id } },
+          h("div", {}, h("b", {}, v.view.name || v.id), " ", presenceBadge(v.view.presence)),
+          c
+            ? h("div", {}, h("b", {}, holderText(c, me)), ` until ${clock(c.expires_at)} `,
+              h("small.until", { dataset: { until: c.expires_at } }, `(${until(c.expires_at)})`),
+              h("p.allows", {},
+                `allows ${holderText(c, me)} to send ${caps.length ? caps.join(", ") : "its missions"}` +
+                ` to ${v.view.name || v.id} until ${dateTime(c.expires_at)}; ` +
+                "anyone who sees the vehicle may still stop it."))
+            : h("div.hint", {}, "nobody holds control"),
+          h("div.row", {},
+            c && this.managed(v.id)
+              ? h("button", { onclick: () => this.revoke(v) }, "Revoke") : null,
+            mine ? h("button", { onclick: () => this.ctx.releaseControl(v.id) }, "Release") : null,
+            !mine && me.role !== "viewer" && v.view.instance_id
+              ? h("button.quiet", { onclick: () => this.ctx.requestControl(v.id) }, "Request")
+              : null));
+      });
+    return h("section", {}, h("h3", {}, "Leases"), h("ul.cards", {}, ...rows));
+  }
+
+  async grant(instanceId, user, durationS) {
+    try {
+      const lease = await this.ctx.api.post("/client/grant_control", {
+        instance_id: instanceId, user, duration_s: durationS,
+      });
+      toast(`control granted to ${lease.holder} until ${clock(lease.expires_at)}`, "ok");
+      const v = this.vehicleOf(instanceId);
+      if (v) this.ctx.fleet.applyControl(v.id, { control: lease });
+    } catch (e) {
+      toast(`grant refused: ${e.explain ? e.explain() : e.message}`, "error");
+    }
+    this.loadRequests();
+  }
+
+  async revoke(v) {
+    try {
+      await this.ctx.api.post("/client/revoke_control", { instance_id: v.view.instance_id });
+      toast(`control of ${v.view.name || v.id} revoked`, "ok");
+    } catch (e) {
+      toast(`revoke refused: ${e.message}`, "error");
+    }
+  }
+}

@@ -1,0 +1,350 @@
+// Replay: the stored tracks of the chosen vehicles over a window, played in sync on a
+// timeline that also holds their commands, grants and events (each lights up as the
+// cursor passes it); the window exports as GPX or GeoJSON.
+
+import { L, colourOf } from "./map.js";
+import { describeEvent } from "./panels.js";
+import { clock, dateTime, h, toast } from "./ui.js";
+
+const MAX_POINTS_PER_VEHICLE = 50000; // five pages of the track route
+const HOLD_GAP_MS = 30000; // samples further apart than this: the marker waits, not glides
+const FLASH_MS = 1500;
+
+function toLocalInput(t) {
+  const d = new Date(t - new Date(t).getTimezoneOffset() * 60000);
+  return d.toISOString().slice(0, 19);
+}
+
+function fromLocalInput(value) {
+  return new Date(value).getTime(); // a datetime-local value is read as local time
+}
+
+/** The index of the last point at or before ``t`` (-1 if none): points sorted by t. */
+export function lastAtOrBefore(points, t) {
+  let lo = 0;
+  let hi = points.length - 1;
+  let found = -1;
+  while (lo <= hi) {
+    const mid = (lo + hi) >> 1;
+    if (points[mid].t <= t) {
+      found = mid;
+      lo = mid + 1;
+    } else {
+      hi = mid - 1;
+    }
+  }
+  return found;
+}
+
+/** Where a vehicle was at ``t``: a stored sample, or between two (linearly, heading the
+ * short way round) when they are close in time. Null before its first sample. */
+export function positionAt(points, t) {
+  const i = lastAtOrBefore(points, t);
+  if (i < 0) return null;
+  const a = points[i];
+  const b = points[i + 1];
+  if (!b || a.t === t || b.t - a.t > HOLD_GAP_MS) return { ...a, exact: a.t === t };
+  const f = (t - a.t) / (b.t - a.t);
+  const ha = a.heading_deg ?? 0;
+  const hb = b.heading_deg ?? ha;
+  const turn = ((hb - ha + 540) % 360) - 180;
+  return {
+    t,
+    lat: a.lat + (b.lat - a.lat) * f,
+    lon: a.lon + (b.lon - a.lon) * f,
+    heading_deg: (ha + turn * f + 360) % 360,
+    exact: false,
+  };
+}
+
+export class Replay {
+  constructor(ctx) {
+    this.ctx = ctx;
+    this.map = ctx.map;
+    this.form = document.getElementById("replay-form");
+    this.slider = document.getElementById("replay-slider");
+    this.bar = document.getElementById("replay-bar");
+    this.playButton = document.getElementById("replay-play");
+    this.speed = document.getElementById("replay-speed");
+    this.timeOut = document.getElementById("replay-time");
+    this.ticks = document.getElementById("timeline-ticks");
+    this.list = document.getElementById("replay-events");
+    this.info = document.getElementById("replay-info");
+    this.exportBox = document.getElementById("replay-export");
+    this.layer = L.featureGroup();
+    this.tracks = new Map();
+    this.events = [];
+    this.playing = false;
+    this.cursor = 0;
+
+    this.setLastMinutes(15);
+    for (const b of this.form.querySelectorAll("[data-minutes]")) {
+      b.addEventListener("click", () => this.setLastMinutes(+b.dataset.minutes));
+    }
+    this.form.addEventListener("submit", (e) => {
+      e.preventDefault();
+      this.load();
+    });
+    this.slider.addEventListener("input", () => this.seek(this.start + +this.slider.value));
+    this.playButton.addEventListener("click", () => (this.playing ? this.pause() : this.play()));
+    document.getElementById("replay-exit").addEventListener("click", () => this.exit());
+    for (const b of this.exportBox.querySelectorAll("[data-format]")) {
+      b.addEventListener("click", () => this.export(b.dataset.format));
+    }
+  }
+
+  setLastMinutes(minutes) {
+    const now = Date.now();
+    document.getElementById("replay-from").value = toLocalInput(now - minutes * 60000);
+    document.getElementById("replay-to").value = toLocalInput(now);
+  }
+
+  /** The vehicle checkboxes (the selected ones ticked). */
+  drawChoices() {
+    const box = document.getElementById("replay-vehicles");
+    const ticked = new Set(
+      [...box.querySelectorAll("input:checked")].map((i) => i.value),
+    );
+    const fallback = ticked.size ? ticked : this.ctx.selection;
+    const vehicles = [...this.ctx.fleet.vehicles.values()].sort((a, b) => (a.id < b.id ? -1 : 1));
+    box.replaceChildren(...vehicles.map((v) => h("label", {},
+      h("input", {
+        type: "checkbox", name: "vehicle", value: v.id,
+        checked: fallback.size ? fallback.has(v.id) : true,
+      }),
+      ` ${v.view.name || v.id}`)));
+  }
+
+  chosen() {
+    return [...document.querySelectorAll("#replay-vehicles input:checked")].map((i) => i.value);
+  }
+
+  async load() {
+    const ids = this.chosen();
+    const start = fromLocalInput(document.getElementById("replay-from").value);
+    const end = fromLocalInput(document.getElementById("replay-to").value);
+    if (!ids.length) return toast("choose at least one vehicle", "error");
+    if (!(start < end)) return toast("the window must start before it ends", "error");
+    this.pause();
+    this.info.textContent = "loading…";
+    try {
+      const got = await Promise.all(ids.map((id) => this.fetchVehicle(id, start, end)));
+      this.start = start;
+      this.end = end;
+      this.ids = ids;
+      this.tracks = new Map(got.map((g) => [g.id, g.points]));
+      this.events = got.flatMap((g) => g.events).sort((a, b) => a.t - b.t);
+    } catch (e) {
+      this.info.textContent = "";
+      return toast(`replay: ${e.message}`, "error");
+    }
+    const total = [...this.tracks.values()].reduce((n, p) => n + p.length, 0);
+    this.info.textContent = `${ids.length} vehicle(s), ${total} stored positions, ` +
+      `${this.events.length} events, ${dateTime(start)} to ${dateTime(end)}`;
+    this.enter();
+  }
+
+  async fetchVehicle(id, start, end) {
+    const api = this.ctx.api;
+    const points = [];
+    let from = new Date(start).toISOString();
+    const to = new Date(end).toISOString();
+    while (from && points.length < MAX_POINTS_PER_VEHICLE) {
+      const page = await api.get(`/api/vehicles/${encodeURIComponent(id)}/track`, { from, to });
+      for (const p of page.points) points.push({ ...p, t: Date.parse(p.ts) });
+      from = page.truncated ? page.next_from : null;
+    }
+    const { events } = await api.get("/api/events", { vehicle_id: id, from: new Date(start).toISOString(), to, limit: 10000 });
+    return {
+      id,
+      points,
+      events: events.map((e) => ({ ...e, t: Date.parse(e.at), vehicle: id })),
+    };
+  }
+
+  enter() {
+    this.map.showLive(false);
+    this.layer.clearLayers();
+    this.layer.addTo(this.map.map);
+    this.markers = new Map();
+    const bounds = [];
+    for (const id of this.ids) {
+      const v = this.ctx.fleet.vehicles.get(id);
+      const colour = colourOf(v ? v.index : 0);
+      const pts = this.tracks.get(id).map((p) => [p.lat, p.lon]);
+      bounds.push(...pts);
+      L.polyline(pts, { color: colour, weight: 3, opacity: 0.55, interactive: false, className: "replay-track" })
+        .addTo(this.layer);
+      const marker = L.marker(pts[0] || [0, 0], {
+        icon: L.divIcon({
+          className: "vicon replay",
+          html: `<svg class="arrow" viewBox="-13 -13 26 26"><circle class="halo" r="12"></circle>
+            <path d="M0,-10 L7,8 L0,4 L-7,8 Z"></path></svg>
+            <div class="vlabel" style="left:28px;top:4px"><b>${(v && v.view.name) || id}</b></div>`,
+          iconSize: [26, 26],
+          iconAnchor: [13, 13],
+        }),
+        interactive: false,
+      });
+      this.markers.set(id, marker);
+    }
+    if (bounds.length) this.map.map.fitBounds(L.latLngBounds(bounds).pad(0.3), { maxZoom: 19 });
+    this.slider.max = String(this.end - this.start);
+    this.slider.step = String(Math.max(100, Math.round((this.end - this.start) / 2000 / 100) * 100));
+    this.drawTimeline();
+    this.bar.hidden = false;
+    this.exportBox.hidden = false;
+    document.getElementById("actions").hidden = true;
+    this.ctx.app.dataset.replay = "on";
+    this.map.map.invalidateSize();
+    this.seek(this.start);
+  }
+
+  exit() {
+    this.pause();
+    this.map.map.removeLayer(this.layer);
+    this.map.showLive(true);
+    this.bar.hidden = true;
+    delete this.ctx.app.dataset.replay;
+    this.ctx.selectionChanged();
+    this.map.map.invalidateSize();
+  }
+
+  drawTimeline() {
+    const span = this.end - this.start;
+    this.ticks.replaceChildren(...this.events.map((e, i) => h(`span.tick.k-${e.kind.split("_")[0]}`, {
+      style: `left:${((e.t - this.start) / span) * 100}%`,
+      title: `${clock(e.t)} ${e.vehicle} ${e.kind} ${describeEvent(e)}`,
+      dataset: { index: i },
+    })));
+    this.list.replaceChildren(...this.events.map((e, i) => h("li", {
+      dataset: { index: i, kind: e.kind },
+      onclick: () => this.seek(e.t),
+    },
+    h("time", {}, clock(e.t)), " ", h("b", {}, e.vehicle), " ", e.kind, " ", describeEvent(e))));
+  }
+
+  /** Move the cursor to ``t``: every chosen vehicle where its track puts it then. */
+  seek(t) {
+    const before = this.cursor;
+    this.cursor = Math.min(Math.max(t, this.start), this.end);
+    this.slider.value = String(this.cursor - this.start);
+    this.timeOut.value = `${dateTime(this.cursor)}`;
+    for (const [id, marker] of this.markers) {
+      const points = this.tracks.get(id);
+      // before its first stored position a vehicle waits, faded, where that one will be
+      const at = positionAt(points, this.cursor) || (points[0] && { ...points[0], before: true });
+      if (!at) {
+        if (this.layer.hasLayer(marker)) this.layer.removeLayer(marker);
+        continue;
+      }
+      marker.setLatLng([at.lat, at.lon]);
+      if (!this.layer.hasLayer(marker)) marker.addTo(this.layer);
+      const el = marker.getElement();
+      if (el) {
+        el.dataset.vehicle = id;
+        el.dataset.lat = at.lat;
+        el.dataset.lon = at.lon;
+        el.dataset.exact = at.exact ? "true" : "false";
+        el.classList.toggle("before-first", Boolean(at.before));
+        el.querySelector("path").setAttribute("transform", `rotate(${at.heading_deg ?? 0})`);
+      }
+    }
+    this.markEvents(before, this.cursor);
+  }
+
+  /** Events up to the cursor are passed; those the cursor just went over light up. */
+  markEvents(before, now) {
+    const lo = before;
+    const hi = now;
+    const rows = this.list.children;
+    const ticks = this.ticks.children;
+    let latest = null;
+    this.events.forEach((e, i) => {
+      const passed = e.t <= now;
+      rows[i].classList.toggle("passed", passed);
+      ticks[i].classList.toggle("passed", passed);
+      if (passed) latest = i;
+      if (now > before && e.t > lo && e.t <= hi) { // passed going forward
+        for (const el of [rows[i], ticks[i]]) {
+          el.classList.add("hit");
+          clearTimeout(el.hitTimer);
+          el.hitTimer = setTimeout(() => el.classList.remove("hit"), FLASH_MS);
+        }
+      }
+    });
+    for (const r of this.list.querySelectorAll(".current")) r.classList.remove("current");
+    if (latest !== null) {
+      rows[latest].classList.add("current");
+      if (this.playing) rows[latest].scrollIntoView({ block: "nearest" });
+    }
+  }
+
+  play() {
+    if (this.cursor >= this.end) this.seek(this.start);
+    this.playing = true;
+    this.playButton.textContent = "Pause";
+    this.playButton.setAttribute("aria-label", "pause");
+    let last = performance.now();
+    const step = (now) => {
+      if (!this.playing) return;
+      const dt = (now - last) * +this.speed.value;
+      last = now;
+      this.seek(this.cursor + dt);
+      if (this.cursor >= this.end) return this.pause();
+      this.frame = requestAnimationFrame(step);
+    };
+    this.frame = requestAnimationFrame(step);
+  }
+
+  pause() {
+    this.playing = false;
+    cancelAnimationFrame(this.frame);
+    this.playButton.textContent = "Play";
+    this.playButton.setAttribute("aria-label", "play");
+  }
+
+  /** The window as shown, every chosen vehicle in one file. */
+  async export(format) {
+    const from = new Date(this.start).toISOString();
+    const to = new Date(this.end).toISOString();
+    try {
+      const texts = await Promise.all(this.ids.map((id) => this.ctx.api.request(
+        "GET", `/api/vehicles/${encodeURIComponent(id)}/track`,
+        { query: { from, to, format }, raw: true },
+      )));
+      let body;
+      let type;
+      if (format === "geojson") {
+        const features = texts.map((t) => JSON.parse(t));
+        body = JSON.stringify({ type: "FeatureCollection", features, properties: { from, to } }, null, 1);
+        type = "application/geo+json";
+      } else {
+        body = mergeGpx(texts);
+        type = "application/gpx+xml";
+      }
+      const stamp = from.slice(0, 19).replace(/[:T]/g, "");
+      const a = h("a", {
+        href: URL.createObjectURL(new Blob([body], { type })),
+        download: `fleet-replay-${stamp}.${format}`,
+      });
+      document.body.append(a);
+      a.click();
+      a.remove();
+    } catch (e) {
+      toast(`export: ${e.message}`, "error");
+    }
+  }
+}
+
+/** One GPX document with every vehicle's track (the server gives one per vehicle). */
+function mergeGpx(texts) {
+  const parser = new DOMParser();
+  const docs = texts.map((t) => parser.parseFromString(t, "application/xml"));
+  const [first, ...rest] = docs;
+  const root = first.documentElement;
+  for (const doc of rest) {
+    for (const trk of doc.getElementsByTagName("trk")) root.append(first.importNode(trk, true));
+  }
+  return new XMLSerializer().serializeToString(first);
+}

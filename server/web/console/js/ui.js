@@ -1,0 +1,100 @@
+// Small pieces the panels share: building elements, times, toasts, the confirmation.
+
+/** h("button.primary", {onclick}, "text", child...): an element. */
+export function h(spec, props = {}, ...children) {
+  const [tag, ...classes] = spec.split(".");
+  const el = document.createElement(tag || "div");
+  if (classes.length) el.className = classes.join(" ");
+  for (const [k, v] of Object.entries(props || {})) {
+    if (v === undefined || v === null || v === false) continue;
+    if (k.startsWith("on")) el.addEventListener(k.slice(2), v);
+    else if (k === "dataset") Object.assign(el.dataset, v);
+    else if (k in el && typeof v !== "string") el[k] = v;
+    else el.setAttribute(k, v === true ? "" : v);
+  }
+  for (const c of children.flat()) {
+    if (c === null || c === undefined || c === false) continue;
+    el.append(c instanceof Node ? c : document.createTextNode(String(c)));
+  }
+  return el;
+}
+
+export function clock(ts) {
+  const t = typeof ts === "number" ? ts : Date.parse(ts);
+  if (!Number.isFinite(t)) return "–";
+  return new Date(t).toLocaleTimeString([], { hour12: false });
+}
+
+export function dateTime(ts) {
+  const t = typeof ts === "number" ? ts : Date.parse(ts);
+  if (!Number.isFinite(t)) return "–";
+  return new Date(t).toLocaleString([], { hour12: false });
+}
+
+/** "4 s ago", "3 min ago", "2 h ago". */
+export function ago(t, now = Date.now()) {
+  if (!Number.isFinite(t)) return "never";
+  const s = Math.max(0, Math.round((now - t) / 1000));
+  if (s < 90) return `${s} s ago`;
+  if (s < 5400) return `${Math.round(s / 60)} min ago`;
+  return `${Math.round(s / 3600)} h ago`;
+}
+
+/** "in 14 min", "in 1 h 05 min". */
+export function until(ts, now = Date.now()) {
+  const t = Date.parse(ts);
+  if (!Number.isFinite(t)) return "";
+  const s = Math.round((t - now) / 1000);
+  if (s <= 0) return "ended";
+  if (s < 90) return `in ${s} s`;
+  const m = Math.round(s / 60);
+  if (m < 90) return `in ${m} min`;
+  return `in ${Math.floor(m / 60)} h ${String(m % 60).padStart(2, "0")} min`;
+}
+
+export function toast(message, kind = "info", action = null) {
+  const box = document.getElementById("toasts");
+  const item = h(`div.toast.${kind}`, { role: kind === "error" ? "alert" : "status" }, message);
+  if (action) item.append(" ", h("button", { onclick: action.run }, action.label));
+  item.append(h("button.quiet.close", { onclick: () => item.remove(), "aria-label": "close" }, "×"));
+  box.append(item);
+  setTimeout(() => item.remove(), kind === "error" ? 12000 : 5000);
+  return item;
+}
+
+const ARM_MS = 800;
+
+/**
+ * A confirmation that a stray tap cannot give: a modal whose confirming button sits
+ * away from the button that opened it, is disabled for the first moments (a double
+ * click or a second tap lands on nothing) and is not the default (Enter and Escape
+ * cancel). Resolves true only when that button is pressed.
+ */
+export function confirmAction({ title, text, confirm }) {
+  const dialog = document.getElementById("confirm");
+  const ok = document.getElementById("confirm-ok");
+  const cancel = document.getElementById("confirm-cancel");
+  document.getElementById("confirm-title").textContent = title;
+  document.getElementById("confirm-text").textContent = text;
+  ok.textContent = confirm;
+  ok.disabled = true;
+  ok.classList.add("arming");
+  dialog.returnValue = "";
+  return new Promise((resolve) => {
+    const armed = setTimeout(() => {
+      ok.disabled = false;
+      ok.classList.remove("arming");
+    }, ARM_MS);
+    dialog.addEventListener(
+      "close",
+      () => {
+        clearTimeout(armed);
+        ok.disabled = true;
+        resolve(dialog.returnValue === "ok");
+      },
+      { once: true },
+    );
+    dialog.showModal();
+    cancel.focus();
+  });
+}

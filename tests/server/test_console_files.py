@@ -1,0 +1,62 @@
+"""What the server serves for the console and for ``/docs``: its own files, nothing from a
+CDN, nothing of the npm folder but the two packages' assets; no token needed."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import httpx
+import pytest
+from asgi_lifespan import LifespanManager
+
+from server.api.console import WEB_DIR
+from server.app import create_app
+from server.settings import Settings
+
+MODULES = WEB_DIR / "node_modules"
+
+
+@pytest.fixture
+async def web(make_settings: Callable[..., Settings]) -> httpx.AsyncClient:
+    if not (MODULES / "leaflet").is_dir():
+        pytest.fail("server/web/node_modules is missing: run `make web` (npm ci in server/web)")
+    app = create_app(make_settings(map_tile_url="http://tiles.example/{z}/{x}/{y}.png"))
+    async with LifespanManager(app) as m:
+        transport = httpx.ASGITransport(app=m.app)
+        async with httpx.AsyncClient(transport=transport, base_url="http://t") as c:
+            yield c
+
+
+async def test_the_console_and_its_modules(web: httpx.AsyncClient) -> None:
+    page = await web.get("/")
+    assert page.status_code == 200 and page.headers["content-type"].startswith("text/html")
+    assert 'src="js/main.js"' in page.text and "/vendor/leaflet/leaflet.css" in page.text
+    for path in ("/js/main.js", "/js/map.js", "/console.css"):
+        assert (await web.get(path)).status_code == 200, path
+    leaflet = await web.get("/vendor/leaflet/leaflet-src.esm.js")
+    assert leaflet.status_code == 200 and "export" in leaflet.text
+
+
+async def test_docs_take_swagger_ui_from_the_server(web: httpx.AsyncClient) -> None:
+    docs = await web.get("/docs")
+    assert docs.status_code == 200
+    assert "/vendor/swagger-ui/swagger-ui-bundle.js" in docs.text
+    assert "/vendor/swagger-ui/swagger-ui.css" in docs.text
+    assert "http" not in docs.text.replace("/openapi.json", ""), "a URL outside the server"
+    for asset in ("swagger-ui-bundle.js", "swagger-ui.css", "favicon-32x32.png"):
+        assert (await web.get(f"/vendor/swagger-ui/{asset}")).status_code == 200
+    assert (await web.get("/redoc")).status_code == 404  # it would load from a CDN
+
+
+async def test_the_console_settings(web: httpx.AsyncClient) -> None:
+    config = (await web.get("/console/config.json")).json()
+    assert config == {"tile_url": "http://tiles.example/{z}/{x}/{y}.png", "tile_attribution": ""}
+
+
+async def test_nothing_else_of_the_web_folder(web: httpx.AsyncClient) -> None:
+    for path in (
+        "/package.json",
+        "/node_modules/leaflet/package.json",
+        "/vendor/leaflet/../package.json",
+    ):
+        assert (await web.get(path)).status_code == 404, path
