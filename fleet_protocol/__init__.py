@@ -6,6 +6,7 @@ without anything of the server's.
 """
 
 from fleet_protocol.admin import *  # noqa: F403
+from fleet_protocol.audit import *  # noqa: F403
 from fleet_protocol.client import *  # noqa: F403
 from fleet_protocol.commands import *  # noqa: F403
 from fleet_protocol.common import *  # noqa: F403
@@ -16,3 +17,4 @@ from fleet_protocol.obstacles import *  # noqa: F403
 from fleet_protocol.upper import *  # noqa: F403
 from fleet_protocol.values import *  # noqa: F403
 from fleet_protocol.ws import *  # noqa: F403
+from fleet_protocol.zones import *  # noqa: F403

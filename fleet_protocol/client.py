@@ -22,6 +22,8 @@ __all__ = [
     "GrantControl",
     "InstanceView",
     "OkResult",
+    "OperatorHeartbeat",
+    "OperatorHeartbeatResult",
     "Presence",
     "QueuedCommand",
     "SubmitControl",
@@ -120,6 +122,20 @@ class ControlRequestList(WireModel):
 class GrantControl(InstanceRef):
     user: Identifier
     duration_s: int = Field(ge=1, le=86400)
+    #: The lease lapses (and the vehicle holds station) when the holder's client sends no
+    #: ``POST /client/heartbeat`` for this long; unset: it runs to its expiry.
+    operator_timeout_s: int | None = Field(default=None, ge=2, le=3600)
+
+
+class OperatorHeartbeat(WireModel):
+    """The holder's client is alive: for each lease it holds on these instances."""
+
+    instance_ids: list[Text] = Field(min_length=1, max_length=1000)
+
+
+class OperatorHeartbeatResult(WireModel):
+    #: The instances whose lease the caller holds (its heartbeat counted there).
+    held: list[Text]
 
 
 class OkResult(WireModel):

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import hashlib
+from collections.abc import Mapping, Sequence
 from typing import Literal, get_args
 
 from pydantic import Field, ValidationError, model_validator
@@ -24,6 +26,8 @@ __all__ = [
     "HistoryEntry",
     "KeepStationArgs",
     "StopArgs",
+    "path_hash",
+    "route_of",
 ]
 
 CommandType = Literal["stop", "go_to", "keep_station", "follow_path"]
@@ -76,6 +80,28 @@ class FollowPathArgs(WireModel):
     plan: bool = False
     #: The planned path, filled in by the server when ``plan`` is true.
     path: list[LatLon] | None = None
+    #: The hash of the route the vehicle is to follow (``path`` if planned, else the
+    #: waypoints), filled in by the server (:func:`path_hash`). The vehicle acknowledges
+    #: the hash of what it stored before it starts; another one is never run.
+    path_hash: Text | None = Field(default=None, max_length=128)
+
+
+def path_hash(points: Sequence[Mapping[str, float] | LatLon]) -> str:
+    """The hash of a route: SHA-256 of its positions at 1e-7 degree (about 1 cm), so
+    that the server and the vehicle agree on it whatever JSON did to the floats."""
+    digest = hashlib.sha256()
+    for point in points:
+        lat, lon = (
+            (point["lat"], point["lon"]) if isinstance(point, Mapping) else (point.lat, point.lon)
+        )
+        digest.update(f"{round(float(lat) * 1e7)},{round(float(lon) * 1e7)};".encode())
+    return "sha256:" + digest.hexdigest()
+
+
+def route_of(args: Mapping[str, object]) -> list[Mapping[str, float]]:
+    """The positions a ``follow_path`` drives: its planned ``path``, else its waypoints."""
+    route = args.get("path") or args.get("waypoints") or []
+    return list(route)  # type: ignore[call-overload]
 
 
 ARGS_MODELS: dict[str, type[WireModel]] = {

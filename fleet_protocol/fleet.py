@@ -5,7 +5,7 @@ from __future__ import annotations
 from pydantic import Field
 
 from fleet_protocol.common import Sample, Timestamp, WireModel
-from fleet_protocol.upper import ControlInfo
+from fleet_protocol.upper import ControlInfo, FailsafePolicy
 from fleet_protocol.values import ServedObject, ServedObjects, Text
 
 __all__ = ["Event", "EventList", "TelemetryPage", "Track", "VehicleList", "VehicleView"]
@@ -21,6 +21,9 @@ class VehicleView(WireModel):
     control: ControlInfo | None
     control_mode: Text | None = None
     last_seen: Timestamp | None = None
+    #: The vehicle's failsafe policy, and whether the vehicle applies its version.
+    failsafe: FailsafePolicy | None = None
+    failsafe_acked: bool | None = None
 
 
 class VehicleList(WireModel):

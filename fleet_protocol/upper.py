@@ -7,14 +7,16 @@ from typing import Literal
 from pydantic import Field
 
 from fleet_protocol.commands import ACK_STATUSES, CommandObject, CommandType
-from fleet_protocol.common import Identifier, Sample, Timestamp, WireModel
+from fleet_protocol.common import Identifier, LatLon, Sample, Timestamp, WireModel
 from fleet_protocol.values import Params, Text
 
 __all__ = [
     "MAX_SAMPLES_PER_CALL",
     "ControlInfo",
     "ControlMode",
+    "FailsafeAction",
     "FailsafePolicy",
+    "FailsafeView",
     "FbAck",
     "FinishInstance",
     "FinishInstanceResult",
@@ -22,6 +24,7 @@ __all__ = [
     "Heartbeat",
     "HeartbeatResult",
     "InstanceRef",
+    "SetFailsafe",
     "StartInstance",
     "StartInstanceResult",
     "UpdateFbMessage",
@@ -47,13 +50,53 @@ class ControlInfo(WireModel):
     holder: Text
     granted_by: Text
     expires_at: Timestamp
+    #: The lease lapses when the holder's client is silent this long (``None``: never).
+    operator_timeout_s: float | None = None
+
+
+FailsafeAction = Literal["none", "keep_station", "stop", "return_home"]
 
 
 class FailsafePolicy(WireModel):
-    """What the vehicle does on its own after ``after_s`` without the server."""
+    """What the vehicle does on its own after ``after_s`` without the server.
 
-    after_s: float = 30.0
-    action: Literal["keep_station", "stop"] = "keep_station"
+    ``none`` (an AUV that loses its link on every dive), ``keep_station``
+    (where it is), ``stop``, or ``return_home`` (``home``; unset: where its
+    instance first reported). ``on_breach``: the server sends the same action
+    when the vehicle enters a no-go zone or leaves its operating area.
+    ``low_battery_pct``: below it, a ``low_battery`` event. ``version`` rises
+    with each change; the vehicle acknowledges the version it applies.
+    """
+
+    after_s: float = Field(default=30.0, gt=0, le=86_400, allow_inf_nan=False)
+    action: FailsafeAction = "keep_station"
+    home: LatLon | None = None
+    on_breach: bool = False
+    low_battery_pct: float | None = Field(default=None, ge=0, le=100, allow_inf_nan=False)
+    version: int = Field(default=0, ge=0, le=2**62)
+
+
+class SetFailsafe(WireModel):
+    """``PUT /api/vehicles/{vehicle_id}/failsafe``: the vehicle's whole policy (a field
+    left out takes the server's default: ``FLEET_FAILSAFE_AFTER_S``, ``FLEET_FAILSAFE_ACTION``)."""
+
+    after_s: float | None = Field(default=None, gt=0, le=86_400, allow_inf_nan=False)
+    action: FailsafeAction | None = None
+    home: LatLon | None = None
+    on_breach: bool = False
+    low_battery_pct: float | None = Field(default=None, ge=0, le=100, allow_inf_nan=False)
+
+
+class FailsafeView(WireModel):
+    """A vehicle's failsafe policy, and whether its live instance applies this version."""
+
+    vehicle_id: Text
+    failsafe: FailsafePolicy
+    #: The version the vehicle's live instance acknowledged (None: none yet, or no instance).
+    acked_version: int | None = None
+    acked: bool | None = None
+    updated_at: Timestamp | None = None
+    updated_by: Text | None = None
 
 
 class StartInstance(WireModel):
@@ -105,6 +148,8 @@ class UpdateParamResult(WireModel):
 
 class GetControlResult(WireModel):
     commands: list[CommandObject]
+    #: The vehicle's failsafe policy, when it has a version the vehicle has not applied.
+    failsafe: FailsafePolicy | None = None
 
 
 class FbAck(WireModel):
@@ -112,11 +157,15 @@ class FbAck(WireModel):
     status: AckStatus
     progress: float | None = Field(default=None, ge=0, le=100, allow_inf_nan=False)
     detail: Text | None = Field(default=None, max_length=512)
+    #: With ``accepted`` for a ``follow_path``: the hash of the path the vehicle stored.
+    path_hash: Text | None = Field(default=None, max_length=128)
 
 
 class UpdateFbMessage(InstanceRef):
     control_mode: ControlMode | None = None
     acks: list[FbAck] = Field(default_factory=list, max_length=256)
+    #: The version of the failsafe policy the vehicle applies now.
+    failsafe_version: int | None = Field(default=None, ge=0, le=2**62)
 
 
 class UpdateFbMessageResult(WireModel):

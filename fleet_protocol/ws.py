@@ -44,6 +44,7 @@ from fleet_protocol.errors import ErrorBody, FieldError
 from fleet_protocol.topics import Topic
 from fleet_protocol.upper import (
     ControlInfo,
+    FailsafePolicy,
     FinishInstance,
     Heartbeat,
     StartInstance,
@@ -64,6 +65,7 @@ __all__ = [
     "ControlPush",
     "ErrorPush",
     "EventPush",
+    "FailsafePush",
     "FinishInstanceOp",
     "FrameError",
     "HeartbeatOp",
@@ -291,6 +293,14 @@ class ControlPush(_Push):
     control: ControlInfo | None = None
 
 
+class FailsafePush(_Push):
+    """The vehicle's failsafe policy changed: apply it, and acknowledge its version."""
+
+    op: Literal["failsafe"] = "failsafe"
+    instance_id: Text
+    failsafe: FailsafePolicy
+
+
 class EventPush(_Push):
     _omit_if_none = frozenset({"snapshot", "ts"})
 
@@ -330,7 +340,16 @@ class LaggingPush(_Push):
     total: int | None = None
 
 
-Push = AckPush | ErrorPush | CommandPush | ControlPush | EventPush | RoutesPush | LaggingPush
+Push = (
+    AckPush
+    | ErrorPush
+    | CommandPush
+    | ControlPush
+    | FailsafePush
+    | EventPush
+    | RoutesPush
+    | LaggingPush
+)
 
 # -- parsing ------------------------------------------------------------------
 

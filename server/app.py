@@ -20,8 +20,10 @@ from server.api import (
     fleet_telemetry,
     health,
     obstacles,
+    safety,
     upper,
     upper_control,
+    zones,
 )
 from server.api.limits import BodyLimit
 from server.api.openapi import document_errors
@@ -87,7 +89,18 @@ def create_app(
     metrics = Metrics()  # not bound to a loop: built here so the middleware can hold it
     errors.install(app)
     # Vehicles call most often: their routes are matched first.
-    for module in (upper, upper_control, client, control, fleet, health, admin, obstacles):
+    for module in (
+        upper,
+        upper_control,
+        client,
+        control,
+        fleet,
+        health,
+        admin,
+        obstacles,
+        zones,
+        safety,
+    ):
         app.include_router(module.router)
     app.include_router(fleet_telemetry.router)
     console.install(app, settings)

@@ -29,6 +29,7 @@ from server.domain.events import (
     CommandsReady,
     ControlChanged,
     EventRecorded,
+    FailsafeChanged,
     InstanceFinished,
     LeaseEnded,
     PresenceChanged,
@@ -38,12 +39,14 @@ from server.domain.events import (
     UserChanged,
 )
 from server.metrics import Metrics
+from server.services.audit import AuditLog
 from server.services.auth import AuthService
 from server.services.commands import CommandService
 from server.services.control import ControlService
 from server.services.dead_letters import DeadLetters
 from server.services.events import EventService
 from server.services.fleet import FleetViews
+from server.services.forecast import CollisionForecast
 from server.services.instances import InstanceService
 from server.services.link import VehicleLink
 from server.services.live_topics import ServerTopics
@@ -52,17 +55,23 @@ from server.services.obstacles import ObstacleService
 from server.services.readiness import Readiness
 from server.services.registry import Services
 from server.services.replicas import ReplicaSync
+from server.services.safety import SafetyService
 from server.services.telemetry import TelemetryService
+from server.services.zones import ZoneService
 from server.settings import Settings
 from server.storage import Store, open_store
 from server.storage.accounts import AccountsRepo
+from server.storage.audit import AuditRepo
 from server.storage.commands import CommandsRepo
 from server.storage.control import ControlRepo
 from server.storage.dead_letters import DeadLettersRepo
 from server.storage.events import EventsRepo
 from server.storage.instances import InstancesRepo
+from server.storage.locks import LocksRepo
 from server.storage.obstacles import ObstaclesRepo
+from server.storage.safety import SafetyRepo
 from server.storage.telemetry import TelemetryRepo
+from server.storage.zones import ZonesRepo
 
 log = logging.getLogger("fleet.server")
 
@@ -126,6 +135,7 @@ async def build(
 
     auth = AuthService(settings, AccountsRepo(store), messages, news_flows, clock)
     events = EventService(EventsRepo(store), messages, clock)
+    audit = AuditLog(AuditRepo(store), dead_letters, clock)
     instances = InstanceService(
         settings, InstancesRepo(store), auth, events, messages, dead_letters, clock
     )
@@ -133,6 +143,7 @@ async def build(
         settings, ControlRepo(store), instances, auth, events, messages, dead_letters, clock
     )
     obstacles = ObstacleService(settings, ObstaclesRepo(store), clock)
+    zones = ZoneService(settings, ZonesRepo(store), auth, events, clock)
     commands = CommandService(
         settings,
         CommandsRepo(store),
@@ -142,11 +153,16 @@ async def build(
         messages,
         dead_letters,
         obstacles.zones,
+        zones.current,
         clock,
     )
+    safety = SafetyService(
+        settings, SafetyRepo(store), instances, auth, zones, commands, events, messages, clock
+    )
+    forecast = CollisionForecast(settings, instances, events, LocksRepo(store), clock)
     telemetry = TelemetryService(settings, store, TelemetryRepo(store), dead_letters, clock)
-    views = FleetViews(auth, instances, control)
-    link = VehicleLink(settings, instances, telemetry, control, messages)
+    views = FleetViews(auth, instances, control, safety)
+    link = VehicleLink(settings, instances, telemetry, control, commands, safety, messages)
     topics = ServerTopics(bus, instances, commands, control, events, views)
     replicas = ReplicaSync(bus, instances, control, commands, auth, messages, dead_letters)
     hub = LiveHub(settings, bus, instances, commands, control, topics)
@@ -160,10 +176,14 @@ async def build(
         readiness=Readiness(),
         auth=auth,
         events=events,
+        audit=audit,
         instances=instances,
         control=control,
         commands=commands,
         obstacles=obstacles,
+        zones=zones,
+        safety=safety,
+        forecast=forecast,
         telemetry=telemetry,
         link=link,
         views=views,
@@ -173,13 +193,18 @@ async def build(
     # Who hears what: in the order given (a finish ends the lease, then the commands).
     messages.register(InstanceFinished, control.on_instance_finished)
     messages.register(InstanceFinished, commands.on_instance_finished)
+    messages.register(InstanceFinished, lambda e: safety.forget(e.instance_id))
     messages.register(LeaseEnded, commands.on_lease_end)
     messages.register(UserChanged, control.on_user_changed)
     messages.register(PresenceChanged, topics.on_presence)
     messages.register(ControlChanged, topics.on_control)
     messages.register(EventRecorded, topics.on_event)
     messages.register(CommandMoved, topics.on_command_moved)
+    messages.register(EventRecorded, audit.on_event)
+    messages.register(CommandMoved, audit.on_command_moved)
     messages.register(SamplesStored, topics.on_samples)
+    messages.register(SamplesStored, safety.on_samples)
+    messages.register(FailsafeChanged, hub.on_failsafe_changed)
     messages.register(SamplesStored, lambda e: metrics.samples.inc(len(e.samples)))
     messages.register(CommandsReady, hub.on_commands_ready)
     messages.register(TokensRevoked, hub.on_tokens_revoked)
@@ -250,6 +275,8 @@ async def _try_load(runtime: Runtime) -> bool:
             await part.load()
         await services.commands.load()
         await services.telemetry.load()
+        await services.audit.load()
+        await services.safety.tick()
         runtime.admin_token = await services.auth.bootstrap_admin()
     except Exception as exc:  # the store went away half-way: all of it again, later
         readiness.failed(f"start-up failed: {exc}")
@@ -286,6 +313,8 @@ def _start_background(runtime: Runtime) -> None:
     runtime.spawn("presence", services.instances.sweep, 0.25)
     runtime.spawn("leases", services.control.sweep, 0.2)
     runtime.spawn("commands", services.commands.sweep, 0.2)
+    runtime.spawn("safety", services.safety.tick, 1.0)
+    runtime.spawn("forecast", services.forecast.tick, settings.forecast_every_s)
     runtime.spawn("telemetry", services.telemetry.writer_step, services.telemetry.writer_tick_s())
     if services.store.kind == "embedded" and runtime.owns_store:
         runtime.spawn("journal", lambda: _flush(services.store), settings.snapshot_interval_s)

@@ -63,6 +63,18 @@ class CapabilityMissing(Invalid):
     code = "capability_missing"
 
 
+class ZoneViolation(Invalid):
+    """A target or a route in a no-go zone, or out of the vehicle's operating area."""
+
+    code = "zone_violation"
+
+    def __init__(self, message: str, *, zone_id: str = "", zone: str = "", kind: str = "") -> None:
+        self.zone = {"zone_id": zone_id, "zone": zone, "zone_kind": kind}
+        super().__init__(
+            message, details=[{"field": "command.args", "message": message, **self.zone}]
+        )
+
+
 class RateLimited(FleetError):
     status = 429
     code = "rate_limited"

@@ -72,10 +72,31 @@ class Settings(BaseSettings):
         default=1_048_576, ge=1024, description="largest request body accepted (else 413)"
     )
     failsafe_after_s: float = Field(
-        default=30.0, gt=0, description="vehicles' link-loss policy: act after this silence"
+        default=30.0,
+        gt=0,
+        le=86_400,
+        description="a vehicle's failsafe until set for it (PUT /api/vehicles/{id}/failsafe): "
+        "act after this silence",
     )
-    failsafe_action: Literal["keep_station", "stop"] = Field(
-        default="keep_station", description="link-loss action"
+    failsafe_action: Literal["none", "keep_station", "stop", "return_home"] = Field(
+        default="keep_station", description="a vehicle's failsafe action until set for it"
+    )
+    separation_m: float = Field(
+        default=10.0,
+        ge=0,
+        le=10_000,
+        description="follow_path with plan to several vehicles: the paths keep this apart; "
+        "the collision forecast warns of two vehicles coming closer (0: neither)",
+    )
+    forecast_s: float = Field(
+        default=60.0,
+        ge=0,
+        le=3600,
+        description="how far ahead the collision forecast projects each online vehicle's "
+        "course and speed (0: no forecast)",
+    )
+    forecast_every_s: float = Field(
+        default=1.0, gt=0, le=60, description="how often the collision forecast runs"
     )
     token_ttl_s: int = Field(
         default=12 * 3600, ge=60, description="lifetime of a token from /auth/token"

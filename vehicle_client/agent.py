@@ -26,6 +26,7 @@ from pydantic import ValidationError
 
 from fleet_protocol import (
     ControlInfo,
+    FailsafePolicy,
     FbAck,
     StartInstance,
     UpdateFbMessage,
@@ -134,6 +135,7 @@ class VehicleAgent:
         self._acks: list[FbAck] = []
         self._params: dict[str, Any] = {}
         self._sent_mode: str | None = None
+        self._sent_failsafe: int | None = None
         self._cursor = 0
         self._heartbeat_s = 1.0
         self._uplink_wake = asyncio.Event()
@@ -189,12 +191,12 @@ class VehicleAgent:
         self.clock.observe(res.server_time, sent, utcnow())
         self.instance_id = res.instance_id
         self.on_control(res.control)
-        self.pilot.failsafe = res.failsafe
-        self.link.after_s = res.failsafe.after_s
+        self.on_failsafe(res.failsafe)
         self._heartbeat_s = res.heartbeat_interval_s
         await asyncio.to_thread(self.outbox.match_server, res.last_seq)
         self._cursor = 0  # re-send from the first sample not yet durable
         self._sent_mode = None
+        self._sent_failsafe = None  # said again in each session
         self.backoff.reset()
         self.stats.sessions += 1
         self.stats.connected = True
@@ -222,6 +224,20 @@ class VehicleAgent:
             holder = control.holder if control else "nobody"
             log.info("%s: remote control held by %s", self.config.vehicle_id, holder)
         self.control = control
+
+    def on_failsafe(self, policy: FailsafePolicy) -> None:
+        """The server's policy for this vehicle: applied now, its version acknowledged."""
+        if policy != self.pilot.failsafe:
+            log.info(
+                "%s: failsafe v%d: %s after %.0f s without the server",
+                self.config.vehicle_id,
+                policy.version,
+                policy.action,
+                policy.after_s,
+            )
+        self.pilot.failsafe = policy
+        self.link.after_s = policy.after_s
+        self._fb_wake.set()
 
     def _contact(self) -> None:
         if self.link.contact(asyncio.get_running_loop().time()) == "restored":
@@ -281,6 +297,8 @@ class VehicleAgent:
             asked = loop.time()
             res = await self.transport.get_control(self.instance_id, self.config.poll_wait_s)
             self._contact()
+            if res.failsafe is not None:
+                self.on_failsafe(res.failsafe)
             if res.commands:
                 now = self.clock.server_now(utcnow())
                 self._apply(self.pilot.on_commands(res.commands, now))
@@ -294,13 +312,20 @@ class VehicleAgent:
             self._fb_wake.clear()
             acks = self._acks[:MAX_ACKS_PER_CALL]
             mode = self.pilot.control_mode
-            if not acks and mode == self._sent_mode:
+            version = self.pilot.failsafe.version
+            if not acks and mode == self._sent_mode and version == self._sent_failsafe:
                 continue
-            body = UpdateFbMessage(instance_id=self.instance_id, control_mode=mode, acks=acks)
+            body = UpdateFbMessage(
+                instance_id=self.instance_id,
+                control_mode=mode,
+                acks=acks,
+                failsafe_version=version,
+            )
             res = await self.transport.update_fbmessage(body)
             self._contact()
             del self._acks[: len(acks)]
             self._sent_mode = mode
+            self._sent_failsafe = version
             if res.abort:
                 self._apply(self.pilot.on_abort(res.abort))
             if self._acks:
@@ -331,6 +356,8 @@ class VehicleAgent:
         due = loop.time()
         while True:
             fields = self.adapter.telemetry()
+            if fields is not None and self.pilot.home is None and "lat" in fields:
+                self.pilot.home = (float(fields["lat"]), float(fields["lon"]))  # return_home's
             if fields is not None:
                 # The outbox checks it with the wire model: a bad reading is logged, counted
                 # and left out, the good ones around it are queued.

@@ -13,7 +13,14 @@ API.md's command rules on the vehicle's side:
 - a type the vehicle lacks, or bad arguments, are ``rejected``;
 - while the vehicle is under local control only ``stop`` is taken.
 
-``LinkMonitor`` decides when the link-loss failsafe engages.
+- a ``follow_path`` whose path does not hash to its ``path_hash`` (received
+  in part, or altered) is never run: ``rejected`` with ``plan_mismatch``; one
+  that does is ``accepted`` naming the hash of what the vehicle stored.
+
+``LinkMonitor`` decides when the link-loss failsafe engages; the policy says
+what the vehicle then does: nothing (``none``, an AUV that dives out of
+contact), ``keep_station``, ``stop``, or ``return_home`` (the policy's home,
+else where the vehicle first was in this run).
 """
 
 from __future__ import annotations
@@ -25,7 +32,7 @@ from typing import Any
 
 from pydantic import ValidationError
 
-from fleet_protocol import ARGS_MODELS, CommandObject, FailsafePolicy, FbAck
+from fleet_protocol import ARGS_MODELS, CommandObject, FailsafePolicy, FbAck, path_hash, route_of
 from fleet_protocol.upper import ControlMode
 from vehicle_client.sim.simulator import TaskReport
 
@@ -67,6 +74,8 @@ class Pilot:
     active_id: str | None = None
     active_kind: str | None = None
     in_failsafe: bool = False
+    #: Where ``return_home`` goes when the policy names no home: the first position.
+    home: tuple[float, float] | None = None
     _last_progress: float | None = None
 
     @property
@@ -105,10 +114,17 @@ class Pilot:
             ARGS_MODELS[command.type].model_validate(command.args)
         except ValidationError as exc:
             return [self._ack(cid, "rejected", detail=f"bad args: {exc.errors()[0]['msg']}")]
+        stored_hash = None
+        if command.type == "follow_path":
+            stored_hash = path_hash(route_of(command.args))
+            sent = command.args.get("path_hash")
+            if sent is not None and sent != stored_hash:
+                detail = f"plan_mismatch: the path received hashes to {stored_hash}, not {sent}"
+                return [self._ack(cid, "rejected", detail=detail)]
         effects: list[Effect] = self._end_active(f"superseded by {command.type} {cid}")
         self.in_failsafe = False
         self.active_id, self.active_kind, self._last_progress = cid, command.type, None
-        effects.append(self._ack(cid, "accepted"))
+        effects.append(self._ack(cid, "accepted", path_hash=stored_hash))
         effects.append(Execute(command.type, dict(command.args), cid))
         effects.append(self._ack(cid, "executing"))
         return effects
@@ -153,11 +169,28 @@ class Pilot:
 
     # -- link ----------------------------------------------------------------
     def on_link_lost(self) -> list[Effect]:
-        """The failsafe engages: the policy's action replaces the active command."""
-        effects = self._end_active(f"link lost: failsafe {self.failsafe.action}")
+        """The failsafe engages: the policy's action replaces the active command (with
+        ``none`` the vehicle carries on as it was)."""
+        action = self.failsafe.action
+        if action == "none":
+            return []
+        effects = self._end_active(f"link lost: failsafe {action}")
         self.in_failsafe = True
-        effects.append(Execute(self.failsafe.action, {}))
+        effects.append(self._failsafe_task(action))
         return effects
+
+    def _failsafe_task(self, action: str) -> Execute:
+        home = self.failsafe.home
+        where = (home.lat, home.lon) if home is not None else self.home
+        if action == "return_home" and where is not None:
+            home = {"lat": where[0], "lon": where[1]}
+            if "keep_station" in self.capabilities:  # there, and held there
+                return Execute("keep_station", home)
+            if "go_to" in self.capabilities:
+                return Execute("go_to", home)
+        if action in ("return_home", "keep_station") and "keep_station" in self.capabilities:
+            return Execute("keep_station", {})
+        return Execute("stop", {})
 
     def on_restart(self, unfinished: Iterable[str]) -> list[Effect]:
         """Commands a previous run of the agent accepted and never finished.

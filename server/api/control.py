@@ -13,6 +13,8 @@ from fleet_protocol import (
     GrantControl,
     InstanceRef,
     OkResult,
+    OperatorHeartbeat,
+    OperatorHeartbeatResult,
 )
 from server.api.deps import Manager, Operator, ServicesDep, Viewer
 
@@ -37,7 +39,9 @@ async def control_requests(
 
 @router.post("/grant_control")
 async def grant_control(body: GrantControl, user: Manager, s: ServicesDep) -> ControlInfo:
-    lease = await s.control.grant(user, body.instance_id, body.user, body.duration_s)
+    lease = await s.control.grant(
+        user, body.instance_id, body.user, body.duration_s, body.operator_timeout_s
+    )
     return ControlInfo.model_validate(lease.info())
 
 
@@ -51,3 +55,13 @@ async def revoke_control(body: InstanceRef, user: Manager, s: ServicesDep) -> Ok
 async def release_control(body: InstanceRef, user: Operator, s: ServicesDep) -> OkResult:
     await s.control.release(user, body.instance_id)
     return OkResult()
+
+
+@router.post("/heartbeat")
+async def operator_heartbeat(
+    body: OperatorHeartbeat, user: Operator, s: ServicesDep
+) -> OperatorHeartbeatResult:
+    """The holder's client is alive. A lease granted with ``operator_timeout_s`` lapses
+    (and the vehicle holds station) when none comes for that long; ``held`` lists the
+    instances where the caller holds the lease."""
+    return OperatorHeartbeatResult(held=await s.control.operator_heartbeat(user, body.instance_ids))

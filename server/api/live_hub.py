@@ -22,12 +22,12 @@ from fleet_protocol import format_ts, utcnow
 from fleet_protocol.common import now_ts
 from fleet_protocol.links import CLOSE_REPLACED, CLOSE_UNAUTHORIZED
 from fleet_protocol.topics import is_media_topic
-from fleet_protocol.ws import CommandPush, ControlPush, EventPush, RoutesPush
+from fleet_protocol.ws import CommandPush, ControlPush, EventPush, FailsafePush, RoutesPush
 from server.api.outbox import Outbox
 from server.bus import Bus, Message, Subscription
 from server.bus.wire import dumps
 from server.domain.access import Principal
-from server.domain.events import CommandsReady, TokensRevoked
+from server.domain.events import CommandsReady, FailsafeChanged, TokensRevoked
 from server.domain.routing import RoutingTable
 from server.domain.topics import UnitRef
 from server.services.commands import CommandService
@@ -127,6 +127,10 @@ class LiveHub:
             conn.subs[("_control", topic)] = await self.bus.subscribe(
                 topic, lambda _t, m: self._control_push(conn, m)
             )
+            conn.subs[("_failsafe", state.instance_id)] = await self.bus.subscribe(
+                f"_failsafe/{state.vehicle_id}",
+                lambda _t, m: self._failsafe_push(conn, state.instance_id, m),
+            )
         control = self.control.lease_info(state.instance_id)
         conn.outbox.put(ControlPush(instance_id=state.instance_id, control=control).frame())
         await self.deliver_commands(state.instance_id)
@@ -140,6 +144,16 @@ class LiveHub:
             data = message.get("data") or {}
             push = ControlPush(instance_id=data.get("instance_id", ""), control=data.get("control"))
             conn.outbox.put(push.frame())
+
+    def on_failsafe_changed(self, event: FailsafeChanged) -> None:
+        """A vehicle's policy changed: to its socket, on whichever replica holds it."""
+        self._fire(self.bus.publish(f"_failsafe/{event.vehicle_id}", {"policy": event.policy}))
+
+    @staticmethod
+    def _failsafe_push(conn: Connection, instance_id: str, message: Message) -> None:
+        if isinstance(message, dict) and instance_id in conn.instances:
+            push = FailsafePush(instance_id=instance_id, failsafe=message["policy"])
+            conn.outbox.put(push.frame(), critical=True)
 
     def touch(self, conn: Connection) -> None:
         """Every frame on a vehicle's socket counts as contact."""

@@ -5,7 +5,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 from collections.abc import Awaitable
-from typing import Annotated, TypeVar
+from typing import Annotated, Any, TypeVar
 
 from fastapi import APIRouter, Query
 
@@ -46,14 +46,16 @@ async def get_control(
     wait_s: Annotated[float, Query(ge=0, le=30, allow_inf_nan=False)] = 0,
 ) -> ModelResponse:
     commands = await _unless_revoked(s, caller, s.commands.get_control(caller, instance_id, wait_s))
-    return ModelResponse(
-        GetControlResult.model_validate({"commands": [c.wire() for c in commands]})
-    )
+    result: dict[str, Any] = {"commands": [c.wire() for c in commands]}
+    failsafe = await s.link.pending_failsafe(caller, instance_id)
+    if failsafe is not None:  # a version the vehicle has not acknowledged yet
+        result["failsafe"] = failsafe
+    return ModelResponse(GetControlResult.model_validate(result))
 
 
 @router.post("/update_fbmessage")
 async def update_fbmessage(
     body: UpdateFbMessage, caller: VehicleCaller, s: ServicesDep
 ) -> UpdateFbMessageResult:
-    abort = await s.commands.acknowledge(caller, body.instance_id, body.control_mode, body.acks)
+    abort = await s.link.feedback(caller, body)
     return UpdateFbMessageResult(abort=abort)

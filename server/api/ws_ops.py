@@ -206,9 +206,7 @@ class OpRunner:
         return await self.s.link.update_param(self.conn.principal, op)
 
     async def _update_fb(self, op: UpdateFbMessageOp) -> BaseModel:
-        abort = await self.s.commands.acknowledge(
-            self.conn.principal, op.instance_id, op.control_mode, op.acks
-        )
+        abort = await self.s.link.feedback(self.conn.principal, op)
         return UpdateFbMessageResult(abort=abort)
 
     async def _register(self, op: RegisterOp) -> dict[str, Any]:

@@ -27,12 +27,31 @@ class Lease:
     expires_at: datetime
     #: Raised by each write of the lease to the store (compare and set between replicas).
     rev: int = 0
+    #: The lease lapses when the holder's client sends no heartbeat for this long (None:
+    #: it runs to ``expires_at``); ``operator_seen_at``: its latest heartbeat (or the grant).
+    operator_timeout_s: float | None = None
+    operator_seen_at: datetime | None = None
+
+    def lapse(self, now: datetime) -> str | None:
+        """Why the lease no longer holds at ``now`` (``expired``, ``operator_silent``), or
+        None while it does."""
+        if now >= self.expires_at:
+            return "expired"
+        if self.operator_timeout_s is not None and self.operator_seen_at is not None:
+            if (now - self.operator_seen_at).total_seconds() > self.operator_timeout_s:
+                return "operator_silent"
+        return None
 
     def live(self, now: datetime) -> bool:
-        return now < self.expires_at
+        return self.lapse(now) is None
 
     def info(self) -> dict[str, Any]:
-        return {"holder": self.holder, "granted_by": self.granted_by, "expires_at": self.expires_at}
+        return {
+            "holder": self.holder,
+            "granted_by": self.granted_by,
+            "expires_at": self.expires_at,
+            "operator_timeout_s": self.operator_timeout_s,
+        }
 
     def to_doc(self) -> dict[str, Any]:
         return {
@@ -43,6 +62,8 @@ class Lease:
             "granted_at": self.granted_at,
             "expires_at": self.expires_at,
             "rev": self.rev,
+            "operator_timeout_s": self.operator_timeout_s,
+            "operator_seen_at": self.operator_seen_at,
         }
 
     @classmethod
@@ -55,6 +76,8 @@ class Lease:
             doc["granted_at"],
             doc["expires_at"],
             int(doc.get("rev") or 0),
+            doc.get("operator_timeout_s"),
+            doc.get("operator_seen_at"),
         )
 
 
@@ -115,10 +138,12 @@ def grant(
     granted_by: str,
     now: datetime,
     duration_s: float,
+    operator_timeout_s: float | None = None,
 ) -> tuple[Lease, Lease | None]:
     """The new lease, and the lease it ends (granted to someone else), if any.
 
-    Granting again to the live holder extends the lease: it never gets shorter.
+    Granting again to the live holder extends the lease: it never gets shorter; its
+    operator timeout becomes the one given now (the grant counts as a heartbeat).
     """
     expires_at = now + timedelta(seconds=duration_s)
     if current is not None and current.live(now) and current.holder == holder:
@@ -129,10 +154,22 @@ def grant(
             granted_by,
             current.granted_at,
             max(expires_at, current.expires_at),
+            operator_timeout_s=operator_timeout_s,
+            operator_seen_at=now,
         )
         return lease, None
     ended = current if current is not None and current.live(now) else None
-    return Lease(instance_id, vehicle_id, holder, granted_by, now, expires_at), ended
+    lease = Lease(
+        instance_id,
+        vehicle_id,
+        holder,
+        granted_by,
+        now,
+        expires_at,
+        operator_timeout_s=operator_timeout_s,
+        operator_seen_at=now,
+    )
+    return lease, ended
 
 
 def holds(lease: Lease | None, username: str, now: datetime) -> bool:

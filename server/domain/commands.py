@@ -16,7 +16,13 @@ from typing import Any
 
 from fleet_protocol import FINAL_STATUSES, MOTION_TYPES
 from server.domain.geo import haversine_m
-from server.errors import CapabilityMissing, ControlNotHeld, FleetError, Forbidden
+from server.errors import (
+    CapabilityMissing,
+    ControlNotHeld,
+    FleetError,
+    Forbidden,
+    ZoneViolation,
+)
 
 #: Position of each status along the life cycle; every final status ranks last.
 RANK = {"queued": 0, "delivered": 1, "accepted": 2, "executing": 3}
@@ -53,6 +59,8 @@ class Command:
     deliveries: int = 0
     #: Issued by a manager of the vehicle or an admin: a stop of theirs is theirs to undo.
     by_manager: bool = False
+    #: The version of the zones the command was checked against (None: not checked).
+    zones_version: int | None = None
 
     @property
     def final(self) -> bool:
@@ -106,6 +114,7 @@ class Command:
             delivered_at=self.delivered_at,
             deliveries=self.deliveries,
             by_manager=self.by_manager,
+            zones_version=self.zones_version,
         )
         return doc
 
@@ -130,6 +139,7 @@ class Command:
             delivered_at=doc.get("delivered_at"),
             deliveries=int(doc.get("deliveries") or 0),
             by_manager=bool(doc.get("by_manager")),
+            zones_version=doc.get("zones_version"),
         )
 
 
@@ -147,6 +157,7 @@ def new_command(
     max_drift_m: float | None = None,
     position: dict[str, Any] | None = None,
     by_manager: bool = False,
+    zones_version: int | None = None,
 ) -> Command:
     cmd = Command(
         command_id=command_id,
@@ -161,6 +172,7 @@ def new_command(
         max_drift_m=max_drift_m,
         issued_from=(float(position["lat"]), float(position["lon"])) if position else None,
         by_manager=by_manager,
+        zones_version=zones_version,
     )
     cmd.note("queued", now)
     return cmd
@@ -204,6 +216,25 @@ def apply_ack(
         return AckOutcome.APPLIED  # a progress report: no new history entry
     cmd.move(status, now, detail)
     return AckOutcome.APPLIED
+
+
+def check_plan(
+    cmd: Command, status: str, path_hash: str | None, detail: str | None
+) -> tuple[str, str | None]:
+    """A ``follow_path`` the vehicle accepts must be the path sent: when the vehicle names
+    the hash of what it stored and that is not the command's, the command fails
+    (``plan_mismatch``) and is never run. A vehicle that names no hash is taken at its
+    word (one written before hashes were)."""
+    expected = cmd.args.get("path_hash")
+    if (
+        cmd.type != "follow_path"
+        or status not in ("accepted", "executing")
+        or path_hash is None
+        or expected is None
+        or path_hash == expected
+    ):
+        return status, detail
+    return "failed", f"plan_mismatch: the vehicle stored {path_hash}, the path sent is {expected}"
 
 
 def _join(head: str, tail: str | None) -> str:
@@ -343,6 +374,7 @@ def refused(refusals: list[tuple[int, str, FleetError]], asked: int) -> FleetErr
             "instance_id": instance_id,
             "code": exc.code,
             "message": exc.message,
+            **(exc.zone if isinstance(exc, ZoneViolation) else {}),
         }
         for index, instance_id, exc in refusals
     ]

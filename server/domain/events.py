@@ -111,3 +111,11 @@ class UserChanged:
 
     username: str
     actor: Principal | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class FailsafeChanged:
+    """A vehicle's failsafe policy changed (its wire form): its live instance is told."""
+
+    vehicle_id: str
+    policy: dict[str, Any]

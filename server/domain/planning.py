@@ -140,6 +140,19 @@ def _outward_corners(polygon: shapely.Geometry) -> list[XY]:
     return out
 
 
+def corridor(route: Sequence[LatLon], width_m: float, name: str) -> Zone:
+    """The band ``width_m`` either side of ``route`` (straight legs) as a fixed obstacle:
+    a path planned round it keeps that separation from the route."""
+    lat0, lon0 = route[0]
+    local = [to_local(lat, lon, lat0, lon0) for lat, lon in route]
+    line = shapely.LineString(local) if len(local) > 1 else shapely.Point(local[0])
+    band = line.buffer(width_m / math.cos(math.pi / (4 * ARC_SEGMENTS)), quad_segs=ARC_SEGMENTS)
+    rings = [band.exterior, *band.interiors]
+    return Zone(
+        tuple(tuple(from_local(x, y, lat0, lon0) for x, y in r.coords) for r in rings), 0.0, name
+    )
+
+
 def plan_path(
     start: LatLon | None,
     waypoints: Sequence[LatLon],

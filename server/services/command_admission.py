@@ -4,6 +4,14 @@
 finished, capability, lease, local control, queue bound) and its args
 worked out (a planned path) before one command is made. Each target's
 record and lease are read from the store first.
+
+Where a command sends a vehicle is checked against the zones
+(:mod:`server.domain.zones`): a target in a no-go zone of the vehicle, or a way
+there through one, or out of its operating area, is refused naming the zone. A
+planned path goes round the fixed obstacles, the vehicle's no-go zones and the
+outside of its operating area, and keeps ``FLEET_SEPARATION_M`` from the paths
+planned before it in the same submit. A ``follow_path`` carries the hash of its
+route (``path_hash``), which the vehicle acknowledges before it starts.
 """
 
 from __future__ import annotations
@@ -11,13 +19,14 @@ from __future__ import annotations
 from collections.abc import Awaitable, Callable, Mapping, Sequence
 from typing import Any
 
-from fleet_protocol import CommandSpec
+from fleet_protocol import CommandSpec, path_hash, route_of
 from server.domain import arbitration
 from server.domain import commands as life
 from server.domain.access import Principal
 from server.domain.clock import Clock
-from server.domain.planning import Zone
-from server.errors import FleetError, InstanceFinished, NotFound, RateLimited
+from server.domain.planning import Zone, corridor
+from server.domain.zones import ZoneSet, command_violation, keep_out
+from server.errors import FleetError, InstanceFinished, NotFound, RateLimited, ZoneViolation
 from server.services.control import ControlService
 from server.services.instances import InstanceService, InstanceState
 from server.services.lanes import Lane
@@ -29,7 +38,24 @@ MAX_ACTIVE_PER_INSTANCE = 256
 Refusal = tuple[int, str, FleetError]
 Target = tuple[int, InstanceState]
 #: The known fixed obstacles, read when a path is planned.
-ZoneSource = Callable[[], Awaitable[Sequence[Zone]]]
+ObstacleSource = Callable[[], Awaitable[Sequence[Zone]]]
+#: The operating areas and no-go zones as the store has them now.
+ZoneSetSource = Callable[[], Awaitable[ZoneSet]]
+
+
+def position_of(state: InstanceState) -> tuple[float, float] | None:
+    here = state.position
+    return (float(here["lat"]), float(here["lon"])) if here is not None else None
+
+
+def zone_refusal(
+    zones: ZoneSet, state: InstanceState, kind: str, args: dict[str, Any]
+) -> ZoneViolation | None:
+    """Why the zones refuse this command to the instance where it is now, if they do."""
+    found = command_violation(zones, state.vehicle_id, kind, args, position_of(state))
+    if found is None:
+        return None
+    return ZoneViolation(found.message, zone_id=found.zone_id, zone=found.name, kind=found.kind)
 
 
 class Admission:
@@ -38,14 +64,18 @@ class Admission:
         instances: InstanceService,
         control: ControlService,
         planning: Planning,
-        zones: ZoneSource,
+        obstacles: ObstacleSource,
+        zones: ZoneSetSource,
+        separation_m: float,
         lanes: Mapping[str, Lane],
         clock: Clock,
     ) -> None:
         self.instances = instances
         self.control = control
         self.planning = planning
+        self.obstacles = obstacles
         self.zones = zones
+        self.separation_m = separation_m
         self.lanes = lanes
         self.clock = clock
 
@@ -104,24 +134,40 @@ class Admission:
 
     async def args_for(
         self, targets: list[Target], spec: CommandSpec
-    ) -> tuple[dict[str, dict[str, Any]], list[Refusal]]:
+    ) -> tuple[dict[str, dict[str, Any]], list[Refusal], int]:
         """Each target's args: planned if asked (off the event loop, all of them within
-        one deadline), the obstacles read once for all of them; a target the planner
-        refuses is a refusal."""
+        one deadline, each keeping the separation from those planned before it), then
+        checked against the zones; a target refused is a refusal. With them, the version
+        of the zones they were checked against."""
         plan = spec.type == "follow_path" and bool(spec.args.get("plan"))
-        zones = await self.zones() if plan else ()
+        zones = await self.zones()
+        fixed = await self.obstacles() if plan else ()
         others_all = await self.instances.everyone() if plan else []
         deadline = self.planning.deadline()
         by_instance: dict[str, dict[str, Any]] = {}
         refusals: list[Refusal] = []
+        planned: list[Zone] = []  # the corridors of the paths planned so far
         for index, state in targets:
             args = dict(spec.args)
             if plan:
                 others = [s for s in others_all if s.instance_id != state.instance_id]
+                avoid = [*fixed, *keep_out(zones, state.vehicle_id), *planned]
                 try:
-                    args = await self.planning.plan(state, args, others, zones, deadline)
+                    args = await self.planning.plan(state, args, others, avoid, deadline)
                 except FleetError as exc:
                     refusals.append((index, state.instance_id, exc))
                     continue
+            violation = zone_refusal(zones, state, spec.type, args)
+            if violation is not None:
+                refusals.append((index, state.instance_id, violation))
+                continue
+            if spec.type == "follow_path":
+                args["path_hash"] = path_hash(route_of(args))
+                route = [(float(p["lat"]), float(p["lon"])) for p in route_of(args)]
+                start = position_of(state)
+                if plan and self.separation_m > 0 and len(targets) > 1:
+                    name = f"the path planned for {state.vehicle_id} (FLEET_SEPARATION_M)"
+                    way = [start, *route] if start is not None else route
+                    planned.append(corridor(way, self.separation_m, name))
             by_instance[state.instance_id] = args
-        return by_instance, refusals
+        return by_instance, refusals, zones.version

@@ -34,7 +34,12 @@ from server.domain.events import (
     StateWritten,
 )
 from server.errors import NotFound, RateLimited, Unavailable
-from server.services.command_admission import Admission, ZoneSource
+from server.services.command_admission import (
+    Admission,
+    ObstacleSource,
+    ZoneSetSource,
+    zone_refusal,
+)
 from server.services.control import ControlService
 from server.services.dead_letters import DeadLetters
 from server.services.events import EventService
@@ -47,6 +52,12 @@ from server.storage.commands import CommandsRepo
 
 __all__ = ["CommandService"]
 
+#: A command the server issues on its own (a vehicle held after a lease ends, a failsafe
+#: on a zone breach) waits this long for the vehicle at most.
+SYSTEM_TTL_S = 300
+#: Who issues them.
+SYSTEM = "system"
+
 
 class CommandService:
     def __init__(
@@ -58,7 +69,8 @@ class CommandService:
         events: EventService,
         messages: MessageBus,
         dead_letters: DeadLetters,
-        zones: ZoneSource,
+        obstacles: ObstacleSource,
+        zones: ZoneSetSource,
         clock: Clock,
         planner: Planner | None = None,
     ) -> None:
@@ -70,6 +82,7 @@ class CommandService:
         self.messages = messages
         self.dead_letters = dead_letters
         self.clock = clock
+        self.zones = zones
         self._lanes: dict[str, Lane] = {}
         self._seq = 0
         self.admission = Admission(
@@ -80,7 +93,9 @@ class CommandService:
                 settings.plan_timeout_s,
                 settings.plan_workers,
             ),
+            obstacles,
             zones,
+            settings.separation_m,
             self._lanes,
             clock,
         )
@@ -102,8 +117,11 @@ class CommandService:
         await self._sync_many([state.instance_id for _, state in targets])
         refusals += admission.check_all(principal, targets, body.command)
         args_by_instance: dict[str, dict[str, Any]] = {}
+        zones_version = None
         if not refusals:
-            args_by_instance, refusals = await admission.args_for(targets, body.command)
+            args_by_instance, refusals, zones_version = await admission.args_for(
+                targets, body.command
+            )
             if body.command.type == "follow_path":  # planning yields: check again
                 refusals += admission.check_all(principal, targets, body.command)
         if refusals:
@@ -125,6 +143,7 @@ class CommandService:
                     max_drift_m=body.command.max_drift_m,
                     position=state.position,
                     by_manager=arbitration.may_grant(principal, state.vehicle_id),
+                    zones_version=None if body.command.type == "stop" else zones_version,
                 )
             )
         superseded: list[Command] = []
@@ -222,6 +241,7 @@ class CommandService:
         if state.finished:
             return []
         lane = await self._sync(state.instance_id)
+        await self._check_zones(state, lane)
         out, ended = life.handout(
             list(lane.active.values()),
             self.clock(),
@@ -243,20 +263,49 @@ class CommandService:
                 self._moved(cmd)
         return handed
 
+    async def _check_zones(self, state: InstanceState, lane: Lane) -> None:
+        """Commands not yet acknowledged and checked against an older version of the
+        zones are checked again: one the zones now refuse is cancelled, saying why."""
+        waiting = [
+            c
+            for c in lane.active.values()
+            if c.zones_version is not None and c.status in life.UNACKNOWLEDGED
+        ]
+        if not waiting:
+            return
+        zones = await self.zones()
+        for cmd in waiting:
+            if cmd.zones_version == zones.version:
+                continue
+            violation = zone_refusal(zones, state, cmd.type, cmd.args)
+            if violation is None:
+                cmd.zones_version = zones.version  # written with its handout
+            elif life.cancel(cmd, self.clock(), f"zones_changed: {violation.message}"):
+                await self._finished(cmd)
+
     async def acknowledge(
         self, principal: Principal, instance_id: str, control_mode: str | None, acks: list[Any]
     ) -> list[str]:
         """Apply the vehicle's acks; returns the ``abort`` list."""
         state = await self.instances.for_vehicle_caller(principal, instance_id)
         self.instances.touch(state)
+        was = state.control_mode
         if await self.instances.set_control_mode(state, control_mode):
             await self.events.record(  # failsafe and local control matter to the operators
                 "control_mode",
                 vehicle_id=state.vehicle_id,
                 instance_id=state.instance_id,
                 actor=principal,
-                data={"control_mode": control_mode},
+                data={"control_mode": control_mode, "was": was},
             )
+            if "failsafe" in (was, control_mode):
+                await self.events.record(
+                    "failsafe_entered" if control_mode == "failsafe" else "failsafe_left",
+                    vehicle_id=state.vehicle_id,
+                    instance_id=state.instance_id,
+                    actor=principal,
+                    data={"control_mode": control_mode, "was": was},
+                )
         lane = await self._sync(state.instance_id) if acks else self._lane(state.instance_id)
         now = self.clock()
         abort: list[str] = []
@@ -266,7 +315,10 @@ class CommandService:
                 abort.append(ack.command_id)  # unknown here: never to be carried out
                 continue
             was = cmd.status
-            outcome = life.apply_ack(cmd, ack.status, now, progress=ack.progress, detail=ack.detail)
+            status, detail = life.check_plan(cmd, ack.status, ack.path_hash, ack.detail)
+            outcome = life.apply_ack(cmd, status, now, progress=ack.progress, detail=detail)
+            if status != ack.status:
+                abort.append(cmd.command_id)  # never to be carried out
             if outcome is AckOutcome.LATE:
                 await self.repo.note_history(cmd.command_id, cmd.history)
                 if cmd.status in life.ABORT_STATUSES:
@@ -322,13 +374,79 @@ class CommandService:
         return await self.repo.drop_finished_before(before)
 
     async def on_lease_end(self, event: LeaseEnded) -> None:
-        """The former holder's commands not yet acknowledged are cancelled."""
-        lane = await self._sync(event.lease.instance_id)
+        """The former holder's commands not yet acknowledged are cancelled, and the vehicle
+        is told to hold station where it is (what it was doing for the holder ends)."""
+        lease = event.lease
+        lane = await self._sync(lease.instance_id)
         now = self.clock()
         detail = "instance_finished" if event.reason == "instance_finished" else "lease_ended"
-        for cmd in life.lost_with_lease(list(lane.active.values()), event.lease.holder):
+        for cmd in life.lost_with_lease(list(lane.active.values()), lease.holder):
             life.cancel(cmd, now, detail)
             await self._finished(cmd)
+        if event.reason == "instance_finished":
+            return
+        held = await self.hold(
+            lease.instance_id, f"control of {lease.holder} ended: {event.reason}"
+        )
+        await self.events.record(
+            "hold_station",
+            vehicle_id=lease.vehicle_id,
+            instance_id=lease.instance_id,
+            actor=SYSTEM,
+            data={
+                "holder": lease.holder,
+                "reason": event.reason,
+                "command_id": held.command_id if held is not None else None,
+                "type": held.type if held is not None else None,
+            },
+        )
+
+    async def hold(self, instance_id: str, why: str) -> Command | None:
+        """Tell the vehicle to hold station where it is (``stop`` if it cannot keep
+        station); None when it is finished or under local control (only its crew acts)."""
+        state = await self.instances.find(instance_id)
+        if state.finished or state.control_mode == "local":
+            return None
+        kind = "keep_station" if "keep_station" in state.capabilities else "stop"
+        return await self.system_command(state, kind, {}, why)
+
+    async def system_command(
+        self, state: InstanceState, kind: str, args: dict[str, Any], why: str
+    ) -> Command:
+        """A command the server issues on its own (no lease needed), queued as any other;
+        a ``stop`` supersedes what waits. ``why`` goes into its first history entry."""
+        now = self.clock()
+        self._seq += 1
+        cmd = life.new_command(
+            command_id="c-" + secrets.token_hex(8),
+            instance_id=state.instance_id,
+            vehicle_id=state.vehicle_id,
+            type=kind,
+            args=dict(args),
+            issued_by=SYSTEM,
+            now=now,
+            ttl_s=SYSTEM_TTL_S,
+            seq=self._seq,
+            position=state.position,
+            by_manager=True,
+        )
+        if cmd.history:
+            cmd.history[-1]["detail"] = why
+        await self._sync(state.instance_id)
+        lane = self._lane(state.instance_id)
+        lane.add(cmd)
+        superseded = (
+            life.supersede([c for c in lane.active.values() if c is not cmd], cmd, now)
+            if cmd.is_stop
+            else []
+        )
+        await self.repo.insert_active([cmd.to_doc()])
+        self.messages.emit_now(StateWritten(cmd.instance_id, "commands"))
+        self._ready(lane)
+        await self._audit(cmd, None, args=cmd.args, detail=why)
+        for gone in superseded:
+            await self._finished(gone)
+        return cmd
 
     async def on_instance_finished(self, event: InstanceFinished) -> None:
         lane = await self._sync(event.instance_id)

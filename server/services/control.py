@@ -132,7 +132,12 @@ class ControlService:
         return req.wire()
 
     async def grant(
-        self, principal: Principal, instance_id: str, username: str, duration_s: float
+        self,
+        principal: Principal,
+        instance_id: str,
+        username: str,
+        duration_s: float,
+        operator_timeout_s: float | None = None,
     ) -> Lease:
         state = await self._live_for(principal, instance_id)
         rules.check_granter(principal, state.vehicle_id)
@@ -143,7 +148,7 @@ class ControlService:
             current = await self.current(state.instance_id)
             now = self.clock()
             if current is not None and not current.live(now):
-                await self._expire(current)  # not swept yet: its queue goes first
+                await self._expire(current, now)  # not swept yet: its queue goes first
                 continue
             lease, ended = rules.grant(
                 current,
@@ -153,6 +158,7 @@ class ControlService:
                 granted_by=principal.name,
                 now=now,
                 duration_s=duration_s,
+                operator_timeout_s=operator_timeout_s,
             )
             lease = dataclasses.replace(lease, rev=(current.rev if current else 0) + 1)
             if await self.repo.put_lease(lease.to_doc(), current.rev if current else None):
@@ -171,6 +177,7 @@ class ControlService:
                 "holder": username,
                 "expires_at": format_ts(lease.expires_at),
                 "replaces": ended.holder if ended is not None else None,
+                "operator_timeout_s": operator_timeout_s,
             },
         )
         if ended is not None:
@@ -194,6 +201,23 @@ class ControlService:
         elif lease is not None:
             await self._expire(lease)
 
+    async def operator_heartbeat(self, principal: Principal, instance_ids: list[str]) -> list[str]:
+        """The holder's client is alive: the leases it holds on these instances count it
+        (in the store, for every replica); the instances where it holds one."""
+        now = self.clock()
+        held = []
+        for instance_id in dict.fromkeys(instance_ids):
+            lease = self._leases.get(instance_id)
+            if lease is None or lease.holder != principal.name:
+                lease = await self.current(instance_id)
+            if lease is None or lease.holder != principal.name or not lease.live(now):
+                continue
+            if await self.repo.operator_seen(instance_id, principal.name, now):
+                if self._leases.get(instance_id) == lease:
+                    self._leases[instance_id] = dataclasses.replace(lease, operator_seen_at=now)
+                held.append(instance_id)
+        return held
+
     async def release(self, principal: Principal, instance_id: str) -> None:
         state = await self.instances.for_viewer(principal, instance_id)
         lease = rules.check_release(await self.current(state.instance_id), principal, self.clock())
@@ -208,7 +232,13 @@ class ControlService:
             if lease.live(now):
                 continue
             try:
-                await self._expire(lease)
+                if lease.lapse(now) == "operator_silent":
+                    # A heartbeat may have reached another replica: the store's word.
+                    stored = await self.current(lease.instance_id)
+                    if stored is None or stored.live(now):
+                        continue
+                    lease = stored
+                await self._expire(lease, now)
             except Unavailable as exc:
                 self.dead_letters.failed("leases", exc)
                 return
@@ -224,13 +254,20 @@ class ControlService:
             except Unavailable as exc:
                 self.dead_letters.failed("leases", exc)
 
-    async def _expire(self, lease: Lease) -> None:
-        if await self._end(lease, "expired"):
+    async def _expire(self, lease: Lease, now: datetime | None = None) -> None:
+        """End a lease that lapsed: past its expiry, or its holder's client silent."""
+        now = now or self.clock()
+        reason = lease.lapse(now) or "expired"
+        if await self._end(lease, reason):
+            data: dict[str, Any] = {"holder": lease.holder, "reason": reason}
+            if reason == "operator_silent" and lease.operator_seen_at is not None:
+                data["operator_timeout_s"] = lease.operator_timeout_s
+                data["operator_seen_at"] = format_ts(lease.operator_seen_at)
             await self.events.record(
                 "control_expired",
                 vehicle_id=lease.vehicle_id,
                 instance_id=lease.instance_id,
-                data={"holder": lease.holder},
+                data=data,
             )
 
     async def on_user_changed(self, event: UserChanged) -> None:

@@ -10,13 +10,21 @@ from server.errors import NotFound
 from server.services.auth import AuthService
 from server.services.instances import InstanceService, InstanceState
 from server.services.link import Leases
+from server.services.safety import SafetyService
 
 
 class FleetViews:
-    def __init__(self, auth: AuthService, instances: InstanceService, leases: Leases) -> None:
+    def __init__(
+        self,
+        auth: AuthService,
+        instances: InstanceService,
+        leases: Leases,
+        safety: SafetyService,
+    ) -> None:
         self.auth = auth
         self.instances = instances
         self.leases = leases
+        self.safety = safety
 
     def instance_view(self, state: InstanceState) -> InstanceView:
         return InstanceView(
@@ -68,6 +76,7 @@ class FleetViews:
                 instance_id=None,
                 position=None,
                 control=None,
+                failsafe=self.safety.known_policy(meta["vehicle_id"]),
             )
         return VehicleView(
             vehicle_id=state.vehicle_id,
@@ -79,6 +88,8 @@ class FleetViews:
             control=self.leases.lease_info(state.instance_id),
             control_mode=state.control_mode,
             last_seen=state.last_seen,
+            failsafe=self.safety.known_policy(state.vehicle_id),
+            failsafe_acked=self.safety.acked(state),
         )
 
     async def connect(self, principal: Principal, body: ConnectInstance) -> InstanceView:

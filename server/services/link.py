@@ -16,6 +16,7 @@ from fleet_protocol import (
     Sample,
     StartInstance,
     StartInstanceResult,
+    UpdateFbMessage,
     UpdateParam,
 )
 from server.domain.access import Principal
@@ -51,6 +52,20 @@ class Leases(Protocol):
         """The lease as the store has it now (the copy behind ``lease_info`` caught up)."""
 
 
+class Failsafes(Protocol):
+    async def for_start(self, state: InstanceState) -> FailsafePolicy: ...
+
+    async def pending(self, state: InstanceState) -> FailsafePolicy | None: ...
+
+    async def acknowledge(self, state: InstanceState, version: int | None) -> None: ...
+
+
+class Feedback(Protocol):
+    async def acknowledge(
+        self, principal: Principal, instance_id: str, control_mode: str | None, acks: list[Any]
+    ) -> list[str]: ...
+
+
 class VehicleLink:
     def __init__(
         self,
@@ -58,18 +73,17 @@ class VehicleLink:
         instances: InstanceService,
         telemetry: Telemetry,
         leases: Leases,
+        feedback: Feedback,
+        failsafes: Failsafes,
         messages: MessageBus,
     ) -> None:
         self.settings = settings
         self.instances = instances
         self.telemetry = telemetry
         self.leases = leases
+        self.commands = feedback
+        self.failsafes = failsafes
         self.messages = messages
-
-    def failsafe(self) -> FailsafePolicy:
-        return FailsafePolicy(
-            after_s=self.settings.failsafe_after_s, action=self.settings.failsafe_action
-        )
 
     async def start(self, principal: Principal, body: StartInstance) -> StartInstanceResult:
         state, resumed = await self.instances.start(principal, body)
@@ -83,7 +97,7 @@ class VehicleLink:
             offline_after_s=s.offline_after_s,
             ack_timeout_s=s.ack_timeout_s,
             server_time=self.instances.clock(),
-            failsafe=self.failsafe(),
+            failsafe=await self.failsafes.for_start(state),
             control=self.leases.lease_info(state.instance_id),
         )
 
@@ -97,6 +111,23 @@ class VehicleLink:
         state = await self.instances.for_vehicle_caller(principal, instance_id)
         await self.instances.finish(principal, state)
         return FinishInstanceResult(instance_id=instance_id)
+
+    async def feedback(self, principal: Principal, body: UpdateFbMessage) -> list[str]:
+        """The vehicle's acks, control mode and failsafe version; the ``abort`` list."""
+        abort = await self.commands.acknowledge(
+            principal, body.instance_id, body.control_mode, body.acks
+        )
+        if body.failsafe_version is not None:
+            state = await self.instances.for_vehicle_caller(principal, body.instance_id)
+            await self.failsafes.acknowledge(state, body.failsafe_version)
+        return abort
+
+    async def pending_failsafe(
+        self, principal: Principal, instance_id: str
+    ) -> FailsafePolicy | None:
+        """The vehicle's policy, while it has not acknowledged the current version."""
+        state = await self.instances.for_vehicle_caller(principal, instance_id)
+        return await self.failsafes.pending(state)
 
     async def heartbeat(self, principal: Principal, instance_id: str) -> HeartbeatResult:
         await self.live(principal, instance_id)

@@ -45,6 +45,13 @@ class ControlRepo:
             return True
         return await self.leases.replace({"_id": doc["_id"], "rev": read_rev}, doc)
 
+    async def operator_seen(self, instance_id: str, holder: str, at: datetime) -> bool:
+        """The holder's client was heard at ``at`` (never moved back; the ``rev`` stays:
+        a heartbeat changes no decision another replica is making)."""
+        return await self.leases.update(
+            {"_id": instance_id, "holder": holder}, max={"operator_seen_at": at}
+        )
+
     async def drop_lease(self, instance_id: str, rev: int) -> bool:
         """Drop the lease if it is still the one read; whether this call dropped it."""
         return await self.leases.delete({"_id": instance_id, "rev": rev}) > 0

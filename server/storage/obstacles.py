@@ -11,14 +11,14 @@ from typing import Any
 from server.storage.backends import Doc, Store
 
 
-def _stored(polygon: dict[str, Any]) -> dict[str, Any]:
+def stored_polygon(polygon: dict[str, Any]) -> dict[str, Any]:
     rings = [
         {"points": [{"lon": p[0], "lat": p[1]} for p in ring]} for ring in polygon["coordinates"]
     ]
     return {"type": polygon["type"], "rings": rings}
 
 
-def _geojson(stored: dict[str, Any]) -> dict[str, Any]:
+def geojson_polygon(stored: dict[str, Any]) -> dict[str, Any]:
     if "coordinates" in stored:  # written by an earlier version
         return stored
     rings = [[[p["lon"], p["lat"]] for p in ring["points"]] for ring in stored["rings"]]
@@ -27,7 +27,7 @@ def _geojson(stored: dict[str, Any]) -> dict[str, Any]:
 
 def _read(doc: Doc | None) -> Doc | None:
     if doc is not None:
-        doc["polygon"] = _geojson(doc["polygon"])
+        doc["polygon"] = geojson_polygon(doc["polygon"])
     return doc
 
 
@@ -46,7 +46,7 @@ class ObstaclesRepo:
         return await self.obstacles.count({})
 
     async def insert(self, doc: Doc) -> None:
-        stored = {**doc, "_id": doc["obstacle_id"], "polygon": _stored(doc["polygon"])}
+        stored = {**doc, "_id": doc["obstacle_id"], "polygon": stored_polygon(doc["polygon"])}
         await self.obstacles.insert(stored)
 
     async def delete(self, obstacle_id: str) -> bool:

@@ -59,6 +59,7 @@ class World:
     command_id: str
     gateway_id: str
     obstacle_id: str
+    zone_id: str
     password_user: str
     tokens: dict[str, str | None]
 
@@ -116,7 +117,11 @@ async def build(c: httpx.AsyncClient, app: Any) -> World:
     obstacle_id = (await post("/api/obstacles", {"name": "pier", "polygon": polygon}))[
         "obstacle_id"
     ]
-    return World(n, vid, iid, command_id, gid, obstacle_id, password_user, tokens)
+    far = {"type": "Polygon", "coordinates": [[[10, 10], [10, 11], [11, 11], [11, 10], [10, 10]]]}
+    zone_id = (await post("/api/zones", {"name": "reef", "kind": "no_go", "polygon": far}))[
+        "zone_id"
+    ]
+    return World(n, vid, iid, command_id, gid, obstacle_id, zone_id, password_user, tokens)
 
 
 async def expired_session(app: Any, username: str) -> str:
@@ -178,6 +183,10 @@ def go_to(w: World) -> dict[str, Any]:
 
 def patch(path: str, body: dict[str, Any]) -> Call:
     return lambda w: (path.format(w=w), {"json": body, "method": "PATCH"})
+
+
+def put(path: str, body: dict[str, Any]) -> Call:
+    return lambda w: (path.format(w=w), {"json": body, "method": "PUT"})
 
 
 def delete(path: str) -> Call:
@@ -249,6 +258,33 @@ ROWS: dict[tuple[str, str], tuple[Call, dict[str, int]]] = {
         delete("/api/obstacles/{w.obstacle_id}"),
         admin(),
     ),
+    ("GET", "/api/vehicles/{vehicle_id}/failsafe"): (
+        get("/api/vehicles/{w.vid}/failsafe"),
+        users(),
+    ),
+    ("PUT", "/api/vehicles/{vehicle_id}/failsafe"): (
+        put("/api/vehicles/{w.vid}/failsafe", {"action": "stop", "after_s": 10}),
+        users(viewer=403, operator=403),  # the vehicle's field manager, an admin
+    ),
+    ("GET", "/api/vehicles/{vehicle_id}/audit"): (get("/api/vehicles/{w.vid}/audit"), users()),
+    ("GET", "/api/zones"): (get("/api/zones"), users()),
+    ("GET", "/api/zones/{zone_id}"): (get("/api/zones/{w.zone_id}"), users()),
+    ("POST", "/api/zones"): (
+        post(
+            "/api/zones",
+            lambda w: {
+                "name": "shoal",
+                "kind": "no_go",
+                "polygon": {
+                    "type": "Polygon",
+                    "coordinates": [[[20, 20], [20, 21], [21, 21], [21, 20], [20, 20]]],
+                },
+            },
+        ),
+        admin(201),
+    ),
+    ("PATCH", "/api/zones/{zone_id}"): (patch("/api/zones/{w.zone_id}", {"name": "x"}), admin()),
+    ("DELETE", "/api/zones/{zone_id}"): (delete("/api/zones/{w.zone_id}"), admin()),
     ("GET", "/api/users"): (get("/api/users"), admin()),
     ("POST", "/api/users"): (
         post("/api/users", lambda w: {"username": f"new-{w.n}", "role": "viewer"}),
@@ -303,6 +339,10 @@ ROWS: dict[tuple[str, str], tuple[Call, dict[str, int]]] = {
     ("POST", "/client/release_control"): (
         post("/client/release_control", lambda w: {"instance_id": w.iid}),
         users(viewer=403, manager=409, admin=409),  # only the holder releases
+    ),
+    ("POST", "/client/heartbeat"): (
+        post("/client/heartbeat", lambda w: {"instance_ids": [w.iid]}),
+        users(viewer=403),  # an operator or above: held lists where it holds the lease
     ),
     ("POST", "/upper/start_instance"): (
         post("/upper/start_instance", lambda w: {"vehicle_id": w.vid}),

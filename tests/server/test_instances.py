@@ -27,7 +27,7 @@ async def test_start_returns_the_contract_fields(client: httpx.AsyncClient) -> N
         "control",
     ):
         assert key in body
-    assert body["failsafe"] == {"after_s": 30.0, "action": "keep_station"}
+    assert body["failsafe"]["after_s"] == 30.0 and body["failsafe"]["action"] == "keep_station"
     assert body["server_time"].endswith("Z")
 
 

@@ -25,6 +25,7 @@ from fleet_protocol.ws import (
     ControlPush,
     ErrorPush,
     EventPush,
+    FailsafePush,
     LaggingPush,
     RoutesPush,
 )
@@ -44,7 +45,14 @@ __all__ = [
 
 
 AnyPush = Annotated[
-    AckPush | ErrorPush | CommandPush | ControlPush | EventPush | RoutesPush | LaggingPush,
+    AckPush
+    | ErrorPush
+    | CommandPush
+    | ControlPush
+    | FailsafePush
+    | EventPush
+    | RoutesPush
+    | LaggingPush,
     Field(discriminator="op"),
 ]
 _push_adapter: TypeAdapter[Any] = TypeAdapter(AnyPush)

@@ -36,6 +36,7 @@ from websockets.exceptions import ConnectionClosed, InvalidHandshake, InvalidURI
 from fleet_protocol import (
     CommandObject,
     ControlInfo,
+    FailsafePolicy,
     GetControlResult,
     HeartbeatResult,
     StartInstance,
@@ -45,7 +46,14 @@ from fleet_protocol import (
     UpdateParam,
     UpdateParamResult,
 )
-from fleet_protocol.ws import AckPush, CommandPush, ControlPush, EventPush, RoutesPush
+from fleet_protocol.ws import (
+    AckPush,
+    CommandPush,
+    ControlPush,
+    EventPush,
+    FailsafePush,
+    RoutesPush,
+)
 from vehicle_client.errors import AgentError, FatalError, RetryableError
 from vehicle_client.transport.wire import (
     IdSource,
@@ -302,6 +310,11 @@ class WsLink:
                 vehicle = self._for_instance(push.instance_id)
                 if vehicle is not None:
                     vehicle.set_control(push.control)
+            case FailsafePush():
+                vehicle = self._for_instance(push.instance_id)
+                if vehicle is not None:
+                    vehicle.failsafe = push.failsafe  # handed to the agent by get_control
+                    vehicle.wake.set()
             case EventPush():
                 if self.on_event is not None:
                     self.on_event(push)
@@ -328,6 +341,8 @@ class WsTransport:
         self.wake = asyncio.Event()
         self.control: ControlInfo | None = None
         self.on_control: Callable[[ControlInfo | None], None] | None = None
+        #: A policy pushed and not yet handed to the agent.
+        self.failsafe: FailsafePolicy | None = None
 
     def set_control(self, control: ControlInfo | None) -> None:
         changed = control != self.control
@@ -370,13 +385,14 @@ class WsTransport:
         the server that the socket has not shown.
         """
         sock = await self.link._open()
-        while not self.inbox:
+        while not self.inbox and self.failsafe is None:
             if sock.error is not None:
                 raise sock.error
             self.wake.clear()
             await self.wake.wait()
         commands, self.inbox = self.inbox, []
-        return GetControlResult.model_construct(commands=commands)
+        failsafe, self.failsafe = self.failsafe, None
+        return GetControlResult.model_construct(commands=commands, failsafe=failsafe)
 
     async def aclose(self) -> None:
         await self.link.aclose()

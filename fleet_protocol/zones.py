@@ -1,0 +1,66 @@
+"""Operating areas and no-go zones (``/api/zones``).
+
+A ``no_go`` zone is refused to every vehicle (or, when ``vehicles`` lists some, to
+those): a target in it, or a route through it, is a 422 naming the zone, and a planned
+path goes round it (at ``clearance_m``). An ``operating_area`` holds the vehicles it
+lists: a target or route outside every area of a vehicle is refused. Telemetry entering
+a no-go zone or leaving an area raises an event. The set of zones has a ``version`` that
+rises with each change: a command checked against an older one is checked again before
+it is handed out.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import Field
+
+from fleet_protocol.common import Identifier, Timestamp, WireModel
+from fleet_protocol.obstacles import PolygonGeometry
+from fleet_protocol.values import Text
+
+__all__ = ["CreateZone", "PatchZone", "ZoneKind", "ZoneList", "ZoneView"]
+
+ZoneKind = Literal["no_go", "operating_area"]
+
+
+class CreateZone(WireModel):
+    name: Text = Field(min_length=1, max_length=128)
+    kind: ZoneKind
+    polygon: PolygonGeometry
+    #: The vehicles it applies to; empty: every vehicle (a no-go zone only: an operating
+    #: area holds the vehicles it lists).
+    vehicles: list[Identifier] = Field(default_factory=list, max_length=1000)
+    clearance_m: float | None = Field(
+        default=None,
+        ge=0,
+        le=10_000,
+        allow_inf_nan=False,
+        description="how far a planned path keeps from a no-go zone; unset: FLEET_SAFETY_RADIUS_M",
+    )
+
+
+class PatchZone(WireModel):
+    name: Text | None = Field(default=None, min_length=1, max_length=128)
+    polygon: PolygonGeometry | None = None
+    vehicles: list[Identifier] | None = Field(default=None, max_length=1000)
+    clearance_m: float | None = Field(default=None, ge=0, le=10_000, allow_inf_nan=False)
+
+
+class ZoneView(WireModel):
+    zone_id: Text
+    name: Text
+    kind: ZoneKind
+    polygon: PolygonGeometry
+    vehicles: list[Text]
+    clearance_m: float
+    #: The set's version when this zone last changed.
+    version: int
+    created_at: Timestamp
+    updated_at: Timestamp
+
+
+class ZoneList(WireModel):
+    zones: list[ZoneView]
+    #: The version of the whole set (it rises with every change).
+    version: int

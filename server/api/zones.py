@@ -1,0 +1,54 @@
+"""Operating areas and no-go zones: admins draw, change and remove them; every user sees
+those that concern the vehicles they see (a zone for every vehicle concerns everyone)."""
+
+from __future__ import annotations
+
+from fastapi import APIRouter
+
+from fleet_protocol import CreateZone, PatchZone, ZoneList, ZoneView
+from server.api.deps import Admin, ServicesDep, Viewer
+from server.domain.access import Principal
+from server.errors import NotFound
+from server.storage.backends import Doc
+
+router = APIRouter(tags=["zones"])
+
+
+def _seen(doc: Doc, user: Principal) -> ZoneView | None:
+    """The zone as this user sees it: only the vehicles they see, or not at all when it
+    concerns none of them."""
+    listed = doc.get("vehicles") or []
+    visible = [v for v in listed if user.can_see(v)]
+    if listed and not visible:
+        return None
+    return ZoneView.model_validate({**doc, "vehicles": visible})
+
+
+@router.get("/api/zones")
+async def list_zones(user: Viewer, s: ServicesDep) -> ZoneList:
+    docs, version = await s.zones.all()
+    views = [v for d in docs if (v := _seen(d, user)) is not None]
+    return ZoneList(zones=views, version=version)
+
+
+@router.get("/api/zones/{zone_id}")
+async def get_zone(zone_id: str, user: Viewer, s: ServicesDep) -> ZoneView:
+    view = _seen(await s.zones.get(zone_id), user)
+    if view is None:
+        raise NotFound(f"no zone {zone_id}")  # as an unknown one (docs/security.md)
+    return view
+
+
+@router.post("/api/zones", status_code=201)
+async def create_zone(body: CreateZone, admin: Admin, s: ServicesDep) -> ZoneView:
+    return ZoneView.model_validate(await s.zones.create(body, admin))
+
+
+@router.patch("/api/zones/{zone_id}")
+async def patch_zone(zone_id: str, body: PatchZone, admin: Admin, s: ServicesDep) -> ZoneView:
+    return ZoneView.model_validate(await s.zones.patch(zone_id, body, admin))
+
+
+@router.delete("/api/zones/{zone_id}")
+async def delete_zone(zone_id: str, admin: Admin, s: ServicesDep) -> ZoneView:
+    return ZoneView.model_validate(await s.zones.delete(zone_id, admin))

@@ -1,0 +1,65 @@
+"""What the server watches in each vehicle's telemetry: zone breaches and a low battery.
+Pure.
+
+A vehicle's watch state is the set of zones it is in breach of (a no-go zone it is
+inside, ``area:<vehicle>`` when it is outside every operating area of its own) and
+whether its battery is low. Each new position gives the next state; what changed
+between the two is what gets an event. The battery is low below the vehicle's threshold
+and stays low until it is :data:`BATTERY_HYSTERESIS_PCT` above it again, so that a
+reading that wavers round the threshold raises one event, not one a second.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from server.domain.zones import LatLon, ZoneSet, breaches
+
+#: Points above the threshold the battery must come back to before it is no longer low.
+BATTERY_HYSTERESIS_PCT = 2.0
+
+
+@dataclass(frozen=True)
+class WatchState:
+    breaches: frozenset[str] = frozenset()
+    low_battery: bool = False
+
+
+@dataclass(frozen=True)
+class Change:
+    """What moved between two watch states."""
+
+    entered: frozenset[str] = field(default_factory=frozenset)
+    left: frozenset[str] = field(default_factory=frozenset)
+    battery: str | None = None  # "low" or "recovered"
+
+    def __bool__(self) -> bool:
+        return bool(self.entered or self.left or self.battery)
+
+
+def battery_low(was_low: bool, battery_pct: float | None, threshold: float | None) -> bool:
+    if threshold is None or battery_pct is None:
+        return was_low and threshold is not None  # no reading: as it was
+    if was_low:
+        return battery_pct < threshold + BATTERY_HYSTERESIS_PCT
+    return battery_pct < threshold
+
+
+def next_state(
+    was: WatchState,
+    zones: ZoneSet,
+    vehicle_id: str,
+    point: LatLon,
+    battery_pct: float | None,
+    threshold: float | None,
+) -> WatchState:
+    return WatchState(
+        breaches(zones, vehicle_id, point), battery_low(was.low_battery, battery_pct, threshold)
+    )
+
+
+def change(was: WatchState, now: WatchState) -> Change:
+    battery = None
+    if now.low_battery != was.low_battery:
+        battery = "low" if now.low_battery else "recovered"
+    return Change(now.breaches - was.breaches, was.breaches - now.breaches, battery)

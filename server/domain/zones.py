@@ -1,0 +1,221 @@
+"""Operating areas and no-go zones: where a vehicle may be sent, and where it is. Pure.
+
+A no-go zone applies to every vehicle, or to those it lists; an operating area holds the
+vehicles it lists (a vehicle with no area is held by none). A target or a route is
+refused when it touches a no-go zone of the vehicle or leaves all of its areas; a
+position is in breach when it is inside such a zone or outside all its areas.
+Geometry is planar in degrees (longitude, latitude), which is what GeoJSON draws and
+fine at the size of a harbour or a survey area.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from functools import cached_property
+from typing import Literal
+
+from shapely.geometry import LineString, Point, Polygon
+from shapely.geometry.base import BaseGeometry
+from shapely.ops import unary_union
+
+from server.domain.planning import Zone
+
+ZoneKind = Literal["no_go", "operating_area"]
+#: (lat, lon) in degrees.
+LatLon = tuple[float, float]
+#: How far (degrees, about 5 km) the frame round an operating area reaches: the planner
+#: keeps a path inside the area by treating this frame, with the area as its hole, as
+#: an obstacle.
+AREA_FRAME_DEG = 0.05
+
+
+@dataclass(frozen=True)
+class Area:
+    """One zone: its rings as (lat, lon) positions, the first the outline, the rest holes."""
+
+    zone_id: str
+    name: str
+    kind: ZoneKind
+    rings: tuple[tuple[LatLon, ...], ...]
+    vehicles: frozenset[str] = frozenset()
+    clearance_m: float = 0.0
+
+    @cached_property
+    def shape(self) -> Polygon:
+        shell, *holes = ([(lon, lat) for lat, lon in ring] for ring in self.rings)
+        return Polygon(shell, holes)
+
+    def enters(self, geometry: BaseGeometry) -> bool:
+        """Whether ``geometry`` reaches inside (its edge touched is not inside)."""
+        return bool(self.shape.relate_pattern(geometry, "T********"))
+
+    def applies_to(self, vehicle_id: str) -> bool:
+        if self.kind == "no_go":
+            return not self.vehicles or vehicle_id in self.vehicles
+        return vehicle_id in self.vehicles
+
+
+@dataclass(frozen=True)
+class Violation:
+    """Why a target, a route or a position is refused: the zone, and a sentence."""
+
+    zone_id: str
+    name: str
+    kind: ZoneKind
+    message: str
+
+
+@dataclass(frozen=True)
+class ZoneSet:
+    """Every zone the server knows, at one version of the set."""
+
+    areas: tuple[Area, ...] = ()
+    version: int = 0
+    _cache: dict[str, tuple[tuple[Area, ...], tuple[Area, ...]]] = field(
+        default_factory=dict, compare=False, repr=False
+    )
+
+    def of(self, vehicle_id: str) -> tuple[tuple[Area, ...], tuple[Area, ...]]:
+        """The vehicle's no-go zones and its operating areas."""
+        found = self._cache.get(vehicle_id)
+        if found is None:
+            mine = [a for a in self.areas if a.applies_to(vehicle_id)]
+            found = (
+                tuple(a for a in mine if a.kind == "no_go"),
+                tuple(a for a in mine if a.kind == "operating_area"),
+            )
+            self._cache[vehicle_id] = found
+        return found
+
+    def no_go(self, vehicle_id: str) -> tuple[Area, ...]:
+        return self.of(vehicle_id)[0]
+
+
+def route_violation(
+    zones: ZoneSet, vehicle_id: str, start: LatLon | None, points: Sequence[LatLon]
+) -> Violation | None:
+    """Why the vehicle, at ``start`` (None: unknown), may not drive through ``points``
+    (straight legs). A vehicle already inside a no-go zone, or outside its areas, may
+    leave: the leg it starts on is not held against it, only where it is sent."""
+    if not points:
+        return None
+    no_go, areas = zones.of(vehicle_id)
+    here = Point(start[1], start[0]) if start is not None else None
+
+    def line(from_start: bool) -> LineString | Point:
+        route = [start, *points] if from_start and start is not None else list(points)
+        if len(route) == 1:
+            return Point(route[0][1], route[0][0])
+        return LineString([(lon, lat) for lat, lon in route])
+
+    for area in no_go:
+        inside = here is not None and area.enters(here)
+        if not area.enters(line(not inside)):
+            continue
+        hit = [k for k, (lat, lon) in enumerate(points) if area.enters(Point(lon, lat))]
+        if not hit:
+            what = "the route crosses"
+        elif len(points) == 1:
+            what = "the target is in"
+        else:
+            what = f"point {hit[0]} of the route is in"
+        return Violation(area.zone_id, area.name, "no_go", f"{what} no-go zone {area.name}")
+    if areas:
+        held = unary_union([a.shape for a in areas])
+        outside = here is not None and not held.covers(here)
+        if not held.covers(line(not outside)):
+            names = ", ".join(a.name for a in areas)
+            last = Point(points[-1][1], points[-1][0])
+            what = "target is outside" if not held.covers(last) else "route leaves"
+            return Violation(
+                areas[0].zone_id,
+                areas[0].name,
+                "operating_area",
+                f"the {what} the vehicle's operating area ({names})",
+            )
+    return None
+
+
+def breaches(zones: ZoneSet, vehicle_id: str, point: LatLon) -> frozenset[str]:
+    """Where the vehicle at ``point`` should not be: the no-go zones it is in, and
+    ``area:<vehicle>`` when it is outside all of its operating areas."""
+    no_go, areas = zones.of(vehicle_id)
+    where = Point(point[1], point[0])
+    out = {a.zone_id for a in no_go if a.enters(where)}
+    if areas and not any(a.shape.covers(where) for a in areas):
+        out.add(f"area:{vehicle_id}")
+    return frozenset(out)
+
+
+def command_targets(kind: str, args: dict[str, object]) -> list[LatLon]:
+    """The positions a command sends the vehicle to, in order (none for ``stop`` or a
+    ``keep_station`` where the vehicle is)."""
+    if kind == "go_to":
+        return [(float(args["lat"]), float(args["lon"]))]  # type: ignore[arg-type]
+    if kind == "keep_station" and args.get("lat") is not None:
+        return [(float(args["lat"]), float(args["lon"]))]  # type: ignore[arg-type]
+    if kind == "follow_path":
+        route = args.get("path") or args.get("waypoints") or []
+        return [(float(p["lat"]), float(p["lon"])) for p in route]  # type: ignore[attr-defined]
+    return []
+
+
+def command_violation(
+    zones: ZoneSet, vehicle_id: str, kind: str, args: dict[str, object], start: LatLon | None
+) -> Violation | None:
+    """Why the command may not be sent to the vehicle at ``start``, if it may not: where
+    it sends the vehicle, and the straight way there from ``start``."""
+    return route_violation(zones, vehicle_id, start, command_targets(kind, args))
+
+
+def closest_routes(
+    routes: dict[str, Sequence[LatLon]], separation_m: float
+) -> tuple[str, str, float] | None:
+    """Two routes that come within ``separation_m`` of each other (and how close), or
+    None. Distances in metres, on a local flat frame round the routes' mean latitude."""
+    points = [p for route in routes.values() for p in route]
+    if len(routes) < 2 or not points:
+        return None
+    lat0 = sum(p[0] for p in points) / len(points)
+    kx = 111_320.0 * math.cos(math.radians(lat0))
+    ky = 110_540.0
+    shapes = {
+        name: (
+            LineString([(lon * kx, lat * ky) for lat, lon in route])
+            if len(route) > 1
+            else Point(route[0][1] * kx, route[0][0] * ky)
+        )
+        for name, route in routes.items()
+        if route
+    }
+    names = sorted(shapes)
+    for i, a in enumerate(names):
+        for b in names[i + 1 :]:
+            distance = shapes[a].distance(shapes[b])
+            if distance < separation_m:
+                return a, b, distance
+    return None
+
+
+def keep_out(zones: ZoneSet, vehicle_id: str) -> list[Zone]:
+    """What a path planned for the vehicle keeps clear of: its no-go zones (at their
+    clearance), and the outside of its operating area (a frame round the area with the
+    area as its hole; each hole of the area, an island, as an obstacle of its own).
+    Several areas that do not make one polygon are left to the route check."""
+    no_go, areas = zones.of(vehicle_id)
+    out = [Zone(a.rings, a.clearance_m, f"no-go zone {a.name}") for a in no_go]
+    if areas:
+        held = unary_union([a.shape for a in areas])
+        if isinstance(held, Polygon):
+            x0, y0, x1, y1 = held.bounds
+            d = AREA_FRAME_DEG
+            frame = ((y0 - d, x0 - d), (y0 - d, x1 + d), (y1 + d, x1 + d), (y1 + d, x0 - d))
+            shell = tuple((lat, lon) for lon, lat in held.exterior.coords)
+            name = "the outside of the operating area " + ", ".join(a.name for a in areas)
+            out.append(Zone((frame, shell), 0.0, name))
+            for hole in held.interiors:
+                island = tuple((lat, lon) for lon, lat in hole.coords)
+                out.append(Zone((island,), 0.0, name))
+    return out
