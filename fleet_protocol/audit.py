@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import hashlib
 import json
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 from fleet_protocol.common import Timestamp, WireModel
@@ -48,7 +48,7 @@ def entry_hash(prev_hash: str, entry: Mapping[str, Any]) -> str:
     return "sha256:" + hashlib.sha256((prev_hash + "\n" + text).encode()).hexdigest()
 
 
-def first_break(entries: list[Mapping[str, Any]]) -> tuple[int, str] | None:
+def first_break(entries: Sequence[Mapping[str, Any]]) -> tuple[int, str] | None:
     """Where a chain (entries in ``seq`` order, ``at`` as wire text) breaks: the ``seq``
     of the first entry that does not match, and why; None when every link holds."""
     prev, expected_seq = GENESIS, None

@@ -27,6 +27,7 @@ from remote_client.cli_common import (
     run,
     say,
 )
+from remote_client.cli_safety import alive, audit_app, failsafe_app, zones_app
 from remote_client.output import console
 from remote_client.sdk import FleetClient, UnknownVehicle, pick_vehicle, shown_status
 
@@ -40,6 +41,10 @@ app = typer.Typer(
 app.add_typer(vehicles_app, name="vehicles")
 app.add_typer(users_app, name="users")
 app.add_typer(gateways_app, name="gateways")
+app.add_typer(zones_app, name="zones")
+app.add_typer(failsafe_app, name="failsafe")
+app.add_typer(audit_app, name="audit")
+app.command()(alive)
 for command in (cli_data.params, cli_data.events, cli_data.export, cli_data.track, cli_data.sync):
     app.command()(command)
 
@@ -229,6 +234,13 @@ def grant(
     vehicle: str = VehicleArg,
     user: str = typer.Argument(..., help="the operator to hand control to"),
     duration: int = typer.Option(3600, help="seconds"),
+    operator_timeout: int | None = typer.Option(
+        None,
+        min=2,
+        max=3600,
+        help="the lease lapses (the vehicle holds station) when the operator's client is "
+        "silent this many seconds (fleetctl alive, watch and the console keep it alive)",
+    ),
     server: str = ServerOpt,
     token: str = TokenOpt,
     as_json: bool = JsonOpt,
@@ -237,7 +249,9 @@ def grant(
 
     async def act(fleet: FleetClient) -> tuple[str, dict[str, Any]]:
         instance_id = await fleet.instance_id_of(vehicle)
-        return instance_id, await fleet.grant_control(instance_id, user, duration)
+        return instance_id, await fleet.grant_control(
+            instance_id, user, duration, operator_timeout_s=operator_timeout
+        )
 
     instance_id, data = run(server, token, act)
     say(data, as_json, f"{data['holder']} holds {instance_id} until {data['expires_at']}")

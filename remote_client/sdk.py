@@ -16,6 +16,7 @@ Tests hand it an ``httpx.AsyncClient`` on the app itself (``client=``).
 
 from __future__ import annotations
 
+import asyncio
 import json
 from collections.abc import AsyncGenerator, Sequence
 from dataclasses import dataclass
@@ -353,9 +354,20 @@ class FleetClient:
         body: Body = await self.call("GET", "/client/control_requests", params=params)
         return body
 
-    async def grant_control(self, instance_id: str, user: str, duration_s: int = 3600) -> Body:
-        """The lease ``{holder, granted_by, expires_at}`` (a field manager or an admin)."""
-        body = {"instance_id": instance_id, "user": user, "duration_s": duration_s}
+    async def grant_control(
+        self,
+        instance_id: str,
+        user: str,
+        duration_s: int = 3600,
+        *,
+        operator_timeout_s: int | None = None,
+    ) -> Body:
+        """The lease ``{holder, granted_by, expires_at, operator_timeout_s}`` (a field
+        manager or an admin). With ``operator_timeout_s`` it lapses when the holder's
+        client sends no heartbeat (:meth:`keep_leases_alive`) for that long."""
+        body = {"instance_id": instance_id, "user": user, "duration_s": duration_s} | _given(
+            operator_timeout_s=operator_timeout_s
+        )
         answer: Body = await self.call("POST", "/client/grant_control", json=body)
         return answer
 
@@ -427,6 +439,91 @@ class FleetClient:
         """Every token of a ``vehicle``, ``gateway`` or ``user`` revoked: ``{"ok": true}``."""
         body: Body = await self.call("POST", f"/api/{_plural(kind)}/{subject}/revoke_tokens")
         return body
+
+    # ---- safety: zones, failsafes, operator liveness, the control log --------------
+    async def zones(self) -> Body:
+        """``{"zones": [...], "version"}``: the operating areas and no-go zones."""
+        body: Body = await self.call("GET", "/api/zones")
+        return body
+
+    async def create_zone(
+        self,
+        name: str,
+        kind: str,
+        polygon: Body,
+        vehicles: Sequence[str] = (),
+        clearance_m: float | None = None,
+    ) -> Body:
+        """(admin) A zone: ``kind`` ``no_go`` or ``operating_area``, ``polygon`` GeoJSON."""
+        fields = _given(clearance_m=clearance_m)
+        body: Body = await self.call(
+            "POST",
+            "/api/zones",
+            json={"name": name, "kind": kind, "polygon": polygon, "vehicles": list(vehicles)}
+            | fields,
+        )
+        return body
+
+    async def delete_zone(self, zone_id: str) -> Body:
+        body: Body = await self.call("DELETE", f"/api/zones/{zone_id}")
+        return body
+
+    async def failsafe(self, vehicle_id: str) -> Body:
+        """The vehicle's failsafe policy, and whether its instance applies it."""
+        body: Body = await self.call("GET", f"/api/vehicles/{vehicle_id}/failsafe")
+        return body
+
+    async def set_failsafe(self, vehicle_id: str, **policy: Any) -> Body:
+        """(manager of the vehicle, admin) The whole policy: ``action``, ``after_s``,
+        ``home`` ({lat, lon}), ``on_breach``, ``low_battery_pct``."""
+        body: Body = await self.call(
+            "PUT", f"/api/vehicles/{vehicle_id}/failsafe", json=_given(**policy)
+        )
+        return body
+
+    async def me(self) -> Body:
+        """The user this token acts for: ``username``, ``role``, ``vehicles``."""
+        body: Body = await self.call("GET", "/api/me")
+        return body
+
+    async def heartbeat(self, instance_ids: Sequence[str]) -> list[str]:
+        """This client is alive: for the leases the caller holds on these instances; the
+        instances where it holds one."""
+        body: Body = await self.call(
+            "POST", "/client/heartbeat", json={"instance_ids": list(instance_ids)}
+        )
+        return list(body["held"])
+
+    async def keep_leases_alive(self, every_s: float | None = None) -> None:
+        """Until cancelled: heartbeats for every lease the caller holds, a third of the
+        shortest ``operator_timeout_s`` apart (``every_s``: that instead). A lease granted
+        with an operator timeout lapses when its holder's client stops: run this while
+        you hold control."""
+        username = (await self.me())["username"]
+        while True:
+            held = [
+                (v["instance_id"], v["control"].get("operator_timeout_s"))
+                for v in (await self.vehicles())["vehicles"]
+                if v.get("control") and v["control"].get("holder") == username
+            ]
+            if held:
+                await self.heartbeat([instance_id for instance_id, _ in held])
+            timeouts = [t for _, t in held if t]
+            wait = every_s or (min(timeouts) / 3 if timeouts else 5.0)
+            await asyncio.sleep(max(0.5, min(wait, 10.0)))
+
+    async def audit(self, vehicle_id: str) -> list[Body]:
+        """The vehicle's whole control log, oldest first (every page)."""
+        entries: list[Body] = []
+        after = 0
+        while True:
+            page: Body = await self.call(
+                "GET", f"/api/vehicles/{vehicle_id}/audit", params={"after_seq": after}
+            )
+            entries += page["entries"]
+            if page["next_after_seq"] is None:
+                return entries
+            after = page["next_after_seq"]
 
     # ---- live --------------------------------------------------------------------
     async def events(

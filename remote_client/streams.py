@@ -3,12 +3,15 @@
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import csv
 import json
+import logging
 from collections.abc import AsyncIterator
 from dataclasses import dataclass
 from typing import IO, Any
 
+import httpx
 import typer
 import websockets
 from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
@@ -16,6 +19,8 @@ from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
 from remote_client.lines import event_lines
 from remote_client.output import errors
 from remote_client.sdk import FleetApiError, FleetClient
+
+log = logging.getLogger(__name__)
 
 #: CSV columns of ``export``: the sample's fields, then ``data`` as JSON text.
 SAMPLE_COLUMNS = ("seq", "ts", "lat", "lon", "depth_m", "heading_deg", "speed_mps", "battery_pct")
@@ -71,10 +76,11 @@ async def watch(fleet: FleetClient, follow: Follow) -> None:
     """Print each event of ``follow.topics`` until ``count`` events or ``seconds``. A lost
     link is taken up again and each topic's current state comes first again (the changes
     while the link was down are not replayed: ``export`` has every sample); a refusal is
-    exit 1, a server not reachable at the start exit 3."""
+    exit 1, a server not reachable at the start exit 3. While it runs, the leases the
+    caller holds are kept alive (``FleetClient.keep_leases_alive``)."""
     seen = failures = 0
     try:
-        async with fleet, asyncio.timeout(follow.seconds):
+        async with fleet, asyncio.timeout(follow.seconds), _leases_kept(fleet):
             while True:
                 try:
                     async for push in fleet.events(follow.topics, throttle_ms=follow.throttle_ms):
@@ -103,6 +109,28 @@ async def watch(fleet: FleetClient, follow: Follow) -> None:
                 await asyncio.sleep(wait)
     except TimeoutError:
         return  # --seconds is over
+
+
+@contextlib.asynccontextmanager
+async def _leases_kept(fleet: FleetClient) -> AsyncIterator[None]:
+    """Heartbeats for the caller's leases in the background while the block runs; a
+    failed round is tried again a little later (watching goes on regardless)."""
+
+    async def keep() -> None:
+        while True:
+            try:
+                await fleet.keep_leases_alive()
+            except (FleetApiError, httpx.HTTPError, KeyError) as exc:
+                log.debug("lease heartbeat: %s", exc)
+                await asyncio.sleep(5.0)
+
+    task = asyncio.create_task(keep())
+    try:
+        yield
+    finally:
+        task.cancel()
+        with contextlib.suppress(asyncio.CancelledError):
+            await task
 
 
 def print_event(push: dict[str, Any], as_json: bool) -> None:

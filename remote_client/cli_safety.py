@@ -1,0 +1,265 @@
+"""``fleetctl zones``, ``failsafe``, ``alive`` and ``audit``: where vehicles may go, what
+each does on its own, keeping your leases alive, and checking a vehicle's control log."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+from typing import Any
+
+import typer
+from rich.table import Table
+
+from fleet_protocol import first_break
+from remote_client.cli_common import JsonOpt, ServerOpt, TokenOpt, dump, fail, run, say
+from remote_client.output import console, errors
+from remote_client.sdk import FleetClient
+
+zones_app = typer.Typer(
+    invoke_without_command=True,
+    help="Operating areas and no-go zones: list (no subcommand); add, remove (admin).",
+)
+failsafe_app = typer.Typer(
+    no_args_is_help=True,
+    help="A vehicle's failsafe: show it; set it (the vehicle's manager, an admin).",
+)
+audit_app = typer.Typer(no_args_is_help=True, help="A vehicle's control log: show, verify.")
+
+ACTIONS = ("none", "keep_station", "stop", "return_home")
+
+
+# ---- zones ------------------------------------------------------------------------------
+@zones_app.callback()
+def zones(
+    ctx: typer.Context,
+    server: str = ServerOpt,
+    token: str | None = typer.Option(None, envvar="FLEET_TOKEN", help="API token (FLEET_TOKEN)"),
+    as_json: bool = JsonOpt,
+) -> None:
+    if ctx.invoked_subcommand is not None:
+        return
+    if token is None:
+        fail("give a token: --token or FLEET_TOKEN")
+    data = run(server, token, lambda fleet: fleet.zones())
+    if as_json:
+        dump(data)
+        return
+    table = Table(title=f"zones (version {data['version']})")
+    for name in ("zone", "name", "kind", "vehicles", "clearance m"):
+        table.add_column(name, no_wrap=name == "zone")
+    for z in data["zones"]:
+        vehicles = ", ".join(z["vehicles"]) or "every vehicle"
+        table.add_row(z["zone_id"], z["name"], z["kind"], vehicles, f"{z['clearance_m']:g}")
+    console.print(table)
+
+
+@zones_app.command("add")
+def zones_add(
+    name: str = typer.Argument(..., help="what the zone is called"),
+    geojson: str = typer.Argument(..., help="a file holding a GeoJSON Polygon (or a Feature)"),
+    kind: str = typer.Option("no_go", help="no_go or operating_area"),
+    vehicle: list[str] = typer.Option(
+        None, "--vehicle", "-v", help="a vehicle it applies to; repeat (an area needs one)"
+    ),
+    clearance: float | None = typer.Option(None, help="metres a planned path keeps from it"),
+    server: str = ServerOpt,
+    token: str = TokenOpt,
+    as_json: bool = JsonOpt,
+) -> None:
+    """(admin) Draw a zone from a GeoJSON file."""
+    if kind not in ("no_go", "operating_area"):
+        fail(f"--kind is no_go or operating_area, not {kind!r}")
+    try:
+        with open(geojson, encoding="utf-8") as f:
+            shape = json.load(f)
+    except (OSError, ValueError) as exc:
+        fail(f"cannot read {geojson}: {exc}")
+    polygon = shape.get("geometry", shape) if isinstance(shape, dict) else shape
+
+    async def act(fleet: FleetClient) -> dict[str, Any]:
+        ids = [await fleet.vehicle_id_of(v) for v in vehicle or []]
+        return await fleet.create_zone(name, kind, polygon, ids, clearance)
+
+    data = run(server, token, act)
+    say(
+        data,
+        as_json,
+        f"{data['zone_id']}: {data['kind']} {data['name']} (zones v{data['version']})",
+    )
+
+
+@zones_app.command("remove")
+def zones_remove(
+    zone_id: str = typer.Argument(..., help="the zone's id (fleetctl zones)"),
+    server: str = ServerOpt,
+    token: str = TokenOpt,
+    as_json: bool = JsonOpt,
+) -> None:
+    """(admin) Remove a zone."""
+    data = run(server, token, lambda fleet: fleet.delete_zone(zone_id))
+    say(data, as_json, f"{zone_id} removed")
+
+
+# ---- failsafe ----------------------------------------------------------------------------
+def _policy_text(data: dict[str, Any]) -> str:
+    p = data["failsafe"]
+    home = p.get("home")
+    where = f" to {home['lat']:.6f},{home['lon']:.6f}" if home else ""
+    state = data.get("acked")
+    acked = (
+        "no live instance"
+        if state is None
+        else ("applied by the vehicle" if state else "NOT yet applied by the vehicle")
+    )
+    extra = []
+    if p.get("on_breach"):
+        extra.append("also on a zone breach")
+    if p.get("low_battery_pct") is not None:
+        extra.append(f"low battery below {p['low_battery_pct']:g} %")
+    more = f" ({'; '.join(extra)})" if extra else ""
+    return (
+        f"{data['vehicle_id']}: {p['action']}{where} after {p['after_s']:g} s without the "
+        f"server{more}; version {p['version']}, {acked}"
+    )
+
+
+@failsafe_app.command("show")
+def failsafe_show(
+    vehicle: str = typer.Argument(..., help="vehicle id or name"),
+    server: str = ServerOpt,
+    token: str = TokenOpt,
+    as_json: bool = JsonOpt,
+) -> None:
+    """What the vehicle does on its own after losing the server, and whether it applies it."""
+
+    async def act(fleet: FleetClient) -> dict[str, Any]:
+        return await fleet.failsafe(await fleet.vehicle_id_of(vehicle))
+
+    data = run(server, token, act)
+    say(data, as_json, _policy_text(data))
+
+
+@failsafe_app.command("set")
+def failsafe_set(
+    vehicle: str = typer.Argument(..., help="vehicle id or name"),
+    action: str = typer.Argument(..., help="none, keep_station, stop or return_home"),
+    after: float | None = typer.Option(None, help="seconds without the server (default 30)"),
+    home: str | None = typer.Option(None, help="LAT,LON for return_home (default: its start)"),
+    on_breach: bool = typer.Option(False, help="act also when it enters a no-go zone"),
+    low_battery: float | None = typer.Option(None, help="a low_battery event below this %"),
+    server: str = ServerOpt,
+    token: str = TokenOpt,
+    as_json: bool = JsonOpt,
+) -> None:
+    """(the vehicle's manager, admin) Set the vehicle's whole failsafe policy."""
+    if action not in ACTIONS:
+        fail(f"the action is one of {', '.join(ACTIONS)}, not {action!r}")
+    where = None
+    if home is not None:
+        try:
+            lat, lon = (float(x) for x in home.split(","))
+        except ValueError:
+            fail(f"--home is LAT,LON, not {home!r}")
+        where = {"lat": lat, "lon": lon}
+
+    async def act(fleet: FleetClient) -> dict[str, Any]:
+        return await fleet.set_failsafe(
+            await fleet.vehicle_id_of(vehicle),
+            action=action,
+            after_s=after,
+            home=where,
+            on_breach=on_breach,
+            low_battery_pct=low_battery,
+        )
+
+    data = run(server, token, act)
+    say(data, as_json, _policy_text(data))
+
+
+# ---- keeping leases alive ----------------------------------------------------------------
+def alive(
+    seconds: float | None = typer.Option(None, min=0, help="stop after this long"),
+    server: str = ServerOpt,
+    token: str = TokenOpt,
+) -> None:
+    """Keep the leases you hold alive while this runs (a lease granted with an operator
+    timeout lapses, and its vehicle holds station, once your client falls silent)."""
+
+    async def keep() -> None:
+        async with FleetClient(server, token) as fleet, asyncio.timeout(seconds):
+            await fleet.keep_leases_alive()
+
+    errors.print("keeping your leases alive; Ctrl-C stops", highlight=False)
+    with contextlib.suppress(KeyboardInterrupt, TimeoutError):
+        asyncio.run(keep())
+
+
+# ---- the control log ---------------------------------------------------------------------
+@audit_app.command("show")
+def audit_show(
+    vehicle: str = typer.Argument(..., help="vehicle id or name"),
+    server: str = ServerOpt,
+    token: str = TokenOpt,
+    as_json: bool = JsonOpt,
+) -> None:
+    """The vehicle's control log, oldest first."""
+
+    async def act(fleet: FleetClient) -> list[dict[str, Any]]:
+        return await fleet.audit(await fleet.vehicle_id_of(vehicle))
+
+    entries = run(server, token, act)
+    if as_json:
+        dump(entries)
+        return
+    for e in entries:
+        d = e["data"]
+        what = d.get("status") or d.get("holder") or d.get("action") or ""
+        cmd = f" {d['type']} {d['command_id']}" if d.get("command_id") else ""
+        console.print(
+            f"{e['seq']:>5} {e['at']} {e['kind']}{cmd} {what} {e.get('actor') or ''}".rstrip(),
+            highlight=False,
+            markup=False,
+        )
+
+
+@audit_app.command("verify")
+def audit_verify(
+    vehicle: str = typer.Argument(..., help="vehicle id or name"),
+    server: str = ServerOpt,
+    token: str = TokenOpt,
+    as_json: bool = JsonOpt,
+) -> None:
+    """Check the vehicle's control log: every entry holds the hash of the one before and
+    matches its own. Exit 0 when the chain holds, 1 where it breaks."""
+
+    async def act(fleet: FleetClient) -> tuple[str, list[dict[str, Any]]]:
+        vehicle_id = await fleet.vehicle_id_of(vehicle)
+        return vehicle_id, await fleet.audit(vehicle_id)
+
+    vehicle_id, entries = run(server, token, act)
+    broken = first_break(entries)
+    result = {
+        "vehicle_id": vehicle_id,
+        "entries": len(entries),
+        "ok": broken is None,
+        "broken_at_seq": broken[0] if broken else None,
+        "reason": broken[1] if broken else None,
+        "last_hash": entries[-1]["hash"] if entries else None,
+    }
+    if as_json:
+        dump(result)
+    elif broken is None:
+        console.print(
+            f"{vehicle_id}: {len(entries)} entries, the chain holds; last hash "
+            f"{result['last_hash']}",
+            highlight=False,
+        )
+    else:
+        errors.print(
+            f"{vehicle_id}: the chain breaks at entry {broken[0]}: {broken[1]}",
+            style="red",
+            highlight=False,
+        )
+    if broken is not None:
+        raise typer.Exit(1)
