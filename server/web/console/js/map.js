@@ -247,7 +247,9 @@ export class MapView {
       if (cmd.type === "follow_path") {
         const pts = (a.path || a.waypoints || []).map((w) => [w.lat, w.lon]);
         if (here) pts.unshift([here.lat, here.lon]);
-        L.polyline(pts, { color: colour, weight: 2, dashArray: "6 6", className: "planned" })
+        L.polyline(pts, {
+          color: colour, weight: 2, dashArray: "6 6", className: `planned path-of-${v.id}`,
+        })
           .bindTooltip(`${v.view.name || v.id}: ${a.path ? "planned path" : "path"}`)
           .addTo(group);
         for (const w of a.waypoints || []) {
@@ -299,8 +301,8 @@ export class MapView {
       .filter((p) => p && p.lat != null)
       .map((p) => [p.lat, p.lon]);
     if (!pts.length) return false;
-    if (pts.length === 1) this.map.setView(pts[0], 17);
-    else this.map.fitBounds(L.latLngBounds(pts).pad(0.6), { maxZoom: 18 });
+    if (pts.length === 1) this.map.setView(pts[0], 17, { animate: false });
+    else this.map.fitBounds(L.latLngBounds(pts).pad(0.6), { maxZoom: 18, animate: false });
     this.fitted = true;
     return true;
   }

@@ -217,11 +217,19 @@ export function describeEvent(e) {
   return describeData(d);
 }
 
-/** An object as "key value · key value" (nulls left out, nested values as JSON). */
+const UNITS = { s: " s", m: " m", pct: " %", mps: " m/s", deg: "°" };
+
+/** An object as "key value · key value" (nulls left out, units from the key's suffix:
+ * after_s 30 reads "after 30 s"; nested values as JSON). */
 export function describeData(d) {
   return Object.entries(d || {})
     .filter(([, v]) => v !== null && v !== undefined)
-    .map(([k, v]) => `${k.replace(/_/g, " ")} ${typeof v === "object" ? JSON.stringify(v) : v}`)
+    .map(([k, v]) => {
+      const unit = k.match(/^(.*)_(s|m|pct|mps|deg)$/);
+      const name = (unit ? unit[1] : k).replace(/_/g, " ");
+      const value = typeof v === "object" ? JSON.stringify(v) : String(v);
+      return `${name} ${value}${unit ? UNITS[unit[2]] : ""}`;
+    })
     .join(" · ")
     .slice(0, 160);
 }

@@ -188,7 +188,9 @@ export class Replay {
       });
       this.markers.set(id, marker);
     }
-    if (bounds.length) this.map.map.fitBounds(L.latLngBounds(bounds).pad(0.3), { maxZoom: 19 });
+    if (bounds.length) {
+      this.map.map.fitBounds(L.latLngBounds(bounds).pad(0.3), { maxZoom: 19, animate: false });
+    }
     this.slider.max = String(this.end - this.start);
     this.slider.step = String(Math.max(100, Math.round((this.end - this.start) / 2000 / 100) * 100));
     this.drawTimeline();
@@ -196,7 +198,7 @@ export class Replay {
     this.exportBox.hidden = false;
     document.getElementById("actions").hidden = true;
     this.ctx.app.dataset.replay = "on";
-    this.map.map.invalidateSize();
+    this.map.map.invalidateSize(false);
     this.seek(this.start);
   }
 
@@ -207,7 +209,7 @@ export class Replay {
     this.bar.hidden = true;
     delete this.ctx.app.dataset.replay;
     this.ctx.selectionChanged();
-    this.map.map.invalidateSize();
+    this.map.map.invalidateSize(false);
   }
 
   drawTimeline() {
