@@ -326,8 +326,13 @@ class CommandService:
             elif cmd.final:
                 await self._finished(cmd)
             elif cmd.command_id in lane.active and not await self.repo.save_active(cmd.to_doc()):
-                await self._catch_up(cmd)  # it ended on another replica meanwhile
+                await self._catch_up(cmd)  # it ended meanwhile (here or on another replica)
                 lane.retire(cmd)
+                if cmd.final:  # so the ack came late: noted there, as any late ack
+                    life.apply_ack(cmd, status, now, progress=ack.progress, detail=detail)
+                    await self.repo.note_history(cmd.command_id, cmd.history)
+                    if cmd.status in life.ABORT_STATUSES:
+                        abort.append(cmd.command_id)
             elif cmd.status != was:
                 self._moved(cmd)
         if acks:
