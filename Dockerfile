@@ -1,4 +1,11 @@
 # fleet-server image. Built and run with docker compose (see docker-compose.yml).
+
+# The console's and /docs' third-party files (Leaflet, Swagger UI), pinned by the lock file.
+FROM node:20-slim AS web
+WORKDIR /web
+COPY server/web/package.json server/web/package-lock.json ./
+RUN npm ci --ignore-scripts --no-audit --no-fund
+
 FROM python:3.11-slim
 
 ENV PYTHONDONTWRITEBYTECODE=1 PYTHONUNBUFFERED=1 PIP_NO_CACHE_DIR=1
@@ -7,6 +14,7 @@ WORKDIR /app
 COPY pyproject.toml README.md ./
 COPY fleet_protocol ./fleet_protocol
 COPY server ./server
+COPY --from=web /web/node_modules ./server/web/node_modules
 COPY vehicle_client ./vehicle_client
 COPY remote_client ./remote_client
 RUN pip install '.[server]'
