@@ -232,6 +232,37 @@ def test_select_a_vehicle_and_send_go_to_by_clicking_the_map(
     assert world.fleet.command(sent["command_id"])["status"] == "done"
     shots(page, "go-to-done")
 
+    # keep station where the map is clicked, 4 m south of where it arrived
+    here = position(world, "demo-usv-1")
+    station = LocalFrame(here["lat"], here["lon"]).to_latlon(0.0, -4.0)
+    page.fill("#opt-radius", "3")
+    page.click('[data-tool="station"]')
+    page.mouse.click(*screen_point(page, *station))
+    held = wait_until(lambda: newest_command(world, "demo-usv-1", "keep_station"), "station")
+    assert distance_m(held["args"]["lat"], held["args"]["lon"], *station) < 0.5
+    assert held["args"]["radius_m"] == 3
+    expect(command_item(page, held["command_id"])).to_have_attribute(
+        "data-stage", "executing", timeout=30_000
+    )
+    expect(page.locator("path.leaflet-interactive[stroke-dasharray='3 4']")).to_have_count(1)
+    shots(page, "station-here")
+
+    # two selected (the fleet table's boxes): one Hold here reaches both
+    page.click('[data-tab="fleet"]')
+    page.locator('#fleet-table tr[data-vehicle="demo-usv-2"] input[type=checkbox]').check()
+    expect(page.locator("#selection")).to_have_text("2 selected: H2OmniX Alpha, H2OmniX Bravo")
+    expect(marker(page, "demo-usv-2")).to_have_class(re.compile(r"\bselected\b"))
+    before = held["command_id"]
+    page.click("#hold")
+    for vehicle_id in ("demo-usv-1", "demo-usv-2"):
+
+        def hold(v: str = vehicle_id) -> dict[str, Any] | None:
+            c = newest_command(world, v, "keep_station")
+            return c if c and c["command_id"] != before and "lat" not in c["args"] else None
+
+        assert wait_until(hold, f"Hold here for {vehicle_id}")["args"] == {"radius_m": 3}
+    shots(page, "hold-two")
+
 
 def test_draw_a_path_planned_round_an_obstacle(
     world: World, open_console: Any, shots: Shots
