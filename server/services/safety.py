@@ -264,32 +264,34 @@ class SafetyService:
         self._watch[state.instance_id] = now
         where = {"lat": float(sample.lat), "lon": float(sample.lon)}
         for zone_id in sorted(moved.entered):
-            data = {**self._zone_data(state, zone_id), **where}
+            data = {**self._zone_data(state, zone_id, entered=True), **where}
             action = await self._act_on_breach(state, zone_id, data)
             await self._event("zone_breach", state, {**data, **action})
         for zone_id in sorted(moved.left):
-            await self._event("zone_cleared", state, {**self._zone_data(state, zone_id), **where})
+            data = {**self._zone_data(state, zone_id, entered=False), **where}
+            await self._event("zone_cleared", state, data)
         if moved.battery is not None:
             kind = "low_battery" if moved.battery == "low" else "battery_recovered"
             threshold = self.known_policy(state.vehicle_id).low_battery_pct
             data = {"battery_pct": sample.battery_pct, "threshold_pct": threshold, **where}
             await self._event(kind, state, data)
 
-    def _zone_data(self, state: InstanceState, zone_id: str) -> dict[str, Any]:
+    def _zone_data(self, state: InstanceState, zone_id: str, *, entered: bool) -> dict[str, Any]:
         if zone_id.startswith("area:"):
             areas = self.zones.known().of(state.vehicle_id)[1]
             return {
                 "zone_id": areas[0].zone_id if areas else None,
                 "zone": ", ".join(a.name for a in areas),
                 "zone_kind": "operating_area",
-                "message": "left its operating area",
+                "message": "left its operating area" if entered else "back in its operating area",
             }
         area = next((a for a in self.zones.known().areas if a.zone_id == zone_id), None)
+        name = area.name if area else zone_id
         return {
             "zone_id": zone_id,
-            "zone": area.name if area else zone_id,
+            "zone": name,
             "zone_kind": "no_go",
-            "message": f"entered no-go zone {area.name if area else zone_id}",
+            "message": f"{'entered' if entered else 'left'} no-go zone {name}",
         }
 
     async def _act_on_breach(
