@@ -376,6 +376,10 @@ def test_field_manager_grants_control_on_a_phone(
     page, _ = open_console(viewport=(390, 844), is_mobile=True, has_touch=True)
     log_in(page, "mia")
     expect(page.locator("#map")).to_be_visible()  # a phone opens on the map
+    next_frames(page)
+    for box in label_boxes(page):  # no label runs off the narrow screen
+        assert box is not None and box["x"] >= 0 and box["x"] + box["width"] <= 390, box
+    assert_labels_apart(page)
     shots(page, "phone-map")
     page.click('[data-tab="control"]')
     request = page.locator('form.request[data-user="ben"][data-vehicle="demo-usv-3"]')

@@ -1,6 +1,6 @@
-// Where each vehicle's label goes so that no label covers another label or a marker:
-// for each marker (top to bottom), the first of a list of places around it that is
-// free; if none is, the one that covers least. Pure: screen rectangles in, offsets out.
+// Where each vehicle's label goes so that no label covers another label or a marker, nor
+// runs off the map: for each marker (top to bottom), the first of a list of places around
+// it that is free; if none is, the one that covers least. Pure: rectangles in, offsets out.
 
 const GAP = 5;
 
@@ -30,12 +30,20 @@ function overlap(a, b) {
   return x > 0 && y > 0 ? x * y : 0;
 }
 
+/** How much of ``box`` lies outside the view (0 when there is no view). */
+function outside(box, view) {
+  if (!view) return 0;
+  const inside = overlap(box, { x: 0, y: 0, w: view.w, h: view.h });
+  return box.w * box.h - inside;
+}
+
 /**
  * anchors: [{id, x, y, w, h}] (the marker's centre on screen, its label's size);
- * r: a marker's radius in pixels. Returns a Map id -> {dx, dy}, the label's top-left
- * corner relative to its marker's centre.
+ * r: a marker's radius in pixels; view: {w, h}, the map's size (a label cut by its
+ * edge costs as much as one covered). Returns a Map id -> {dx, dy}, the label's
+ * top-left corner relative to its marker's centre.
  */
-export function placeLabels(anchors, r = 12) {
+export function placeLabels(anchors, r = 12, view = null) {
   const taken = anchors.map((a) => ({ x: a.x - r, y: a.y - r, w: 2 * r, h: 2 * r }));
   const placed = new Map();
   const order = [...anchors].sort((a, b) => a.y - b.y || a.x - b.x || (a.id < b.id ? -1 : 1));
@@ -43,7 +51,7 @@ export function placeLabels(anchors, r = 12) {
     let best = null;
     for (const [dx, dy] of candidates(r, a.w, a.h)) {
       const box = { x: a.x + dx, y: a.y + dy, w: a.w, h: a.h };
-      const cost = taken.reduce((sum, t) => sum + overlap(box, t), 0);
+      const cost = taken.reduce((sum, t) => sum + overlap(box, t), outside(box, view));
       if (!best || cost < best.cost) best = { dx, dy, box, cost };
       if (cost === 0) break;
     }

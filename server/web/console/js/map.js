@@ -338,7 +338,8 @@ export class MapView {
       anchors.push({ id, x: pt.x, y: pt.y, w: +label.dataset.w, h: +label.dataset.h });
       labels.set(id, label);
     }
-    for (const [id, { dx, dy }] of placeLabels(anchors, 13)) {
+    const size = this.map.getSize();
+    for (const [id, { dx, dy }] of placeLabels(anchors, 13, { w: size.x, h: size.y })) {
       const label = labels.get(id);
       label.style.left = `${13 + dx}px`;
       label.style.top = `${13 + dy}px`;
