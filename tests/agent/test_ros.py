@@ -131,7 +131,8 @@ def test_a_bad_bridge_address_is_refused() -> None:
 def _has_ros() -> bool:
     if shutil.which("roscore") is None or not os.path.exists(SYSTEM_PYTHON):
         return False
-    probe = subprocess.run([SYSTEM_PYTHON, "-c", "import rospy"], capture_output=True)
+    imports = "import rospy, geometry_msgs.msg, sensor_msgs.msg, std_msgs.msg"
+    probe = subprocess.run([SYSTEM_PYTHON, "-c", imports], capture_output=True)
     return probe.returncode == 0
 
 
@@ -195,7 +196,7 @@ def ros_world(tmp_path: Path) -> Iterator[tuple[int, Path]]:
 
 
 @pytest.mark.slow
-@pytest.mark.skipif(not _has_ros(), reason="no roscore, or no rospy in /usr/bin/python3 (ROS 1)")
+@pytest.mark.skipif(not _has_ros(), reason="no roscore, or rospy or its messages missing (ROS 1)")
 async def test_a_pose_in_and_a_command_out_through_a_real_roscore(
     ros_world: tuple[int, Path],
 ) -> None:
