@@ -25,6 +25,9 @@ from server.domain.planning import Zone
 ZoneKind = Literal["no_go", "operating_area"]
 #: (lat, lon) in degrees.
 LatLon = tuple[float, float]
+#: A no-go zone's edge is this wide (degrees, about 2 mm): a point that far inside it,
+#: which the planner allows (a clearance less ``planning.TOUCH_M``), is on the edge.
+EDGE_DEG = 2e-8
 #: How far (degrees, about 5 km) the frame round an operating area reaches: the planner
 #: keeps a path inside the area by treating this frame, with the area as its hole, as
 #: an obstacle.
@@ -47,9 +50,16 @@ class Area:
         shell, *holes = ([(lon, lat) for lat, lon in ring] for ring in self.rings)
         return Polygon(shell, holes)
 
+    @cached_property
+    def inside(self) -> Polygon:
+        """The zone less a rounding's width at its edge (as the planner's clearances are)."""
+        inner = self.shape.buffer(-EDGE_DEG)
+        return inner if not inner.is_empty else self.shape
+
     def enters(self, geometry: BaseGeometry) -> bool:
-        """Whether ``geometry`` reaches inside (its edge touched is not inside)."""
-        return bool(self.shape.relate_pattern(geometry, "T********"))
+        """Whether ``geometry`` reaches inside (its edge touched is not inside, nor a
+        millimetre or two past it: rounding)."""
+        return bool(self.inside.relate_pattern(geometry, "T********"))
 
     def applies_to(self, vehicle_id: str) -> bool:
         if self.kind == "no_go":
