@@ -275,9 +275,15 @@ def test_draw_a_path_planned_round_an_obstacle(
         json={"name": "pontoon", "clearance_m": 3,
               "polygon": {"type": "Polygon", "coordinates": [[[o, a] for a, o in corners]]}},
     )  # fmt: skip
+    corners = ((-10, -90), (10, -90), (10, -70), (-10, -70), (-10, -90))  # 80 m south
+    shoal = [[o, a] for a, o in (frame.to_latlon(e, n) for e, n in corners)]
+    polygon = {"type": "Polygon", "coordinates": [shoal]}
+    body = {"name": "shoal", "kind": "no_go", "polygon": polygon}
+    world.fleet.call("POST", "/api/zones", json=body)
     page, _ = open_console()
     log_in(page, "ana")
     expect(page.locator("path.obstacle")).to_have_count(1)
+    expect(page.locator("path.zone-no_go")).to_have_count(1)
     centre_on(page, *frame.to_latlon(0, 20), 19)
     marker(page, "demo-usv-2").click()
     page.click('[data-tool="path"]')
@@ -386,7 +392,7 @@ def test_field_manager_grants_control_on_a_phone(
     expect(request).to_be_visible()
     assert page.evaluate("document.documentElement.scrollWidth") <= 390  # no sideways scroll
     shots(page, "phone-requests")
-    request.locator("select").select_option("900")
+    request.locator("select[name=duration]").select_option("900")
     request.locator("button[type=submit]").tap()
     lease = page.locator('li.lease[data-vehicle="demo-usv-3"]')
     expect(lease).to_contain_text("ben until")
@@ -504,6 +510,57 @@ def test_a_lost_link_shows_and_comes_back(world: World, open_console: Any, shots
             "data-presence", "online", timeout=30_000
         )
     shots(page, "link-back")
+
+
+def test_a_lease_needing_a_live_console_lapses_when_it_closes(
+    world: World, open_console: Any, shots: Shots
+) -> None:
+    """The manager grants ben demo-usv-3 on condition that his client stays alive; his open
+    console keeps the lease (heartbeats) well past the timeout; when it closes, the lease
+    lapses, the vehicle holds station and the manager's panel says why."""
+    instance, timeout_s = world.instances["demo-usv-3"], 10
+    manager, _ = open_console()
+    log_in(manager, "mia")
+    manager.click('[data-tab="control"]')
+    grant = manager.locator("details.grant")
+    grant.locator("summary").click()
+    grant.locator("select[name=vehicle]").select_option("demo-usv-3")
+    grant.locator("input[name=user]").fill("ben")
+    grant.locator("select[name=duration]").select_option("900")
+    grant.locator("select[name=liveness]").select_option(str(timeout_s))
+    grant.locator("button[type=submit]").click()
+    lease = manager.locator('li.lease[data-vehicle="demo-usv-3"]')
+    expect(lease.locator(".allows")).to_contain_text(f"client is silent for {timeout_s} s")
+
+    def lease_now() -> dict[str, Any] | None:
+        body = {"instance_id": instance}
+        return world.fleet.call("POST", "/client/connect_instance", json=body)["instance"][
+            "control"
+        ]
+
+    held = lease_now()
+    assert held and held["holder"] == "ben" and held["operator_timeout_s"] == timeout_s
+    operator, _ = open_console()
+    log_in(operator, "ben")
+    operator.click('[data-tab="control"]')
+    mine = operator.locator('li.lease[data-vehicle="demo-usv-3"]')
+    expect(mine.locator(".allows")).to_contain_text("this console keeps it alive")
+    shots(operator, "operator-holds")
+    # two timeouts pass with the console open: the lease is still ben's
+    kept_until = time.monotonic() + 2 * timeout_s
+    while time.monotonic() < kept_until:
+        held = lease_now()
+        assert held and held["holder"] == "ben", held
+        operator.wait_for_timeout(500)  # the page runs (its heartbeats) meanwhile
+    operator.goto("about:blank")  # the console closes
+    wait_until(lambda: lease_now() is None, "the lease lapsed once the console closed", 25)
+    log = manager.locator("section.safety-log")
+    for kind in ("hold_station", "control_expired"):
+        item = log.locator(f'li[data-kind="{kind}"][data-vehicle="demo-usv-3"]').first
+        expect(item).to_contain_text(re.compile("operator.silent"))
+    hold = newest_command(world, "demo-usv-3", "keep_station")
+    assert hold is not None and hold["issued_by"] == "system", hold
+    shots(manager, "manager-sees-hold")
 
 
 def test_swagger_ui_at_docs_works_offline(world: World, open_console: Any, shots: Shots) -> None:

@@ -101,6 +101,9 @@ class Console {
     this.fleet.addEventListener("change", (e) => {
       if (e.detail.what === "view" && this.selection.has(e.detail.id)) this.selectionChanged();
     });
+    this.fleet.addEventListener("event", (e) => {
+      if (e.detail.event.kind === "zones_changed") this.loadShapes(); // a zone of a vehicle
+    });
     this.live = new LiveLink({
       token: api.token,
       pingTopic: `user/${me.username}/console-ping`,
@@ -157,12 +160,34 @@ class Console {
   /** Once a second: the "ago" and "until" texts move on (no call to the server). */
   tick() {
     const now = Date.now();
+    this.keepLeasesAlive(now);
     for (const el of document.querySelectorAll("[data-since]")) {
       el.textContent = ago(+el.dataset.since, now);
     }
     for (const el of document.querySelectorAll("[data-until]")) {
       el.textContent = `(${until(el.dataset.until, now)})`;
     }
+  }
+
+  /**
+   * While this user holds control of a vehicle whose lease needs a live client
+   * (``operator_timeout_s``), say so: ``POST /client/heartbeat`` at a quarter of the
+   * shortest such timeout (at most every second). Closing the console stops it, and the
+   * lease lapses: the vehicle holds station.
+   */
+  keepLeasesAlive(now) {
+    const held = [...this.fleet.vehicles.values()].filter((v) => {
+      const c = v.control;
+      return c && c.holder === this.me.username && c.operator_timeout_s && v.view.instance_id;
+    });
+    if (!held.length || this.heartbeatBusy) return;
+    const every = Math.max(1000, (Math.min(...held.map((v) => v.control.operator_timeout_s)) * 1000) / 4);
+    if (now - (this.lastHeartbeat || 0) < every) return;
+    this.lastHeartbeat = now;
+    this.heartbeatBusy = true;
+    this.api.post("/client/heartbeat", { instance_ids: held.map((v) => v.view.instance_id) })
+      .catch((e) => console.warn("heartbeat:", e.message))
+      .finally(() => { this.heartbeatBusy = false; });
   }
 
   async seedTrail(id) {

@@ -9,6 +9,15 @@ const DURATIONS = [
   [300, "5 min"], [900, "15 min"], [1800, "30 min"], [3600, "1 h"], [7200, "2 h"],
   [14400, "4 h"], [28800, "8 h"], [86400, "24 h"],
 ];
+// Events the control panel's log shows beside control_*.
+const SAFETY_EVENTS = new Set([
+  "hold_station", "failsafe_entered", "failsafe_left", "failsafe_changed", "zone_breach",
+  "zone_cleared", "collision_risk", "low_battery",
+]);
+// How long the holder's client may be silent before the lease lapses (operator_timeout_s).
+const LIVENESS = [
+  [0, "never"], [10, "10 s"], [30, "30 s"], [60, "1 min"], [300, "5 min"],
+];
 
 function presenceBadge(presence) {
   return h(`span.presence.p-${presence || "offline"}`, {}, presence || "unknown");
@@ -211,7 +220,13 @@ export function describeEvent(e) {
   }
   if (e.kind.startsWith("control_")) {
     const who = d.holder || d.user || d.username || "";
-    return `${who}${e.actor ? ` (by ${e.actor.replace(/^user:/, "")})` : ""}`;
+    return `${who}${d.reason ? `: ${String(d.reason).replace(/_/g, " ")}` : ""}` +
+      `${e.actor ? ` (by ${e.actor.replace(/^user:/, "")})` : ""}`;
+  }
+  if (e.kind === "hold_station") {
+    const why = String(d.reason || "ended").replace(/_/g, " ");
+    return `${d.holder ? `${d.holder}'s control ended` : "control ended"} (${why}); ` +
+      `${d.type === "stop" ? "stopped" : "keeps station where it is"}`;
   }
   if (e.kind === "presence") return d.presence || "";
   return describeData(d);
@@ -244,10 +259,16 @@ export class ControlPanel {
     this.caps = new Map();
     this.render = throttled(() => this.draw());
     ctx.fleet.addEventListener("change", (e) => {
-      if (e.detail.what === "control" || e.detail.what === "view") this.render();
+      const what = e.detail.what;
+      if (what === "control" || what === "view" || what === "events") this.render();
     });
     ctx.fleet.addEventListener("event", (e) => {
-      if (e.detail.event.kind.startsWith("control_")) this.loadRequests();
+      const { id, event } = e.detail;
+      if (event.kind.startsWith("control_")) this.loadRequests();
+      if (event.kind === "hold_station" && this.managed(id)) {
+        const v = ctx.fleet.vehicles.get(id);
+        toast(`${v ? v.view.name || id : id} holds station: ${describeEvent(event)}`, "info");
+      }
     });
   }
 
@@ -291,10 +312,18 @@ export class ControlPanel {
       ...DURATIONS.map(([s, label]) => h("option", { value: s, selected: s === 3600 }, label)));
   }
 
+  /** The lease lapses (and the vehicle holds station) when the holder's client is silent. */
+  livenessSelect(name) {
+    return h("select", {
+      name, "aria-label": "lapse when the operator's client is silent for",
+      title: "lapse when the operator's client is silent for",
+    }, ...LIVENESS.map(([s, label]) => h("option", { value: s }, s ? `silent ${label}` : `lapse: ${label}`)));
+  }
+
   draw() {
     const parts = [h("h2", {}, "Control")];
     if (this.manages) parts.push(this.requestSection(), this.grantForm());
-    parts.push(this.leaseSection());
+    parts.push(this.leaseSection(), this.safetyLog());
     this.el.replaceChildren(...parts);
   }
 
@@ -306,12 +335,13 @@ export class ControlPanel {
         dataset: { user: r.username, vehicle: v ? v.id : "" },
         onsubmit: (e) => {
           e.preventDefault();
-          this.grant(r.instance_id, r.username, +e.target.duration.value);
+          const f = e.target;
+          this.grant(r.instance_id, r.username, +f.duration.value, +f.liveness.value);
         },
       },
       h("div", {}, h("b", {}, r.username), " asks for ", h("b", {}, name),
         h("br"), h("small", {}, `since ${clock(r.requested_at)}`)),
-      h("div.row", {}, this.durationSelect("duration"),
+      h("div.row", {}, this.durationSelect("duration"), this.livenessSelect("liveness"),
         h("button.primary", { type: "submit" }, "Grant")));
       return h("li", {}, form);
     });
@@ -331,13 +361,14 @@ export class ControlPanel {
           e.preventDefault();
           const f = e.target;
           const v = this.ctx.fleet.vehicles.get(f.vehicle.value);
-          this.grant(v.view.instance_id, f.user.value.trim(), +f.duration.value);
+          this.grant(v.view.instance_id, f.user.value.trim(), +f.duration.value, +f.liveness.value);
         },
       },
       h("label", {}, "vehicle ", h("select", { name: "vehicle" },
         ...vehicles.map((v) => h("option", { value: v.id }, v.view.name || v.id)))),
       h("label", {}, "user ", h("input", { name: "user", required: true, autocomplete: "off" })),
       h("label", {}, "for ", this.durationSelect("duration")),
+      h("label", {}, "lapse when their client is ", this.livenessSelect("liveness")),
       h("button.primary", { type: "submit" }, "Grant")));
   }
 
@@ -359,7 +390,12 @@ export class ControlPanel {
               h("p.allows", {},
                 `allows ${holderText(c, me)} to send ${caps.length ? caps.join(", ") : "its missions"}` +
                 ` to ${v.view.name || v.id} until ${dateTime(c.expires_at)}; ` +
-                "anyone who sees the vehicle may still stop it."))
+                "anyone who sees the vehicle may still stop it." +
+                (c.operator_timeout_s
+                  ? ` It lapses (and the vehicle holds station) if ${mine ? "your" : "their"}` +
+                    ` client is silent for ${c.operator_timeout_s} s` +
+                    (mine ? ": this console keeps it alive while it is open." : ".")
+                  : "")))
             : h("div.hint", {}, "nobody holds control"),
           h("div.row", {},
             c && this.managed(v.id)
@@ -372,11 +408,28 @@ export class ControlPanel {
     return h("section", {}, h("h3", {}, "Leases"), h("ul.cards", {}, ...rows));
   }
 
-  async grant(instanceId, user, durationS) {
+  /** What happened to control and safety across the fleet: leases ending, vehicles
+   * holding station, failsafes, zones, collision forecasts (newest first). */
+  safetyLog() {
+    const items = [];
+    for (const v of this.ctx.fleet.vehicles.values()) {
+      for (const e of v.events) {
+        if (e.kind.startsWith("control_") || SAFETY_EVENTS.has(e.kind)) items.push([v, e]);
+      }
+    }
+    items.sort((a, b) => (a[1].at < b[1].at ? 1 : -1));
+    const rows = items.slice(0, 15).map(([v, e]) => h("li", { dataset: { kind: e.kind, vehicle: v.id } },
+      h("time", {}, clock(e.at)), " ", h("b", {}, v.view.name || v.id), " ",
+      h("span.kind", {}, e.kind.replace(/_/g, " ")), " ", describeEvent(e)));
+    return h("section.safety-log", {}, h("h3", {}, "What happened"),
+      rows.length ? h("ol.events", {}, ...rows) : h("p.hint", {}, "nothing yet"));
+  }
+
+  async grant(instanceId, user, durationS, operatorTimeoutS = 0) {
     try {
-      const lease = await this.ctx.api.post("/client/grant_control", {
-        instance_id: instanceId, user, duration_s: durationS,
-      });
+      const body = { instance_id: instanceId, user, duration_s: durationS };
+      if (operatorTimeoutS) body.operator_timeout_s = operatorTimeoutS;
+      const lease = await this.ctx.api.post("/client/grant_control", body);
       toast(`control granted to ${lease.holder} until ${clock(lease.expires_at)}`, "ok");
       const v = this.vehicleOf(instanceId);
       if (v) this.ctx.fleet.applyControl(v.id, { control: lease });
