@@ -19,7 +19,9 @@ async def healthz() -> dict[str, str]:
 
 @router.get("/readyz")
 async def readyz(services: ServicesDep) -> JSONResponse:
-    """Ready: the store answers and the start-up work is done (and Redis, when set)."""
+    """Ready: the store answers and the start-up work is done. Redis (when set) gone is
+    ``degraded``, still 200: this replica serves its own sockets, only other replicas'
+    subscribers miss what happens here until it is back."""
     store_problem = await services.store.ping()
     if store_problem is None and not services.readiness.loaded:
         store_problem = services.readiness.reason
@@ -29,19 +31,22 @@ async def readyz(services: ServicesDep) -> JSONResponse:
         checks["redis"] = services.bus.healthy
         if not services.bus.healthy:
             reasons["redis"] = "Redis unreachable: other replicas are not told"
-    ready = all(checks.values())
-    body = {
+    ready = checks["store"]
+    status = "unavailable" if not ready else "degraded" if reasons else "ok"
+    body: dict[str, object] = {
         "ready": ready,
+        "status": status,
         "checks": checks,
         "store": services.store.kind,
         "durability": services.store.durability,
     }
+    if reasons:
+        body["reasons"] = reasons
     if ready:
         return JSONResponse(body)
     return JSONResponse(
         {
             **body,
-            "reasons": reasons,
             "error": {
                 "code": "unavailable",
                 "message": "not ready: " + "; ".join(reasons.values()),
