@@ -53,7 +53,8 @@ def run(settings: Settings) -> None:
         host=settings.host,
         port=settings.port,
         log_level=settings.log_level,
-        log_config=log_config(settings.log_level),  # no token in any line (server/logs.py)
+        # no token in any line, text or JSON (server/logs.py)
+        log_config=log_config(settings.log_level, settings.log_format),
         access_log=False,
         **uvicorn_ws_options(),
         # Open long polls (up to 30 s) must not hold a stop up: they are cut after this.

@@ -6,7 +6,13 @@ uvicorn's: a token in a URL's query (``token=...``), the value of an
 tokens (``fct_...``) is replaced by ``[redacted]`` in a record's message and
 arguments before the line is written. uvicorn logs every WebSocket it accepts
 with its path and query string, so a client that put its token in the URL
-(``?token=``) would otherwise have it written in clear.
+(``?token=``) would otherwise have it written in clear. A record's exception
+and stack text are redacted too.
+
+``FLEET_LOG_FORMAT=json`` writes one JSON object per line instead (python-json-logger):
+``time`` (ISO 8601, UTC), ``level``, ``logger``, ``message``, and ``exception`` or
+``stack`` when the record has them. Every string in it is redacted once more as it is
+written, the record's extra fields included.
 """
 
 from __future__ import annotations
@@ -14,9 +20,13 @@ from __future__ import annotations
 import copy
 import logging
 import re
-from typing import Any
+from datetime import datetime
+from typing import Any, Literal
 
-__all__ = ["REDACTED", "RedactSecrets", "log_config", "redact"]
+from pythonjsonlogger.core import RESERVED_ATTRS
+from pythonjsonlogger.json import JsonFormatter
+
+__all__ = ["REDACTED", "JsonLines", "RedactSecrets", "log_config", "redact"]
 
 REDACTED = "[redacted]"
 _SECRETS = (
@@ -43,12 +53,63 @@ class RedactSecrets(logging.Filter):
             record.args = {
                 k: redact(v) if isinstance(v, str) else v for k, v in record.args.items()
             }
+        if record.exc_info and not record.exc_text:
+            # Formatters write exc_text when it is set (the text one), or format exc_info
+            # again (the JSON one, which redacts what it writes).
+            record.exc_text = _EXCEPTIONS.formatException(record.exc_info)
+        if record.exc_text:
+            record.exc_text = redact(record.exc_text)
+        if record.stack_info:
+            record.stack_info = redact(record.stack_info)
         return True
 
 
-def log_config(level: str) -> dict[str, Any]:
+_EXCEPTIONS = logging.Formatter()
+
+
+def _redact_all(value: Any) -> Any:
+    if isinstance(value, str):
+        return redact(value)
+    if isinstance(value, dict):
+        return {k: _redact_all(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_redact_all(v) for v in value]
+    return value
+
+
+def _as_text(value: Any) -> str:
+    """What the JSON encoder writes for a value it cannot encode itself."""
+    return redact(str(value))
+
+
+class JsonLines(JsonFormatter):
+    """One JSON object per line: time, level, logger, message (and exception, stack)."""
+
+    def __init__(self) -> None:
+        super().__init__(
+            ["levelname", "name", "message"],
+            rename_fields={
+                "levelname": "level",
+                "name": "logger",
+                "exc_info": "exception",
+                "stack_info": "stack",
+            },
+            timestamp="time",
+            # uvicorn adds a coloured copy of some messages; it would repeat them
+            reserved_attrs=[*RESERVED_ATTRS, "color_message"],
+            json_default=_as_text,
+        )
+
+    def process_log_record(self, log_data: dict[str, Any]) -> dict[str, Any]:
+        at = log_data.pop("time", None)
+        time = at.isoformat(timespec="milliseconds") if isinstance(at, datetime) else at
+        return {"time": time, **_redact_all(log_data)}
+
+
+def log_config(level: str, fmt: Literal["text", "json"] = "text") -> dict[str, Any]:
     """The ``logging.config`` dictionary of the server (uvicorn's, with the filter on every
-    handler, and the server's own loggers on a handler of their own)."""
+    handler, and the server's own loggers on a handler of their own); ``fmt="json"``: every
+    handler writes :class:`JsonLines`."""
     from uvicorn.config import LOGGING_CONFIG
 
     config: dict[str, Any] = copy.deepcopy(LOGGING_CONFIG)
@@ -59,8 +120,12 @@ def log_config(level: str) -> dict[str, Any]:
         "formatter": "fleet",
         "stream": "ext://sys.stderr",
     }
+    if fmt == "json":
+        config["formatters"]["json"] = {"()": JsonLines}
     for handler in config["handlers"].values():
         handler["filters"] = ["redact"]
+        if fmt == "json":
+            handler["formatter"] = "json"
     config["root"] = {"handlers": ["fleet"], "level": level.upper()}
     for logger in config["loggers"].values():
         logger["level"] = level.upper()

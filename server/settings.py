@@ -195,6 +195,11 @@ class Settings(BaseSettings):
         default=30.0, gt=0, description="longest wait between tries to reach the store at start"
     )
     log_level: str = Field(default="info", description="log level")
+    log_format: Literal["text", "json"] = Field(
+        default="text",
+        description="log lines: text (one readable line each) or json (one JSON object per "
+        "line: time, level, logger, message, exception)",
+    )
     map_tile_url: str | None = Field(
         default=None,
         max_length=2048,
