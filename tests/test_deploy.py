@@ -2,7 +2,7 @@
 allows, and the server's JSON log lines.
 
 No container engine runs here: ``deploy/compose.cluster.yml`` and ``docker-compose.yml``
-are parsed and checked against each other, against ``deploy/nginx/fleet.conf``,
+are parsed and checked against each other, against ``deploy/nginx/nginx.conf``,
 ``deploy/mongo/init-replica-set.js`` and the server's settings, never started. The nginx
 configuration itself runs in a real nginx in front of two real fleet-server processes
 when an ``nginx`` binary is installed (skipped otherwise). The JSON logs come from a real
@@ -37,7 +37,7 @@ ROOT = Path(__file__).resolve().parent.parent
 DEPLOY = ROOT / "deploy"
 CLUSTER = DEPLOY / "compose.cluster.yml"
 SINGLE = ROOT / "docker-compose.yml"
-NGINX_CONF = DEPLOY / "nginx" / "fleet.conf"
+NGINX_CONF = DEPLOY / "nginx" / "nginx.conf"
 RS_INIT = DEPLOY / "mongo" / "init-replica-set.js"
 SERVERS = ("fleet-1", "fleet-2")
 
@@ -102,9 +102,16 @@ def _nginx_parse(tokens: list[str], i: int = 0) -> tuple[list[Any], int]:
 
 
 @pytest.fixture(scope="module")
-def nginx() -> list[Any]:
+def nginx_main() -> list[Any]:
     tree, _ = _nginx_parse(_nginx_tokens(NGINX_CONF.read_text()))
     return tree
+
+
+@pytest.fixture(scope="module")
+def nginx(nginx_main: list[Any]) -> list[Any]:
+    """The ``http`` block."""
+    ((http,),) = [[d[2]] for d in nginx_main if d[0] == "http"]
+    return http
 
 
 def _all(block: list[Any], name: str) -> list[list[Any]]:
@@ -219,7 +226,8 @@ def test_proxy_terminates_tls_and_passes_websocket_upgrades(
     proxy = services["proxy"]
     assert "443:443" in proxy["ports"]
     mounts = dict(v.rsplit(":", 2)[:2] for v in proxy["volumes"])
-    assert (CLUSTER.parent / mounts["./nginx/fleet.conf"]).name == "default.conf"
+    assert (CLUSTER.parent / "nginx/nginx.conf").resolve() == NGINX_CONF
+    assert mounts["./nginx/nginx.conf"] == "/etc/nginx/nginx.conf"  # the whole of it
     assert mounts["${FLEET_TLS_DIR:-./tls}"] == "/etc/nginx/tls"
 
     server = _tls_server(nginx)
@@ -271,6 +279,18 @@ def test_proxy_terminates_tls_and_passes_websocket_upgrades(
     # plain HTTP only redirects
     (plain,) = [d[2] for d in _all(nginx, "server") if d[2] is not server]
     assert _args(plain, "return") == [["301", "https://$host$request_uri"]]
+
+
+def test_the_proxy_has_room_for_many_sockets(
+    services: dict[str, Any], nginx_main: list[Any]
+) -> None:
+    ((events,),) = [[d[2]] for d in nginx_main if d[0] == "events"]
+    ((connections,),) = _args(events, "worker_connections")
+    ((files,),) = _args(nginx_main, "worker_rlimit_nofile")
+    assert int(connections) >= 16_384  # two per proxied socket
+    assert int(files) >= int(connections)
+    limit = services["proxy"]["ulimits"]["nofile"]
+    assert limit["soft"] >= int(files) and limit["hard"] >= int(files)
 
 
 def test_no_log_of_the_proxy_holds_a_query_string_or_a_header(nginx: list[Any]) -> None:
@@ -426,21 +446,16 @@ def test_the_nginx_configuration_in_a_real_nginx(
     conf = re.sub(r"\n\s*listen \[::\]:\d+[^;]*;", "", conf)
     if _nginx_version(binary) < (1, 25, 1):  # `http2 on;` is newer than this nginx
         conf = conf.replace("http2 on;", "")
-    (tmp_path / "fleet.conf").write_text(conf)
-    temp = {k: tmp_path / k for k in ("body", "proxy", "fastcgi", "uwsgi", "scgi")}
-    main = [
-        "daemon off;", "worker_processes 1;", f"pid {tmp_path / 'nginx.pid'};",
-        f"error_log {tmp_path / 'error.log'} warn;", "events { worker_connections 256; }",
-        "http {",
-        f"  client_body_temp_path {temp['body']}; proxy_temp_path {temp['proxy']};",
-        f"  fastcgi_temp_path {temp['fastcgi']}; uwsgi_temp_path {temp['uwsgi']};",
-        f"  scgi_temp_path {temp['scgi']};",
-        f"  include {tmp_path / 'fleet.conf'};",
-        "}",
-    ]  # fmt: skip
-    (tmp_path / "nginx.conf").write_text("\n".join(main) + "\n")
+    conf = conf.replace("worker_processes auto;", "worker_processes 1;")
+    conf = conf.replace("/var/log/nginx/error.log", str(tmp_path / "error.log"))
+    temp = " ".join(
+        f"{kind}_temp_path {tmp_path / kind};"
+        for kind in ("client_body", "proxy", "fastcgi", "uwsgi", "scgi")
+    )
+    conf = conf.replace("http {", "http {\n    " + temp, 1)
+    (tmp_path / "nginx.conf").write_text(conf)
     args = [binary, "-p", str(tmp_path), "-e", str(tmp_path / "error.log")]
-    args += ["-c", str(tmp_path / "nginx.conf")]
+    args += ["-c", str(tmp_path / "nginx.conf"), "-g", f"daemon off; pid {tmp_path}/nginx.pid;"]
     checked = subprocess.run([*args, "-t"], capture_output=True, text=True, check=False)
     assert checked.returncode == 0, checked.stderr
     proc = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
