@@ -46,5 +46,19 @@ lint: $(STAMP)
 bench: $(STAMP) $(FERRETDB_BIN)
 	FLEET_FERRETDB_BIN=$(abspath $(FERRETDB_BIN)) $(PY) -m bench $(BENCH_ARGS)
 
+# The fault runs at full size (tests/chaos: 50 agents, ten minutes of a bad link, ...),
+# CHAOS_RUNS times, then their figures as min / median / max.
+CHAOS_RUNS ?= 3
+CHAOS_FIGURES := .cache/chaos/figures.jsonl
+
+chaos: $(STAMP) $(FERRETDB_BIN)
+	mkdir -p $(dir $(CHAOS_FIGURES)) && rm -f $(CHAOS_FIGURES)
+	for run in $$(seq $(CHAOS_RUNS)); do \
+	  FLEET_CHAOS=full FLEET_CHAOS_FIGURES=$(abspath $(CHAOS_FIGURES)) \
+	  FLEET_FERRETDB_BIN=$(abspath $(FERRETDB_BIN)) $(PY) -m pytest -q -p no:cacheprovider \
+	    tests/chaos $(PYTEST_ARGS) || exit 1; \
+	done
+	$(PY) -m tests.chaos.table $(CHAOS_FIGURES)
+
 clean:
 	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache
