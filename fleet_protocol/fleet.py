@@ -24,6 +24,10 @@ class VehicleView(WireModel):
     #: The vehicle's failsafe policy, and whether the vehicle applies its version.
     failsafe: FailsafePolicy | None = None
     failsafe_acked: bool | None = None
+    #: The vehicle's link now: its smoothed one-way delay to the server (its clock
+    #: corrected by the offset it estimates) and round trip, in ms (None: not known).
+    link_delay_ms: float | None = None
+    link_rtt_ms: float | None = None
 
 
 class VehicleList(WireModel):

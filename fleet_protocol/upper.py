@@ -11,6 +11,7 @@ from fleet_protocol.common import Identifier, LatLon, Sample, Timestamp, WireMod
 from fleet_protocol.values import Params, Text
 
 __all__ = [
+    "MAX_CLOCK_OFFSET_S",
     "MAX_SAMPLES_PER_CALL",
     "ControlInfo",
     "ControlMode",
@@ -132,11 +133,26 @@ class FinishInstanceResult(WireModel):
     state: Literal["finished"] = "finished"
 
 
+#: Bound on a vehicle's clock offset: the span of ``Timestamp`` (1970 to 2100) and more.
+MAX_CLOCK_OFFSET_S = 5e9
+
+
 class UpdateParam(InstanceRef):
-    """Parameters (merged into the instance's) and telemetry samples (``docs/limits.md``)."""
+    """Parameters (merged into the instance's) and telemetry samples (``docs/limits.md``).
+
+    The link's timing (all optional; docs/live.md, "Latency per hop"): ``sent_at``, when
+    the vehicle sent the call by its own clock; ``clock_offset_s``, its estimate of the
+    server's clock minus its own (from the ``server_time`` of its calls); ``rtt_s``, the
+    round trip of its latest call. The server takes the vehicle → server delay from them.
+    """
 
     params: Params = Field(default_factory=dict)
     samples: list[Sample] = Field(default_factory=list, max_length=MAX_SAMPLES_PER_CALL)
+    sent_at: Timestamp | None = None
+    clock_offset_s: float | None = Field(
+        default=None, ge=-MAX_CLOCK_OFFSET_S, le=MAX_CLOCK_OFFSET_S, allow_inf_nan=False
+    )
+    rtt_s: float | None = Field(default=None, ge=0, le=86_400, allow_inf_nan=False)
 
 
 class UpdateParamResult(WireModel):
@@ -144,6 +160,8 @@ class UpdateParamResult(WireModel):
     duplicates: int
     acked_through_seq: int
     durable_through_seq: int
+    #: The server's time as it answered (the vehicle estimates its clock offset from it).
+    server_time: Timestamp | None = None
 
 
 class GetControlResult(WireModel):

@@ -20,6 +20,7 @@ from __future__ import annotations
 import asyncio
 import logging
 from dataclasses import dataclass, field
+from datetime import datetime
 from typing import Any
 
 from pydantic import ValidationError
@@ -50,6 +51,8 @@ MAX_ACKS_PER_CALL = 256
 MIN_POLL_GAP_S = 0.2
 #: The server clock is re-read at least this often (heartbeat's server_time).
 CLOCK_SYNC_S = 30.0
+#: A round trip longer than this is not reported (the wire's bound on ``rtt_s``).
+MAX_REPORTED_RTT_S = 86_400.0
 
 
 @dataclass
@@ -256,12 +259,20 @@ class VehicleAgent:
             batch = await asyncio.to_thread(self.outbox.batch, self._cursor, size)
             params = dict(self._params)
             if batch or params:
+                sent = utcnow()
                 try:
-                    body = UpdateParam(instance_id=self.instance_id, params=params, samples=batch)
+                    body = UpdateParam(
+                        instance_id=self.instance_id,
+                        params=params,
+                        samples=batch,
+                        **self._timing(sent),
+                    )
                 except ValidationError as exc:
                     await self._refused(exc, batch)
                     continue
                 res = await self.transport.update_param(body)
+                if res.server_time is not None:
+                    self.clock.observe(res.server_time, sent, utcnow())
                 self._contact()
                 for key, value in params.items():
                     if self._params.get(key, object()) == value:
@@ -275,6 +286,18 @@ class VehicleAgent:
                 if len(batch) == size and res.acked_through_seq >= top:
                     continue  # draining a backlog: next batch at once
             await self._wait(self._uplink_wake, 1.0 / self.config.rate_hz)
+
+    def _timing(self, sent: datetime) -> dict[str, Any]:
+        """The call's send time, and the clock offset and round trip the link has shown
+        (the server's measure of the vehicle → server delay: docs/live.md)."""
+        if not self.clock.synced:
+            return {"sent_at": sent}
+        rtt = self.clock.rtt_s
+        return {
+            "sent_at": sent,
+            "clock_offset_s": self.clock.offset_s,
+            "rtt_s": rtt if rtt is not None and rtt <= MAX_REPORTED_RTT_S else None,
+        }
 
     async def _refused(self, exc: ValidationError, batch: list[dict[str, Any]]) -> None:
         """What the wire model refuses is never sent, so it cannot block the queue for good:

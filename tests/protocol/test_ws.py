@@ -164,6 +164,7 @@ def test_ack_success_carries_the_http_answer_fields():
         "duplicates": 0,
         "acked_through_seq": 5,
         "durable_through_seq": 3,
+        "server_time": None,  # optional: the server's own acks carry its time
     }
 
 
