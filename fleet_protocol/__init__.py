@@ -1,6 +1,6 @@
 """Wire models shared by the server, the vehicle agent and the operator tools.
 
-One definition of every message of the contract (``shared/design/API.md``).
+One definition of every message of the contract (``docs/api.md``).
 This package depends on pydantic alone so that a vehicle can install it
 without anything of the server's.
 """

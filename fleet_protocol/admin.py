@@ -17,6 +17,8 @@ __all__ = [
     "DeadLetter",
     "DeadLetterList",
     "GatewayCreated",
+    "GatewayList",
+    "GatewayView",
     "LoginRequest",
     "PatchUser",
     "Role",
@@ -51,6 +53,18 @@ class GatewayCreated(WireModel):
     gateway_id: Text
     token: Text
     vehicles: list[Text] = Field(default_factory=list)
+
+
+class GatewayView(WireModel):
+    gateway_id: Text
+    vehicles: list[Text]
+    created_at: Timestamp | None = None
+    #: Tokens of this gateway that work now (0: revoked until a new one is issued).
+    active_tokens: int = 0
+
+
+class GatewayList(WireModel):
+    gateways: list[GatewayView]
 
 
 class CreateUser(WireModel):

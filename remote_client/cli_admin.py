@@ -29,8 +29,9 @@ users_app = typer.Typer(
     help="(admin) Users: list (no subcommand), add, change, disable, tokens.",
 )
 gateways_app = typer.Typer(
-    no_args_is_help=True,
-    help="(admin) Gateways (one uplink for several vehicles): add, issue or revoke a token.",
+    invoke_without_command=True,
+    help="(admin) Gateways (one uplink for several vehicles): list (no subcommand), add, "
+    "issue or revoke a token.",
 )
 
 VehicleOpt = typer.Option(
@@ -139,6 +140,42 @@ def vehicles_revoke(
 
 
 # ---- gateways -----------------------------------------------------------------------
+@gateways_app.callback()
+def gateways(
+    ctx: typer.Context,
+    server: str = ServerOpt,
+    token: str | None = typer.Option(None, envvar="FLEET_TOKEN", help="API token (FLEET_TOKEN)"),
+    as_json: bool = JsonOpt,
+) -> None:
+    if ctx.invoked_subcommand is None:
+        if token is None:
+            fail("give a token: --token or FLEET_TOKEN")
+        _list_gateways(server, token, as_json)
+
+
+@gateways_app.command("list")
+def gateways_list(server: str = ServerOpt, token: str = TokenOpt, as_json: bool = JsonOpt) -> None:
+    """Every gateway, the vehicles it carries and whether its token works."""
+    _list_gateways(server, token, as_json)
+
+
+def _list_gateways(server: str, token: str, as_json: bool) -> None:
+    data = run(server, token, lambda fleet: fleet.gateways())
+    if as_json:
+        dump(data)
+        return
+    table = Table("gateway", "vehicles", "token", "created")
+    for g in data["gateways"]:
+        tokens = g.get("active_tokens", 0)
+        table.add_row(
+            g["gateway_id"],
+            ", ".join(g["vehicles"]) or "-",
+            "revoked" if not tokens else "active" if tokens == 1 else f"{tokens} active",
+            (g.get("created_at") or "-")[:19].replace("T", " "),
+        )
+    console.print(table)
+
+
 @gateways_app.command("add")
 def gateways_add(
     gateway_id: str = typer.Argument(..., help="its id: a-z, 0-9, - and _"),

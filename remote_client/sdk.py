@@ -423,6 +423,11 @@ class FleetClient:
         answer: Body = await self.call("POST", "/api/vehicles", json=body)
         return answer
 
+    async def gateways(self) -> Body:
+        """``{"gateways": [{gateway_id, vehicles, created_at, active_tokens}, ...]}`` (admin)."""
+        body: Body = await self.call("GET", "/api/gateways")
+        return body
+
     async def create_gateway(self, gateway_id: str, vehicles: Sequence[str]) -> Body:
         """``{gateway_id, token, vehicles}``: the gateway's token, shown this once."""
         body = {"gateway_id": gateway_id, "vehicles": list(vehicles)}

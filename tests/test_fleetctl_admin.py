@@ -88,9 +88,20 @@ async def test_gateways_are_registered_and_their_tokens_issued_and_revoked(
         assert answer["vehicles"] == [vid]
         assert await _starts(c, vid, first) == 401
         assert await _starts(c, vid, answer["token"]) == 200
+        listed = await fleetctl(base, ADMIN_TOKEN, "gateways", "--json")
+        assert json.loads(listed.stdout)["gateways"] == [
+            {"gateway_id": "cli-gw", "vehicles": [vid], "active_tokens": 1,
+             "created_at": json.loads(listed.stdout)["gateways"][0]["created_at"]}
+        ]  # fmt: skip
         revoked = await fleetctl(base, ADMIN_TOKEN, "gateways", "revoke", "cli-gw")
         assert revoked.exit_code == 0 and "every token of gateway cli-gw" in revoked.stdout
         assert await _starts(c, vid, answer["token"]) == 401
+        table = await fleetctl(base, ADMIN_TOKEN, "gateways", "list")
+        assert table.exit_code == 0 and "cli-gw" in table.stdout and "revoked" in table.stdout
+        assert vid in table.stdout
+        _, op = await make_user(c, "operator", vehicles=[vid])
+        refused = await fleetctl(base, token_of(op), "gateways")
+        assert refused.exit_code == 1 and "403 forbidden" in refused.stderr
 
         unknown = await fleetctl(base, ADMIN_TOKEN, "gateways", "token", "no-gw")
         assert unknown.exit_code == 1 and "404" in unknown.stderr

@@ -211,7 +211,12 @@ async def test_admin_registers_vehicles_gateways_and_users_and_their_tokens(
     assert gateway["vehicles"] == ["sdk-usv"] and await starts(gateway["token"]) == 200
     again = await admin.rotate_token("gateway", "sdk-gw")
     assert await starts(gateway["token"]) == 401 and await starts(again["token"]) == 200
+    listed = (await admin.gateways())["gateways"]
+    assert [(g["gateway_id"], g["vehicles"], g["active_tokens"]) for g in listed] == [
+        ("sdk-gw", ["sdk-usv"], 1)
+    ]
     assert await admin.revoke_tokens("gateway", "sdk-gw") == {"ok": True}
+    assert (await admin.gateways())["gateways"][0]["active_tokens"] == 0
     assert await starts(again["token"]) == 401
 
     user = await admin.create_user("sdk-ana", "operator", ["sdk-usv"])

@@ -16,6 +16,8 @@ from fleet_protocol import (
     CreateVehicle,
     DeadLetterList,
     GatewayCreated,
+    GatewayList,
+    GatewayView,
     LoginRequest,
     PatchUser,
     TokenResult,
@@ -56,6 +58,14 @@ async def revoke_vehicle_tokens(vehicle_id: str, _: Admin, s: ServicesDep) -> di
 async def create_gateway(body: CreateGateway, _: Admin, s: ServicesDep) -> GatewayCreated:
     token = await s.auth.create_gateway(body)
     return GatewayCreated(gateway_id=body.gateway_id, token=token, vehicles=body.vehicles)
+
+
+@router.get("/api/gateways")
+async def list_gateways(_: Admin, s: ServicesDep) -> GatewayList:
+    """Every gateway: the vehicles it carries and how many of its tokens work now."""
+    return GatewayList(
+        gateways=[GatewayView.model_validate(d) for d in await s.auth.list_gateways()]
+    )
 
 
 @router.post("/api/gateways/{gateway_id}/rotate_token")

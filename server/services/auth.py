@@ -403,6 +403,20 @@ class AuthService:
             raise NotFound(f"no gateway {gateway_id}")
         return gateway
 
+    async def list_gateways(self) -> list[dict[str, Any]]:
+        """Every gateway, with ``active_tokens``: how many of its tokens work now."""
+        now = utcnow()
+        gateways = await self.repo.all_gateways()
+        for gateway in gateways:
+            tokens = await self.repo.tokens_of("gateway", gateway["gateway_id"])
+            gateway["active_tokens"] = sum(
+                1
+                for t in tokens
+                if t.get("revoked_at") is None
+                and (t.get("expires_at") is None or t["expires_at"] > now)
+            )
+        return gateways
+
     async def rotate_gateway_token(self, gateway_id: str) -> str:
         await self.revoke_gateway_tokens(gateway_id)
         return await self._issue("gateway", gateway_id)

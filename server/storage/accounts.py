@@ -59,6 +59,9 @@ class AccountsRepo:
     async def gateway(self, gateway_id: str) -> Doc | None:
         return await self.gateways.get(gateway_id)
 
+    async def all_gateways(self) -> list[Doc]:
+        return await self.gateways.find({}, sort=[("_id", 1)])
+
     async def insert_gateway(self, doc: Doc) -> None:
         await self.gateways.insert({**doc, "_id": doc["gateway_id"]})
 

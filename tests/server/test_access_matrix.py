@@ -228,6 +228,7 @@ ROWS: dict[tuple[str, str], tuple[Call, dict[str, int]]] = {
     ("GET", "/api/commands/{command_id}"): (get("/api/commands/{w.command_id}"), users()),
     ("GET", "/api/events"): (get("/api/events"), users()),
     ("GET", "/api/dead_letters"): (get("/api/dead_letters"), admin()),
+    ("GET", "/api/gateways"): (get("/api/gateways"), admin()),
     ("POST", "/api/gateways"): (
         post("/api/gateways", lambda w: {"gateway_id": f"gnew-{w.n}", "vehicles": [w.vid]}),
         admin(201),
