@@ -32,6 +32,7 @@ from server.domain.events import (
     FailsafeChanged,
     InstanceFinished,
     LeaseEnded,
+    LinkChanged,
     PresenceChanged,
     SamplesStored,
     StateWritten,
@@ -155,6 +156,7 @@ async def build(
         obstacles.zones,
         zones.current,
         clock,
+        hops=metrics.hops,
     )
     safety = SafetyService(
         settings, SafetyRepo(store), instances, auth, zones, commands, events, messages, clock
@@ -162,10 +164,12 @@ async def build(
     forecast = CollisionForecast(settings, instances, events, LocksRepo(store), clock)
     telemetry = TelemetryService(settings, store, TelemetryRepo(store), dead_letters, clock)
     views = FleetViews(auth, instances, control, safety)
-    link = VehicleLink(settings, instances, telemetry, control, commands, safety, messages)
+    link = VehicleLink(
+        settings, instances, telemetry, control, commands, safety, messages, metrics.hops
+    )
     topics = ServerTopics(bus, instances, commands, control, events, views)
     replicas = ReplicaSync(bus, instances, control, commands, auth, messages, dead_letters)
-    hub = LiveHub(settings, bus, instances, commands, control, topics)
+    hub = LiveHub(settings, bus, instances, commands, control, topics, metrics.hops)
     services = Services(
         settings=settings,
         store=store,
@@ -197,6 +201,7 @@ async def build(
     messages.register(LeaseEnded, commands.on_lease_end)
     messages.register(UserChanged, control.on_user_changed)
     messages.register(PresenceChanged, topics.on_presence)
+    messages.register(LinkChanged, topics.on_link)
     messages.register(ControlChanged, topics.on_control)
     messages.register(EventRecorded, topics.on_event)
     messages.register(CommandMoved, topics.on_command_moved)

@@ -1,4 +1,5 @@
-"""Prometheus metrics: requests, latencies, connected vehicles, commands by status.
+"""Prometheus metrics: requests, latencies, connected vehicles, commands by status, and
+the delay of each hop a message takes (:class:`Hops`).
 
 Each app has its own registry (tests build many apps in one process).
 """
@@ -25,6 +26,88 @@ class _Live(Collector):
         for key, value in self.read().items():
             family.add_metric([key] if self.label else [], value)
         yield family
+
+
+#: Buckets of the hop histograms: 1 ms to 10 s.
+HOP_BUCKETS = (0.001, 0.002, 0.005, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5, 1.0, 2.5, 5.0, 10.0)
+#: A hop measured longer than this (or negative by more) is a clock gone wrong, not a
+#: delay: counted in ``fleet_hop_discarded``, not observed.
+HOP_MAX_S = 60.0
+
+
+class Hops:
+    """The delay of each hop a message takes, measured by the server itself (docs/live.md,
+    "Latency per hop"). Each ``observe`` is one histogram observation: a value below zero
+    (clocks a little apart) is observed as 0 and counted in ``fleet_hop_clamped``; one
+    beyond ``HOP_MAX_S`` either way is counted in ``fleet_hop_discarded`` and dropped.
+    Never raises for a value."""
+
+    def __init__(self, registry: CollectorRegistry) -> None:
+        def histogram(name: str, doc: str, labels: tuple[str, ...] = ()) -> Histogram:
+            return Histogram(name, doc, labels, buckets=HOP_BUCKETS, registry=registry)
+
+        self.vehicle_to_server_h = histogram(
+            "fleet_hop_vehicle_to_server_seconds",
+            "vehicle to server: a telemetry call's send time (vehicle clock, corrected by the"
+            " vehicle's estimate of the clock offset) to its arrival",
+            ("transport",),
+        )
+        self.server_to_operator_h = histogram(
+            "fleet_hop_server_to_operator_seconds",
+            "server to operator: a live event's publication to its write on an operator's socket",
+        )
+        self.submitted_to_delivered_h = histogram(
+            "fleet_command_submitted_to_delivered_seconds",
+            "a command's submission to its first hand-out to the vehicle",
+        )
+        self.delivered_to_acked_h = histogram(
+            "fleet_command_delivered_to_acked_seconds",
+            "a command's hand-out to the vehicle's first ack of it",
+        )
+        self.submitted_to_acked_h = histogram(
+            "fleet_command_submitted_to_acked_seconds",
+            "a command's submission to the vehicle's first ack of it",
+        )
+        self.clamped = Counter(
+            "fleet_hop_clamped",
+            "hop delays measured below zero (clocks apart), observed as 0",
+            ["hop"],
+            registry=registry,
+        )
+        self.discarded = Counter(
+            "fleet_hop_discarded",
+            f"hop delays beyond {HOP_MAX_S:g} s either way (a clock gone wrong), not observed",
+            ["hop"],
+            registry=registry,
+        )
+        # The labelled children, bound once: an observation is one call.
+        self._v2s = {t: self.vehicle_to_server_h.labels(t) for t in ("ws", "http")}
+
+    def _observe(self, histogram: Histogram, hop: str, seconds: float) -> None:
+        if 0.0 <= seconds <= HOP_MAX_S:
+            histogram.observe(seconds)
+        elif -HOP_MAX_S <= seconds < 0.0:
+            histogram.observe(0.0)
+            self.clamped.labels(hop).inc()
+        else:  # beyond the bound, or NaN
+            self.discarded.labels(hop).inc()
+
+    def vehicle_to_server(self, transport: str, seconds: float) -> None:
+        child = self._v2s.get(transport) or self.vehicle_to_server_h.labels(transport)
+        self._observe(child, "vehicle_to_server", seconds)
+
+    def server_to_operator(self, seconds: float) -> None:
+        self._observe(self.server_to_operator_h, "server_to_operator", seconds)
+
+    def command_delivered(self, submitted_s: float) -> None:
+        """A command handed out for the first time, ``submitted_s`` after its submission."""
+        self._observe(self.submitted_to_delivered_h, "submitted_to_delivered", submitted_s)
+
+    def command_acked(self, delivered_s: float | None, submitted_s: float) -> None:
+        """The vehicle's first ack of a command, after its hand-out and its submission."""
+        if delivered_s is not None:
+            self._observe(self.delivered_to_acked_h, "delivered_to_acked", delivered_s)
+        self._observe(self.submitted_to_acked_h, "submitted_to_acked", submitted_s)
 
 
 class Metrics:
@@ -58,6 +141,7 @@ class Metrics:
             ["event"],
             registry=self.registry,
         )
+        self.hops = Hops(self.registry)
 
     def background_error(self, loop: str) -> None:
         self.background_errors.labels(loop).inc()

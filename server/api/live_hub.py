@@ -11,15 +11,17 @@ the server's own topics in :mod:`server.services.live_topics`).
 from __future__ import annotations
 
 import asyncio
+import calendar
 import functools
 import logging
 import secrets
+import time
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field
 from typing import Any
 
 from fleet_protocol import format_ts, utcnow
-from fleet_protocol.common import now_ts
+from fleet_protocol.common import now_ts, parse_ts
 from fleet_protocol.links import CLOSE_REPLACED, CLOSE_UNAUTHORIZED
 from fleet_protocol.topics import is_media_topic
 from fleet_protocol.ws import CommandPush, ControlPush, EventPush, FailsafePush, RoutesPush
@@ -30,6 +32,7 @@ from server.domain.access import Principal
 from server.domain.events import CommandsReady, FailsafeChanged, TokensRevoked
 from server.domain.routing import RoutingTable
 from server.domain.topics import UnitRef
+from server.metrics import Hops
 from server.services.commands import CommandService
 from server.services.control import ControlService
 from server.services.instances import InstanceService, InstanceState
@@ -68,8 +71,17 @@ class LiveHub:
         commands: CommandService,
         control: ControlService,
         topics: ServerTopics,
+        hops: Hops,
     ) -> None:
         self.bus = bus
+        self.hops = hops
+        clock = instances.clock
+        #: The server's clock in seconds since the epoch (the events' ``ts`` are on it).
+        self._wall: Callable[[], float] = (
+            time.time if clock is utcnow else lambda: clock().timestamp()
+        )
+        self._stamped: dict[str, Any] | None = None
+        self._stamp: float | None = None
         self.instances = instances
         self.commands = commands
         self.control = control
@@ -257,7 +269,25 @@ class LiveHub:
             frame = dumps(filtered)
         else:
             frame = self._encode(message)
-        conn.outbox.put(frame, topic=topic, latest_wins=is_media_topic(topic), throttle_ms=throttle)
+        conn.outbox.put(
+            frame,
+            topic=topic,
+            latest_wins=is_media_topic(topic),
+            throttle_ms=throttle,
+            stamp=self._published(message) if conn.kind == "client" else None,
+        )
+
+    def _published(self, message: dict[str, Any]) -> float | None:
+        """When the message was published (its ``ts``, seconds since the epoch), read once
+        per message however many operators it goes to."""
+        if self._stamped is not message:
+            self._stamped = message
+            self._stamp = _epoch(message.get("ts"))
+        return self._stamp
+
+    def operator_written(self, stamp: float) -> None:
+        """An event published at ``stamp`` was written on an operator's socket."""
+        self.hops.server_to_operator(self._wall() - stamp)
 
     def _encode(self, message: dict[str, Any]) -> str:
         """One JSON encoding per message, however many local subscribers it has."""
@@ -354,3 +384,25 @@ class LiveHub:
             await self.close(conn, 1001, "the server is shutting down")
         for task in list(self._tasks):
             task.cancel()
+
+
+_second: tuple[str, int] = ("", 0)
+
+
+def _epoch(ts: Any) -> float | None:
+    """``format_ts``'s text (``2026-01-01T00:00:00.123Z``) as seconds since the epoch, the
+    part up to the second read once per second; another ISO 8601 text the slow way;
+    None for what is not a time."""
+    global _second
+    if not isinstance(ts, str):
+        return None
+    try:
+        if len(ts) == 24 and ts[19] == "." and ts[23] == "Z":
+            prefix, whole = _second
+            if ts[:19] != prefix:
+                whole = calendar.timegm(time.strptime(ts[:19], "%Y-%m-%dT%H:%M:%S"))
+                _second = (ts[:19], whole)
+            return whole + int(ts[20:23]) / 1000
+        return parse_ts(ts).timestamp()
+    except (ValueError, OverflowError):
+        return None

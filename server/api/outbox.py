@@ -22,6 +22,11 @@ must wait is sent by the writer.
 - **Throttle** (a subscription's ``throttle_ms``): at most one frame per
   topic every N ms, the latest value held back and sent when the interval
   is over.
+- **Timing.** A frame may carry a ``stamp`` (the wall-clock time its message
+  was published, seconds since the epoch); once the frame is written,
+  ``on_written(stamp)`` is called (the server → operator hop in
+  ``/metrics``). A frame a throttle held back loses its stamp: its wait was
+  asked for.
 
 ``send`` is any coroutine taking a text or binary frame
 (``websocket.send_text`` / ``send_bytes`` behind one function), so the
@@ -53,11 +58,12 @@ DEFAULT_MAX_QUEUE = 1000
 
 
 class _Entry:
-    __slots__ = ("frame", "topic")
+    __slots__ = ("frame", "stamp", "topic")
 
-    def __init__(self, frame: Frame, topic: str | None) -> None:
+    def __init__(self, frame: Frame, topic: str | None, stamp: float | None = None) -> None:
         self.frame = frame
         self.topic = topic
+        self.stamp = stamp
 
 
 class Outbox:
@@ -70,6 +76,7 @@ class Outbox:
         max_bytes: int | None = None,
         on_overflow: Callable[[], None] | None = None,
         clock: Callable[[], float] = time.monotonic,
+        on_written: Callable[[float], None] | None = None,
     ) -> None:
         if max_size < 1:
             raise ValueError("max_size is at least 1")
@@ -78,6 +85,7 @@ class Outbox:
         self.max_size = max_size
         self.max_bytes = max_bytes
         self._on_overflow = on_overflow
+        self._on_written = on_written
         #: Size of the frames waiting (characters of a text frame, bytes of a binary one).
         self.queued_bytes = 0
         #: The reader fell ``max_bytes`` behind: the outbox let everything go.
@@ -113,11 +121,13 @@ class Outbox:
         topic: str | None = None,
         latest_wins: bool = False,
         throttle_ms: int = 0,
+        stamp: float | None = None,
     ) -> None:
         """Queue ``frame``; never blocks, never raises for a full queue.
 
         ``topic`` names the frame's topic for ``latest_wins`` and
         ``throttle_ms``. A critical frame ignores both and is never dropped.
+        ``stamp``: handed to ``on_written`` once the frame is written.
         """
         if self.closed.is_set():
             return
@@ -129,17 +139,17 @@ class Outbox:
             and not self._throttle
             and not self._unreported_drops
             and (topic is None or throttle_ms <= 0)
-            and self._try_send(frame)
+            and self._try_send(frame, stamp)
         ):
             return  # nothing waited or was held back: the frame went out at once, unqueued
         if critical:
-            self._critical.append(_Entry(frame, None))
+            self._critical.append(_Entry(frame, None, stamp))
             self.queued_bytes += len(frame)
         elif topic is not None and throttle_ms > 0:
             if self._throttle.offer(topic, (frame, latest_wins), throttle_ms / 1000, self._clock()):
-                self._enqueue(frame, topic, latest_wins)
+                self._enqueue(frame, topic, latest_wins, stamp)
         else:
-            self._enqueue(frame, topic, latest_wins)
+            self._enqueue(frame, topic, latest_wins, stamp)
         if self.max_bytes is not None and self.queued_bytes > self.max_bytes:
             self._overflow()
             return
@@ -156,12 +166,15 @@ class Outbox:
         """Frames waiting (throttled ones held back not included)."""
         return len(self._critical) + len(self._normal)
 
-    def _enqueue(self, frame: Frame, topic: str | None, latest_wins: bool) -> None:
+    def _enqueue(
+        self, frame: Frame, topic: str | None, latest_wins: bool, stamp: float | None = None
+    ) -> None:
         if latest_wins and topic is not None:
             waiting = self._latest.get(topic)
             if waiting is not None:
                 self.queued_bytes += len(frame) - len(waiting.frame)
                 waiting.frame = frame
+                waiting.stamp = stamp
                 self.superseded += 1
                 return
         if len(self) >= self.max_size:
@@ -173,7 +186,7 @@ class Outbox:
             if oldest.topic is not None and self._latest.get(oldest.topic) is oldest:
                 del self._latest[oldest.topic]
             self._count_drop()
-        entry = _Entry(frame, topic)
+        entry = _Entry(frame, topic, stamp)
         self._normal.append(entry)
         self.queued_bytes += len(frame)
         if latest_wins and topic is not None:
@@ -234,24 +247,24 @@ class Outbox:
     ) -> None:
         await self.close()
 
-    def _next(self) -> Frame | None:
+    def _next(self) -> _Entry | None:
         if self._throttle:
             for topic, (frame, latest_wins) in self._throttle.due(self._clock()):
                 self._enqueue(frame, topic, latest_wins)
         if self._critical:
-            frame = self._critical.popleft().frame
-            self.queued_bytes -= len(frame)
-            return frame
+            entry = self._critical.popleft()
+            self.queued_bytes -= len(entry.frame)
+            return entry
         if self._unreported_drops:
             frame = LaggingPush(dropped=self._unreported_drops, total=self.dropped).frame()
             self._unreported_drops = 0
-            return frame
+            return _Entry(frame, None)
         if self._normal:
             entry = self._normal.popleft()
             self.queued_bytes -= len(entry.frame)
             if entry.topic is not None and self._latest.get(entry.topic) is entry:
                 del self._latest[entry.topic]
-            return entry.frame
+            return entry
         return None
 
     def _send_eagerly(self) -> bool:
@@ -263,10 +276,11 @@ class Outbox:
         writer, and so is a frame a throttle holds back. ``True`` when nothing
         is left waiting or held.
         """
-        while (frame := self._next()) is not None:
-            if not self._try_send(frame):
-                self._critical.appendleft(_Entry(frame, None))  # first, in its order
-                self.queued_bytes += len(frame)
+        while (entry := self._next()) is not None:
+            if not self._try_send(entry.frame, entry.stamp):
+                # First, in its order (no longer a topic's waiting frame).
+                self._critical.appendleft(_Entry(entry.frame, None, entry.stamp))
+                self.queued_bytes += len(entry.frame)
                 return False
             if self.closed.is_set():
                 return True  # the send failed: the outbox is closed
@@ -275,7 +289,7 @@ class Outbox:
         self._idle.set()
         return True
 
-    def _try_send(self, frame: Frame) -> bool:
+    def _try_send(self, frame: Frame, stamp: float | None = None) -> bool:
         """Send ``frame`` within this call if the socket takes it at once: ``True`` when
         done (sent, or failed and the outbox closed); ``False`` when it has to wait."""
         assert self._send_nowait is not None
@@ -286,6 +300,8 @@ class Outbox:
             return True
         if sent:
             self.sent += 1
+            if stamp is not None and self._on_written is not None:
+                self._on_written(stamp)
         return sent
 
     def _fail(self, exc: BaseException) -> None:
@@ -298,12 +314,14 @@ class Outbox:
     async def _write(self) -> None:
         try:
             while not self.closed.is_set():
-                frame = self._next()
-                if frame is None:
+                entry = self._next()
+                if entry is None:
                     await self._wait_for_work()
                     continue
-                await self._send(frame)
+                await self._send(entry.frame)
                 self.sent += 1
+                if entry.stamp is not None and self._on_written is not None:
+                    self._on_written(entry.stamp)
         except asyncio.CancelledError:
             raise
         except Exception as exc:

@@ -16,6 +16,7 @@ from fleet_protocol import (
 )
 from server.api.deps import ServicesDep, VehicleCaller
 from server.api.responses import ModelResponse
+from server.bus.wire import dumps
 
 router = APIRouter(prefix="/upper", tags=["vehicle"])
 
@@ -41,5 +42,5 @@ async def heartbeat(body: Heartbeat, caller: VehicleCaller, s: ServicesDep) -> H
 
 @router.post("/update_param", response_model=UpdateParamResult)
 async def update_param(body: UpdateParam, caller: VehicleCaller, s: ServicesDep) -> ModelResponse:
-    counts = await s.link.update_param(caller, body)
-    return ModelResponse(UpdateParamResult.model_construct(None, **counts))  # plain counters
+    counts = await s.link.update_param(caller, body, "http")
+    return ModelResponse(dumps(counts))  # plain counters and the server's time, as text

@@ -125,6 +125,7 @@ async def serve_live(
         max_size=settings.ws_queue_size,
         max_bytes=settings.ws_queue_bytes,
         on_overflow=too_slow,
+        on_written=hub.operator_written,
     )
     conn = Connection(principal, outbox, close, kind, digest=token_key)
     hub.add(conn)

@@ -203,7 +203,7 @@ class OpRunner:
         return await self.s.link.heartbeat(self.conn.principal, op.instance_id)
 
     async def _update_param(self, op: UpdateParamOp) -> dict[str, int]:
-        return await self.s.link.update_param(self.conn.principal, op)
+        return await self.s.link.update_param(self.conn.principal, op, "ws")
 
     async def _update_fb(self, op: UpdateFbMessageOp) -> BaseModel:
         abort = await self.s.link.feedback(self.conn.principal, op)

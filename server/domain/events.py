@@ -119,3 +119,11 @@ class FailsafeChanged:
 
     vehicle_id: str
     policy: dict[str, Any]
+
+
+@dataclass(frozen=True, slots=True)
+class LinkChanged:
+    """A vehicle's measured link delay moved enough to tell its view again."""
+
+    instance_id: str
+    vehicle_id: str

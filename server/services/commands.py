@@ -34,6 +34,7 @@ from server.domain.events import (
     StateWritten,
 )
 from server.errors import NotFound, RateLimited, Unavailable
+from server.metrics import Hops
 from server.services.command_admission import (
     Admission,
     ObstacleSource,
@@ -73,8 +74,11 @@ class CommandService:
         zones: ZoneSetSource,
         clock: Clock,
         planner: Planner | None = None,
+        hops: Hops | None = None,
     ) -> None:
         self.settings = settings
+        #: Where the command hops are measured (``/metrics``); None: nowhere.
+        self.hops = hops
         self.repo = repo
         self.instances = instances
         self.control = control
@@ -261,6 +265,8 @@ class CommandService:
             self.messages.emit_now(StateWritten(state.instance_id, "commands"))
             for cmd in handed:
                 self._moved(cmd)
+                if self.hops is not None and cmd.deliveries == 1 and cmd.delivered_at:
+                    self.hops.command_delivered((cmd.delivered_at - cmd.issued_at).total_seconds())
         return handed
 
     async def _check_zones(self, state: InstanceState, lane: Lane) -> None:
@@ -317,6 +323,8 @@ class CommandService:
             was = cmd.status
             status, detail = life.check_plan(cmd, ack.status, ack.path_hash, ack.detail)
             outcome = life.apply_ack(cmd, status, now, progress=ack.progress, detail=detail)
+            if was == "delivered" and cmd.status != was and self.hops is not None:
+                self._acked_first(cmd, now)
             if status != ack.status:
                 abort.append(cmd.command_id)  # never to be carried out
             if outcome is AckOutcome.LATE:
@@ -339,6 +347,15 @@ class CommandService:
             self.messages.emit_now(StateWritten(state.instance_id, "commands"))
         abort.extend(lane.take_aborts())
         return list(dict.fromkeys(abort))
+
+    def _acked_first(self, cmd: Command, now: datetime) -> None:
+        """The vehicle's first ack of a handed-out command: its hops into ``/metrics``."""
+        assert self.hops is not None
+        delivered = cmd.delivered_at
+        self.hops.command_acked(
+            (now - delivered).total_seconds() if delivered is not None else None,
+            (now - cmd.issued_at).total_seconds(),
+        )
 
     def counts_by_status(self) -> dict[str, int]:
         """Active commands by status (for /metrics)."""

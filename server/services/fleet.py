@@ -78,6 +78,7 @@ class FleetViews:
                 control=None,
                 failsafe=self.safety.known_policy(meta["vehicle_id"]),
             )
+        delay_ms, rtt_ms = state.link.view() if not state.finished else (None, None)
         return VehicleView(
             vehicle_id=state.vehicle_id,
             name=state.name,
@@ -90,6 +91,8 @@ class FleetViews:
             last_seen=state.last_seen,
             failsafe=self.safety.known_policy(state.vehicle_id),
             failsafe_acked=self.safety.acked(state),
+            link_delay_ms=delay_ms,
+            link_rtt_ms=rtt_ms,
         )
 
     async def connect(self, principal: Principal, body: ConnectInstance) -> InstanceView:

@@ -7,6 +7,7 @@ from datetime import datetime
 from typing import Any
 
 from fleet_protocol import Sample
+from server.domain.latency import LinkDelay
 from server.domain.presence import Presence
 
 
@@ -29,6 +30,8 @@ class InstanceState:
     dirty: bool = False  # params or control mode changed: written at the next sweep
     moved: bool = False  # last_seen or position moved: written every persist_interval_s
     saved_at: float = 0.0  # monotonic time of the last write
+    #: The link delay measured on this replica (kept in memory only, never written).
+    link: LinkDelay = field(default_factory=LinkDelay)
 
     @property
     def finished(self) -> bool:

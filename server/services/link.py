@@ -6,6 +6,8 @@ so the HTTP routes and the WebSocket ops call the same methods.
 
 from __future__ import annotations
 
+import time
+from datetime import datetime
 from typing import Any, Protocol
 
 from fleet_protocol import (
@@ -18,9 +20,12 @@ from fleet_protocol import (
     StartInstanceResult,
     UpdateFbMessage,
     UpdateParam,
+    format_ts,
 )
 from server.domain.access import Principal
-from server.domain.events import SamplesStored
+from server.domain.events import LinkChanged, SamplesStored
+from server.domain.latency import one_way_delay_s
+from server.metrics import Hops
 from server.services.instances import InstanceService, InstanceState
 from server.services.messagebus import MessageBus
 from server.settings import Settings
@@ -76,6 +81,7 @@ class VehicleLink:
         feedback: Feedback,
         failsafes: Failsafes,
         messages: MessageBus,
+        hops: Hops,
     ) -> None:
         self.settings = settings
         self.instances = instances
@@ -84,6 +90,7 @@ class VehicleLink:
         self.commands = feedback
         self.failsafes = failsafes
         self.messages = messages
+        self.hops = hops
 
     async def start(self, principal: Principal, body: StartInstance) -> StartInstanceResult:
         state, resumed = await self.instances.start(principal, body)
@@ -133,10 +140,16 @@ class VehicleLink:
         await self.live(principal, instance_id)
         return HeartbeatResult(server_time=self.instances.clock())
 
-    async def update_param(self, principal: Principal, body: UpdateParam) -> dict[str, int]:
-        """Merge the params, store the samples; the counters of ``UpdateParamResult``
-        (a dict: the socket's ack is built from it with no model in between)."""
+    async def update_param(
+        self, principal: Principal, body: UpdateParam, transport: str = "http"
+    ) -> dict[str, Any]:
+        """Merge the params, store the samples; the fields of ``UpdateParamResult``
+        (a dict: the socket's ack is built from it with no model in between).
+        ``transport`` (``ws``, ``http``) labels the call's delay in ``/metrics``."""
+        arrived = self.instances.clock()
         state = await self.live(principal, body.instance_id)
+        if body.sent_at is not None:
+            self._timed(state, body, arrived, transport)
         self.instances.merge_params(state, body.params)
         result = await self.telemetry.ingest(state.vehicle_id, state.instance_id, body.samples)
         if result.latest is not None:
@@ -148,4 +161,15 @@ class VehicleLink:
             "duplicates": result.duplicates,
             "acked_through_seq": max(0, result.acked_through_seq),
             "durable_through_seq": max(0, result.durable_through_seq),
+            "server_time": format_ts(self.instances.clock()),
         }
+
+    def _timed(
+        self, state: InstanceState, body: UpdateParam, arrived: datetime, transport: str
+    ) -> None:
+        """The call's vehicle → server delay: into ``/metrics`` and the vehicle's view."""
+        assert body.sent_at is not None
+        delay = one_way_delay_s(body.sent_at, arrived, body.clock_offset_s)
+        self.hops.vehicle_to_server(transport, delay)
+        if state.link.observe(delay, body.rtt_s, time.monotonic()):
+            self.messages.emit_now(LinkChanged(state.instance_id, state.vehicle_id))

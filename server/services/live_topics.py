@@ -20,6 +20,7 @@ from server.domain.events import (
     CommandMoved,
     ControlChanged,
     EventRecorded,
+    LinkChanged,
     PresenceChanged,
     SamplesStored,
 )
@@ -75,6 +76,16 @@ class ServerTopics:
             view = self.views.live_view(state).model_dump(mode="json")
             view["presence"] = event.presence
         return self.emit("fleet", {"vehicles": [view]})
+
+    def on_link(self, event: LinkChanged) -> Awaitable[None] | None:
+        """A vehicle's link delay moved: its view on ``fleet`` again (built only when
+        someone may listen)."""
+        state = self.instances.current_by_id(event.instance_id)
+        if state is None:
+            return None
+        return self.emit(
+            "fleet", lambda: {"vehicles": [self.views.live_view(state).model_dump(mode="json")]}
+        )
 
     def on_control(self, event: ControlChanged) -> Awaitable[None] | None:
         data = {"instance_id": event.instance_id, "control": _jsonable(event.control)}
