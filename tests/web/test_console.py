@@ -346,9 +346,13 @@ def test_stop_needs_its_confirmation(world: World, open_console: Any, shots: Sho
     )["commands"]
     assert [c for c in after if c["command_id"] not in before] == [], "sent without confirming"
 
+    page.click('#actions button[data-tool="go_to"]')  # a tool armed when Stop is pressed
     page.click("#stop-selected")
     expect(ok).to_be_enabled()
     ok.click()
+    # the stop disarms it: a look at the map afterwards does not send the vehicle off again
+    expect(page.locator("#actions button[data-tool].active")).to_have_count(0)
+    expect(page.locator("#tool-hint")).to_be_hidden()
     stop = wait_until(lambda: newest_command(world, "demo-usv-3", "stop"), "the stop stored")
     assert stop["command_id"] not in before
     item = command_item(page, stop["command_id"])
@@ -393,6 +397,12 @@ def test_field_manager_grants_control_on_a_phone(
     assert page.evaluate("document.documentElement.scrollWidth") <= 390  # no sideways scroll
     shots(page, "phone-requests")
     request.locator("select[name=duration]").select_option("900")
+    # another request comes in meanwhile and the panel is drawn again: the manager's
+    # choice stays (it was reset to 1 h, and the grant went out with that)
+    other = {"instance_id": world.instances["demo-usv-1"]}
+    world.as_user("ben", "POST", "/client/request_control", json=other)
+    expect(page.locator('form.request[data-user="ben"][data-vehicle="demo-usv-1"]')).to_be_visible()
+    expect(request.locator("select[name=duration]")).to_have_value("900")
     request.locator("button[type=submit]").tap()
     lease = page.locator('li.lease[data-vehicle="demo-usv-3"]')
     expect(lease).to_contain_text("ben until")
@@ -407,6 +417,12 @@ def test_field_manager_grants_control_on_a_phone(
     assert box is not None and box["height"] >= 32  # a thumb can hit it
     assert page.evaluate("document.documentElement.scrollWidth") <= 390
     shots(page, "phone-granted", full_page=True)
+    page.click('[data-tab="map"]')  # back on the map: labels measured again, on the screen
+    next_frames(page)
+    next_frames(page)
+    for box in label_boxes(page):
+        assert box is not None and box["x"] >= 0 and box["x"] + box["width"] <= 390, box
+    assert_labels_apart(page)
 
 
 def test_replay_puts_each_marker_where_the_store_has_it(
@@ -415,6 +431,8 @@ def test_replay_puts_each_marker_where_the_store_has_it(
     page, _ = open_console()
     log_in(page, "ana")
     page.click('[data-tab="replay"]')
+    # nothing selected: every vehicle is offered ticked, however the fleet arrived
+    expect(page.locator("#replay-vehicles input:checked")).to_have_count(len(ALL))
     page.click('button[data-minutes="5"]')
     for vehicle_id in ALL:
         page.locator(f'#replay-vehicles input[value="{vehicle_id}"]').set_checked(
@@ -558,6 +576,8 @@ def test_a_lease_needing_a_live_console_lapses_when_it_closes(
     for kind in ("hold_station", "control_expired"):
         item = log.locator(f'li[data-kind="{kind}"][data-vehicle="demo-usv-3"]').first
         expect(item).to_contain_text(re.compile("operator.silent"))
+    # the routine mode changes of a mission (idle, remote) are not what happened
+    expect(log.locator('li[data-kind="control_mode"]')).to_have_count(0)
     hold = newest_command(world, "demo-usv-3", "keep_station")
     assert hold is not None and hold["issued_by"] == "system", hold
     shots(manager, "manager-sees-hold")

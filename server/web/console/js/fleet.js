@@ -11,6 +11,8 @@ const FINAL = new Set(["done", "failed", "rejected", "expired", "cancelled"]);
  * "acked", a cancelled command that a stop superseded as "superseded"). */
 export function stageOf(status, detail) {
   if (status === "cancelled" && detail === "superseded_by_stop") return "superseded";
+  // the agent ends a mission that a newer command replaced as failed, "superseded by ..."
+  if (status === "failed" && /^superseded by /.test(detail || "")) return "superseded";
   if (status === "accepted") return "acked";
   return status;
 }
@@ -172,11 +174,26 @@ export class Fleet extends EventTarget {
     }
     v.events.sort((a, b) => ms(a.at) - ms(b.at));
     v.events = v.events.slice(-RECENT_EVENTS);
+    if (!snapshot) for (const e of data.events || []) this.applyToView(v, e);
     this.changed(id, "events");
     if (!snapshot) {
       for (const e of data.events || []) {
         this.dispatchEvent(new CustomEvent("event", { detail: { id, event: e } }));
       }
+    }
+  }
+
+  /** What an event says of the vehicle's view that the ``fleet`` topic does not carry
+   * (it changes on presence and link delay only): its control mode and failsafe policy. */
+  applyToView(v, e) {
+    const d = e.data || {};
+    if (e.kind === "control_mode" && d.control_mode) v.view.control_mode = d.control_mode;
+    else if (e.kind === "failsafe_changed" && d.action) {
+      v.view.failsafe = d;
+      v.view.failsafe_acked = false;
+    } else if (e.kind === "failsafe_acked" && v.view.failsafe
+      && (d.version == null || d.version === v.view.failsafe.version)) {
+      v.view.failsafe_acked = true;
     }
   }
 

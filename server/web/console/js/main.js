@@ -257,7 +257,12 @@ class Console {
     for (const b of document.querySelectorAll("[data-tab]")) {
       b.setAttribute("aria-selected", String(b.dataset.tab === tab));
     }
-    if (tab === "map") requestAnimationFrame(() => this.map.map.invalidateSize());
+    if (tab === "map") {
+      requestAnimationFrame(() => {
+        this.map.map.invalidateSize();
+        this.map.scheduleLabels(); // labels changed while hidden are measured now
+      });
+    }
     if (tab === "control") this.controlPanel.loadRequests();
     if (tab === "replay" && this.replay) this.replay.drawChoices();
     if (tab === "vehicle") this.vehiclePanel.show(this.focused);
@@ -402,7 +407,9 @@ class Console {
       text: `${names} will stop at once; missions queued and not yet started are cancelled.`,
       confirm: vehicles.length > 1 ? `Stop ${vehicles.length} vehicles` : "Stop it",
     });
-    if (ok) await this.send("stop", {}, vehicles.map((v) => v.id));
+    if (!ok) return undefined;
+    this.setTool(null); // a map click after a stop must not send the vehicle off again
+    await this.send("stop", {}, vehicles.map((v) => v.id));
     return undefined;
   }
 
@@ -415,6 +422,7 @@ class Console {
       confirm: "Stop all vehicles",
     });
     if (!ok) return;
+    this.setTool(null);
     try {
       const made = await this.api.submit(["*"], "stop", {});
       for (const c of made) {

@@ -330,7 +330,9 @@ export class MapView {
       const el = m.getElement();
       if (!el) continue;
       const label = el.querySelector(".vlabel");
-      if (!label.dataset.w) {
+      // measured once per text, but not while the map is hidden (a phone's other tab):
+      // a size of 0 kept would let the label cover its neighbours once the map shows
+      if (!+label.dataset.w && label.offsetWidth) {
         label.dataset.w = label.offsetWidth;
         label.dataset.h = label.offsetHeight;
       }

@@ -2,7 +2,7 @@
 // recent commands and events) and the control panel (a field manager's requests, grants
 // and leases; an operator's own). Each redraws from the Fleet state when it changes.
 
-import { isFinal } from "./fleet.js";
+import { isFinal, stageOf } from "./fleet.js";
 import { ago, clock, dateTime, h, toast, until } from "./ui.js";
 
 const DURATIONS = [
@@ -10,6 +10,13 @@ const DURATIONS = [
   [14400, "4 h"], [28800, "8 h"], [86400, "24 h"],
 ];
 // Events the control panel's log shows beside control_*.
+// How "What happened" names an event's kind, so that a line reads as a sentence.
+const KIND_LABELS = {
+  control_request: "control requested", control_grant: "control granted to",
+  control_revoke: "control revoked from", control_release: "control released by",
+  control_expired: "control expired for", hold_station: "holds station:",
+  control_mode: "control mode",
+};
 const SAFETY_EVENTS = new Set([
   "hold_station", "failsafe_entered", "failsafe_left", "failsafe_changed", "zone_breach",
   "zone_cleared", "collision_risk", "low_battery",
@@ -18,6 +25,17 @@ const SAFETY_EVENTS = new Set([
 const LIVENESS = [
   [0, "never"], [10, "10 s"], [30, "30 s"], [60, "1 min"], [300, "5 min"],
 ];
+
+/** Whether "What happened" lists the event: control and safety, not the routine mode
+ * changes of every mission (idle ⇄ remote); a crew taking the local controls, or a
+ * failsafe, is listed. */
+function isSafetyEvent(e) {
+  if (e.kind === "control_mode") {
+    const d = e.data || {};
+    return [d.control_mode, d.was].some((m) => m === "local" || m === "failsafe");
+  }
+  return e.kind.startsWith("control_") || SAFETY_EVENTS.has(e.kind);
+}
 
 function presenceBadge(presence) {
   return h(`span.presence.p-${presence || "offline"}`, {}, presence || "unknown");
@@ -148,7 +166,8 @@ export class VehiclePanel {
       "div.control-line",
       {},
       control
-        ? [h("b", {}, holderText(control, me)), ` holds control until ${clock(control.expires_at)} `,
+        ? [h("b", {}, holderText(control, me)),
+          ` ${mine ? "hold" : "holds"} control until ${clock(control.expires_at)} `,
           h("small.until", { dataset: { until: control.expires_at } }, `(${until(control.expires_at)})`),
           control.granted_by ? h("small", {}, ` granted by ${control.granted_by}`) : null]
         : "nobody holds control",
@@ -157,7 +176,7 @@ export class VehiclePanel {
       mine ? h("button", { onclick: () => this.ctx.releaseControl(v.id) }, "Release") : null,
     );
     const failsafe = view.failsafe
-      ? h("p.failsafe", {}, h("b", {}, "link-loss policy: "), describeData(view.failsafe),
+      ? h("p.failsafe", {}, h("b", {}, "If the link is lost: "), describeFailsafe(view.failsafe),
         view.failsafe_acked === false ? " (not yet acknowledged by the vehicle)" : "")
       : null;
     this.el.replaceChildren(...[
@@ -213,14 +232,22 @@ export class VehiclePanel {
 export function describeEvent(e) {
   const d = e.data || {};
   if (e.kind === "command") {
-    const stage = d.status === "cancelled" && d.detail === "superseded_by_stop"
-      ? "superseded" : d.status;
-    return `${d.type || ""} ${stage || ""}${d.detail && stage !== "superseded" ? ` (${d.detail})` : ""}` +
+    const stage = d.status ? stageOf(d.status, d.detail) : "";
+    const detail = d.detail && d.detail !== "superseded_by_stop" ? ` (${d.detail})` : "";
+    return `${d.type || ""} ${stage}${detail}` +
       (e.actor ? ` by ${e.actor.replace(/^user:/, "")}` : "");
   }
+  if (e.kind === "control_mode") {
+    return `${d.was ? `${d.was} → ` : ""}${d.control_mode || "?"}`;
+  }
+  if (e.kind === "failsafe_changed") return describeFailsafe(d);
   if (e.kind.startsWith("control_")) {
     const who = d.holder || d.user || d.username || "";
-    return `${who}${d.reason ? `: ${String(d.reason).replace(/_/g, " ")}` : ""}` +
+    const terms = e.kind === "control_grant" && d.expires_at
+      ? ` until ${clock(d.expires_at)}` +
+        (d.operator_timeout_s ? `, lapses after ${d.operator_timeout_s} s of silence` : "")
+      : "";
+    return `${who}${terms}${d.reason ? `: ${String(d.reason).replace(/_/g, " ")}` : ""}` +
       `${e.actor ? ` (by ${e.actor.replace(/^user:/, "")})` : ""}`;
   }
   if (e.kind === "hold_station") {
@@ -230,6 +257,24 @@ export function describeEvent(e) {
   }
   if (e.kind === "presence") return d.presence || "";
   return describeData(d);
+}
+
+/** A link-loss policy as a field manager reads it: "keep station where it is after 30 s
+ * without the server; on a zone breach too · the server's default". */
+export function describeFailsafe(f) {
+  if (!f) return "";
+  const what = {
+    none: "carry on (no failsafe)",
+    keep_station: "keep station where it is",
+    stop: "stop",
+    return_home: f.home ? `return home (${(+f.home.lat).toFixed(5)}, ${(+f.home.lon).toFixed(5)})`
+      : "return home (where it started)",
+  }[f.action] || String(f.action);
+  const parts = [f.action === "none" ? what : `${what} after ${f.after_s ?? "?"} s without the server`];
+  if (f.on_breach && f.action !== "none") parts.push("the same at once on a zone breach");
+  if (f.low_battery_pct != null) parts.push(`low-battery alarm below ${f.low_battery_pct} %`);
+  if (!f.version) parts.push("the server's default");
+  return parts.join(" · ");
 }
 
 const UNITS = { s: " s", m: " m", pct: " %", mps: " m/s", deg: "°" };
@@ -324,7 +369,45 @@ export class ControlPanel {
     const parts = [h("h2", {}, "Control")];
     if (this.manages) parts.push(this.requestSection(), this.grantForm());
     parts.push(this.leaseSection(), this.safetyLog());
+    // The panel is drawn again on every control, view or event change: what the manager
+    // has chosen or typed in its forms (a duration, a user, the grant form open) stays.
+    const kept = this.formState();
     this.el.replaceChildren(...parts);
+    this.restoreFormState(kept);
+  }
+
+  formState() {
+    const fields = new Map();
+    for (const el of this.el.querySelectorAll("form[data-key] [name]")) {
+      fields.set(`${el.form.dataset.key}/${el.name}`, el.value);
+    }
+    const active = document.activeElement;
+    const focus = active && active.form && active.form.dataset.key && this.el.contains(active)
+      ? {
+        key: `${active.form.dataset.key}/${active.name}`,
+        caret: active.tagName === "INPUT" ? [active.selectionStart, active.selectionEnd] : null,
+      }
+      : null;
+    const grant = this.el.querySelector("details.grant");
+    return { fields, focus, grantOpen: Boolean(grant && grant.open) };
+  }
+
+  restoreFormState({ fields, focus, grantOpen }) {
+    const grant = this.el.querySelector("details.grant");
+    if (grant && grantOpen) grant.open = true; // first: a closed one's fields take no focus
+    for (const el of this.el.querySelectorAll("form[data-key] [name]")) {
+      const key = `${el.form.dataset.key}/${el.name}`;
+      if (fields.has(key)) {
+        const value = fields.get(key);
+        if (el.tagName !== "SELECT" || [...el.options].some((o) => o.value === value)) {
+          el.value = value;
+        }
+      }
+      if (focus && key === focus.key) {
+        el.focus();
+        if (focus.caret) el.setSelectionRange(...focus.caret);
+      }
+    }
   }
 
   requestSection() {
@@ -332,7 +415,11 @@ export class ControlPanel {
       const v = this.vehicleOf(r.instance_id);
       const name = v ? v.view.name || v.id : r.instance_id;
       const form = h("form.request", {
-        dataset: { user: r.username, vehicle: v ? v.id : "" },
+        dataset: {
+          user: r.username,
+          vehicle: v ? v.id : "",
+          key: `request/${r.request_id || `${r.username}/${r.instance_id}`}`,
+        },
         onsubmit: (e) => {
           e.preventDefault();
           const f = e.target;
@@ -357,6 +444,7 @@ export class ControlPanel {
     return h("details.grant", {},
       h("summary", {}, "Grant control to someone"),
       h("form", {
+        dataset: { key: "grant" },
         onsubmit: (e) => {
           e.preventDefault();
           const f = e.target;
@@ -414,13 +502,13 @@ export class ControlPanel {
     const items = [];
     for (const v of this.ctx.fleet.vehicles.values()) {
       for (const e of v.events) {
-        if (e.kind.startsWith("control_") || SAFETY_EVENTS.has(e.kind)) items.push([v, e]);
+        if (isSafetyEvent(e)) items.push([v, e]);
       }
     }
     items.sort((a, b) => (a[1].at < b[1].at ? 1 : -1));
     const rows = items.slice(0, 15).map(([v, e]) => h("li", { dataset: { kind: e.kind, vehicle: v.id } },
       h("time", {}, clock(e.at)), " ", h("b", {}, v.view.name || v.id), " ",
-      h("span.kind", {}, e.kind.replace(/_/g, " ")), " ", describeEvent(e)));
+      h("span.kind", {}, KIND_LABELS[e.kind] || e.kind.replace(/_/g, " ")), " ", describeEvent(e)));
     return h("section.safety-log", {}, h("h3", {}, "What happened"),
       rows.length ? h("ol.events", {}, ...rows) : h("p.hint", {}, "nothing yet"));
   }

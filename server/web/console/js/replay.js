@@ -99,20 +99,27 @@ export class Replay {
     document.getElementById("replay-to").value = toLocalInput(now);
   }
 
-  /** The vehicle checkboxes (the selected ones ticked). */
+  /** The vehicle checkboxes: the user's ticks kept; a vehicle not offered before is
+   * ticked when it is selected, or when nothing is selected (every vehicle). */
   drawChoices() {
     const box = document.getElementById("replay-vehicles");
-    const ticked = new Set(
-      [...box.querySelectorAll("input:checked")].map((i) => i.value),
+    const offered = new Map(
+      [...box.querySelectorAll("input")].map((i) => [i.value, i.checked]),
     );
-    const fallback = ticked.size ? ticked : this.ctx.selection;
+    const selection = this.ctx.selection;
     const vehicles = [...this.ctx.fleet.vehicles.values()].sort((a, b) => (a.id < b.id ? -1 : 1));
     box.replaceChildren(...vehicles.map((v) => h("label", {},
       h("input", {
         type: "checkbox", name: "vehicle", value: v.id,
-        checked: fallback.size ? fallback.has(v.id) : true,
+        checked: offered.has(v.id) ? offered.get(v.id)
+          : selection.size ? selection.has(v.id) : true,
       }),
       ` ${v.view.name || v.id}`)));
+  }
+
+  nameOf(id) {
+    const v = this.ctx.fleet.vehicles.get(id);
+    return (v && v.view.name) || id;
   }
 
   chosen() {
@@ -216,14 +223,15 @@ export class Replay {
     const span = this.end - this.start;
     this.ticks.replaceChildren(...this.events.map((e, i) => h(`span.tick.k-${e.kind.split("_")[0]}`, {
       style: `left:${((e.t - this.start) / span) * 100}%`,
-      title: `${clock(e.t)} ${e.vehicle} ${e.kind} ${describeEvent(e)}`,
+      title: `${clock(e.t)} ${this.nameOf(e.vehicle)} ${e.kind.replace(/_/g, " ")} ${describeEvent(e)}`,
       dataset: { index: i },
     })));
     this.list.replaceChildren(...this.events.map((e, i) => h("li", {
       dataset: { index: i, kind: e.kind },
       onclick: () => this.seek(e.t),
     },
-    h("time", {}, clock(e.t)), " ", h("b", {}, e.vehicle), " ", e.kind, " ", describeEvent(e))));
+    h("time", {}, clock(e.t)), " ", h("b", {}, this.nameOf(e.vehicle)), " ",
+    e.kind.replace(/_/g, " "), " ", describeEvent(e))));
   }
 
   /** Move the cursor to ``t``: every chosen vehicle where its track puts it then. */
@@ -325,7 +333,7 @@ export class Replay {
         body = mergeGpx(texts);
         type = "application/gpx+xml";
       }
-      const stamp = from.slice(0, 19).replace(/[:T]/g, "");
+      const stamp = from.slice(0, 19).replace(/:/g, ""); // 2026-11-25T004351
       const a = h("a", {
         href: URL.createObjectURL(new Blob([body], { type })),
         download: `fleet-replay-${stamp}.${format}`,

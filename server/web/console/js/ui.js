@@ -54,8 +54,9 @@ export function until(ts, now = Date.now()) {
 
 export function toast(message, kind = "info", action = null) {
   const box = document.getElementById("toasts");
-  const item = h(`div.toast.${kind}`, { role: kind === "error" ? "alert" : "status" }, message);
-  if (action) item.append(" ", h("button", { onclick: action.run }, action.label));
+  const item = h(`div.toast.${kind}`, { role: kind === "error" ? "alert" : "status" },
+    h("span.msg", {}, message));
+  if (action) item.append(h("button", { onclick: action.run }, action.label));
   item.append(h("button.quiet.close", { onclick: () => item.remove(), "aria-label": "close" }, "×"));
   box.append(item);
   setTimeout(() => item.remove(), kind === "error" ? 12000 : 5000);
