@@ -46,6 +46,18 @@ function chip(cmd) {
   return h(`span.chip.stage-${cmd.stage}`, {}, `${cmd.type} · ${cmd.stage}`);
 }
 
+/** A delay in ms as the console shows it (tenths below 10 ms). */
+function millis(x) {
+  return `${x < 10 ? x.toFixed(1) : x.toFixed(0)} ms`;
+}
+
+/** The vehicle's link as the server measures it (docs/live.md, "Latency per hop"). */
+function linkText(view) {
+  if (view.link_delay_ms == null) return null;
+  const rtt = view.link_rtt_ms != null ? ` · ${millis(view.link_rtt_ms)} round trip` : "";
+  return `${millis(view.link_delay_ms)} one way${rtt}`;
+}
+
 function holderText(control, me) {
   if (!control) return "nobody";
   return control.holder === me.username ? "you" : control.holder;
@@ -100,7 +112,11 @@ export class FleetTable {
           h("td", {}, h("b", {}, v.view.name || v.id), h("br"), h("small", {}, v.id)),
           h("td", {}, presenceBadge(v.view.presence), h("br"),
             h("small.ago", { dataset: { since: fleet.lastContact(v.id) } },
-              ago(fleet.lastContact(v.id)))),
+              ago(fleet.lastContact(v.id))),
+            v.view.link_delay_ms != null
+              ? [h("br"), h("small.link", { title: "one-way delay to the server" },
+                `link ${millis(v.view.link_delay_ms)}`)]
+              : null),
           h("td", {}, p && p.battery_pct != null ? `${p.battery_pct.toFixed(0)} %` : "–"),
           h("td", {}, holderText(v.control, me)),
           h("td", {}, chip(fleet.latestCommand(v.id))),
@@ -191,6 +207,7 @@ export class VehiclePanel {
         h("dt", {}, "heading"), h("dd", {}, num(p.heading_deg, "°", 0)),
         h("dt", {}, "speed"), h("dd", {}, num(p.speed_mps, "m/s")),
         h("dt", {}, "battery"), h("dd", {}, num(p.battery_pct, "%", 0)),
+        h("dt", {}, "link"), h("dd.link", {}, linkText(view) || "–"),
         p.depth_m != null ? [h("dt", {}, "depth"), h("dd", {}, num(p.depth_m, "m"))] : null),
       h("h3", {}, "Parameters ", h("button.quiet", { onclick: () => this.loadParams() }, "refresh")),
       this.paramsTable(),
@@ -241,6 +258,23 @@ export function describeEvent(e) {
     return `${d.was ? `${d.was} → ` : ""}${d.control_mode || "?"}`;
   }
   if (e.kind === "failsafe_changed") return describeFailsafe(d);
+  if (e.kind === "zone_breach" || e.kind === "zone_cleared") {
+    const what = d.message || `${e.kind === "zone_breach" ? "entered" : "left"} ${d.zone || "a zone"}`;
+    const sent = d.command_type ? `; the server sent ${d.command_type.replace(/_/g, " ")}` : "";
+    return `${what}${sent}`;
+  }
+  if (e.kind === "collision_risk") {
+    const n = (x) => (x == null ? "?" : Math.round(x));
+    return `with ${d.other_vehicle_id || "another vehicle"} in ${n(d.in_s)} s: ` +
+      `closest ${n(d.closest_m)} m (${n(d.distance_now_m)} m apart now)`;
+  }
+  if (e.kind === "low_battery" || e.kind === "battery_recovered") {
+    const pct = d.battery_pct == null ? "?" : Number(d.battery_pct).toFixed(0);
+    return `${pct} % (alarm below ${d.threshold_pct ?? "?"} %)`;
+  }
+  if (e.kind === "failsafe_entered" || e.kind === "failsafe_left") {
+    return `${d.was || "?"} → ${d.control_mode || "?"}`;
+  }
   if (e.kind.startsWith("control_")) {
     const who = d.holder || d.user || d.username || "";
     const terms = e.kind === "control_grant" && d.expires_at
