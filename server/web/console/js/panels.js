@@ -204,7 +204,8 @@ export class VehiclePanel {
       controlRow,
       h("dl.readings", {},
         h("dt", {}, "position"), h("dd", {}, p.lat != null ? `${p.lat.toFixed(6)}, ${p.lon.toFixed(6)}` : "–"),
-        h("dt", {}, "heading"), h("dd", {}, num(p.heading_deg, "°", 0)),
+        h("dt", {}, "heading"), h("dd", {}, p.heading_deg == null ? "–"
+          : `${Math.round(p.heading_deg) % 360} °`), // 359.6 reads 0, not 360
         h("dt", {}, "speed"), h("dd", {}, num(p.speed_mps, "m/s")),
         h("dt", {}, "battery"), h("dd", {}, num(p.battery_pct, "%", 0)),
         h("dt", {}, "link"), h("dd.link", {}, linkText(view) || "–"),
