@@ -21,11 +21,14 @@ GOALS = {
     "pubsub_p99_ratio": 1.5,
     "command_median_ms": 3.0,
     "command_p99_ms": 15.0,
-    "capacity_vehicles": 5000,
+    "capacity_vehicles": 10000,
     "capacity_cpu_pct": 100.0,
     "capacity_rss_mb": 600.0,
     "capacity_ack_median_ms": 20.0,
+    "capacity_ack_p99_ms": 100.0,
 }
+#: Worker processes of the capacity load generator (``bench._live.loadgen``).
+GEN_PROCS = 2
 #: The server's settings for the bench: rate limits out of the way, presence
 #: thresholds long so that idle vehicles do not churn ``fleet`` events.
 SERVER_ENV = {
@@ -53,6 +56,7 @@ class Config:
     cap_window_s: float
     cap_warmup_s: float
     quick: bool
+    gen_procs: int = GEN_PROCS
 
 
 def parse_args(argv: Sequence[str] | None, description: str) -> tuple[Config, argparse.Namespace]:
@@ -66,12 +70,18 @@ def parse_args(argv: Sequence[str] | None, description: str) -> tuple[Config, ar
         help="comma list of pubsub, command, capacity, layers",
     )
     parser.add_argument("--count", type=int, default=None, help="latency messages per run")
-    parser.add_argument("--levels", default=None, help="capacity ramp, e.g. 1000,2500,5000")
+    parser.add_argument("--levels", default=None, help="capacity ramp, e.g. 1000,5000,10000")
+    parser.add_argument(
+        "--gen-procs",
+        type=int,
+        default=GEN_PROCS,
+        help="capacity: load generator worker processes (on the bench's cores)",
+    )
     parser.add_argument("--window-s", type=float, default=None, help="capacity window per run")
     parser.add_argument("--json", type=Path, default=None, help="also write the figures here")
     args = parser.parse_args(argv)
     quick = args.quick
-    levels = args.levels or ("100,250,1000" if quick else "250,500,1000,2500,5000")
+    levels = args.levels or ("100,250,1000" if quick else "1000,5000,10000")
     count = args.count or (500 if quick else 2000)
     cfg = Config(
         sections=[s.strip() for s in args.sections.split(",") if s.strip()],
@@ -85,5 +95,6 @@ def parse_args(argv: Sequence[str] | None, description: str) -> tuple[Config, ar
         cap_window_s=args.window_s or (4.0 if quick else 10.0),
         cap_warmup_s=3.0 if quick else 5.0,
         quick=quick,
+        gen_procs=max(1, args.gen_procs),
     )
     return cfg, args

@@ -76,8 +76,19 @@ def metrics(out: dict[str, Any]) -> list[Metric]:
             tag = "" if r["held"] else " (not held)"
             add(f"capacity @ {n}{tag}: server CPU", "% core", [x["server_cpu_pct"] for x in runs])
             add(f"capacity @ {n}{tag}: server RSS", "MB", [x["server_rss_mb"] for x in runs])
-            add(f"capacity @ {n}{tag}: ack median", "ms", [x["median_ms"] for x in runs])
-            add(f"capacity @ {n}{tag}: ack p99", "ms", [x["p99_ms"] for x in runs])
+            at_goal = n >= GOALS["capacity_vehicles"]
+            add(
+                f"capacity @ {n}{tag}: ack median",
+                "ms",
+                [x["median_ms"] for x in runs],
+                ("max", GOALS["capacity_ack_median_ms"]) if at_goal else None,
+            )
+            add(
+                f"capacity @ {n}{tag}: ack p99",
+                "ms",
+                [x["p99_ms"] for x in runs],
+                ("max", GOALS["capacity_ack_p99_ms"]) if at_goal else None,
+            )
             add(
                 f"capacity @ {n}{tag}: load gen CPU", "% core", [x["loadgen_cpu_pct"] for x in runs]
             )

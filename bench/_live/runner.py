@@ -51,6 +51,8 @@ def run_bench(cfg: Config, report: Callable[[str], None]) -> dict[str, Any]:
     nofile = raise_nofile()
     pinned = pinning()
     server_core = SERVER_CORE if pinned else None
+    # The load generator's workers take every core but the server's; this process, one.
+    bench_cores = sorted(os.sched_getaffinity(0) - {SERVER_CORE}) or [BENCH_CORE]
     if pinned:
         os.sched_setaffinity(0, {BENCH_CORE})
     need = max([1, *(cfg.cmd_levels if "command" in cfg.sections else [])])
@@ -77,7 +79,14 @@ def run_bench(cfg: Config, report: Callable[[str], None]) -> dict[str, Any]:
             if "capacity" in cfg.sections:
                 out["capacity"] = run_async(
                     capacity(
-                        world, cfg.cap_levels, cfg.runs, cfg.cap_window_s, cfg.cap_warmup_s, report
+                        world,
+                        cfg.cap_levels,
+                        cfg.runs,
+                        cfg.cap_window_s,
+                        cfg.cap_warmup_s,
+                        report,
+                        cfg.gen_procs,
+                        bench_cores if pinned else None,
                     )
                 )
             with contextlib.suppress(OSError):
