@@ -46,6 +46,12 @@ lint: $(STAMP)
 bench: $(STAMP) $(FERRETDB_BIN)
 	FLEET_FERRETDB_BIN=$(abspath $(FERRETDB_BIN)) $(PY) -m bench $(BENCH_ARGS)
 
+# 1,000 vehicles at 1 Hz for 10 minutes with a short retention (RSS growth after the
+# warm-up < 10 %), then each bound of the contract flooded (bench/_soak.py); e.g.
+# SOAK_ARGS="--minutes 3" for a trial, "--runs 3" for min / median / max.
+soak: $(STAMP)
+	$(PY) -m bench._soak $(SOAK_ARGS)
+
 # The fault runs at full size (tests/chaos: 50 agents, ten minutes of a bad link, ...),
 # CHAOS_RUNS times, then their figures as min / median / max.
 CHAOS_RUNS ?= 3

@@ -7,7 +7,7 @@ import os
 import signal
 import subprocess
 import time
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -29,12 +29,16 @@ class ServerHandle:
 
 
 @contextlib.contextmanager
-def fleet_server(workdir: Path, core: int | None) -> Iterator[ServerHandle]:
-    """``python -m server.cli`` on a free loopback port (its output in ``workdir``)."""
+def fleet_server(
+    workdir: Path, core: int | None, extra_env: Mapping[str, str] | None = None
+) -> Iterator[ServerHandle]:
+    """``python -m server.cli`` on a free loopback port (its output in ``workdir``);
+    ``extra_env`` over the bench's settings."""
     port = free_port()
     env = {
         **os.environ,
         **SERVER_ENV,
+        **(extra_env or {}),
         "FLEET_PORT": str(port),
         "FLEET_SNAPSHOT_PATH": str(workdir / "fleet-store.snapshot"),
     }
