@@ -84,13 +84,14 @@ class AmbiguousName(FleetApiError):
 
 
 def shown_status(command: Body) -> str:
-    """A command's status as people read it: ``superseded`` for one a ``stop`` cancelled
-    (``cancelled`` with the detail ``superseded_by_stop``), else its status."""
+    """A command's status as people read it: ``superseded`` for one a newer command took
+    the place of (``cancelled`` with a detail ``superseded_by_stop`` or ``superseded_by
+    <type> <id>``), else its status."""
     history = command.get("history") or []
     if (
         command.get("status") == "cancelled"
         and history
-        and history[-1].get("detail") == "superseded_by_stop"
+        and str(history[-1].get("detail") or "").startswith("superseded_by")
     ):
         return "superseded"
     return str(command.get("status"))

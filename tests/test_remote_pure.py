@@ -80,6 +80,8 @@ def test_a_command_a_stop_cancelled_shows_as_superseded() -> None:
         "history": [{"detail": None}, {"detail": "superseded_by_stop"}],
     }
     assert shown_status(superseded) == "superseded"
+    replaced = {"status": "cancelled", "history": [{"detail": "superseded_by go_to c-2"}]}
+    assert shown_status(replaced) == "superseded"
     cancelled = {"status": "cancelled", "history": [{"detail": "lease_ended"}]}
     assert shown_status(cancelled) == "cancelled"
     assert shown_status({"status": "done", "history": []}) == "done"

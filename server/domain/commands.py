@@ -218,6 +218,22 @@ def apply_ack(
     return AckOutcome.APPLIED
 
 
+#: How an agent ends the mission a newer command replaced: ``failed``, this detail and
+#: the newer command (the contract's acks have no status for it).
+AGENT_SUPERSEDED = "superseded by "
+#: The detail of a command a newer one replaced on the vehicle (``cancelled``); a stop
+#: that cancels what waits says ``superseded_by_stop``.
+SUPERSEDED_BY = "superseded_by "
+
+
+def superseded(status: str, detail: str | None) -> tuple[str, str | None]:
+    """A mission the vehicle ended because a newer command replaced it did not fail: it is
+    ``cancelled`` with ``superseded_by <type> <command_id>``, shown as superseded."""
+    if status == "failed" and detail is not None and detail.startswith(AGENT_SUPERSEDED):
+        return "cancelled", SUPERSEDED_BY + detail[len(AGENT_SUPERSEDED) :]
+    return status, detail
+
+
 def check_plan(
     cmd: Command, status: str, path_hash: str | None, detail: str | None
 ) -> tuple[str, str | None]:

@@ -322,11 +322,12 @@ class CommandService:
                 continue
             was = cmd.status
             status, detail = life.check_plan(cmd, ack.status, ack.path_hash, ack.detail)
+            if status != ack.status:
+                abort.append(cmd.command_id)  # never to be carried out
+            status, detail = life.superseded(status, detail)
             outcome = life.apply_ack(cmd, status, now, progress=ack.progress, detail=detail)
             if was == "delivered" and cmd.status != was and self.hops is not None:
                 self._acked_first(cmd, now)
-            if status != ack.status:
-                abort.append(cmd.command_id)  # never to be carried out
             if outcome is AckOutcome.LATE:
                 await self.repo.note_history(cmd.command_id, cmd.history)
                 if cmd.status in life.ABORT_STATUSES:

@@ -360,7 +360,9 @@ async def test_a_revoked_lease_leaves_the_vehicle_holding_station(harbour: Harbo
     await h.call("POST", "/client/revoke_control", json={"instance_id": boat.instance_id})
     hold = await holding(h, boat)
     assert hold["type"] == "keep_station" and hold["issued_by"] == "system"
-    assert (await h.command(go))["status"] == "failed"  # superseded on the vehicle
+    replaced = await h.command(go)  # the vehicle ended it for the hold: superseded
+    assert replaced["status"] == "cancelled", replaced
+    assert replaced["history"][-1]["detail"].startswith("superseded_by keep_station c-")
     (event,) = await h.events(boat, "hold_station")
     assert event["data"]["reason"] == "revoked" and event["data"]["holder"].startswith("op-")
     await held_within(h, boat, metres=3.0, sim_seconds=60.0)

@@ -168,6 +168,18 @@ def test_stop_cancels_the_motion_queued_before_it_only() -> None:
     assert after.status == "queued"
 
 
+def test_a_mission_the_vehicle_ended_for_a_newer_command_is_superseded_not_failed() -> None:
+    running = make_command("go_to", at=later(0))
+    life.apply_ack(running, "executing", later(1))
+    status, detail = life.superseded("failed", "superseded by keep_station c-9")
+    assert (status, detail) == ("cancelled", "superseded_by keep_station c-9")
+    life.apply_ack(running, status, later(2), detail=detail)
+    assert running.status == "cancelled" and running.final
+    # a real failure stays one
+    assert life.superseded("failed", "the thruster stalled") == ("failed", "the thruster stalled")
+    assert life.superseded("done", "superseded by x") == ("done", "superseded by x")
+
+
 def test_a_command_is_expired_as_drifted_when_the_vehicle_moved_too_far() -> None:
     here = {"lat": 43.9, "lon": 15.4}
     cmd = make_command(max_drift_m=50, position=here)

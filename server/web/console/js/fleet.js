@@ -10,8 +10,9 @@ const FINAL = new Set(["done", "failed", "rejected", "expired", "cancelled"]);
 /** A command's stage as the console names it (the contract's status, "accepted" read as
  * "acked", a cancelled command that a stop superseded as "superseded"). */
 export function stageOf(status, detail) {
-  if (status === "cancelled" && detail === "superseded_by_stop") return "superseded";
-  // the agent ends a mission that a newer command replaced as failed, "superseded by ..."
+  // cancelled by a stop ("superseded_by_stop") or replaced on the vehicle by a newer
+  // command ("superseded_by go_to c-..."; an older server kept it as failed, "superseded by")
+  if (status === "cancelled" && /^superseded_by/.test(detail || "")) return "superseded";
   if (status === "failed" && /^superseded by /.test(detail || "")) return "superseded";
   if (status === "accepted") return "acked";
   return status;

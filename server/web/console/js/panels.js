@@ -251,7 +251,8 @@ export function describeEvent(e) {
   const d = e.data || {};
   if (e.kind === "command") {
     const stage = d.status ? stageOf(d.status, d.detail) : "";
-    const detail = d.detail && d.detail !== "superseded_by_stop" ? ` (${d.detail})` : "";
+    const detail = d.detail && d.detail !== "superseded_by_stop"
+      ? ` (${d.detail.replace(/^superseded_by /, "by ")})` : "";
     return `${d.type || ""} ${stage}${detail}` +
       (e.actor ? ` by ${e.actor.replace(/^user:/, "")}` : "");
   }
