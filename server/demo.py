@@ -17,6 +17,7 @@ ones revoked), handed to its agent in the environment, never printed.
 
 from __future__ import annotations
 
+import argparse
 import asyncio
 import contextlib
 import os
@@ -173,7 +174,21 @@ def _stop_as_on_ctrl_c(signum: int, frame: object) -> None:
     raise KeyboardInterrupt
 
 
+def _arguments(argv: list[str]) -> None:
+    """The demo takes no options (its settings come from FLEET_* like the server's);
+    ``--help`` says what it does instead of starting it."""
+    parser = argparse.ArgumentParser(
+        prog="python -m server.demo",
+        description="Start fleet-server on the embedded store with three simulated "
+        "vehicles (data in ./data), print the console's URL and an admin token; "
+        "Ctrl-C stops everything. Settings: FLEET_* as for fleet-server "
+        "(FLEET_PORT, FLEET_ADMIN_TOKEN, ...).",
+    )
+    parser.parse_args(argv)
+
+
 if __name__ == "__main__":
+    _arguments(sys.argv[1:])
     DATA.mkdir(exist_ok=True)
     # uvicorn hands a SIGTERM back to the handler it found once it has shut down; the
     # default one would end the process before the simulated vehicles are stopped.

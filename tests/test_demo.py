@@ -134,3 +134,16 @@ def test_a_restarted_demo_resumes_its_vehicles_where_they_were_with_a_new_admin_
         assert _metres(here, first_start) > 4.0  # not back at its first position
     finally:
         stop_demo(demo)
+
+
+def test_demo_help_says_what_it_does_and_starts_nothing(tmp_path: Path) -> None:
+    ran = subprocess.run(
+        [sys.executable, "-m", "server.demo", "--help"],
+        cwd=tmp_path,
+        env={**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])},
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert ran.returncode == 0 and "usage: python -m server.demo" in ran.stdout, ran
+    assert not (tmp_path / "data").exists()  # no store, no vehicles: nothing started
