@@ -26,6 +26,7 @@ import contextlib
 import multiprocessing
 import os
 import socket
+import threading
 import time
 from collections.abc import Sequence
 from datetime import UTC, datetime
@@ -304,7 +305,18 @@ async def _serve(conn: Connection, host: str, port: int) -> None:
     gen = WorkerGen(host, port)
     ticker = asyncio.create_task(gen.tick())
     inbox: asyncio.Queue[Any] = asyncio.Queue()
-    loop.add_reader(conn.fileno(), lambda: inbox.put_nowait(conn.recv()))
+
+    def read_pipe() -> None:  # a thread: the pipe stays blocking (an add_reader'd fd would not)
+        while True:
+            try:
+                command = conn.recv()
+            except (EOFError, OSError):
+                command = ("stop",)
+            loop.call_soon_threadsafe(inbox.put_nowait, command)
+            if command[0] == "stop":
+                return
+
+    threading.Thread(target=read_pipe, name="pipe", daemon=True).start()
     try:
         while True:
             command = await inbox.get()
@@ -317,7 +329,6 @@ async def _serve(conn: Connection, host: str, port: int) -> None:
             elif kind == "stop":
                 break
     finally:
-        loop.remove_reader(conn.fileno())
         gen.stopping = True
         ticker.cancel()
         with contextlib.suppress(asyncio.CancelledError):
