@@ -198,15 +198,31 @@ async def test_a_gateway_tick_sends_its_vehicles_ops_as_one_batch_and_routes_pus
 
     async with scripted(answer) as (url, frames):
         link = WsLink(url, "t", batch_tick_s=0.05)
-        a, b = link.vehicle("a"), link.vehicle("b")
+        a, b, c = link.vehicle("a"), link.vehicle("b"), link.vehicle("c")
         try:
-            ra, rb = await asyncio.gather(
-                *(v.start_instance(StartInstance(vehicle_id=v.vehicle_id)) for v in (a, b))
+            ra, rb, rc = await asyncio.gather(
+                *(v.start_instance(StartInstance(vehicle_id=v.vehicle_id)) for v in (a, b, c))
             )
-            assert (ra.instance_id, rb.instance_id) == ("i-a", "i-b")
-            assert [f["op"] for f in frames] == ["batch"] and len(frames[0]["ops"]) == 2
+            assert (ra.instance_id, rb.instance_id, rc.instance_id) == ("i-a", "i-b", "i-c")
+            # the first finds the link idle and goes at once; the others wait for the tick
+            assert [f["op"] for f in frames] == ["start_instance", "batch"]
+            assert len(frames[1]["ops"]) == 2
             got = await asyncio.wait_for(b.get_control("i-b", 0), 5)
             assert [c.instance_id for c in got.commands] == ["i-b"]
+        finally:
+            await link.aclose()
+
+
+async def test_an_op_on_an_idle_gateway_link_is_not_held_for_the_tick() -> None:
+    async def answer(conn: ServerConnection, op: dict[str, Any]) -> None:
+        await conn.send(started(op))
+
+    async with scripted(answer) as (url, frames):
+        link = WsLink(url, "t", batch_tick_s=30.0)  # a tick far longer than the wait below
+        try:
+            started_a = link.vehicle("a").start_instance(StartInstance(vehicle_id="a"))
+            assert (await asyncio.wait_for(started_a, 5)).instance_id == "i-a"
+            assert [f["op"] for f in frames] == ["start_instance"]
         finally:
             await link.aclose()
 

@@ -5,7 +5,9 @@
 waiters, ``command`` and ``control`` pushes to the vehicle they are for,
 ``event`` and ``routes`` (and binary media frames) to the gateway's topic
 layer. With ``batch_tick_s``
-(gateways), the ops queued during a tick leave as one ``batch`` frame.
+(gateways), the ops queued during a tick leave as one ``batch`` frame; an op
+that finds the link idle for a tick leaves at once (a unit's publish is not
+held for a batch that has nothing else to carry), and starts the tick.
 
 ``WsTransport`` is one vehicle's view of the link and implements
 ``Transport``: the agent cannot tell it from ``HttpTransport``, except that
@@ -111,6 +113,7 @@ class WsLink:
         self._pending: dict[str, tuple[asyncio.Future[AckPush], dict[str, Any]]] = {}
         self._queue: list[dict[str, Any]] = []
         self._flusher: asyncio.Task[None] | None = None
+        self._tick_began = float("-inf")  # loop time of the last frame the tick sent
         self._reader: asyncio.Task[None] | None = None
         self._vehicles: dict[str, WsTransport] = {}
         self._vehicle_of: dict[str, str] = {}  # instance_id -> vehicle_id
@@ -230,13 +233,21 @@ class WsLink:
         if self.batch_tick_s <= 0:
             await self._write(sock, op_frame(op))
             return
+        now = asyncio.get_running_loop().time()
+        flushing = self._flusher is not None and not self._flusher.done()
+        if not flushing and now - self._tick_began >= self.batch_tick_s:
+            self._tick_began = now  # idle for a tick: this one goes now, the next ones wait
+            await self._write(sock, op_frame(op))
+            return
         self._queue.append(op)
-        if self._flusher is None or self._flusher.done():
+        if not flushing:
             self._flusher = asyncio.create_task(self._flush(), name="ws-batch")
 
     async def _flush(self) -> None:
-        """Once per tick: the ops queued during it, as ``batch`` frames."""
-        await asyncio.sleep(self.batch_tick_s)
+        """At the tick's end: the ops queued during it, as ``batch`` frames."""
+        loop = asyncio.get_running_loop()
+        await asyncio.sleep(max(0.0, self._tick_began + self.batch_tick_s - loop.time()))
+        self._tick_began = loop.time()
         queued, self._queue = self._queue, []
         sock = self._sock
         try:
