@@ -40,8 +40,9 @@ from bench._live.world import CAPS
 from bench._proc import raise_nofile
 
 SLOTS = 100
-#: Sockets a worker opens at once.
+#: Sockets a worker opens at once, and how long it may take to open its share.
 CONNECT_PARALLEL = 64
+CONNECT_WITHIN_S = 600
 
 
 def text_frame(payload: bytes) -> bytes:
@@ -236,7 +237,11 @@ class WorkerGen:
                 except (OSError, TimeoutError, ConnectionError):
                     failures += 1
 
-        await asyncio.gather(*(worker() for _ in range(CONNECT_PARALLEL)))
+        try:
+            async with asyncio.timeout(CONNECT_WITHIN_S):
+                await asyncio.gather(*(worker() for _ in range(CONNECT_PARALLEL)))
+        except TimeoutError:  # a server that cannot take more: the rest count as failures
+            failures = len(pairs) - len(added)
         self.vehicles.extend(added)
         return failures
 
