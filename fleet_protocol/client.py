@@ -17,6 +17,7 @@ __all__ = [
     "ConnectInstanceResult",
     "ControlRequest",
     "ControlRequestList",
+    "DenyControl",
     "GetFbMessageResult",
     "GetParamResult",
     "GrantControl",
@@ -125,6 +126,13 @@ class GrantControl(InstanceRef):
     #: The lease lapses (and the vehicle holds station) when the holder's client sends no
     #: ``POST /client/heartbeat`` for this long; unset: it runs to its expiry.
     operator_timeout_s: int | None = Field(default=None, ge=2, le=3600)
+
+
+class DenyControl(InstanceRef):
+    """A field manager declines a pending request for control."""
+
+    user: Identifier
+    reason: Text | None = Field(default=None, max_length=200)
 
 
 class OperatorHeartbeat(WireModel):

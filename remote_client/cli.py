@@ -258,6 +258,25 @@ def grant(
 
 
 @app.command()
+def deny(
+    vehicle: str = VehicleArg,
+    user: str = typer.Argument(..., help="the operator whose request to decline"),
+    reason: str | None = typer.Option(None, help="why (the requester sees it)"),
+    server: str = ServerOpt,
+    token: str = TokenOpt,
+    as_json: bool = JsonOpt,
+) -> None:
+    """(manager) Decline an operator's pending request for control of a vehicle."""
+
+    async def act(fleet: FleetClient) -> tuple[str, dict[str, Any]]:
+        instance_id = await fleet.instance_id_of(vehicle)
+        return instance_id, await fleet.deny_control(instance_id, user, reason)
+
+    instance_id, data = run(server, token, act)
+    say(data, as_json, f"{user}'s request for control of {instance_id} declined")
+
+
+@app.command()
 def revoke(
     vehicle: str = VehicleArg,
     server: str = ServerOpt,

@@ -372,6 +372,12 @@ class FleetClient:
         answer: Body = await self.call("POST", "/client/grant_control", json=body)
         return answer
 
+    async def deny_control(self, instance_id: str, user: str, reason: str | None = None) -> Body:
+        """Decline ``user``'s pending request for control (a field manager, an admin)."""
+        body = {"instance_id": instance_id, "user": user} | _given(reason=reason)
+        answer: Body = await self.call("POST", "/client/deny_control", json=body)
+        return answer
+
     async def revoke_control(self, instance_id: str) -> Body:
         return await self._on_instance("revoke_control", instance_id)
 

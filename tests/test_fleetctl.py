@@ -119,6 +119,13 @@ async def test_missions_requests_and_the_lease_from_the_command_line(
         not_a_manager = await _fleetctl(base, op_token, "revoke", iid)
         assert not_a_manager.exit_code == 1 and "403" in not_a_manager.stderr
 
+        assert (await _fleetctl(base, op_token, "request", vid)).exit_code == 0
+        denied = await _fleetctl(base, ADMIN_TOKEN, "deny", vid, "piet", "--reason", "divers")
+        assert denied.exit_code == 0 and "piet's request" in denied.stdout, denied.output
+        assert "piet" not in (await _fleetctl(base, ADMIN_TOKEN, "requests", vid)).stdout
+        again = await _fleetctl(base, ADMIN_TOKEN, "deny", vid, "piet")
+        assert again.exit_code == 1 and "404" in again.stderr  # nothing pending now
+
 
 async def test_watch_prints_the_current_state_then_changes(
     make_settings: Callable[..., Settings],

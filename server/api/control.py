@@ -10,6 +10,7 @@ from fleet_protocol import (
     ControlInfo,
     ControlRequest,
     ControlRequestList,
+    DenyControl,
     GrantControl,
     InstanceRef,
     OkResult,
@@ -43,6 +44,14 @@ async def grant_control(body: GrantControl, user: Manager, s: ServicesDep) -> Co
         user, body.instance_id, body.user, body.duration_s, body.operator_timeout_s
     )
     return ControlInfo.model_validate(lease.info())
+
+
+@router.post("/deny_control")
+async def deny_control(body: DenyControl, user: Manager, s: ServicesDep) -> OkResult:
+    """Decline a pending request for control (404 when there is none from that user);
+    a ``control_deny`` event tells the requester, with the reason if given."""
+    await s.control.deny(user, body.instance_id, body.user, body.reason)
+    return OkResult()
 
 
 @router.post("/revoke_control")

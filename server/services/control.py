@@ -33,7 +33,7 @@ from server.domain.events import (
     StateWritten,
     UserChanged,
 )
-from server.errors import Conflict, Forbidden, Unavailable
+from server.errors import Conflict, Forbidden, NotFound, Unavailable
 from server.errors import InstanceFinished as Finished
 from server.services.auth import AuthService
 from server.services.dead_letters import DeadLetters
@@ -184,6 +184,16 @@ class ControlService:
             await self.messages.emit(LeaseEnded(ended, f"granted to {username}"))
         self._changed(lease.instance_id, lease.vehicle_id, lease.info())
         return lease
+
+    async def deny(
+        self, principal: Principal, instance_id: str, username: str, reason: str | None
+    ) -> None:
+        state = await self.instances.for_viewer(principal, instance_id)
+        rules.check_granter(principal, state.vehicle_id)
+        if not await self.repo.drop_request(state.instance_id, username):
+            raise NotFound(f"no pending request for control from {username}")
+        self.messages.emit_now(StateWritten(state.instance_id, "lease"))
+        await self._audit("control_deny", state, principal, {"user": username, "reason": reason})
 
     async def revoke(self, principal: Principal, instance_id: str) -> None:
         state = await self.instances.for_viewer(principal, instance_id)

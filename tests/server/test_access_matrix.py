@@ -333,6 +333,10 @@ ROWS: dict[tuple[str, str], tuple[Call, dict[str, int]]] = {
         ),
         users(viewer=403, operator=403),
     ),
+    ("POST", "/client/deny_control"): (
+        post("/client/deny_control", lambda w: {"instance_id": w.iid, "user": "nobody-asked"}),
+        users(viewer=403, operator=403, manager=404, admin=404),  # no such request pending
+    ),
     ("POST", "/client/revoke_control"): (
         post("/client/revoke_control", lambda w: {"instance_id": w.iid}),
         users(viewer=403, operator=403),

@@ -61,6 +61,33 @@ async def test_a_request_reaches_the_manager_and_a_grant_answers_it(w: World) ->
     assert (await w.submit(op, [v], GO_TO)).status_code == 202
 
 
+async def test_a_manager_declines_a_request_and_the_requester_hears_why(w: World) -> None:
+    v = await w.vehicle()
+    op = await w.person("operator", v)
+    boss = await w.person("manager", v)
+    assert (await post(w, "request_control", op.headers, instance_id=v.instance_id)).is_success
+    # an operator may not decline, and a request nobody made cannot be declined
+    r = await post(w, "deny_control", op.headers, instance_id=v.instance_id, user=op.username)
+    assert r.status_code == 403, r.text
+    r = await post(w, "deny_control", boss.headers, instance_id=v.instance_id, user="someone")
+    assert r.status_code == 404 and "someone" in r.json()["error"]["message"], r.text
+    r = await post(
+        w, "deny_control", boss.headers,
+        instance_id=v.instance_id, user=op.username, reason="divers in the water",
+    )  # fmt: skip
+    assert r.status_code == 200 and r.json() == {"ok": True}, r.text
+    r = await w.http.get("/client/control_requests", headers=boss.headers)
+    assert r.json()["requests"] == []
+    r = await w.http.get("/api/events", headers=op.headers, params={"vehicle_id": v.vehicle_id})
+    (denied,) = [e for e in r.json()["events"] if e["kind"] == "control_deny"]
+    assert denied["data"] == {"user": op.username, "reason": "divers in the water"}
+    assert denied["actor"] == boss.username
+    # declined once, it may be asked for again
+    assert (await post(w, "request_control", op.headers, instance_id=v.instance_id)).is_success
+    r = await post(w, "deny_control", boss.headers, instance_id=v.instance_id, user="Not An Id")
+    assert r.status_code == 422
+
+
 async def test_pending_requests_are_bounded(w: World) -> None:
     v = await w.vehicle()
     people = [await w.person("operator", v) for _ in range(3)]

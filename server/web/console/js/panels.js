@@ -14,7 +14,8 @@ const DURATIONS = [
 const KIND_LABELS = {
   control_request: "control requested", control_grant: "control granted to",
   control_revoke: "control revoked from", control_release: "control released by",
-  control_expired: "control expired for", hold_station: "holds station:",
+  control_expired: "control expired for", control_deny: "request declined for",
+  hold_station: "holds station:",
   control_mode: "control mode",
 };
 const SAFETY_EVENTS = new Set([
@@ -465,7 +466,10 @@ export class ControlPanel {
       h("div", {}, h("b", {}, r.username), " asks for ", h("b", {}, name),
         h("br"), h("small", {}, `since ${clock(r.requested_at)}`)),
       h("div.row", {}, this.durationSelect("duration"), this.livenessSelect("liveness"),
-        h("button.primary", { type: "submit" }, "Grant")));
+        h("button.primary", { type: "submit" }, "Grant"),
+        h("button.quiet.deny", {
+          type: "button", onclick: () => this.deny(r.instance_id, r.username, name),
+        }, "Decline")));
       return h("li", {}, form);
     });
     return h("section.requests", {},
@@ -559,6 +563,16 @@ export class ControlPanel {
       if (v) this.ctx.fleet.applyControl(v.id, { control: lease });
     } catch (e) {
       toast(`grant refused: ${e.explain ? e.explain() : e.message}`, "error");
+    }
+    this.loadRequests();
+  }
+
+  async deny(instanceId, user, name) {
+    try {
+      await this.ctx.api.post("/client/deny_control", { instance_id: instanceId, user });
+      toast(`${user}'s request for ${name} declined`, "ok");
+    } catch (e) {
+      toast(`decline refused: ${e.explain ? e.explain() : e.message}`, "error");
     }
     this.loadRequests();
   }
