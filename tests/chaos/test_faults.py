@@ -105,7 +105,7 @@ def test_the_server_killed_under_streaming_agents_loses_and_repeats_nothing(
         wait_until(
             lambda: all(has_stored(fleet, v, 1) for v in ids),
             "every agent's first samples",
-            60,
+            catch_up_s,
             every_s=0.5,
         )
         for _ in range(kills):
@@ -113,7 +113,7 @@ def test_the_server_killed_under_streaming_agents_loses_and_repeats_nothing(
             wait_until(
                 lambda m=marks: all(has_stored(fleet, v, m[v] + rate_hz) for v in ids),
                 "every agent streaming",
-                60,
+                catch_up_s,
                 every_s=0.5,
             )
             server.kill()
@@ -141,7 +141,7 @@ def test_the_server_killed_under_streaming_agents_loses_and_repeats_nothing(
         wait_until(
             lambda: all(has_stored(fleet, v, through[v]) for v in ids),
             "the last samples delivered",
-            60,
+            catch_up_s,
             every_s=0.5,
         )
         for agent in agents:
