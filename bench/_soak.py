@@ -622,9 +622,9 @@ def table(runs: Sequence[dict[str, Any]]) -> str:
     row("stored (snapshot + journal) after warm-up, MB", "stored_warm_mb", 1)
     row("stored at the end, MB", "stored_end_mb", 1)
     row("server CPU, % of a core", "server_cpu_pct")
-    row("acks after warm-up", "acked")
-    row("ack median, ms", "ack_median_ms", 1)
-    row("ack p99, ms", "ack_p99_ms", 1)
+    row("acks over the soak", "acked")
+    row("ack median after warm-up, ms", "ack_median_ms", 1)
+    row("ack p99 after warm-up, ms", "ack_p99_ms", 1)
     row("errors (connect failures, nacks, closed)", "errors", 0, "0",
         all(r["errors"] == 0 for r in runs))  # fmt: skip
     row("server RSS after the floods, MB", "rss_final_mb")
