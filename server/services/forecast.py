@@ -16,7 +16,7 @@ from datetime import timedelta
 from server.domain.clock import Clock
 from server.domain.forecast import Course, Risk, forecast
 from server.services.events import EventService
-from server.services.instances import InstanceService, InstanceState
+from server.services.instances import InstanceService
 from server.settings import Settings
 from server.storage.locks import LocksRepo
 
@@ -54,35 +54,32 @@ class CollisionForecast:
         if not await self.locks.hold("forecast", self.replica, now, until):
             self.at_risk.clear()  # another replica forecasts (and raises the events)
             return
-        states = {s.vehicle_id: s for s in await self.instances.everyone()}
-        courses = [c for s in states.values() if (c := self._course(s)) is not None]
+        instance_of: dict[str, str] = {}
+        courses = []
+        for vehicle_id, instance_id, p in await self.instances.online_positions():
+            speed, heading = p.get("speed_mps"), p.get("heading_deg")
+            if speed is None or heading is None:
+                continue
+            instance_of[vehicle_id] = instance_id
+            courses.append(
+                Course(vehicle_id, float(p["lat"]), float(p["lon"]), float(speed), float(heading))
+            )
         risks = forecast(courses, self.settings.forecast_s, self.settings.separation_m)
         current = {(r.a, r.b): r for r in risks}
         for pair, risk in current.items():
             if pair not in self.at_risk:
-                await self._raise(risk, states)
+                await self._raise(risk, instance_of)
         self.at_risk = current
 
-    def _course(self, state: InstanceState) -> Course | None:
-        p = state.position
-        if p is None or self.instances.presence(state) != "online":
-            return None
-        speed, heading = p.get("speed_mps"), p.get("heading_deg")
-        if speed is None or heading is None:
-            return None
-        return Course(
-            state.vehicle_id, float(p["lat"]), float(p["lon"]), float(speed), float(heading)
-        )
-
-    async def _raise(self, risk: Risk, states: dict[str, InstanceState]) -> None:
+    async def _raise(self, risk: Risk, instance_of: dict[str, str]) -> None:
         for me, other in ((risk.a, risk.b), (risk.b, risk.a)):
             await self.events.record(
                 "collision_risk",
                 vehicle_id=me,
-                instance_id=states[me].instance_id,
+                instance_id=instance_of[me],
                 data={
                     "other_vehicle_id": other,
-                    "other_instance_id": states[other].instance_id,
+                    "other_instance_id": instance_of[other],
                     "in_s": round(risk.in_s, 1),
                     "closest_m": round(risk.closest_m, 1),
                     "distance_now_m": round(risk.distance_now_m, 1),

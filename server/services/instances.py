@@ -125,6 +125,28 @@ class InstanceService:
         """Every unfinished instance in the store."""
         return [s for doc in await self.repo.unfinished() if not (s := self._adopt(doc)).finished]
 
+    async def online_positions(self) -> list[tuple[str, str, dict[str, Any]]]:
+        """``(vehicle_id, instance_id, latest sample)`` of every online instance with a
+        position, on every replica: the store's few fields for each (not whole instances),
+        this replica's own copy where it has one (its vehicles' samples come here first)."""
+        now = self.clock()
+        out = []
+        for doc in await self.repo.courses():
+            mine = self._by_id.get(doc["instance_id"])
+            if mine is not None:
+                presence, position = self._presence(mine, now), mine.position
+            else:
+                presence = presence_of(
+                    doc.get("last_seen"),
+                    now,
+                    stale_after_s=self.settings.stale_after_s,
+                    offline_after_s=self.settings.offline_after_s,
+                )
+                position = doc.get("position")
+            if presence == "online" and position is not None:
+                out.append((doc["vehicle_id"], doc["instance_id"], position))
+        return out
+
     def presence(self, state: InstanceState) -> Presence:
         return self._presence(state, self.clock())
 

@@ -349,7 +349,9 @@ def _stored(value: Any) -> Any:
 
 
 def _aware(value: Any) -> Any:
-    """A stored value as the driver returns it (``tz_aware``): datetimes in UTC."""
+    """A stored value as the driver returns it (``tz_aware``): datetimes in UTC. A copy:
+    every dict and list is new, and the rest (str, bytes, numbers, datetimes, ids) cannot
+    be changed in place, so the stored document is never shared with a caller."""
     if isinstance(value, datetime):
         return value.replace(tzinfo=UTC)
     if isinstance(value, dict):
@@ -488,10 +490,10 @@ class EmbeddedCollection(Collection):
 
     async def get(self, _id: Any) -> Doc | None:
         doc = self._table[_id] if _id in self._table else None
-        return None if doc is None else _aware(copy.deepcopy(doc))
+        return None if doc is None else _aware(doc)
 
     async def get_many(self, ids: Iterable[Any]) -> list[Doc]:
-        return [_aware(copy.deepcopy(self._table[i])) for i in ids if i in self._table]
+        return [_aware(self._table[i]) for i in ids if i in self._table]
 
     async def find(
         self,
@@ -502,7 +504,7 @@ class EmbeddedCollection(Collection):
         projection: Mapping[str, Any] | None = None,
     ) -> list[Doc]:
         docs = self._select(_stored(dict(flt or {})), sort, limit)
-        return [_project(_aware(copy.deepcopy(d)), projection) for d in docs]
+        return [_aware(_project(d, projection)) for d in docs]
 
     async def count(self, flt: Filter | None = None) -> int:
         if not flt:

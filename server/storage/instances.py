@@ -62,6 +62,13 @@ class InstancesRepo:
     async def get_many(self, instance_ids: list[str]) -> list[Doc]:
         return [_unpack(d) or d for d in await self.instances.get_many(instance_ids)]
 
+    async def courses(self) -> list[Doc]:
+        """Each unfinished instance's ids, last contact and latest sample, and no more (the
+        collision forecast reads them every pass)."""
+        fields = {"instance_id": 1, "vehicle_id": 1, "last_seen": 1, "position": 1}
+        docs = await self.instances.find({"finished_at": None}, projection=fields)
+        return [_unpack(d) or d for d in docs]
+
     async def unfinished(self) -> list[Doc]:
         return [_unpack(d) or d for d in await self.instances.find({"finished_at": None})]
 
