@@ -204,7 +204,8 @@ async def test_a_gateway_tick_sends_its_vehicles_ops_as_one_batch_and_routes_pus
                 *(v.start_instance(StartInstance(vehicle_id=v.vehicle_id)) for v in (a, b, c))
             )
             assert (ra.instance_id, rb.instance_id, rc.instance_id) == ("i-a", "i-b", "i-c")
-            # the first finds the link idle and goes at once; the others wait for the tick
+            # the first finds nothing in flight and goes at once; the others, sent while it
+            # awaits its ack, wait for the tick and leave together
             assert [f["op"] for f in frames] == ["start_instance", "batch"]
             assert len(frames[1]["ops"]) == 2
             got = await asyncio.wait_for(b.get_control("i-b", 0), 5)

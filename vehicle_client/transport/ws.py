@@ -5,9 +5,11 @@
 waiters, ``command`` and ``control`` pushes to the vehicle they are for,
 ``event`` and ``routes`` (and binary media frames) to the gateway's topic
 layer. With ``batch_tick_s``
-(gateways), the ops queued during a tick leave as one ``batch`` frame; an op
-that finds the link idle for a tick leaves at once (a unit's publish is not
-held for a batch that has nothing else to carry), and starts the tick.
+(gateways), ops leave as ``batch`` frames, as Nagle's algorithm does with
+bytes: an op that finds no other op awaiting its ack (and no batch forming)
+leaves at once, so a unit's publish on a quiet link is not held for a tick;
+while some are in flight, the next ones gather for at most a tick and leave
+together.
 
 ``WsTransport`` is one vehicle's view of the link and implements
 ``Transport``: the agent cannot tell it from ``HttpTransport``, except that
@@ -113,7 +115,6 @@ class WsLink:
         self._pending: dict[str, tuple[asyncio.Future[AckPush], dict[str, Any]]] = {}
         self._queue: list[dict[str, Any]] = []
         self._flusher: asyncio.Task[None] | None = None
-        self._tick_began = float("-inf")  # loop time of the last frame the tick sent
         self._reader: asyncio.Task[None] | None = None
         self._vehicles: dict[str, WsTransport] = {}
         self._vehicle_of: dict[str, str] = {}  # instance_id -> vehicle_id
@@ -233,11 +234,10 @@ class WsLink:
         if self.batch_tick_s <= 0:
             await self._write(sock, op_frame(op))
             return
-        now = asyncio.get_running_loop().time()
         flushing = self._flusher is not None and not self._flusher.done()
-        if not flushing and now - self._tick_began >= self.batch_tick_s:
-            self._tick_began = now  # idle for a tick: this one goes now, the next ones wait
-            await self._write(sock, op_frame(op))
+        own = op.get("id")
+        if not flushing and not any(key != own for key in self._pending):
+            await self._write(sock, op_frame(op))  # nothing else in flight: no wait
             return
         self._queue.append(op)
         if not flushing:
@@ -245,9 +245,7 @@ class WsLink:
 
     async def _flush(self) -> None:
         """At the tick's end: the ops queued during it, as ``batch`` frames."""
-        loop = asyncio.get_running_loop()
-        await asyncio.sleep(max(0.0, self._tick_began + self.batch_tick_s - loop.time()))
-        self._tick_began = loop.time()
+        await asyncio.sleep(self.batch_tick_s)
         queued, self._queue = self._queue, []
         sock = self._sock
         try:
