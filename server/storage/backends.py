@@ -711,6 +711,11 @@ def _project(doc: Doc, projection: Mapping[str, Any] | None) -> Doc:
     return {k: v for k, v in doc.items() if k not in hidden}
 
 
+#: The embedded store's journal is folded into its base once it is past this size and
+#: twice the base's.
+COMPACT_FLOOR_BYTES = 32 * 1024 * 1024
+
+
 class EmbeddedStore(Store):
     kind = "embedded"
     durable_on_write = False
@@ -723,6 +728,8 @@ class EmbeddedStore(Store):
         self._client: Any = mongomock_motor.AsyncMongoMockClient(tz_aware=True)
         self._db = self._client[db_name]
         self.journal = Journal(snapshot_path)
+        #: The journal is folded into the base once past this and twice the base.
+        self.compact_floor_bytes = COMPACT_FLOOR_BYTES
         self._tables: dict[str, EmbeddedCollection] = {}
         self._loaded = False
 
@@ -780,7 +787,12 @@ class EmbeddedStore(Store):
             yield name, self._tables[name].documents()
 
     async def flush(self) -> bool:
-        return await self.journal.flush()
+        flushed = await self.journal.flush()
+        if self.journal.outgrown(self.compact_floor_bytes):
+            # Folded in while running, not only at start and stop: the files stay near
+            # the data's size however long the server runs (deletions make entries too).
+            await self.journal.compact(self._snapshot)
+        return flushed
 
     async def close(self) -> None:
         await self.journal.flush()

@@ -104,6 +104,9 @@ class Journal:
         self._lock = asyncio.Lock()
         self.generation = 0
         self._journal_started = False
+        #: Bytes in the base, and appended to the journal since it was last folded in.
+        self.base_bytes = 0
+        self.journal_bytes = 0
 
     @staticmethod
     def encode(op: str, coll: str, **fields: Any) -> bytes:
@@ -138,8 +141,14 @@ class Journal:
                 data = bson.encode({"gen": self.generation}) + data
             await asyncio.to_thread(self._append, data, not self._journal_started)
             self._journal_started = True
+            self.journal_bytes += len(data)
             del self._pending[:count]
             return True
+
+    def outgrown(self, floor_bytes: int) -> bool:
+        """Whether the journal is worth folding into the base: past ``floor_bytes`` and
+        twice the base (a restart replays all of it, and deletions grow it too)."""
+        return self.journal_bytes > max(floor_bytes, 2 * self.base_bytes)
 
     def _append(self, data: bytes, fresh: bool) -> None:
         _private_dir(self.path.parent)
@@ -178,6 +187,8 @@ class Journal:
                 else:
                     counts["rejected"] += 1
         self.generation = base_gen or 0
+        if self.path.exists():
+            self.base_bytes = self.path.stat().st_size
         if counts or replayed:
             await self.compact(snapshot)
         return dict(counts) | ({"journal_entries": replayed} if replayed else {})
@@ -211,10 +222,11 @@ class Journal:
             folded = len(self._pending)  # recorded before the snapshot: in it
             await asyncio.to_thread(_write_file, self.path, chunks)
             self.generation = generation
-            await asyncio.to_thread(
-                _write_file, self.journal_path, [bson.encode({"gen": generation})]
-            )
+            header = bson.encode({"gen": generation})
+            await asyncio.to_thread(_write_file, self.journal_path, [header])
             self._journal_started = True
+            self.base_bytes = sum(len(c) for c in chunks)
+            self.journal_bytes = len(header)
             del self._pending[:folded]
 
 
