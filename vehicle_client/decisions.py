@@ -183,11 +183,11 @@ class Pilot:
         home = self.failsafe.home
         where = (home.lat, home.lon) if home is not None else self.home
         if action == "return_home" and where is not None:
-            home = {"lat": where[0], "lon": where[1]}
+            target = {"lat": where[0], "lon": where[1]}
             if "keep_station" in self.capabilities:  # there, and held there
-                return Execute("keep_station", home)
+                return Execute("keep_station", target)
             if "go_to" in self.capabilities:
-                return Execute("go_to", home)
+                return Execute("go_to", target)
         if action in ("return_home", "keep_station") and "keep_station" in self.capabilities:
             return Execute("keep_station", {})
         return Execute("stop", {})
