@@ -53,6 +53,13 @@ function millis(x) {
 }
 
 /** The vehicle's link as the server measures it (docs/live.md, "Latency per hop"). */
+/** A command's detail as people read it ("superseded_by go_to c-1": "superseded by go_to
+ * c-1"; "superseded_by_stop": "superseded by a stop"). */
+function readableDetail(detail) {
+  if (detail === "superseded_by_stop") return "superseded by a stop";
+  return String(detail).replace(/^superseded_by /, "superseded by ");
+}
+
 function linkText(view) {
   if (view.link_delay_ms == null) return null;
   const rtt = view.link_rtt_ms != null ? ` · ${millis(view.link_rtt_ms)} round trip` : "";
@@ -115,7 +122,7 @@ export class FleetTable {
             h("small.ago", { dataset: { since: fleet.lastContact(v.id) } },
               ago(fleet.lastContact(v.id))),
             v.view.link_delay_ms != null
-              ? [h("br"), h("small.link", { title: "one-way delay to the server" },
+              ? [h("br"), h("small.link-delay", { title: "one-way delay to the server" },
                 `link ${millis(v.view.link_delay_ms)}`)]
               : null),
           h("td", {}, p && p.battery_pct != null ? `${p.battery_pct.toFixed(0)} %` : "–"),
@@ -209,7 +216,7 @@ export class VehiclePanel {
           : `${Math.round(p.heading_deg) % 360} °`), // 359.6 reads 0, not 360
         h("dt", {}, "speed"), h("dd", {}, num(p.speed_mps, "m/s")),
         h("dt", {}, "battery"), h("dd", {}, num(p.battery_pct, "%", 0)),
-        h("dt", {}, "link"), h("dd.link", {}, linkText(view) || "–"),
+        h("dt", {}, "link"), h("dd.link-delay", {}, linkText(view) || "–"),
         p.depth_m != null ? [h("dt", {}, "depth"), h("dd", {}, num(p.depth_m, "m"))] : null),
       h("h3", {}, "Parameters ", h("button.quiet", { onclick: () => this.loadParams() }, "refresh")),
       this.paramsTable(),
@@ -240,7 +247,7 @@ export class VehiclePanel {
       c.progress != null && !isFinal(c.status) ? ` ${Math.round(c.progress * 100)} %` : "",
       h("br"),
       h("small", {}, `${clock(c.issued_at)}${c.issued_by ? ` by ${c.issued_by}` : ""}`,
-        c.detail ? ` · ${c.detail}` : ""),
+        c.detail ? ` · ${readableDetail(c.detail)}` : ""),
       !isFinal(c.status) && this.ctx.me.role !== "viewer"
         ? h("button.quiet", { onclick: () => this.ctx.cancelCommand(c.command_id) }, "cancel")
         : null,
