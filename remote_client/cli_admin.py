@@ -14,7 +14,17 @@ from typing import Any
 import typer
 from rich.table import Table
 
-from remote_client.cli_common import JsonOpt, ServerOpt, TokenOpt, dump, fail, run, say
+from remote_client.cli_common import (
+    GroupTokenOpt,
+    JsonOpt,
+    ServerOpt,
+    TokenOpt,
+    dump,
+    fail,
+    list_when_bare,
+    run,
+    say,
+)
 from remote_client.lines import position_text
 from remote_client.output import console, errors
 from remote_client.sdk import FleetClient
@@ -45,13 +55,10 @@ ROLES = ("viewer", "operator", "manager", "admin")
 def vehicles(
     ctx: typer.Context,
     server: str = ServerOpt,
-    token: str | None = typer.Option(None, envvar="FLEET_TOKEN", help="API token (FLEET_TOKEN)"),
+    token: str | None = GroupTokenOpt,
     as_json: bool = JsonOpt,
 ) -> None:
-    if ctx.invoked_subcommand is None:
-        if token is None:
-            fail("give a token: --token or FLEET_TOKEN")
-        _list_vehicles(server, token, as_json)
+    list_when_bare(ctx, server, token, as_json, _list_vehicles)
 
 
 @vehicles_app.command("list")
@@ -144,13 +151,10 @@ def vehicles_revoke(
 def gateways(
     ctx: typer.Context,
     server: str = ServerOpt,
-    token: str | None = typer.Option(None, envvar="FLEET_TOKEN", help="API token (FLEET_TOKEN)"),
+    token: str | None = GroupTokenOpt,
     as_json: bool = JsonOpt,
 ) -> None:
-    if ctx.invoked_subcommand is None:
-        if token is None:
-            fail("give a token: --token or FLEET_TOKEN")
-        _list_gateways(server, token, as_json)
+    list_when_bare(ctx, server, token, as_json, _list_gateways)
 
 
 @gateways_app.command("list")
@@ -219,13 +223,10 @@ def gateways_revoke(
 def users(
     ctx: typer.Context,
     server: str = ServerOpt,
-    token: str | None = typer.Option(None, envvar="FLEET_TOKEN", help="API token (FLEET_TOKEN)"),
+    token: str | None = GroupTokenOpt,
     as_json: bool = JsonOpt,
 ) -> None:
-    if ctx.invoked_subcommand is None:
-        if token is None:
-            fail("give a token: --token or FLEET_TOKEN")
-        _list_users(server, token, as_json)
+    list_when_bare(ctx, server, token, as_json, _list_users)
 
 
 @users_app.command("list")

@@ -25,6 +25,9 @@ from remote_client.times import BadTime, when_text
 ServerOpt = typer.Option("http://127.0.0.1:8000", envvar="FLEET_SERVER", help="server URL")
 TokenOpt = typer.Option(..., envvar="FLEET_TOKEN", help="API token (FLEET_TOKEN)")
 JsonOpt = typer.Option(False, "--json", help="print JSON for scripts")
+#: The token of a group whose bare form lists (``fleetctl users``): optional there, since
+#: ``--help`` and the subcommands take their own.
+GroupTokenOpt = typer.Option(None, envvar="FLEET_TOKEN", help="API token (FLEET_TOKEN)")
 SinceOpt = typer.Option(
     None, "--since", "--from", help="start: 10m, 2h, 1d (that long ago), or ISO 8601 (inclusive)"
 )
@@ -57,6 +60,21 @@ def run(server: str, token: str, action: Callable[[FleetClient], Awaitable[T]]) 
     except FleetApiError as exc:
         streams.print_refusal(exc)
         raise typer.Exit(REFUSED if exc.status < 500 else FAILED) from None
+
+
+def list_when_bare(
+    ctx: typer.Context,
+    server: str,
+    token: str | None,
+    as_json: bool,
+    show: Callable[[str, str, bool], None],
+) -> None:
+    """A group's callback: with no subcommand, ``show`` its list (a token needed)."""
+    if ctx.invoked_subcommand is not None:
+        return
+    if token is None:
+        fail("give a token: --token or FLEET_TOKEN")
+    show(server, token, as_json)
 
 
 def fail(message: str) -> NoReturn:

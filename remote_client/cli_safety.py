@@ -12,7 +12,17 @@ import typer
 from rich.table import Table
 
 from fleet_protocol import first_break
-from remote_client.cli_common import JsonOpt, ServerOpt, TokenOpt, dump, fail, run, say
+from remote_client.cli_common import (
+    GroupTokenOpt,
+    JsonOpt,
+    ServerOpt,
+    TokenOpt,
+    dump,
+    fail,
+    list_when_bare,
+    run,
+    say,
+)
 from remote_client.output import console, errors
 from remote_client.sdk import FleetClient
 
@@ -34,13 +44,13 @@ ACTIONS = ("none", "keep_station", "stop", "return_home")
 def zones(
     ctx: typer.Context,
     server: str = ServerOpt,
-    token: str | None = typer.Option(None, envvar="FLEET_TOKEN", help="API token (FLEET_TOKEN)"),
+    token: str | None = GroupTokenOpt,
     as_json: bool = JsonOpt,
 ) -> None:
-    if ctx.invoked_subcommand is not None:
-        return
-    if token is None:
-        fail("give a token: --token or FLEET_TOKEN")
+    list_when_bare(ctx, server, token, as_json, _list_zones)
+
+
+def _list_zones(server: str, token: str, as_json: bool) -> None:
     data = run(server, token, lambda fleet: fleet.zones())
     if as_json:
         dump(data)

@@ -12,12 +12,13 @@ import itertools
 import json
 import os
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
 import pytest
 
+from tests.agent.procs import AgentProcess
 from tests.bus.conftest import redis_server  # noqa: F401 (a fixture of these tests too)
 
 FULL = os.environ.get("FLEET_CHAOS") == "full"
@@ -26,6 +27,15 @@ FULL = os.environ.get("FLEET_CHAOS") == "full"
 def scaled(short: float, full: float) -> float:
     """The short form's size under ``make test``, the full one under ``make chaos``."""
     return full if FULL else short
+
+
+@pytest.fixture
+def agents() -> Iterator[list[AgentProcess]]:
+    """Agent processes a test starts; each killed at the end, whatever happened."""
+    made: list[AgentProcess] = []
+    yield made
+    for agent in made:
+        agent.kill()
 
 
 @pytest.fixture
