@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 from functools import cached_property
 from typing import Literal
 
+import shapely
 from shapely.geometry import LineString, Point, Polygon
 from shapely.geometry.base import BaseGeometry
 from shapely.ops import unary_union
@@ -32,6 +33,7 @@ EDGE_DEG = 2e-8
 #: keeps a path inside the area by treating this frame, with the area as its hole, as
 #: an obstacle.
 AREA_FRAME_DEG = 0.05
+_NONE: frozenset[str] = frozenset()
 
 
 @dataclass(frozen=True)
@@ -55,6 +57,25 @@ class Area:
         """The zone less a rounding's width at its edge (as the planner's clearances are)."""
         inner = self.shape.buffer(-EDGE_DEG)
         return inner if not inner.is_empty else self.shape
+
+    @cached_property
+    def _prepared_inside(self) -> Polygon:
+        shapely.prepare(self.inside)
+        return self.inside
+
+    @cached_property
+    def _prepared_shape(self) -> Polygon:
+        shapely.prepare(self.shape)
+        return self.shape
+
+    def holds(self, point: LatLon) -> bool:
+        """Whether a position is inside (as :meth:`enters` has it for a point): no
+        geometry object made, the zone prepared once (the watch asks for every sample)."""
+        return bool(shapely.contains_xy(self._prepared_inside, point[1], point[0]))
+
+    def covers(self, point: LatLon) -> bool:
+        """Whether a position is inside or on the edge."""
+        return bool(shapely.intersects_xy(self._prepared_shape, point[1], point[0]))
 
     def enters(self, geometry: BaseGeometry) -> bool:
         """Whether ``geometry`` reaches inside (its edge touched is not inside, nor a
@@ -152,11 +173,13 @@ def breaches(zones: ZoneSet, vehicle_id: str, point: LatLon) -> frozenset[str]:
     """Where the vehicle at ``point`` should not be: the no-go zones it is in, and
     ``area:<vehicle>`` when it is outside all of its operating areas."""
     no_go, areas = zones.of(vehicle_id)
-    where = Point(point[1], point[0])
-    out = {a.zone_id for a in no_go if a.enters(where)}
-    if areas and not any(a.shape.covers(where) for a in areas):
+    if not no_go and not areas:
+        return _NONE
+    out = {a.zone_id for a in no_go if a.holds(point)}
+    if areas and not any(a.covers(point) for a in areas):
         out.add(f"area:{vehicle_id}")
     return frozenset(out)
+
 
 
 def command_targets(kind: str, args: dict[str, object]) -> list[LatLon]:

@@ -60,6 +60,11 @@ class InstanceService:
         self.clock = clock
         self._by_id: dict[str, InstanceState] = {}
         self._by_vehicle: dict[str, InstanceState] = {}
+        #: The store's courses (``online_positions``), when they were read, and the
+        #: instances this replica saw finish since (their stored copy may say otherwise).
+        self._courses: dict[str, dict[str, Any]] | None = None
+        self._courses_read = 0.0
+        self._ended: set[str] = set()
 
     async def load(self) -> None:
         await self.repo.ensure_indexes()
@@ -127,24 +132,34 @@ class InstanceService:
 
     async def online_positions(self) -> list[tuple[str, str, dict[str, Any]]]:
         """``(vehicle_id, instance_id, latest sample)`` of every online instance with a
-        position, on every replica: the store's few fields for each (not whole instances),
-        this replica's own copy where it has one (its vehicles' samples come here first)."""
+        position, on every replica: this replica's own copies, and the store's few fields
+        for the others (not whole instances). The store's are read again once every
+        ``contact_write_s`` (the replicas write contact no more often than that), so a
+        pass costs a walk through this replica's copies and no store read in between."""
         now = self.clock()
+        tick = time.monotonic()
+        if self._courses is None or tick - self._courses_read >= self.settings.contact_write_s:
+            self._courses = {d["instance_id"]: d for d in await self.repo.courses()}
+            self._courses_read = tick
+            self._ended.clear()
         out = []
-        for doc in await self.repo.courses():
-            mine = self._by_id.get(doc["instance_id"])
-            if mine is not None:
-                presence, position = self._presence(mine, now), mine.position
-            else:
-                presence = presence_of(
-                    doc.get("last_seen"),
-                    now,
-                    stale_after_s=self.settings.stale_after_s,
-                    offline_after_s=self.settings.offline_after_s,
-                )
-                position = doc.get("position")
+        for state in self._by_id.values():
+            position = state.position
+            if position is not None and self._presence(state, now) == "online":
+                out.append((state.vehicle_id, state.instance_id, position))
+        by_id = self._by_id
+        for instance_id, doc in self._courses.items():
+            if instance_id in by_id or instance_id in self._ended:
+                continue
+            position = doc.get("position")
+            presence = presence_of(
+                doc.get("last_seen"),
+                now,
+                stale_after_s=self.settings.stale_after_s,
+                offline_after_s=self.settings.offline_after_s,
+            )
             if presence == "online" and position is not None:
-                out.append((doc["vehicle_id"], doc["instance_id"], position))
+                out.append((doc["vehicle_id"], instance_id, position))
         return out
 
     def presence(self, state: InstanceState) -> Presence:
@@ -379,6 +394,8 @@ class InstanceService:
 
     def _unindex(self, state: InstanceState) -> None:
         self._by_id.pop(state.instance_id, None)
+        if self._courses is not None and state.instance_id in self._courses:
+            self._ended.add(state.instance_id)
         if self._by_vehicle.get(state.vehicle_id) is state:
             self._by_vehicle.pop(state.vehicle_id)
 

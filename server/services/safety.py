@@ -70,35 +70,35 @@ class SafetyService:
         self.events = events
         self.messages = messages
         self.clock = clock
-        self._policies: dict[str, Doc] = {}
+        #: The policies as this replica last read them (parsed once: the watch asks for
+        #: one on every sample); a vehicle with none has the default.
+        self._policies: dict[str, FailsafePolicy] = {}
+        self._default = FailsafePolicy(
+            after_s=settings.failsafe_after_s, action=settings.failsafe_action
+        )
         #: instance id -> (its watch state, its home, the failsafe version it acknowledged)
         self._watch: dict[str, WatchState] = {}
         self._home: dict[str, tuple[float, float]] = {}
         self._acked: dict[str, int] = {}
 
     # ---- policies --------------------------------------------------------------------
-    def default(self) -> FailsafePolicy:
-        return FailsafePolicy(
-            after_s=self.settings.failsafe_after_s, action=self.settings.failsafe_action
-        )
-
     def _policy_of(self, doc: Doc | None) -> FailsafePolicy:
         if doc is None:
-            return self.default()
+            return self._default
         return FailsafePolicy.model_validate(doc["policy"])
 
     async def policy(self, vehicle_id: str) -> FailsafePolicy:
         """The vehicle's policy as the store has it now."""
-        doc = await self.repo.policy(vehicle_id)
-        if doc is None:
+        policy = self._policy_of(await self.repo.policy(vehicle_id))
+        if policy is self._default:
             self._policies.pop(vehicle_id, None)
         else:
-            self._policies[vehicle_id] = doc
-        return self._policy_of(doc)
+            self._policies[vehicle_id] = policy
+        return policy
 
     def known_policy(self, vehicle_id: str) -> FailsafePolicy:
         """The policy as this replica last read it (no store read)."""
-        return self._policy_of(self._policies.get(vehicle_id))
+        return self._policies.get(vehicle_id, self._default)
 
     async def view(self, principal: Principal, vehicle_id: str) -> dict[str, Any]:
         if not principal.can_see(vehicle_id) or await self.auth.vehicle_meta(vehicle_id) is None:
@@ -155,7 +155,7 @@ class SafetyService:
                 break
         else:
             raise Conflict("the failsafe of this vehicle keeps changing; try again")
-        self._policies[vehicle_id] = doc
+        self._policies[vehicle_id] = policy
         wire = policy.model_dump(mode="json")
         await self.events.record(
             "failsafe_changed", vehicle_id=vehicle_id, actor=principal, data=wire
@@ -201,7 +201,13 @@ class SafetyService:
     # ---- background: read again what the hot path uses ---------------------------------
     async def tick(self) -> None:
         await self.zones.current()
-        self._policies = await self.repo.policies()
+        docs = await self.repo.policies()
+        policies = {}
+        for vehicle_id, doc in docs.items():
+            kept = self._policies.get(vehicle_id)  # parsed again only when its version moved
+            same = kept is not None and kept.version == doc.get("version")
+            policies[vehicle_id] = kept if same else self._policy_of(doc)
+        self._policies = policies
 
     # ---- the watch --------------------------------------------------------------------
     def on_samples(self, event: SamplesStored) -> Awaitable[None] | None:

@@ -21,7 +21,6 @@ truncated to the millisecond as BSON stores them).
 
 from __future__ import annotations
 
-import copy
 import logging
 import operator
 from abc import ABC, abstractmethod
@@ -615,7 +614,10 @@ class EmbeddedCollection(Collection):
             self.insert_now(_aware(doc), journal=journal)
             return True
         old = found[0]
-        new = _apply(copy.deepcopy(old), _stored(update))
+        # A shallow copy will do: the update sets and unsets top-level fields only, and
+        # a stored document's inner values are never changed in place (``_aware`` copies
+        # them on every read).
+        new = _apply(dict(old), _stored(update))
         if new != old:
             keyed = {"_id": old["_id"]}
             entry = (
