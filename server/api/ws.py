@@ -14,7 +14,7 @@ from __future__ import annotations
 import asyncio
 import logging
 from collections import deque
-from collections.abc import Awaitable, Callable, MutableMapping
+from collections.abc import Awaitable, Callable, Coroutine, Generator, MutableMapping
 from typing import Any
 
 from pydantic import ValidationError
@@ -277,6 +277,11 @@ class _DirectInbox:
             return
         try:
             rest = self.frames.now(data)
+            if rest is not None:
+                rest = _run_eagerly(rest)
+        except (OSError, RuntimeError):
+            self._stopped = True  # as in _finish: the client went while a frame was sent
+            return
         except Exception:
             self._fail()
             return
@@ -313,6 +318,42 @@ class _DirectInbox:
         )
         _closing.add(task)
         task.add_done_callback(_closing.discard)
+
+
+def _run_eagerly(pending: Awaitable[None]) -> Awaitable[None] | None:
+    """Run a coroutine up to its first wait, here and now: None when it finished without
+    one (an op on the embedded store, or one this replica answers from memory: no task
+    is made for it), else what is left, for a task to finish (as an eager task would)."""
+    if not isinstance(pending, Coroutine):
+        return pending
+    try:
+        first = pending.send(None)
+    except StopIteration:
+        return None
+    return _Resumed(pending, first)
+
+
+class _Resumed:
+    """The rest of a coroutine that :func:`_run_eagerly` ran up to a wait: awaited, it
+    hands the task what the coroutine waits for, then carries on with it."""
+
+    __slots__ = ("_coro", "_first")
+
+    def __init__(self, coro: Coroutine[Any, Any, None], first: Any) -> None:
+        self._coro, self._first = coro, first
+
+    def __await__(self) -> Generator[Any, Any, None]:
+        coro, waiting = self._coro, self._first
+        while True:
+            try:
+                try:
+                    answer = yield waiting
+                except BaseException as exc:  # cancelled, or closed: the coroutine is told
+                    waiting = coro.throw(exc)
+                else:
+                    waiting = coro.send(answer)
+            except StopIteration:
+                return
 
 
 _closing: set[asyncio.Task[None]] = set()

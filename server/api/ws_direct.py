@@ -36,6 +36,7 @@ from typing import Any
 
 from uvicorn.protocols.websockets.websockets_sansio_impl import WebSocketsSansIOProtocol
 from websockets.http11 import Request
+from websockets.protocol import State
 
 __all__ = ["DIRECT", "LiveWebSocketProtocol", "Message"]
 
@@ -97,11 +98,21 @@ class LiveWebSocketProtocol(WebSocketsSansIOProtocol):
             or self.transport.is_closing()
         ):
             return False
+        conn = self.conn
+        payload = message.encode() if isinstance(message, str) else message
+        if conn.state is State.OPEN and not (
+            conn.extensions or conn.expect_continuation_frame or conn.writes
+        ):
+            # The frame a server sends (one, unmasked, no extension) written as is: what
+            # websockets' send_text would build, without its Frame object per message.
+            opcode = 0x81 if isinstance(message, str) else 0x82
+            self.transport.write(_header(opcode, len(payload)) + payload)
+            return True
         if isinstance(message, str):
-            self.conn.send_text(message.encode())
+            conn.send_text(payload)
         else:
-            self.conn.send_binary(message)
-        self.transport.write(b"".join(self.conn.data_to_send()))
+            conn.send_binary(payload)
+        self.transport.write(b"".join(conn.data_to_send()))
         return True
 
     def _abort(self) -> None:
@@ -133,6 +144,15 @@ class LiveWebSocketProtocol(WebSocketsSansIOProtocol):
             self.frames = []
             self._rank += 1
             on_message(bytes(data), self._rank)
+
+
+def _header(first: int, length: int) -> bytes:
+    """A server frame's header (RFC 6455 5.2): FIN and opcode, then the length."""
+    if length < 126:
+        return bytes((first, length))
+    if length < 65536:
+        return bytes((first, 126)) + length.to_bytes(2, "big")
+    return bytes((first, 127)) + length.to_bytes(8, "big")
 
 
 def uvicorn_ws_options() -> dict[str, Any]:

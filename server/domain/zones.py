@@ -181,7 +181,6 @@ def breaches(zones: ZoneSet, vehicle_id: str, point: LatLon) -> frozenset[str]:
     return frozenset(out)
 
 
-
 def command_targets(kind: str, args: dict[str, object]) -> list[LatLon]:
     """The positions a command sends the vehicle to, in order (none for ``stop`` or a
     ``keep_station`` where the vehicle is)."""

@@ -47,7 +47,7 @@ class MessageBus:
             except Exception:
                 self._failed(event, handler)
                 continue
-            if inspect.isawaitable(result):
+            if result is not None and inspect.isawaitable(result):
                 task = asyncio.ensure_future(self._finish(result, event, handler))
                 self._tasks.add(task)
                 task.add_done_callback(self._tasks.discard)

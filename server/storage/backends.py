@@ -372,6 +372,12 @@ def _rank(value: Any) -> tuple[int, Any]:
 _RANGE_OPS = {"$gt": operator.gt, "$gte": operator.ge, "$lt": operator.lt, "$lte": operator.le}
 
 
+def _differ(a: Any, b: Any) -> bool:
+    """Whether an index must see a field move from ``a`` to ``b`` (1 and True are equal
+    in Python, not in BSON's order)."""
+    return type(a) is not type(b) or a != b
+
+
 def _scalar(value: Any) -> bool:
     return not isinstance(value, dict | list | tuple)
 
@@ -560,14 +566,20 @@ class EmbeddedCollection(Collection):
     # -- writes ------------------------------------------------------------------------
 
     def _put(self, doc: Doc, old: Doc | None) -> None:
-        """Store ``doc`` (stored form) in place of ``old``, indexes kept in step."""
-        for index in self._indexes.values():
+        """Store ``doc`` (stored form) in place of ``old``, indexes kept in step (an index
+        whose fields the change leaves alone is not touched: a contact write moves none)."""
+        moved = [
+            index
+            for index in self._indexes.values()
+            if old is None or any(_differ(old.get(f), doc.get(f)) for f in index.fields)
+        ]
+        for index in moved:
             index.check(doc)
         if old is not None:
-            for index in self._indexes.values():
+            for index in moved:
                 index.remove(old)
         self._table[doc["_id"]] = doc
-        for index in self._indexes.values():
+        for index in moved:
             index.add(doc)
 
     def _drop(self, doc: Doc) -> None:
