@@ -202,11 +202,11 @@ class SafetyService:
     async def tick(self) -> None:
         await self.zones.current()
         docs = await self.repo.policies()
-        policies = {}
+        policies: dict[str, FailsafePolicy] = {}
         for vehicle_id, doc in docs.items():
             kept = self._policies.get(vehicle_id)  # parsed again only when its version moved
             same = kept is not None and kept.version == doc.get("version")
-            policies[vehicle_id] = kept if same else self._policy_of(doc)
+            policies[vehicle_id] = kept if kept is not None and same else self._policy_of(doc)
         self._policies = policies
 
     # ---- the watch --------------------------------------------------------------------
