@@ -35,6 +35,7 @@ from collections.abc import Callable
 from typing import Any
 
 from uvicorn.protocols.websockets.websockets_sansio_impl import WebSocketsSansIOProtocol
+from websockets.frames import apply_mask
 from websockets.http11 import Request
 from websockets.protocol import State
 
@@ -123,7 +124,54 @@ class LiveWebSocketProtocol(WebSocketsSansIOProtocol):
 
     def data_received(self, data: bytes) -> None:
         self._rank = 0
+        conn = self.conn
+        if (
+            self._on_message is not None
+            and conn.state is State.OPEN
+            and conn.current_size is None
+            and not conn.reader.buffer
+            and not conn.extensions
+        ):
+            # websockets' parser waits at a frame's start with nothing buffered: whole
+            # frames of one message each are read here; from the first frame that is
+            # anything else (a control frame, a part, a frame cut by the read) on, the
+            # bytes go to the parser, which finds itself where it was.
+            data = self._whole_frames(data)
+            if not data:
+                return
         super().data_received(data)
+
+    def _whole_frames(self, data: bytes) -> bytes:
+        """Hand over each whole, masked, unfragmented text or binary frame at the start of
+        ``data`` as websockets would (RFC 6455 5.2); what is left, from a frame's start."""
+        limit = self.conn.max_message_size
+        end, size = 0, len(data)
+        while size - end >= 6 and self._on_message is not None and not self.close_sent:
+            start = end
+            first, second = data[start], data[start + 1]
+            length = second & 0x7F
+            if first not in (0x81, 0x82) or not second & 0x80 or length == 127:
+                break  # not FIN + text/binary, not masked, or 64 KiB and more: the parser
+            head = start + 2
+            if length == 126:
+                length = int.from_bytes(data[head : head + 2], "big")
+                head += 2
+            end = head + 4 + length
+            if end > size or (limit is not None and length > limit):
+                end = start
+                break
+            payload = apply_mask(data[head + 4 : end], data[head : head + 4])
+            if first == 0x81:
+                try:
+                    message: Message = payload.decode()
+                except UnicodeDecodeError:
+                    end = start  # the parser closes with 1007
+                    break
+            else:
+                message = payload
+            self._rank += 1
+            self._on_message(message, self._rank)
+        return data[end:] if end else data
 
     def send_receive_event_to_app(self) -> None:
         on_message = self._on_message

@@ -6,12 +6,13 @@ all (its result, its exception, its cancellation)."""
 from __future__ import annotations
 
 import asyncio
+from types import SimpleNamespace
 
 import pytest
 from websockets.frames import Frame, Opcode
 
 from server.api.ws import _run_eagerly
-from server.api.ws_direct import _header
+from server.api.ws_direct import LiveWebSocketProtocol, _header
 
 
 @pytest.mark.parametrize("size", [0, 1, 125, 126, 127, 65535, 65536, 300_000])
@@ -92,3 +93,54 @@ async def test_a_cancelled_task_cancels_the_op_where_it_waits() -> None:
 
 async def _finish(rest: object) -> None:
     await rest  # type: ignore[misc]
+
+
+class _Reader:
+    """What ``LiveWebSocketProtocol._whole_frames`` reads of its protocol."""
+
+    def __init__(self, max_size: int | None = 2**20) -> None:
+        self.conn = SimpleNamespace(max_message_size=max_size)
+        self.close_sent = None
+        self._rank = 0
+        self.got: list[tuple[object, int]] = []
+        self._on_message = lambda message, rank: self.got.append((message, rank))
+
+
+def _client_frame(opcode: Opcode, payload: bytes, fin: bool = True) -> bytes:
+    return Frame(opcode, payload, fin).serialize(mask=True, extensions=[])
+
+
+def test_whole_frames_are_handed_over_and_the_rest_left_from_a_frame_start() -> None:
+    reader = _Reader()
+    texts = [b'{"op":"heartbeat"}', "é".encode() * 100, b"x" * 70_000]
+    whole = b"".join(_client_frame(Opcode.TEXT, t) for t in texts[:2])
+    binary = _client_frame(Opcode.BINARY, b"\x00\x01")
+    ping = _client_frame(Opcode.PING, b"p")
+    large = _client_frame(Opcode.TEXT, texts[2])  # 64 KiB and more: the parser's
+    rest = LiveWebSocketProtocol._whole_frames(reader, whole + binary + ping + large)  # type: ignore[arg-type]
+    assert reader.got == [(texts[0].decode(), 1), (texts[1].decode(), 2), (b"\x00\x01", 3)]
+    assert rest == ping + large
+
+
+@pytest.mark.parametrize(
+    "frames",
+    [
+        [_client_frame(Opcode.TEXT, b"first part", fin=False)],  # a fragment
+        [_client_frame(Opcode.TEXT, b"cut")[:-1]],  # cut by the read
+        [Frame(Opcode.TEXT, b"unmasked").serialize(mask=False, extensions=[])],
+        [_client_frame(Opcode.TEXT, b"\xff\xfe")],  # not UTF-8: the parser says 1007
+        [_client_frame(Opcode.CLOSE, b"\x03\xe8")],
+    ],
+)
+def test_any_other_frame_goes_to_the_parser_untouched(frames: list[bytes]) -> None:
+    reader = _Reader()
+    data = b"".join(frames)
+    assert LiveWebSocketProtocol._whole_frames(reader, data) == data  # type: ignore[arg-type]
+    assert reader.got == []
+
+
+def test_a_frame_over_the_size_limit_goes_to_the_parser() -> None:
+    reader = _Reader(max_size=10)
+    data = _client_frame(Opcode.TEXT, b"x" * 11)
+    assert LiveWebSocketProtocol._whole_frames(reader, data) == data  # type: ignore[arg-type]
+    assert reader.got == []
