@@ -59,10 +59,21 @@ def _as_utc(value: datetime) -> datetime:
 
 def format_ts(value: datetime) -> str:
     """ISO 8601 UTC with milliseconds, the contract's one time format."""
+    global _formatted
     if value.tzinfo is not UTC:
         value = _as_utc(value)
-    # "2026-05-01T12:00:00.000+00:00" less its offset: isoformat is the fastest spelling.
-    return value.isoformat(timespec="milliseconds")[:23] + "Z"
+    # The text up to the second is kept while the second is the same (the hot paths
+    # stamp thousands a second): the rest is a table look-up.
+    second = value.replace(microsecond=0)
+    kept, prefix = _formatted
+    if second != kept:
+        # "2026-05-01T12:00:00+00:00" less its offset: isoformat is the fastest spelling.
+        prefix = second.isoformat()[:19]
+        _formatted = (second, prefix)
+    return prefix + _MILLIS[value.microsecond // 1000]
+
+
+_formatted: tuple[datetime | None, str] = (None, "")
 
 
 _second: tuple[int, str] = (-1, "")

@@ -53,9 +53,11 @@ def next_state(
     battery_pct: float | None,
     threshold: float | None,
 ) -> WatchState:
-    return WatchState(
-        breaches(zones, vehicle_id, point), battery_low(was.low_battery, battery_pct, threshold)
-    )
+    now = breaches(zones, vehicle_id, point)
+    low = battery_low(was.low_battery, battery_pct, threshold)
+    if low == was.low_battery and now == was.breaches:
+        return was  # as it was (most samples): no new state
+    return WatchState(now, low)
 
 
 def change(was: WatchState, now: WatchState) -> Change:

@@ -225,7 +225,7 @@ class SafetyService:
         if was is None:
             return self._first(state, sample)
         now = self._next(state, was, sample)
-        return None if now == was else self._record(state, sample, now)
+        return None if now is was or now == was else self._record(state, sample, now)
 
     def _next(self, state: InstanceState, was: WatchState, sample: Any) -> WatchState:
         threshold = self.known_policy(state.vehicle_id).low_battery_pct
