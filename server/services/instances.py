@@ -235,9 +235,10 @@ class InstanceService:
             return state, True
         raise Conflict(f"vehicle {vehicle_id}'s instance keeps changing; try again")
 
-    def touch(self, state: InstanceState) -> None:
-        """Contact from the vehicle: any request, frame, or open long poll."""
-        state.last_seen = self.clock()
+    def touch(self, state: InstanceState, now: datetime | None = None) -> None:
+        """Contact from the vehicle: any request, frame, or open long poll (at ``now``,
+        read from the clock when not given)."""
+        state.last_seen = self.clock() if now is None else now
         state.moved = True
 
     def merge_params(self, state: InstanceState, params: dict[str, Any]) -> None:

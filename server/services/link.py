@@ -108,10 +108,13 @@ class VehicleLink:
             control=self.leases.lease_info(state.instance_id),
         )
 
-    async def live(self, principal: Principal, instance_id: str) -> InstanceState:
-        """The caller's live instance; the call counts as contact."""
+    async def live(
+        self, principal: Principal, instance_id: str, now: datetime | None = None
+    ) -> InstanceState:
+        """The caller's live instance; the call counts as contact (at ``now``, read from
+        the clock when not given)."""
         state = await self.instances.for_vehicle_caller(principal, instance_id)
-        self.instances.touch(state)
+        self.instances.touch(state, now)
         return state
 
     async def finish(self, principal: Principal, instance_id: str) -> FinishInstanceResult:
@@ -146,8 +149,8 @@ class VehicleLink:
         """Merge the params, store the samples; the fields of ``UpdateParamResult``
         (a dict: the socket's ack is built from it with no model in between).
         ``transport`` (``ws``, ``http``) labels the call's delay in ``/metrics``."""
-        arrived = self.instances.clock()
-        state = await self.live(principal, body.instance_id)
+        arrived = self.instances.clock()  # the call's one reading of the clock
+        state = await self.live(principal, body.instance_id, arrived)
         if body.sent_at is not None:
             self._timed(state, body, arrived, transport)
         self.instances.merge_params(state, body.params)
@@ -161,7 +164,7 @@ class VehicleLink:
             "duplicates": result.duplicates,
             "acked_through_seq": max(0, result.acked_through_seq),
             "durable_through_seq": max(0, result.durable_through_seq),
-            "server_time": format_ts(self.instances.clock()),
+            "server_time": format_ts(arrived),
         }
 
     def _timed(
