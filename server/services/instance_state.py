@@ -26,6 +26,7 @@ class InstanceState:
     position: dict[str, Any] | None = None
     finished_at: datetime | None = None
     presence: Presence = "offline"  # the presence last told
+    presence_seq: int = 0  # how many presence changes were told (the last one's seq)
     polling: int = 0  # open long polls: contact while open
     dirty: bool = False  # params or control mode changed: written at the next sweep
     moved: bool = False  # last_seen or position moved: written every persist_interval_s
@@ -84,6 +85,7 @@ class InstanceState:
         fields["params"] = fields["params"] or {}
         fields["capabilities"] = fields["capabilities"] or []
         fields["control_mode"] = fields["control_mode"] or "idle"
+        fields["presence_seq"] = doc.get("presence_seq") or 0
         return cls(**fields)
 
     def merge_contact(self, doc: dict[str, Any]) -> None:
@@ -94,6 +96,12 @@ class InstanceState:
         stored = doc.get("position")
         if stored is not None and (self.position is None or stored["ts"] > self.position["ts"]):
             self.position = stored
+
+    def merge_presence(self, doc: dict[str, Any]) -> None:
+        """Take a later presence change told by another replica, as the record notes it."""
+        seq = doc.get("presence_seq") or 0
+        if seq > self.presence_seq and doc.get("presence") and not self.finished:
+            self.presence, self.presence_seq = doc["presence"], seq
 
     def merge(self, doc: dict[str, Any]) -> None:
         """Catch up with the store's copy, written by another replica (several replicas).
@@ -109,6 +117,7 @@ class InstanceState:
                 stored.control_mode,
             )
         self.merge_contact(doc)
+        self.merge_presence(doc)
         if doc.get("finished_at") is not None and self.finished_at is None:
             self.finished_at = doc["finished_at"]
             self.presence = "finished"

@@ -7,8 +7,10 @@ written back by :meth:`InstanceService.sweep` every ``contact_write_s``;
 parameters are written back at the next sweep; a change of control mode and
 a finish are written at once (decisions depend on them). Before a presence
 change is declared, the contact other replicas wrote is read back, and of
-several replicas seeing it only the one whose conditional write matches
-records it. One replica or several, the algorithm is this one.
+several replicas seeing it only one tells it: a change is told under the
+instance's next number (``presence_seq``), and the store keeps one change per
+number (its key), so the first to insert it tells it. One replica or several,
+the algorithm is this one.
 """
 
 from __future__ import annotations
@@ -229,7 +231,7 @@ class InstanceService:
             )
             if not await self.repo.claim(vehicle_id, state.instance_id):
                 continue  # another replica started one at the same moment: take it up
-            await self.repo.insert({**state.to_doc(), "presence": "online"})
+            await self.repo.insert({**state.to_doc(), "presence": "online", "presence_seq": 0})
             self._index(state)
             self.messages.emit_now(StateWritten(state.instance_id, "instance"))
             return state, True
@@ -361,23 +363,31 @@ class InstanceService:
         for state in near:
             if (doc := by_id.get(state.instance_id)) is not None:
                 state.merge_contact(doc)
+                state.merge_presence(doc)
             if (presence := self._presence(state, now)) != state.presence:
                 out.append((state, presence))
         return out
 
     async def _change_presence(self, state: InstanceState, presence: Presence) -> None:
-        told = await self.repo.claim_presence(state.instance_id, presence)
-        state.presence = presence
-        if not told:
+        """Tell the change as the instance's next one, unless another replica told one under
+        that number first: then this copy takes up the latest told, and the next sweep
+        decides again from there (with the contact read back again)."""
+        seq = state.presence_seq + 1
+        if not await self.repo.claim_presence(state.instance_id, seq, presence, self.clock()):
+            told = await self.repo.last_presence(state.instance_id)
+            if told is not None and told["seq"] > state.presence_seq:
+                state.presence, state.presence_seq = told["presence"], told["seq"]
             return  # another replica saw it first and told everyone
+        state.presence, state.presence_seq = presence, seq
         self.messages.emit_now(PresenceChanged(state.instance_id, state.vehicle_id, presence))
-        self.messages.emit_now(StateWritten(state.instance_id, "instance"))
         await self.events.record(
             "presence",
             vehicle_id=state.vehicle_id,
             instance_id=state.instance_id,
             data={"presence": presence},
         )
+        await self.repo.note_presence(state.instance_id, seq, presence)
+        self.messages.emit_now(StateWritten(state.instance_id, "instance"))
 
     async def _write(self, state: InstanceState, tick: float, *, whole: bool) -> None:
         fields = state.to_doc() if whole else state.contact_doc()

@@ -3,7 +3,13 @@
 An instance's ``_id`` is its instance id. ``vehicle_instances`` holds one
 document per vehicle with an unfinished instance (``_id``: the vehicle id):
 the store's own key makes it one per vehicle, however many replicas start
-one at the same moment.
+one at the same moment. ``presence`` holds each instance's presence changes,
+``_id = "<instance_id>/<seq, 6 digits>"``: the key makes each ``seq`` one
+change at most, so of several replicas telling the same change the first
+insert tells it. A conditional update would not do: FerretDB 1.24 reads the
+document, applies the update and writes the whole document back, with
+nothing between, so two replicas' ``presence != new`` updates both match,
+and a contact write racing one puts the former presence back.
 
 What the vehicle sends free-form (its ``params``, and its latest sample in
 ``position``, whose ``data`` is free-form) is stored packed as one BSON
@@ -51,10 +57,12 @@ class InstancesRepo:
     def __init__(self, store: Store) -> None:
         self.instances = store["instances"]
         self.current = store["vehicle_instances"]
+        self.presence = store["presence"]
 
     async def ensure_indexes(self) -> None:
         await self.instances.create_index([("vehicle_id", 1), ("started_at", 1)])
         await self.instances.create_index([("finished_at", 1)])
+        await self.presence.create_index([("instance_id", 1), ("seq", 1)])
 
     async def get(self, instance_id: str) -> Doc | None:
         return _unpack(await self.instances.get(instance_id))
@@ -104,12 +112,41 @@ class InstancesRepo:
             {"_id": instance_id}, set=rest, max={"last_seen": seen} if seen is not None else None
         )
 
-    async def claim_presence(self, instance_id: str, presence: str) -> bool:
-        """Note a presence change once: whether this caller is the one that moved it
-        (of several replicas seeing a vehicle go quiet, the one whose write matched)."""
-        return await self.instances.update(
-            {"_id": instance_id, "presence": {"$ne": presence}}, set={"presence": presence}
+    async def claim_presence(self, instance_id: str, seq: int, presence: str, at: datetime) -> bool:
+        """Tell ``presence`` as the instance's ``seq``-th presence change: whether this
+        caller took ``seq`` (False: another replica told one under it first)."""
+        try:
+            await self.presence.insert(
+                {
+                    "_id": f"{instance_id}/{seq:06d}",
+                    "instance_id": instance_id,
+                    "seq": seq,
+                    "presence": presence,
+                    "at": at,
+                }
+            )
+        except Duplicate:
+            return False
+        return True
+
+    async def last_presence(self, instance_id: str) -> Doc | None:
+        """The instance's latest presence change told (``seq``, ``presence``), if any."""
+        return await self.presence.find_one({"instance_id": instance_id}, sort=[("seq", -1)])
+
+    async def note_presence(self, instance_id: str, seq: int, presence: str) -> None:
+        """Keep the latest presence change told on the record too (``presence_seq``), for
+        those who read the record; an earlier one never replaces a later."""
+        older = {"$or": [{"presence_seq": {"$lt": seq}}, {"presence_seq": {"$exists": False}}]}
+        await self.instances.update(
+            {"_id": instance_id, **older}, set={"presence": presence, "presence_seq": seq}
         )
 
     async def drop_finished_before(self, before: datetime) -> int:
-        return await self.instances.delete({"finished_at": {"$lt": before}})
+        """Drop the instances finished before ``before``; their presence changes first, so
+        that a failure in between leaves none whose instance is gone."""
+        flt = {"finished_at": {"$lt": before}}
+        gone = [d["_id"] for d in await self.instances.find(flt, projection={"_id": 1})]
+        if not gone:
+            return 0
+        await self.presence.delete({"instance_id": {"$in": gone}})
+        return await self.instances.delete({"_id": {"$in": gone}})
