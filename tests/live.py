@@ -43,6 +43,9 @@ async def serve(
         log_level="warning",
         **uvicorn_ws_options(),
         lifespan="on",
+        # A test's client may sit idle for longer than uvicorn's 5 s while it waits on
+        # the server (presence moving on): its kept-alive connection is not dropped.
+        timeout_keep_alive=120,
     )
     server = uvicorn.Server(config)
     task = asyncio.create_task(server.serve())
