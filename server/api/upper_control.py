@@ -11,6 +11,7 @@ from fastapi import APIRouter, Query
 
 from fleet_protocol import GetControlResult, UpdateFbMessage, UpdateFbMessageResult
 from server.api.deps import ServicesDep, VehicleCaller
+from server.api.lean import LeanRoute
 from server.api.responses import ModelResponse
 from server.domain.access import Principal
 from server.errors import Unauthorized
@@ -18,7 +19,8 @@ from server.services.registry import Services
 
 T = TypeVar("T")
 
-router = APIRouter(prefix="/upper", tags=["vehicle"])
+# The vehicles' calls: the plain ones are answered without FastAPI's request handler.
+router = APIRouter(prefix="/upper", tags=["vehicle"], route_class=LeanRoute)
 
 
 async def _unless_revoked(s: Services, caller: Principal, poll: Awaitable[T], wait_s: float) -> T:
