@@ -15,10 +15,12 @@ from fleet_protocol import (
     UpdateParamResult,
 )
 from server.api.deps import ServicesDep, VehicleCaller
+from server.api.lean import LeanRoute
 from server.api.responses import ModelResponse
 from server.bus.wire import dumps
 
-router = APIRouter(prefix="/upper", tags=["vehicle"])
+# The vehicles' calls: the plain ones are answered without FastAPI's request handler.
+router = APIRouter(prefix="/upper", tags=["vehicle"], route_class=LeanRoute)
 
 
 @router.post("/start_instance")

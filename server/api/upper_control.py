@@ -11,6 +11,7 @@ from fastapi import APIRouter, Query
 
 from fleet_protocol import GetControlResult, UpdateFbMessage, UpdateFbMessageResult
 from server.api.deps import ServicesDep, VehicleCaller
+from server.api.lean import LeanRoute
 from server.api.responses import ModelResponse
 from server.domain.access import Principal
 from server.errors import Unauthorized
@@ -18,12 +19,17 @@ from server.services.registry import Services
 
 T = TypeVar("T")
 
-router = APIRouter(prefix="/upper", tags=["vehicle"])
+# The vehicles' calls: the plain ones are answered without FastAPI's request handler.
+router = APIRouter(prefix="/upper", tags=["vehicle"], route_class=LeanRoute)
 
 
-async def _unless_revoked(s: Services, caller: Principal, poll: Awaitable[T]) -> T:
+async def _unless_revoked(s: Services, caller: Principal, poll: Awaitable[T], wait_s: float) -> T:
     """``poll``, unless the caller's token is revoked or expires first: then 401 at once
-    (an open long poll must not hand out a command to a token that no longer stands)."""
+    (an open long poll must not hand out a command to a token that no longer stands).
+    A poll that does not wait (``wait_s`` 0) is answered like any other call, under the
+    token just checked: no watch (two tasks and a turn of the event loop each call)."""
+    if wait_s <= 0:
+        return await poll
     waiting = asyncio.ensure_future(poll)
     gone = asyncio.ensure_future(s.auth.until_invalid(caller))
     try:
@@ -45,7 +51,8 @@ async def get_control(
     s: ServicesDep,
     wait_s: Annotated[float, Query(ge=0, le=30, allow_inf_nan=False)] = 0,
 ) -> ModelResponse:
-    commands = await _unless_revoked(s, caller, s.commands.get_control(caller, instance_id, wait_s))
+    poll = s.commands.get_control(caller, instance_id, wait_s)
+    commands = await _unless_revoked(s, caller, poll, wait_s)
     result: dict[str, Any] = {"commands": [c.wire() for c in commands]}
     failsafe = await s.link.pending_failsafe(caller, instance_id)
     if failsafe is not None:  # a version the vehicle has not acknowledged yet

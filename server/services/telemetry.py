@@ -37,6 +37,7 @@ from datetime import datetime, timedelta
 from typing import Any
 
 import bson
+from pydantic import TypeAdapter
 
 from fleet_protocol import Sample, utcnow
 from server.domain.clock import Clock
@@ -100,8 +101,14 @@ class _Vehicle:
 _SAMPLE_BYTES = 160
 
 
-def _stored(sample: Sample) -> Doc:
-    return sample.model_dump(exclude_none=True)
+#: Samples in their stored form (each one's ``model_dump(exclude_none=True)``), a batch in
+#: one call of the serializer rather than one call per sample.
+_STORED: TypeAdapter[list[Sample]] = TypeAdapter(list[Sample])
+
+
+def _stored(samples: list[Sample]) -> list[Doc]:
+    docs: list[Doc] = _STORED.dump_python(samples, exclude_none=True)
+    return docs
 
 
 def _size(doc: Doc) -> int:
@@ -191,14 +198,18 @@ class TelemetryService:
         before = state.latest
         stale_before = self.clock() - self._offline_after
         result = IngestResult(0, 0, -1, -1, None)
+        high = state.high
         for sample in samples:
-            if sample.seq <= state.high:
+            if sample.seq <= high:
                 result.duplicates += 1
                 continue
-            state.high = sample.seq
+            high = sample.seq
+            result.stored.append(sample)
+        docs = _stored(result.stored)
+        state.high = high
+        for sample, doc in zip(result.stored, docs, strict=True):
             if not state.pending:
                 state.opened_at = time.monotonic()
-            doc = _stored(sample)
             state.pending.append(doc)
             state.pending_bytes += _size(doc)
             latest = state.latest
@@ -208,7 +219,6 @@ class TelemetryService:
             if latest is None or sample.ts >= latest.ts:
                 state.latest = sample
                 result.latest_doc = doc
-            result.stored.append(sample)
         result.accepted = len(result.stored)
         result.acked_through_seq = state.high
         result.durable_through_seq = state.durable
