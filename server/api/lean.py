@@ -44,6 +44,8 @@ from starlette.requests import Request
 from starlette.responses import Response
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
+from server.api.limits import replay
+
 __all__ = ["LeanRoute"]
 
 Dependency = Callable[[Request], Awaitable[Any]]
@@ -99,7 +101,7 @@ class _LeanApp:
         if plan.body is not None:
             messages, body = await _gather(receive)
             if body is None or not _body_value(plan.body, request, body, values):
-                await self.standard(scope, _replay(messages, receive), send)
+                await self.standard(scope, replay(messages, receive), send)
                 return
         called: dict[Dependency, Any] = {}
         for name, call, use_cache in plan.dependencies:
@@ -157,17 +159,6 @@ async def _gather(receive: Receive) -> tuple[list[Message], bytes | None]:
         chunks.append(message.get("body", b""))
         if not message.get("more_body", False):
             return messages, b"".join(chunks)
-
-
-def _replay(messages: list[Message], receive: Receive) -> Receive:
-    pending = list(messages)
-
-    async def replay() -> Message:
-        if pending:
-            return pending.pop(0)
-        return await receive()
-
-    return replay
 
 
 # ---- the plan, from the route's dependant -----------------------------------------------

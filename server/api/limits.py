@@ -50,7 +50,7 @@ class BodyLimit:
         if gathered is None:
             await self._reject(send)
             return
-        await self.app(scope, self._replay(gathered, receive), send)
+        await self.app(scope, replay(gathered, receive), send)
 
     def _counted(self, receive: Receive) -> Receive:
         """A body that lies about its length is cut off at the bound all the same."""
@@ -82,17 +82,6 @@ class BodyLimit:
             if not message.get("more_body", False):
                 return messages
 
-    @staticmethod
-    def _replay(messages: list[Message], receive: Receive) -> Receive:
-        pending = list(messages)
-
-        async def replay() -> Message:
-            if pending:
-                return pending.pop(0)
-            return await receive()
-
-        return replay
-
     async def _reject(self, send: Send) -> None:
         body = _envelope(self.max_bytes)
         headers: list[Any] = [
@@ -101,3 +90,16 @@ class BodyLimit:
         ]
         await send({"type": "http.response.start", "status": 413, "headers": headers})
         await send({"type": "http.response.body", "body": body})
+
+
+def replay(messages: list[Message], receive: Receive) -> Receive:
+    """A ``receive`` that hands out ``messages`` (read from the request already) first,
+    then the request's own."""
+    pending = list(messages)
+
+    async def replayed() -> Message:
+        if pending:
+            return pending.pop(0)
+        return await receive()
+
+    return replayed
