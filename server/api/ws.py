@@ -254,6 +254,12 @@ class _DirectInbox:
         #: Set while no message waits or is being handled.
         self.idle = asyncio.Event()
         self.idle.set()
+        #: Ops are run in the read callback up to their first wait only where nothing on
+        #: their way needs a running task (a client library's ``asyncio.timeout`` does):
+        #: the embedded store and a bus that stays in the process. Elsewhere every op
+        #: that is not a local publish is a task's, as uvicorn's own path would have it.
+        ops = frames.ops
+        self._eager = ops.s.store.kind == "embedded" and not ops.hub.bus.remote
 
     def attach(self) -> None:
         """From now on the server hands each message to :meth:`feed`; those that came
@@ -277,7 +283,7 @@ class _DirectInbox:
             return
         try:
             rest = self.frames.now(data)
-            if rest is not None:
+            if rest is not None and self._eager:
                 rest = _run_eagerly(rest)
         except (OSError, RuntimeError):
             self._stopped = True  # as in _finish: the client went while a frame was sent
