@@ -75,7 +75,10 @@ class LeanRoute(APIRoute):
 
     def __init__(self, path: str, endpoint: Callable[..., Any], **kwargs: Any) -> None:
         super().__init__(path, endpoint, **kwargs)
-        plan = _plan(self)
+        try:
+            plan = _plan(self)
+        except AttributeError:  # a FastAPI whose internals moved: its own handler serves
+            plan = None
         if plan is not None:
             self.app = _LeanApp(plan, self.app, self.dependency_overrides_provider)
 
@@ -222,7 +225,8 @@ def _plain_query(field: Any) -> bool:
     """A scalar query parameter read by its own name (no alias, no list, no model)."""
     info = field.field_info
     return (
-        field.alias == field.name
+        callable(getattr(field, "validate", None))
+        and field.alias == field.name
         and info.validation_alias is None
         and info.annotation in (str, int, float, bool)
     )
