@@ -1,0 +1,518 @@
+"""The embedded store: mongomock-motor's in-process collections, with a journal.
+
+Writes are recorded in a journal (:mod:`server.storage.journal`) and durable once
+:meth:`Store.flush` has written them to disk. mongomock answers every query by
+scanning its whole collection, so this backend keeps its own ordered indexes
+(:class:`_Index`) of the fields the repositories declare with
+:meth:`Collection.create_index`, plans the few query shapes the repositories use
+on them, and reads and writes mongomock's document table by ``_id``; anything
+else falls back to a scan with mongomock's own filter matching, so the answers
+are the same as MongoDB's, only slower. Documents come back as the driver gives
+them (datetimes UTC-aware, truncated to the millisecond as BSON stores them).
+"""
+
+from __future__ import annotations
+
+import logging
+import operator
+from collections.abc import Iterable, Iterator, Mapping, Sequence
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+from bson import ObjectId
+from sortedcontainers import SortedList
+
+from server.storage.base import (
+    ENCODE_ERRORS,
+    Collection,
+    Doc,
+    Duplicate,
+    Filter,
+    Rejected,
+    SortSpec,
+    Store,
+    update_doc,
+)
+from server.storage.journal import Journal
+
+log = logging.getLogger("fleet.storage")
+
+
+def _stored(value: Any) -> Any:
+    """A value as BSON would hold it: datetimes naive UTC, millisecond precision."""
+    if isinstance(value, dict):
+        return {k: _stored(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_stored(v) for v in value]
+    if isinstance(value, datetime):
+        if value.tzinfo is not None:
+            value = value.astimezone(UTC).replace(tzinfo=None)
+        return value.replace(microsecond=value.microsecond // 1000 * 1000)
+    return value
+
+
+def _aware(value: Any) -> Any:
+    """A stored value as the driver returns it (``tz_aware``): datetimes in UTC. A copy:
+    every dict and list is new, and the rest (str, bytes, numbers, datetimes, ids) cannot
+    be changed in place, so the stored document is never shared with a caller."""
+    if isinstance(value, datetime):
+        return value.replace(tzinfo=UTC)
+    if isinstance(value, dict):
+        return {k: _aware(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_aware(v) for v in value]
+    return value
+
+
+def _rank(value: Any) -> tuple[int, Any]:
+    """A sort key that orders values of different types as BSON does."""
+    from mongomock.filtering import _get_compare_type
+
+    if value is None:
+        return (5, 0)
+    return (_get_compare_type(value), value)
+
+
+_RANGE_OPS = {"$gt": operator.gt, "$gte": operator.ge, "$lt": operator.lt, "$lte": operator.le}
+
+
+def _differ(a: Any, b: Any) -> bool:
+    """Whether an index must see a field move from ``a`` to ``b`` (1 and True are equal
+    in Python, not in BSON's order)."""
+    return type(a) is not type(b) or a != b
+
+
+def _scalar(value: Any) -> bool:
+    return not isinstance(value, dict | list | tuple)
+
+
+class _Index:
+    """An ordered index of one or two fields, kept beside mongomock's table.
+
+    One field: every document ordered by it. Two: per value of the first
+    (an equality in the queries that use it), the documents ordered by the
+    second. Values that cannot be ordered (documents, arrays) are left out,
+    and a query on them scans.
+    """
+
+    def __init__(self, keys: SortSpec, unique: bool) -> None:
+        self.fields = [name for name, _ in keys]
+        self.unique = unique
+        self.first = self.fields[0]
+        self.second = self.fields[1] if len(self.fields) > 1 else None
+        self.ordered: SortedList | None = SortedList() if self.second is None else None
+        self.groups: dict[Any, SortedList] = {}
+        self.keys: dict[tuple[Any, ...], Any] = {}  # unique: key -> _id
+
+    def _entry(self, doc: Doc) -> tuple[Any, tuple[Any, ...]] | None:
+        first = doc.get(self.first)
+        if not _scalar(first):
+            return None
+        if self.second is None:
+            return None, (_rank(first), _rank(doc["_id"]), doc["_id"])
+        second = doc.get(self.second)
+        if not _scalar(second):
+            return None
+        return first, (_rank(second), _rank(doc["_id"]), doc["_id"])
+
+    def unique_key(self, doc: Doc) -> tuple[Any, ...]:
+        return tuple(repr(_rank(doc.get(f))) for f in self.fields)
+
+    def check(self, doc: Doc) -> None:
+        if self.unique and self.keys.get(self.unique_key(doc), doc["_id"]) != doc["_id"]:
+            raise Duplicate(f"E11000 duplicate key on {self.fields}")
+
+    def add(self, doc: Doc) -> None:
+        if self.unique:
+            self.keys[self.unique_key(doc)] = doc["_id"]
+        entry = self._entry(doc)
+        if entry is None:
+            return
+        group, item = entry
+        if self.ordered is not None:
+            self.ordered.add(item)
+        else:
+            self.groups.setdefault(group, SortedList()).add(item)
+
+    def remove(self, doc: Doc) -> None:
+        if self.unique:
+            self.keys.pop(self.unique_key(doc), None)
+        entry = self._entry(doc)
+        if entry is None:
+            return
+        group, item = entry
+        if self.ordered is not None:
+            self.ordered.discard(item)
+            return
+        members = self.groups.get(group)
+        if members is not None:
+            members.discard(item)
+            if not members:
+                del self.groups[group]
+
+    def plan(self, flt: Filter) -> tuple[int, Iterator[Any], str] | None:
+        """Candidate ``_id``\\ s for ``flt`` in the order of the index's last field: how
+        many at most, the ids, and the field they are ordered by. ``None`` when this
+        index does not narrow ``flt``."""
+        if self.ordered is not None:
+            members, field = self.ordered, self.first
+        else:
+            value = flt.get(self.first)
+            if (value is None and self.first not in flt) or not _scalar(value):
+                return None
+            members = self.groups.get(value, SortedList())
+            field = self.second or self.first
+        cond = flt.get(field)
+        lo, hi = 0, len(members)
+        if isinstance(cond, dict) and cond and set(cond) <= set(_RANGE_OPS):
+            for op, bound in cond.items():
+                if not _scalar(bound):
+                    return None
+                key = (_rank(_stored(bound)),)
+                if op in ("$gt", "$gte"):
+                    at = members.bisect_right((*key, (99,))) if op == "$gt" else None
+                    lo = max(lo, at if at is not None else members.bisect_left(key))
+                else:
+                    at = members.bisect_left(key) if op == "$lt" else None
+                    hi = min(hi, at if at is not None else members.bisect_right((*key, (99,))))
+        elif cond is not None and _scalar(cond):
+            key = (_rank(_stored(cond)),)
+            lo, hi = members.bisect_left(key), members.bisect_right((*key, (99,)))
+        elif self.ordered is not None:
+            return None  # a one-field index narrows nothing without a condition on it
+        hi = max(lo, hi)
+        return hi - lo, (item[2] for item in members.islice(lo, hi)), field
+
+
+class EmbeddedCollection(Collection):
+    """A mongomock collection, read and written by ``_id`` and by the ordered indexes."""
+
+    def __init__(self, store: EmbeddedStore, raw: Any) -> None:
+        self._store = store
+        self.name = raw.name
+        sync = raw.__dict__.get("_AsyncMongoMockCollection__collection", raw)
+        self._sync = sync
+        self._table: Any = sync._store  # mongomock's _id -> document table
+        self._indexes: dict[tuple[str, ...], _Index] = {}
+
+    # -- reads ------------------------------------------------------------------------
+
+    async def get(self, _id: Any) -> Doc | None:
+        doc = self._table[_id] if _id in self._table else None
+        return None if doc is None else _aware(doc)
+
+    async def get_many(self, ids: Iterable[Any]) -> list[Doc]:
+        return [_aware(self._table[i]) for i in ids if i in self._table]
+
+    async def find(
+        self,
+        flt: Filter | None = None,
+        *,
+        sort: SortSpec | None = None,
+        limit: int = 0,
+        projection: Mapping[str, Any] | None = None,
+    ) -> list[Doc]:
+        docs = self._select(_stored(dict(flt or {})), sort, limit)
+        return [_aware(_project(d, projection)) for d in docs]
+
+    async def count(self, flt: Filter | None = None) -> int:
+        if not flt:
+            return len(self._table)
+        return len(self._select(_stored(dict(flt)), None, 0))
+
+    def _select(self, flt: Doc, sort: SortSpec | None, limit: int) -> list[Doc]:
+        """The stored documents matching ``flt`` (stored form), sorted, at most ``limit``."""
+        from mongomock.filtering import filter_applies, resolve_sort_key
+
+        candidates, ordered_by = self._candidates(flt, sort[0][0] if sort else None)
+        simple = sort is not None and len(sort) == 1 and sort[0][0] == ordered_by
+        if simple and sort is not None and sort[0][1] < 0:
+            candidates.reverse()
+        out: list[Doc] = []
+        for _id in candidates:
+            doc = self._table[_id] if _id in self._table else None
+            if doc is None or not filter_applies(flt, doc):
+                continue
+            out.append(doc)
+            if limit and (simple or not sort) and len(out) >= limit:
+                return out
+        if sort and not simple:
+            for name, direction in reversed(list(sort)):
+
+                def key(doc: Doc, name: str = name) -> Any:
+                    return resolve_sort_key(name, doc)
+
+                out.sort(key=key, reverse=direction < 0)
+        return out[:limit] if limit else out
+
+    def _candidates(self, flt: Doc, sort_by: str | None) -> tuple[list[Any], str | None]:
+        """The ``_id``\\ s worth matching against ``flt`` and the field they are ordered by
+        (``None``: no order), from the narrowest index (of two as narrow, the one ordered
+        by ``sort_by``); every document when none helps."""
+        key = flt.get("_id")
+        if key is not None and _scalar(key):
+            return [key], None
+        if isinstance(key, dict) and set(key) == {"$in"}:
+            return list(dict.fromkeys(key["$in"])), None
+        best: tuple[int, bool, Iterator[Any], str] | None = None
+        for index in self._indexes.values():
+            plan = index.plan(flt)
+            if plan is None:
+                continue
+            size, ids, field = plan
+            rank = (size, field != sort_by)
+            if best is None or rank < best[:2]:
+                best = (size, field != sort_by, ids, field)
+        if best is not None:
+            return list(best[2]), best[3]
+        return [d["_id"] for d in self._table.documents], None
+
+    # -- writes ------------------------------------------------------------------------
+
+    def _put(self, doc: Doc, old: Doc | None) -> None:
+        """Store ``doc`` (stored form) in place of ``old``, indexes kept in step (an index
+        whose fields the change leaves alone is not touched: a contact write moves none)."""
+        moved = [
+            index
+            for index in self._indexes.values()
+            if old is None or any(_differ(old.get(f), doc.get(f)) for f in index.fields)
+        ]
+        for index in moved:
+            index.check(doc)
+        if old is not None:
+            for index in moved:
+                index.remove(old)
+        self._table[doc["_id"]] = doc
+        for index in moved:
+            index.add(doc)
+
+    def _drop(self, doc: Doc) -> None:
+        for index in self._indexes.values():
+            index.remove(doc)
+        del self._table[doc["_id"]]
+
+    async def insert(self, doc: Doc) -> None:
+        self.insert_now(doc)
+
+    def insert_now(self, doc: Doc, *, journal: bool = True) -> None:
+        if "_id" not in doc:
+            doc["_id"] = ObjectId()
+        stored = _stored(doc)
+        if doc["_id"] in self._table:
+            raise Duplicate(f"E11000 duplicate key: {doc['_id']!r}")
+        entry = self._store.encode("insert", self.name, docs=[stored]) if journal else None
+        self._put(stored, None)
+        self._store.record(entry)
+
+    async def insert_many(self, docs: Sequence[Doc]) -> None:
+        for doc in docs:
+            self.insert_now(doc)
+
+    async def update(
+        self,
+        flt: Filter,
+        *,
+        set: Mapping[str, Any] | None = None,
+        max: Mapping[str, Any] | None = None,
+        unset: Iterable[str] = (),
+        upsert: bool = False,
+    ) -> bool:
+        return self.update_now(flt, update_doc(set, max, unset), upsert=upsert)
+
+    def update_now(self, flt: Filter, update: Doc, *, upsert: bool, journal: bool = True) -> bool:
+        spec = _stored(dict(flt))
+        found = self._select(spec, None, 1)
+        if not found:
+            if not upsert:
+                return False
+            base = {k: v for k, v in spec.items() if not k.startswith("$") and _scalar(v)}
+            doc = _apply(base, _stored(update))
+            self.insert_now(_aware(doc), journal=journal)
+            return True
+        old = found[0]
+        # A shallow copy will do: the update sets and unsets top-level fields only, and
+        # a stored document's inner values are never changed in place (``_aware`` copies
+        # them on every read).
+        new = _apply(dict(old), _stored(update))
+        if new != old:
+            keyed = {"_id": old["_id"]}
+            entry = (
+                self._store.encode("update", self.name, flt=keyed, update=update)
+                if journal
+                else None
+            )
+            self._put(new, old)
+            self._store.record(entry)
+        return True
+
+    async def replace(self, flt: Filter, doc: Doc, *, upsert: bool = False) -> bool:
+        return self.replace_now(flt, doc, upsert=upsert)
+
+    def replace_now(self, flt: Filter, doc: Doc, *, upsert: bool, journal: bool = True) -> bool:
+        spec = _stored(dict(flt))
+        found = self._select(spec, None, 1)
+        if not found:
+            if not upsert:
+                return False
+            new = dict(doc)
+            if "_id" not in new and _scalar(spec.get("_id")) and "_id" in spec:
+                new["_id"] = spec["_id"]
+            self.insert_now(new, journal=journal)
+            return True
+        old = found[0]
+        new = _stored({**doc, "_id": old["_id"]})
+        entry = (
+            self._store.encode("replace", self.name, flt={"_id": old["_id"]}, docs=[new])
+            if journal
+            else None
+        )
+        self._put(new, old)
+        self._store.record(entry)
+        return True
+
+    async def delete(self, flt: Filter) -> int:
+        return self.delete_now(flt)
+
+    def delete_now(self, flt: Filter, *, journal: bool = True) -> int:
+        gone = self._select(_stored(dict(flt)), None, 0)
+        if not gone:
+            return 0
+        ids = [d["_id"] for d in gone]
+        entry = (
+            self._store.encode("delete", self.name, flt={"_id": {"$in": ids}}) if journal else None
+        )
+        for doc in gone:
+            self._drop(doc)
+        self._store.record(entry)
+        return len(gone)
+
+    async def create_index(self, keys: SortSpec, *, unique: bool = False) -> None:
+        name = tuple(f for f, _ in keys)
+        if name in self._indexes:
+            return
+        index = _Index(keys, unique)
+        for doc in self._table.documents:
+            index.check(doc)
+            index.add(doc)
+        self._indexes[name] = index
+
+    def documents(self) -> list[Doc]:
+        """Every stored document (stored form), for the journal's snapshot."""
+        return list(self._table.documents)
+
+
+def _apply(doc: Doc, update: Mapping[str, Any]) -> Doc:
+    """``$set``, ``$max`` and ``$unset`` of top-level fields (what the repositories use)."""
+    for op, fields in update.items():
+        if op == "$set":
+            doc.update(fields)
+        elif op == "$max":
+            for name, value in fields.items():
+                if name not in doc or doc[name] is None or _rank(value) > _rank(doc[name]):
+                    doc[name] = value
+        elif op == "$unset":
+            for name in fields:
+                doc.pop(name, None)
+        else:
+            raise NotImplementedError(f"the embedded store does not apply {op}")
+    return doc
+
+
+def _project(doc: Doc, projection: Mapping[str, Any] | None) -> Doc:
+    if not projection:
+        return doc
+    shown = {k for k, v in projection.items() if v}
+    hidden = {k for k, v in projection.items() if not v}
+    if shown:
+        keep = shown | ({"_id"} if "_id" not in hidden else set())
+        return {k: v for k, v in doc.items() if k in keep}
+    return {k: v for k, v in doc.items() if k not in hidden}
+
+
+#: The embedded store's journal is folded into its base once it is past this size and
+#: twice the base's.
+COMPACT_FLOOR_BYTES = 32 * 1024 * 1024
+
+
+class EmbeddedStore(Store):
+    kind = "embedded"
+    durable_on_write = False
+
+    def __init__(self, db_name: str, snapshot_path: Path) -> None:
+        super().__init__()
+        self.durability = f"journal fsynced by each flush ({snapshot_path})"
+        import mongomock_motor
+
+        self._client: Any = mongomock_motor.AsyncMongoMockClient(tz_aware=True)
+        self._db = self._client[db_name]
+        self.journal = Journal(snapshot_path)
+        #: The journal is folded into the base once past this and twice the base.
+        self.compact_floor_bytes = COMPACT_FLOOR_BYTES
+        self._tables: dict[str, EmbeddedCollection] = {}
+        self._loaded = False
+
+    def _open(self, name: str) -> Collection:
+        return self.collection(name)
+
+    def collection(self, name: str) -> EmbeddedCollection:
+        """The collection's table (what the journal records and replays)."""
+        coll = self._tables.get(name)
+        if coll is None:
+            coll = self._tables[name] = EmbeddedCollection(self, self._db[name])
+        return coll
+
+    def encode(self, op: str, coll: str, **fields: Any) -> bytes:
+        """A journal entry for a write about to be made; :class:`Rejected` when BSON
+        cannot hold it, before anything is changed."""
+        try:
+            return self.journal.encode(op, coll, **fields)
+        except ENCODE_ERRORS as exc:
+            raise Rejected(f"{type(exc).__name__}: {exc}") from exc
+
+    def record(self, entry: bytes | None) -> None:
+        if entry is not None:
+            self.journal.append(entry)
+
+    async def ping(self) -> str | None:
+        return None
+
+    async def load(self) -> None:
+        if self._loaded:
+            return
+        self._loaded = True
+        counts = await self.journal.restore(self._replay, self._snapshot)
+        if counts:
+            log.info("embedded store restored from %s: %s", self.journal.path, counts)
+
+    def _replay(self, entry: Mapping[str, Any]) -> None:
+        coll = self.collection(entry["c"])
+        op = entry["o"]
+        if op == "insert":
+            for doc in entry["d"]:
+                if doc["_id"] not in coll._table:
+                    coll.insert_now(_aware(doc), journal=False)
+        elif op == "update":
+            coll.update_now(entry["f"], entry["u"], upsert=entry.get("up", False), journal=False)
+        elif op == "replace":
+            coll.replace_now(
+                entry["f"], entry["d"][0], upsert=entry.get("up", False), journal=False
+            )
+        elif op == "delete":
+            coll.delete_now(entry["f"], journal=False)
+
+    def _snapshot(self) -> Iterator[tuple[str, list[Doc]]]:
+        for name in sorted(self._tables):
+            yield name, self._tables[name].documents()
+
+    async def flush(self) -> bool:
+        flushed = await self.journal.flush()
+        if self.journal.outgrown(self.compact_floor_bytes):
+            # Folded in while running, not only at start and stop: the files stay near
+            # the data's size however long the server runs (deletions make entries too).
+            await self.journal.compact(self._snapshot)
+        return flushed
+
+    async def close(self) -> None:
+        await self.journal.flush()
+        await self.journal.compact(self._snapshot)
