@@ -32,6 +32,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import time
+from collections import deque
 from dataclasses import dataclass, field
 from datetime import datetime, timedelta
 from typing import Any
@@ -141,6 +142,12 @@ class TelemetryService:
         self.dead_letters = dead_letters
         self.clock = clock
         self._vehicles: dict[str, _Vehicle] = {}
+        #: ``(opened_at, vehicle_id)`` of each open bucket, oldest first: the writer takes
+        #: the aged ones from the front rather than looking at every vehicle each pass.
+        #: An entry whose vehicle's bucket has been written since is passed over.
+        self._opened: deque[tuple[float, str]] = deque()
+        #: Vehicles with buckets written but not yet flushed (embedded store).
+        self._unflushed: set[str] = set()
         self._offline_after = timedelta(seconds=settings.offline_after_s)
 
     async def load(self) -> None:
@@ -180,12 +187,12 @@ class TelemetryService:
         ):
             # The common case (known vehicle, bucket not full) awaits nothing, so it
             # cannot interleave with another ingest or the writer: no lock needed.
-            return self._accept(state, samples)
+            return self._accept(vehicle_id, state, samples)
         async with state.lock:
             await self._load(vehicle_id, state)
             if samples and len(state.pending) >= cap * MAX_PENDING_BUCKETS:
                 raise Unavailable("telemetry cannot be stored now; send it again shortly")
-            result = self._accept(state, samples)
+            result = self._accept(vehicle_id, state, samples)
             while self._full(state):
                 if not await self._write_bucket(vehicle_id, state, best_effort=True):
                     break
@@ -193,7 +200,20 @@ class TelemetryService:
             result.durable_through_seq = state.durable
             return result
 
-    def _accept(self, state: _Vehicle, samples: list[Sample]) -> IngestResult:
+    def _open(self, vehicle_id: str, state: _Vehicle) -> None:
+        """The vehicle's open bucket starts now (its first pending sample came)."""
+        state.opened_at = opened = time.monotonic()
+        self._opened.append((opened, vehicle_id))
+
+    def _written(self, vehicle_id: str, state: _Vehicle, mark: int) -> None:
+        """A bucket through ``mark`` is in the store: durable now, or at the next flush."""
+        if self.store.durable_on_write:
+            state.durable = max(state.durable, mark)
+        else:
+            state.unflushed.append(mark)
+            self._unflushed.add(vehicle_id)
+
+    def _accept(self, vehicle_id: str, state: _Vehicle, samples: list[Sample]) -> IngestResult:
         """Take the new samples into the open bucket (synchronous: the caller holds the turn)."""
         before = state.latest
         stale_before = self.clock() - self._offline_after
@@ -209,7 +229,7 @@ class TelemetryService:
         state.high = high
         for sample, doc in zip(result.stored, docs, strict=True):
             if not state.pending:
-                state.opened_at = time.monotonic()
+                self._open(vehicle_id, state)
             state.pending.append(doc)
             state.pending_bytes += _size(doc)
             latest = state.latest
@@ -270,12 +290,8 @@ class TelemetryService:
         del state.pending[: len(chunk)]
         state.pending_bytes = max(0, state.pending_bytes - size)
         if state.pending:
-            state.opened_at = time.monotonic()
-        mark = int(chunk[-1]["seq"])
-        if self.store.durable_on_write:
-            state.durable = max(state.durable, mark)
-        else:
-            state.unflushed.append(mark)
+            self._open(vehicle_id, state)
+        self._written(vehicle_id, state, int(chunk[-1]["seq"]))
         return True
 
     async def _write_apart(self, vehicle_id: str, chunk: list[Doc], error: Exception) -> None:
@@ -330,22 +346,29 @@ class TelemetryService:
 
     # ---- writer -------------------------------------------------------------
     async def write_due(self, *, everything: bool = False) -> int:
-        """Insert every open bucket that is full or old (all of them with ``everything``),
-        one vehicle at a time: one that fails does not hold up the others."""
-        max_age = self.settings.bucket_max_age_s
+        """Insert every open bucket that is ``bucket_max_age_s`` old (every open one with
+        ``everything``), one vehicle at a time: one that fails does not hold up the
+        others. A bucket fills up in the ingest call that fills it; one the store could
+        not take then is written here once it is old."""
+        if everything:
+            due = [(0.0, v) for v, state in self._vehicles.items() if state.pending]
+        else:
+            due = self._aged(time.monotonic() - self.settings.bucket_max_age_s)
         written = 0
-        now = time.monotonic()
         pacer = Pacer()
-        for vehicle_id, state in list(self._vehicles.items()):
-            if not state.pending:
+        for i, (_, vehicle_id) in enumerate(due):
+            state = self._vehicles.get(vehicle_id)
+            if state is None or not state.pending:
                 continue
-            if not everything and not self._full(state) and now - state.opened_at < max_age:
-                continue  # decided without the lock: most vehicles, most ticks
             try:
-                written += await self._write_vehicle(vehicle_id, state, everything, max_age)
+                written += await self._write_vehicle(
+                    vehicle_id, state, everything, self.settings.bucket_max_age_s
+                )
             except Unavailable as exc:
                 self.dead_letters.failed("telemetry", exc)
-                break  # the store is away: the next pass tries again
+                if not everything:  # the store is away: the next pass tries these again
+                    self._opened.extendleft(reversed(due[i:]))
+                break
             except Exception as exc:
                 # Not the store, not a sample BSON refuses: keep the bucket aside, go on.
                 async with state.lock:
@@ -353,9 +376,22 @@ class TelemetryService:
                     if await self.dead_letters.set_aside("telemetry", vehicle_id, exc, chunk):
                         del state.pending[: len(chunk)]
                         state.pending_bytes = max(0, state.pending_bytes - size)
-                        state.unflushed.append(int(chunk[-1]["seq"]))
+                        self._written(vehicle_id, state, int(chunk[-1]["seq"]))
+                    if state.pending:
+                        self._open(vehicle_id, state)
             await pacer.step()  # buckets that opened together age out together
         return written
+
+    def _aged(self, opened_before: float) -> list[tuple[float, str]]:
+        """The open buckets opened before ``opened_before``, taken off the queue (entries
+        of buckets written since, whose vehicle opened a newer one, are dropped)."""
+        queue, vehicles, out = self._opened, self._vehicles, []
+        while queue and queue[0][0] <= opened_before:
+            opened, vehicle_id = entry = queue.popleft()
+            state = vehicles.get(vehicle_id)
+            if state is not None and state.pending and state.opened_at == opened:
+                out.append(entry)
+        return out
 
     async def _write_vehicle(
         self, vehicle_id: str, state: _Vehicle, everything: bool, max_age: float
@@ -373,16 +409,26 @@ class TelemetryService:
         """Embedded store: flush the journal, then move the durable marks. True if they moved."""
         if self.store.durable_on_write:
             return False
-        marks = {
-            v: (len(s.unflushed), s.unflushed[-1]) for v, s in self._vehicles.items() if s.unflushed
-        }
+        vehicles = self._vehicles
+        marks = {}
+        for vehicle_id in self._unflushed:
+            state = vehicles.get(vehicle_id)
+            if state is not None and state.unflushed:
+                marks[vehicle_id] = (len(state.unflushed), state.unflushed[-1])
+        self._unflushed.clear()  # a bucket written during the flush adds its vehicle again
         if not marks:
             return False
-        await self.store.flush()  # everything recorded before this call is on disk after it
+        try:
+            await self.store.flush()  # everything recorded before this call is on disk after it
+        except BaseException:
+            self._unflushed.update(marks)  # the next pass tries again
+            raise
         for vehicle_id, (count, mark) in marks.items():
             state = self._vehicles[vehicle_id]
             state.durable = max(state.durable, mark)
             del state.unflushed[:count]
+            if state.unflushed:  # written while the flush ran: the next flush moves it
+                self._unflushed.add(vehicle_id)
         return True
 
     async def drop_before(self, before: datetime) -> int:

@@ -3,6 +3,8 @@ MongoDB driver): ingest, durability, restart, retention, views."""
 
 from __future__ import annotations
 
+import asyncio
+import time
 from collections.abc import AsyncIterator
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
@@ -273,3 +275,42 @@ async def test_of_two_copies_the_one_stored_first_is_read(world: World) -> None:
     assert [d.get("battery_pct") for d in page] == expected
     track = await world.svc.track("usv-1", T0, T0 + timedelta(hours=1))
     assert [p.get("battery_pct") for p in track.points] == expected
+
+
+async def test_the_writer_takes_the_buckets_that_aged_and_only_those(
+    tmp_path: Path, store_backend: StoreBackend
+) -> None:
+    settings = Settings(
+        _env_file=None,
+        snapshot_path=tmp_path / "aged.snapshot",  # type: ignore[call-arg]
+        bucket_samples=100,
+        bucket_max_age_s=0.3,
+        **store_backend.settings,
+    )
+    w = World(settings, FakeClock(T0 + timedelta(hours=1)))
+    svc = await w.open()
+    try:
+        await svc.ingest("usv-old", "i1", samples(range(1, 4)))
+        aged = time.monotonic() + 0.35  # past the bucket age (monotonic time)
+        while time.monotonic() < aged:
+            await asyncio.sleep(0.05)
+        await svc.ingest("usv-new", "i2", samples(range(1, 3)))
+        await svc.ingest("usv-old", "i1", samples(range(4, 6)))  # the same open bucket
+        assert await svc.write_due() == 1  # usv-old's, with all five; usv-new's is young
+        assert await svc.write_due() == 0  # taken once
+        await svc.make_durable()
+        assert svc.durable_through_seq("usv-old") == 5
+        assert svc.durable_through_seq("usv-new") == -1
+        await svc.ingest("usv-old", "i1", samples(range(6, 8)))  # a new bucket opens
+        deadline = time.monotonic() + 5
+        written = 0
+        while written < 2 and time.monotonic() < deadline:
+            written += await svc.write_due()
+            await asyncio.sleep(0.05)
+        assert written == 2  # usv-new's first bucket and usv-old's second
+        await svc.make_durable()
+        assert (svc.durable_through_seq("usv-old"), svc.durable_through_seq("usv-new")) == (7, 2)
+        page, _ = await svc.page("usv-old", limit=100)
+        assert seqs_of(page) == list(range(1, 8))
+    finally:
+        await w.store.close()
