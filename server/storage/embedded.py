@@ -83,6 +83,37 @@ def _differ(a: Any, b: Any) -> bool:
     return type(a) is not type(b) or a != b
 
 
+#: Values an equality can be matched on without mongomock: a stored value equal to one
+#: of these is of the same type (an int could equal a bool or a float, which BSON tells
+#: apart, and a list matches when it holds the value).
+_PLAIN_TYPES = (str, datetime, type(None))
+
+
+def _plain(flt: Doc) -> list[tuple[str, Any]] | None:
+    """``flt`` as ``(field, value)`` pairs when it is only equalities on top-level fields
+    with :data:`_PLAIN_TYPES` values (``{"finished_at": None}``), else None."""
+    pairs = []
+    for key, value in flt.items():
+        if not isinstance(value, _PLAIN_TYPES) or "." in key or key.startswith("$"):
+            return None
+        pairs.append((key, value))
+    return pairs
+
+
+def _equal(pairs: list[tuple[str, Any]], doc: Doc) -> bool:
+    """Whether ``doc`` matches the equalities of :func:`_plain` as MongoDB matches them
+    (a missing field equals None); an array field is left to mongomock."""
+    for key, value in pairs:
+        held = doc.get(key)
+        if type(held) is list:
+            from mongomock.filtering import filter_applies
+
+            return bool(filter_applies(dict(pairs), doc))
+        if held != value:
+            return False
+    return True
+
+
 def _scalar(value: Any) -> bool:
     return not isinstance(value, dict | list | tuple)
 
@@ -230,9 +261,12 @@ class EmbeddedCollection(Collection):
         if simple and sort is not None and sort[0][1] < 0:
             candidates.reverse()
         out: list[Doc] = []
+        plain = _plain(flt)
         for _id in candidates:
             doc = self._table[_id] if _id in self._table else None
-            if doc is None or not filter_applies(flt, doc):
+            if doc is None or not (
+                _equal(plain, doc) if plain is not None else filter_applies(flt, doc)
+            ):
                 continue
             out.append(doc)
             if limit and (simple or not sort) and len(out) >= limit:

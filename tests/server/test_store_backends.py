@@ -175,3 +175,23 @@ async def test_projection(store: Store) -> None:
     assert await coll.find({}, projection={"secret": 0}) == [{"_id": "a", "x": 1, "y": 2}]
     assert await coll.find({}, projection={"x": 1}) == [{"_id": "a", "x": 1}]
     assert await coll.find({}, projection={"_id": 0, "y": 1}) == [{"y": 2}]
+
+
+async def test_equalities_match_as_mongodb_matches_them(store: Store) -> None:
+    """Null matches a missing field; a string matches an array holding it; a datetime
+    matches the same instant; nothing matches across types."""
+    coll = store["plain"]
+    await coll.insert({"_id": "missing", "tag": "a"})
+    await coll.insert({"_id": "null", "tag": "b", "done": None})
+    await coll.insert({"_id": "set", "tag": ["a", "c"], "done": T0})
+    await coll.insert({"_id": "other", "tag": "c", "done": "2026-11-24T12:00:00Z"})
+
+    async def ids(flt: dict[str, Any]) -> list[str]:
+        return sorted(d["_id"] for d in await coll.find(flt))
+
+    assert await ids({"done": None}) == ["missing", "null"]
+    assert await ids({"tag": "a"}) == ["missing", "set"]
+    assert await ids({"tag": "c", "done": T0}) == ["set"]
+    assert await ids({"done": T0}) == ["set"]
+    assert await ids({"done": "2026-11-24T12:00:00Z"}) == ["other"]
+    assert await ids({"tag": "a", "done": None}) == ["missing"]
