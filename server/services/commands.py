@@ -369,9 +369,7 @@ class CommandService:
         """Expire what is past ``expires_at``; wake the lanes with a redelivery due."""
         now = now or self.clock()
         timeout = self.settings.ack_timeout_s
-        for lane in list(self._lanes.values()):
-            if not lane.active:
-                continue  # most vehicles, most ticks
+        for lane in [lane for lane in self._lanes.values() if lane.active]:  # few, most ticks
             try:
                 await self._sweep_lane(lane, now, timeout)
             except Unavailable as exc:

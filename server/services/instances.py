@@ -94,11 +94,22 @@ class InstanceService:
     async def for_vehicle_caller(self, principal: Principal, instance_id: str) -> InstanceState:
         """The instance a vehicle (or its gateway) calls about; it must be live. Another
         vehicle's is not found, as an unknown one is (docs/security.md)."""
-        state = await self.find(instance_id)
+        return self._callers(principal, await self.find(instance_id))
+
+    def kept_for_vehicle_caller(
+        self, principal: Principal, instance_id: str
+    ) -> InstanceState | None:
+        """:meth:`for_vehicle_caller` from this replica's copies alone: None when it keeps
+        no copy of the instance (then the store has to be asked)."""
+        state = self._by_id.get(instance_id)
+        return None if state is None else self._callers(principal, state)
+
+    @staticmethod
+    def _callers(principal: Principal, state: InstanceState) -> InstanceState:
         if not principal.acts_for(state.vehicle_id):
-            raise NotFound(f"no instance {instance_id}")
+            raise NotFound(f"no instance {state.instance_id}")
         if state.finished:
-            raise Finished(f"instance {instance_id} is finished")
+            raise Finished(f"instance {state.instance_id} is finished")
         return state
 
     async def for_viewer(self, principal: Principal, instance_id: str) -> InstanceState:
@@ -144,11 +155,17 @@ class InstanceService:
             self._courses = {d["instance_id"]: d for d in await self.repo.courses()}
             self._courses_read = tick
             self._ended.clear()
-        out = []
-        for state in self._by_id.values():
-            position = state.position
-            if position is not None and self._presence(state, now) == "online":
-                out.append((state.vehicle_id, state.instance_id, position))
+        # Online: an open long poll, or contact within stale_after_s (presence_of).
+        fresh = now - timedelta(seconds=self.settings.stale_after_s)
+        out = [
+            (state.vehicle_id, state.instance_id, state.position)
+            for state in self._by_id.values()
+            if state.position is not None
+            and state.finished_at is None
+            and (
+                state.polling > 0 or (state.last_seen is not None and fresh <= state.last_seen)
+            )
+        ]
         by_id = self._by_id
         for instance_id, doc in self._courses.items():
             if instance_id in by_id or instance_id in self._ended:
@@ -319,10 +336,12 @@ class InstanceService:
         tick = time.monotonic()
         every = self.settings.contact_write_s
         pacer = Pacer()
-        for state in list(self._by_id.values()):
-            due = state.moved and (everything or tick - state.saved_at >= every)
-            if not (state.dirty or due):
-                continue
+        due = [
+            state
+            for state in self._by_id.values()
+            if state.dirty or (state.moved and (everything or tick - state.saved_at >= every))
+        ]
+        for state in due:
             try:
                 await self._write(state, tick, whole=state.dirty)
             except Unavailable as exc:

@@ -47,6 +47,10 @@ class Telemetry(Protocol):
         self, vehicle_id: str, instance_id: str, samples: list[Sample]
     ) -> IngestResult: ...
 
+    def takes_now(self, vehicle_id: str, count: int) -> bool: ...
+
+    def ingest_now(self, vehicle_id: str, samples: list[Sample]) -> IngestResult: ...
+
     async def last_seq(self, vehicle_id: str) -> int: ...
 
 
@@ -149,12 +153,40 @@ class VehicleLink:
         """Merge the params, store the samples; the fields of ``UpdateParamResult``
         (a dict: the socket's ack is built from it with no model in between).
         ``transport`` (``ws``, ``http``) labels the call's delay in ``/metrics``."""
+        done = self.update_param_now(principal, body, transport)
+        if done is not None:
+            return done
         arrived = self.instances.clock()  # the call's one reading of the clock
         state = await self.live(principal, body.instance_id, arrived)
+        self._merge(state, body, arrived, transport)
+        result = await self.telemetry.ingest(state.vehicle_id, state.instance_id, body.samples)
+        return self._stored(state, result, arrived)
+
+    def update_param_now(
+        self, principal: Principal, body: UpdateParam, transport: str
+    ) -> dict[str, Any] | None:
+        """:meth:`update_param` within this call when nothing has to wait (this replica
+        keeps the instance, the vehicle's open bucket takes the samples); None when
+        something would, and then nothing was done."""
+        state = self.instances.kept_for_vehicle_caller(principal, body.instance_id)
+        if state is None or not self.telemetry.takes_now(state.vehicle_id, len(body.samples)):
+            return None
+        arrived = self.instances.clock()
+        self.instances.touch(state, arrived)
+        self._merge(state, body, arrived, transport)
+        result = self.telemetry.ingest_now(state.vehicle_id, body.samples)
+        return self._stored(state, result, arrived)
+
+    def _merge(
+        self, state: InstanceState, body: UpdateParam, arrived: datetime, transport: str
+    ) -> None:
         if body.sent_at is not None:
             self._timed(state, body, arrived, transport)
         self.instances.merge_params(state, body.params)
-        result = await self.telemetry.ingest(state.vehicle_id, state.instance_id, body.samples)
+
+    def _stored(
+        self, state: InstanceState, result: IngestResult, arrived: datetime
+    ) -> dict[str, Any]:
         if result.latest is not None:
             self.instances.set_position(state, result.latest, result.latest_doc)
         if result.stored:

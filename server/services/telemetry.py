@@ -177,17 +177,10 @@ class TelemetryService:
     async def ingest(
         self, vehicle_id: str, instance_id: str, samples: list[Sample]
     ) -> IngestResult:
+        if self.takes_now(vehicle_id, len(samples)):
+            return self.ingest_now(vehicle_id, samples)
         state = self._vehicles.get(vehicle_id) or self._state(vehicle_id)
         cap = self.settings.bucket_samples
-        if (
-            state.loaded
-            and not state.lock.locked()
-            and len(state.pending) + len(samples) < cap
-            and state.pending_bytes < self.settings.bucket_max_bytes
-        ):
-            # The common case (known vehicle, bucket not full) awaits nothing, so it
-            # cannot interleave with another ingest or the writer: no lock needed.
-            return self._accept(vehicle_id, state, samples)
         async with state.lock:
             await self._load(vehicle_id, state)
             if samples and len(state.pending) >= cap * MAX_PENDING_BUCKETS:
@@ -212,6 +205,23 @@ class TelemetryService:
         else:
             state.unflushed.append(mark)
             self._unflushed.add(vehicle_id)
+
+    def takes_now(self, vehicle_id: str, count: int) -> bool:
+        """Whether ``count`` samples of the vehicle can be taken without waiting: the
+        vehicle known, its open bucket not full with them, no write of its own under way
+        (the common case; it awaits nothing, so no lock is needed)."""
+        state = self._vehicles.get(vehicle_id)
+        return (
+            state is not None
+            and state.loaded
+            and not state.lock.locked()
+            and len(state.pending) + count < self.settings.bucket_samples
+            and state.pending_bytes < self.settings.bucket_max_bytes
+        )
+
+    def ingest_now(self, vehicle_id: str, samples: list[Sample]) -> IngestResult:
+        """:meth:`ingest` within this call; only when :meth:`takes_now` said so."""
+        return self._accept(vehicle_id, self._vehicles[vehicle_id], samples)
 
     def _accept(self, vehicle_id: str, state: _Vehicle, samples: list[Sample]) -> IngestResult:
         """Take the new samples into the open bucket (synchronous: the caller holds the turn)."""
