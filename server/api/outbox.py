@@ -49,12 +49,34 @@ from typing import Any, Self
 from fleet_protocol.ws import LaggingPush
 from server.api.throttle import Throttle
 
-__all__ = ["DEFAULT_MAX_QUEUE", "Frame", "Outbox"]
+__all__ = ["DEFAULT_MAX_QUEUE", "Frame", "LazyEvent", "Outbox"]
 
 log = logging.getLogger(__name__)
 
 Frame = str | bytes
 DEFAULT_MAX_QUEUE = 1000
+
+
+class LazyEvent(asyncio.Event):
+    """An :class:`asyncio.Event` that makes its queue of waiters at its first wait.
+
+    A socket holds several events (its outbox's, its inbox's) that are mostly
+    set and cleared, seldom waited on; ``asyncio.Event`` makes a ``deque`` for
+    every one at once, 624 bytes each, which at 10,000 sockets came to over
+    40 MB of empty queues. Setting an event nobody waited on walks the shared
+    empty tuple.
+    """
+
+    _NONE_WAITING: Any = ()
+
+    def __init__(self) -> None:  # noqa: D107 - asyncio.Event's, without the deque
+        self._waiters = self._NONE_WAITING
+        self._value = False
+
+    async def wait(self) -> Any:
+        if self._waiters is self._NONE_WAITING:
+            self._waiters = deque()
+        return await super().wait()
 
 
 class _Entry:
@@ -97,14 +119,16 @@ class Outbox:
         self._latest: dict[str, _Entry] = {}
         #: (frame, latest_wins) held back per topic by a throttle.
         self._throttle: Throttle[tuple[Frame, bool]] = Throttle()
-        self._wakeup = asyncio.Event()
-        self._idle = asyncio.Event()
+        self._wakeup = LazyEvent()
+        self._idle = LazyEvent()
         self._idle.set()
         self._task: asyncio.Task[None] | None = None
+        #: ``start`` was called: the writer runs, or is made at the first frame that waits.
+        self._started = False
         #: The writer waits for work (nothing queued, nothing being sent).
         self._parked = False
         self._unreported_drops = 0
-        self.closed = asyncio.Event()
+        self.closed = LazyEvent()
         #: Why the writer stopped, when ``send`` failed.
         self.error: BaseException | None = None
         self.sent = 0
@@ -157,6 +181,8 @@ class Outbox:
             return
         self._idle.clear()
         self._wakeup.set()
+        if self._task is None and self._started:
+            self._task = asyncio.create_task(self._write(), name="outbox-writer")
 
     def forget(self, topic: str) -> None:
         """Drop a topic's throttle state and held frame (on unsubscribe)."""
@@ -217,7 +243,15 @@ class Outbox:
     # -- the writer ---------------------------------------------------------------
 
     def start(self) -> None:
-        if self._task is None:
+        """Start writing. With ``send_nowait`` the writer task is made only when a frame
+        has to wait for the socket (most sockets never need one: each frame goes out from
+        ``put``); until then the outbox is as a parked writer leaves it."""
+        if self._started:
+            return
+        self._started = True
+        if self._send_nowait is not None:
+            self._parked = True
+        else:
             self._task = asyncio.create_task(self._write(), name="outbox-writer")
 
     async def close(self) -> None:
@@ -312,6 +346,7 @@ class Outbox:
         self._wakeup.set()
 
     async def _write(self) -> None:
+        self._parked = False  # a writer made at its first frame was taken as parked till now
         try:
             while not self.closed.is_set():
                 entry = self._next()

@@ -30,7 +30,7 @@ from fleet_protocol.links import (
 from fleet_protocol.ws import AckPush, AuthOp
 from server.api.deps import bearer_token
 from server.api.live_hub import Connection, LiveHub
-from server.api.outbox import Frame, Outbox
+from server.api.outbox import Frame, LazyEvent, Outbox
 from server.api.ws_direct import DIRECT
 from server.api.ws_ops import OpRunner
 from server.errors import FleetError, Unauthorized
@@ -252,7 +252,7 @@ class _DirectInbox:
         self._stopped = False
         self._loop = asyncio.get_running_loop()
         #: Set while no message waits or is being handled.
-        self.idle = asyncio.Event()
+        self.idle = LazyEvent()
         self.idle.set()
         #: Ops are run in the read callback up to their first wait only where nothing on
         #: their way needs a running task (a client library's ``asyncio.timeout`` does):

@@ -274,3 +274,24 @@ async def test_a_frame_held_by_the_throttle_goes_when_due_without_another_put():
         assert socket.frames == ["v1"]
         await wait_idle(outbox)  # idle only once the held frame went
         assert socket.frames == ["v1", "v2"]
+
+
+def _writers() -> int:
+    return sum(1 for t in asyncio.all_tasks() if t.get_name() == "outbox-writer")
+
+
+async def test_no_writer_task_until_a_frame_has_to_wait():
+    socket = Socket()
+    async with Outbox(socket.send, send_nowait=socket.send_nowait) as outbox:
+        for n in range(100):
+            outbox.put(f"f{n}")
+        assert _writers() == 0  # every frame went out from put
+        socket.gate.clear()
+        outbox.put("waits")
+        outbox.put("after")
+        assert _writers() == 1
+        socket.gate.set()
+        await wait_idle(outbox)
+        outbox.put("again")  # the writer is parked again: sent from put
+    assert socket.frames == [*(f"f{n}" for n in range(100)), "waits", "after", "again"]
+    assert _writers() == 0
