@@ -129,7 +129,11 @@ class Settings(BaseSettings):
         description="telemetry bytes per stored bucket at most (BSON documents end at 16 MiB)",
     )
     bucket_max_age_s: float = Field(
-        default=10.0, gt=0, description="a partly filled telemetry bucket is written after this"
+        default=10.0,
+        gt=0,
+        description="a partly filled telemetry bucket is written at most this long after its "
+        "first sample (each vehicle's a little sooner, so that buckets opened together are not "
+        "written together)",
     )
     persist_interval_s: float = Field(
         default=10.0,

@@ -31,6 +31,9 @@ class InstanceState:
     dirty: bool = False  # params or control mode changed: written at the next sweep
     moved: bool = False  # last_seen or position moved: written every persist_interval_s
     saved_at: float = 0.0  # monotonic time of the last write
+    #: How often its contact is written back (``contact_write_s``, a little shorter
+    #: per instance: see ``server.services.pacing.period_of``).
+    contact_every_s: float = 0.0
     #: The link delay measured on this replica (kept in memory only, never written).
     link: LinkDelay = field(default_factory=LinkDelay)
 

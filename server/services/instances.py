@@ -32,7 +32,7 @@ from server.services.dead_letters import DeadLetters
 from server.services.events import EventService
 from server.services.instance_state import InstanceState
 from server.services.messagebus import MessageBus
-from server.services.pacing import Pacer
+from server.services.pacing import Pacer, period_of
 from server.settings import Settings
 from server.storage.instances import InstancesRepo
 
@@ -332,14 +332,15 @@ class InstanceService:
         await self.write_back(everything=everything)
 
     async def write_back(self, *, everything: bool = False) -> None:
-        """Write what moved: contact every ``contact_write_s``, the rest at once."""
+        """Write what moved: contact every ``contact_write_s`` (each instance a little
+        sooner: ``contact_every_s``), the rest at once."""
         tick = time.monotonic()
-        every = self.settings.contact_write_s
         pacer = Pacer()
         due = [
             state
             for state in self._by_id.values()
-            if state.dirty or (state.moved and (everything or tick - state.saved_at >= every))
+            if state.dirty
+            or (state.moved and (everything or tick - state.saved_at >= state.contact_every_s))
         ]
         for state in due:
             try:
@@ -419,6 +420,8 @@ class InstanceService:
 
     # ---- this replica's copies -------------------------------------------
     def _index(self, state: InstanceState) -> None:
+        if not state.contact_every_s:  # vehicles that connected together drift apart
+            state.contact_every_s = period_of(state.instance_id, self.settings.contact_write_s)
         self._by_id[state.instance_id] = state
         self._by_vehicle[state.vehicle_id] = state
 

@@ -32,7 +32,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import time
-from collections import deque
+import heapq
 from dataclasses import dataclass, field
 from datetime import datetime, timedelta
 from typing import Any
@@ -45,7 +45,7 @@ from server.domain.clock import Clock
 from server.domain.track import TRACK_PAGE_CAP, cut_page, simplify
 from server.errors import Unavailable
 from server.services.dead_letters import DeadLetters
-from server.services.pacing import Pacer
+from server.services.pacing import Pacer, period_of
 from server.settings import Settings
 from server.storage.backends import ENCODE_ERRORS, Doc, Rejected, Store
 from server.storage.telemetry import TelemetryRepo, distinct_samples
@@ -94,6 +94,8 @@ class _Vehicle:
     pending: list[Doc] = field(default_factory=list)
     pending_bytes: int = 0  # estimated BSON size of ``pending``
     opened_at: float = 0.0  # monotonic time of the open bucket's first sample
+    due_at: float = 0.0  # monotonic time it is written at the latest (its age is up)
+    max_age_s: float = 0.0  # this vehicle's bucket age (period_of bucket_max_age_s)
     unflushed: list[int] = field(default_factory=list)  # max_seq of buckets awaiting a flush
     latest: Sample | None = None
 
@@ -142,10 +144,10 @@ class TelemetryService:
         self.dead_letters = dead_letters
         self.clock = clock
         self._vehicles: dict[str, _Vehicle] = {}
-        #: ``(opened_at, vehicle_id)`` of each open bucket, oldest first: the writer takes
-        #: the aged ones from the front rather than looking at every vehicle each pass.
-        #: An entry whose vehicle's bucket has been written since is passed over.
-        self._opened: deque[tuple[float, str]] = deque()
+        #: ``(due_at, vehicle_id)`` of each open bucket, a heap: the writer takes the due
+        #: ones from its top rather than looking at every vehicle each pass. An entry
+        #: whose vehicle's bucket has been written since is passed over.
+        self._opened: list[tuple[float, str]] = []
         #: Vehicles with buckets written but not yet flushed (embedded store).
         self._unflushed: set[str] = set()
         self._offline_after = timedelta(seconds=settings.offline_after_s)
@@ -195,8 +197,11 @@ class TelemetryService:
 
     def _open(self, vehicle_id: str, state: _Vehicle) -> None:
         """The vehicle's open bucket starts now (its first pending sample came)."""
+        if not state.max_age_s:  # each vehicle its own: buckets opened together drift apart
+            state.max_age_s = period_of(vehicle_id, self.settings.bucket_max_age_s)
         state.opened_at = opened = time.monotonic()
-        self._opened.append((opened, vehicle_id))
+        state.due_at = due = opened + state.max_age_s
+        heapq.heappush(self._opened, (due, vehicle_id))
 
     def _written(self, vehicle_id: str, state: _Vehicle, mark: int) -> None:
         """A bucket through ``mark`` is in the store: durable now, or at the next flush."""
@@ -356,14 +361,16 @@ class TelemetryService:
 
     # ---- writer -------------------------------------------------------------
     async def write_due(self, *, everything: bool = False) -> int:
-        """Insert every open bucket that is ``bucket_max_age_s`` old (every open one with
-        ``everything``), one vehicle at a time: one that fails does not hold up the
-        others. A bucket fills up in the ingest call that fills it; one the store could
-        not take then is written here once it is old."""
+        """Insert every open bucket whose age is up (every open one with ``everything``);
+        a vehicle's bucket age is ``bucket_max_age_s`` shortened by up to a quarter
+        (:func:`period_of`), so that buckets opened together drift apart. One vehicle at
+        a time: one that fails does not hold up the others. A full bucket is written by
+        the ingest call that fills it; one the store could not take then is written here
+        once its age is up."""
         if everything:
             due = [(0.0, v) for v, state in self._vehicles.items() if state.pending]
         else:
-            due = self._aged(time.monotonic() - self.settings.bucket_max_age_s)
+            due = self._aged(time.monotonic())
         written = 0
         pacer = Pacer()
         for i, (_, vehicle_id) in enumerate(due):
@@ -371,13 +378,12 @@ class TelemetryService:
             if state is None or not state.pending:
                 continue
             try:
-                written += await self._write_vehicle(
-                    vehicle_id, state, everything, self.settings.bucket_max_age_s
-                )
+                written += await self._write_vehicle(vehicle_id, state, everything)
             except Unavailable as exc:
                 self.dead_letters.failed("telemetry", exc)
                 if not everything:  # the store is away: the next pass tries these again
-                    self._opened.extendleft(reversed(due[i:]))
+                    for entry in due[i:]:
+                        heapq.heappush(self._opened, entry)
                 break
             except Exception as exc:
                 # Not the store, not a sample BSON refuses: keep the bucket aside, go on.
@@ -392,24 +398,22 @@ class TelemetryService:
             await pacer.step()  # buckets that opened together age out together
         return written
 
-    def _aged(self, opened_before: float) -> list[tuple[float, str]]:
-        """The open buckets opened before ``opened_before``, taken off the queue (entries
-        of buckets written since, whose vehicle opened a newer one, are dropped)."""
-        queue, vehicles, out = self._opened, self._vehicles, []
-        while queue and queue[0][0] <= opened_before:
-            opened, vehicle_id = entry = queue.popleft()
+    def _aged(self, now: float) -> list[tuple[float, str]]:
+        """The open buckets due by ``now``, taken off the heap (entries of buckets written
+        since, whose vehicle opened a newer one, are dropped)."""
+        heap, vehicles, out = self._opened, self._vehicles, []
+        while heap and heap[0][0] <= now:
+            due, vehicle_id = entry = heapq.heappop(heap)
             state = vehicles.get(vehicle_id)
-            if state is not None and state.pending and state.opened_at == opened:
+            if state is not None and state.pending and state.due_at == due:
                 out.append(entry)
         return out
 
-    async def _write_vehicle(
-        self, vehicle_id: str, state: _Vehicle, everything: bool, max_age: float
-    ) -> int:
+    async def _write_vehicle(self, vehicle_id: str, state: _Vehicle, everything: bool) -> int:
         written = 0
         async with state.lock:
             while state.pending and (
-                everything or self._full(state) or time.monotonic() - state.opened_at >= max_age
+                everything or self._full(state) or time.monotonic() >= state.due_at
             ):
                 await self._write_bucket(vehicle_id, state)
                 written += 1

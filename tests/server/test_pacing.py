@@ -5,7 +5,7 @@ from __future__ import annotations
 import asyncio
 import time
 
-from server.services.pacing import Pacer
+from server.services.pacing import Pacer, period_of
 
 
 async def _pass(pacer: Pacer, units: int, unit_s: float, other: asyncio.Task[None]) -> bool:
@@ -31,3 +31,13 @@ async def test_a_short_pass_keeps_the_loop() -> None:
     assert not await _pass(pacer, units=5, unit_s=0.0005, other=other)
     assert pacer.yields == 0
     await other
+
+
+def test_each_key_has_its_own_period_never_longer_than_the_setting() -> None:
+    periods = [period_of(f"usv-{n:05d}", 10.0) for n in range(2000)]
+    assert all(7.5 <= p <= 10.0 for p in periods)
+    assert period_of("usv-00042", 10.0) == periods[42]  # the same key, the same period
+    # Spread over the whole quarter: records due together once drift apart.
+    assert min(periods) < 7.6 and max(periods) > 9.9
+    tenths = {int((10.0 - p) / 0.25) for p in periods}
+    assert tenths == set(range(10))
