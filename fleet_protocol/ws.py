@@ -256,8 +256,9 @@ class AckPush(_Push):
             clash = _ack_clash(type(result))
             body = result.model_dump_json(exclude=clash or None)  # in Rust
         elif result:
-            kept = {k: v for k, v in result.items() if k not in _ACK_OWN_FIELDS}
-            body = to_json(kept).decode()
+            if not _ACK_OWN_FIELDS.isdisjoint(result):
+                result = {k: v for k, v in result.items() if k not in _ACK_OWN_FIELDS}
+            body = to_json(result).decode()
         else:
             body = "{}"
         return head + "}" if body == "{}" else head + "," + body[1:]

@@ -210,7 +210,7 @@ async def build(
     messages.register(SamplesStored, topics.on_samples)
     messages.register(SamplesStored, safety.on_samples)
     messages.register(FailsafeChanged, hub.on_failsafe_changed)
-    messages.register(SamplesStored, lambda e: metrics.samples.inc(len(e.samples)))
+    messages.register(SamplesStored, lambda e: metrics.samples.add(len(e.samples)))
     messages.register(CommandsReady, hub.on_commands_ready)
     messages.register(TokensRevoked, hub.on_tokens_revoked)
     messages.register(TokensRevoked, replicas.on_tokens_revoked)

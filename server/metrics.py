@@ -10,7 +10,7 @@ import time
 from collections.abc import Callable, Iterable
 
 from prometheus_client import CollectorRegistry, Counter, Histogram
-from prometheus_client.core import GaugeMetricFamily, Metric
+from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, Metric
 from prometheus_client.registry import Collector
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
@@ -110,6 +110,22 @@ class Hops:
         self._observe(self.submitted_to_acked_h, "submitted_to_acked", submitted_s)
 
 
+class Tally(Collector):
+    """A counter for a hot path: ``add`` is a plain addition (a ``Counter`` takes a lock
+    at every ``inc``: at 10,000 samples a second, 1 % of a core), read at each scrape.
+    The event loop's thread is the only one that adds."""
+
+    def __init__(self, name: str, doc: str) -> None:
+        self.name, self.doc = name, doc
+        self.total = 0
+
+    def add(self, amount: int) -> None:
+        self.total += amount
+
+    def collect(self) -> Iterable[Metric]:
+        yield CounterMetricFamily(self.name, self.doc, value=self.total)
+
+
 class Metrics:
     def __init__(self) -> None:
         self.registry = CollectorRegistry()
@@ -126,9 +142,8 @@ class Metrics:
             buckets=(0.001, 0.0025, 0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1, 2.5, 10, 30),
             registry=self.registry,
         )
-        self.samples = Counter(
-            "fleet_samples_ingested", "telemetry samples accepted", registry=self.registry
-        )
+        self.samples = Tally("fleet_samples_ingested", "telemetry samples accepted")
+        self.registry.register(self.samples)
         self.background_errors = Counter(
             "fleet_background_errors",
             "records a background loop failed on (set aside), and passes it could not finish",

@@ -220,10 +220,10 @@ class _Frames:
             await rest
 
     def _op_now(self, data: str | bytes) -> Awaitable[None] | None:
+        if isinstance(data, str):  # counts as the vehicle's contact (text_now says when)
+            return self.ops.text_now(data, contact=self.vehicle)
         if self.vehicle:
             self.live.touch(self.conn)
-        if isinstance(data, str):
-            return self.ops.text_now(data)
         return self.ops.binary_now(data)
 
 

@@ -35,6 +35,8 @@ from collections.abc import Callable
 from typing import Any
 
 from uvicorn.protocols.websockets.websockets_sansio_impl import WebSocketsSansIOProtocol
+
+from server.api.outbox import LazyEvent
 from websockets.frames import apply_mask
 from websockets.http11 import Request
 from websockets.protocol import State
@@ -52,6 +54,19 @@ class LiveWebSocketProtocol(WebSocketsSansIOProtocol):
 
     _on_message: Callable[[Message, int], None] | None = None
     _rank = 0  # messages handed over from the current read
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        # Less held per socket (10,000 of them): the events make their waiter queues at
+        # their first wait, and the unbounded queue of ASGI messages, whose ``put`` never
+        # waits, keeps no queue of waiting putters (624 bytes each, 4 per socket).
+        self.writable = LazyEvent()
+        self.writable.set()
+        queue: Any = self.queue
+        if queue.maxsize <= 0 and not queue._putters:
+            queue._putters = ()
+            queue._finished = LazyEvent()
+            queue._finished.set()
 
     def handle_connect(self, event: Request) -> None:
         super().handle_connect(event)

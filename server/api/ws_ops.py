@@ -52,17 +52,6 @@ class OpRunner:
         self._parse = parse_vehicle_op if conn.kind == "vehicle" else parse_client_op
         self._max_text = services.settings.ws_max_text_bytes
         self._own_unit: UnitRef | None = None  # the unit an op naming no vehicle acts as
-        self._handlers: dict[type, Callable[[Any], Awaitable[Any]]] = {
-            StartInstanceOp: self._start,
-            FinishInstanceOp: self._finish,
-            HeartbeatOp: self._heartbeat,
-            UpdateParamOp: self._update_param,
-            UpdateFbMessageOp: self._update_fb,
-            RegisterOp: self._register,
-            SubscribeOp: self._subscribe,
-            UnsubscribeOp: self._unsubscribe,
-            PublishOp: self._publish,
-        }
         #: Topics this connection's principal may write (``check_write`` passed), kept
         #: while the principal is the same object: a new one (a token seen again after
         #: its cache entry went) is checked afresh.
@@ -85,14 +74,18 @@ class OpRunner:
     def _refuse(self, op_id: str | None, exc: FleetError) -> None:
         self._reply(op_id, ErrorBody(code=exc.code, message=exc.message, details=exc.details))
 
-    def text_now(self, frame: str) -> Coroutine[Any, Any, None] | None:
+    def text_now(self, frame: str, *, contact: bool = False) -> Coroutine[Any, Any, None] | None:
         """Handle a text frame within this call where nothing has to wait: a refusal, or
         a ``publish`` on a bus that does not leave the process (the hot path). Otherwise
         the coroutine that handles it, not started.
 
         Every frame counts against the socket's rate, a malformed one too; one over the
-        size bound closes the socket (1009)."""
+        size bound closes the socket (1009). ``contact``: every frame counts as contact
+        from the socket's vehicles (an ``update_param`` of one of them, handled here,
+        counts itself: one reading of the clock for both)."""
         if len(frame) > self._max_text:
+            if contact:
+                self.hub.touch(self.conn)
             self.hub.close_soon(
                 self.conn, CLOSE_TOO_BIG, f"a JSON frame has at most {self._max_text} bytes"
             )
@@ -100,17 +93,28 @@ class OpRunner:
         try:
             op = self._parse(frame)
         except FrameError as exc:
+            if contact:
+                self.hub.touch(self.conn)
             if self._over_rate(None):
                 return None
             self.conn.outbox.put(exc.reply().frame())
             return None
-        if self._over_rate(op.id):
-            return None
         kind = type(op)
+        instances = self.conn.instances
+        own_update = kind is UpdateParamOp and op.instance_id in instances
+        # A vehicle's own socket: its update_param is all the contact there is to count.
+        # A gateway's: every instance it serves counts this frame.
+        counted = own_update and len(instances) == 1
+        if contact and not counted:
+            self.hub.touch(self.conn)
+        if self._over_rate(op.id):
+            if contact and counted:
+                self.hub.touch(self.conn)
+            return None
         if kind is PublishOp and not self.hub.bus.remote:
             self._publish_now(op)
             return None
-        if kind is UpdateParamOp and op.instance_id in self.conn.instances:
+        if own_update:
             return self._update_param_now(op)
         return self.run(op)
 
@@ -207,10 +211,10 @@ class OpRunner:
             state = await self.s.instances.for_vehicle_caller(self.conn.principal, op.instance_id)
             if kind is not FinishInstanceOp:
                 await self.hub.attach_instance(self.conn, state)
-        handler = self._handlers.get(kind)
+        handler = _HANDLERS.get(kind)
         if handler is None:
             raise Invalid(f"op {getattr(op, 'op', '?')} is not handled here")
-        return await handler(op)
+        return await handler(self, op)
 
     # ---- one method per op (looked up by the op's type) --------------------------
     async def _start(self, op: StartInstanceOp) -> BaseModel:
@@ -271,3 +275,17 @@ class OpRunner:
             check_write(principal, op.topic)
             self._writable.add(op.topic)
         return self.hub.publish(self.conn, unit, op.topic, op.data)
+
+
+#: op type -> its method (one table for every connection).
+_HANDLERS: dict[type, Callable[[OpRunner, Any], Awaitable[Any]]] = {
+    StartInstanceOp: OpRunner._start,
+    FinishInstanceOp: OpRunner._finish,
+    HeartbeatOp: OpRunner._heartbeat,
+    UpdateParamOp: OpRunner._update_param,
+    UpdateFbMessageOp: OpRunner._update_fb,
+    RegisterOp: OpRunner._register,
+    SubscribeOp: OpRunner._subscribe,
+    UnsubscribeOp: OpRunner._unsubscribe,
+    PublishOp: OpRunner._publish,
+}

@@ -99,6 +99,7 @@ async def test_a_call_without_timing_or_with_a_wild_clock_is_served_and_not_obse
         assert metric(text, f"{hop}_sum", transport="http") == 0
         assert metric(text, "fleet_hop_discarded_total", hop="vehicle_to_server") == 1
         assert metric(text, "fleet_hop_clamped_total", hop="vehicle_to_server") == 1
+        assert metric(text, "fleet_samples_ingested_total") == 3  # every sample, timed or not
         view = (await w.http.get(f"/api/vehicles/{vehicle.vehicle_id}", headers=ADMIN)).json()
         assert view["link_delay_ms"] == 0.0 and view["link_rtt_ms"] is None
 

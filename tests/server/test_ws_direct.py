@@ -130,10 +130,10 @@ async def test_a_fault_closes_that_socket_alone_with_1011(
     name, user = await make_user(api, "viewer", [])
     text_now = OpRunner.text_now
 
-    def faulty(self: OpRunner, frame: str) -> Any:
+    def faulty(self: OpRunner, frame: str, **kwargs: Any) -> Any:
         if "boom" in frame:
             raise ValueError("a bug")
-        return text_now(self, frame)
+        return text_now(self, frame, **kwargs)
 
     monkeypatch.setattr(OpRunner, "text_now", faulty)
     async with (
