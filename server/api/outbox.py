@@ -88,6 +88,10 @@ class _Entry:
         self.stamp = stamp
 
 
+#: An outbox's queue before its first frame (read as empty; written, it becomes a deque).
+_NO_ENTRIES: Any = ()
+
+
 class Outbox:
     def __init__(
         self,
@@ -113,8 +117,10 @@ class Outbox:
         #: The reader fell ``max_bytes`` behind: the outbox let everything go.
         self.overflowed = False
         self._clock = clock
-        self._critical: deque[_Entry] = deque()
-        self._normal: deque[_Entry] = deque()
+        # The two queues are made at their first frame (most sockets never queue one: a
+        # deque is 624 bytes); until then each is the shared empty tuple.
+        self._critical: deque[_Entry] = _NO_ENTRIES
+        self._normal: deque[_Entry] = _NO_ENTRIES
         #: topic -> its waiting entry, for latest-wins topics.
         self._latest: dict[str, _Entry] = {}
         #: (frame, latest_wins) held back per topic by a throttle.
@@ -167,7 +173,7 @@ class Outbox:
         ):
             return  # nothing waited or was held back: the frame went out at once, unqueued
         if critical:
-            self._critical.append(_Entry(frame, None, stamp))
+            self._critical_queue().append(_Entry(frame, None, stamp))
             self.queued_bytes += len(frame)
         elif topic is not None and throttle_ms > 0:
             if self._throttle.offer(topic, (frame, latest_wins), throttle_ms / 1000, self._clock()):
@@ -183,6 +189,16 @@ class Outbox:
         self._wakeup.set()
         if self._task is None and self._started:
             self._task = asyncio.create_task(self._write(), name="outbox-writer")
+
+    def _critical_queue(self) -> deque[_Entry]:
+        if self._critical is _NO_ENTRIES:
+            self._critical = deque()
+        return self._critical
+
+    def _normal_queue(self) -> deque[_Entry]:
+        if self._normal is _NO_ENTRIES:
+            self._normal = deque()
+        return self._normal
 
     def forget(self, topic: str) -> None:
         """Drop a topic's throttle state and held frame (on unsubscribe)."""
@@ -213,7 +229,7 @@ class Outbox:
                 del self._latest[oldest.topic]
             self._count_drop()
         entry = _Entry(frame, topic, stamp)
-        self._normal.append(entry)
+        self._normal_queue().append(entry)
         self.queued_bytes += len(frame)
         if latest_wins and topic is not None:
             self._latest[topic] = entry
@@ -230,8 +246,7 @@ class Outbox:
             self._on_overflow()
 
     def _release(self) -> None:
-        self._critical.clear()
-        self._normal.clear()
+        self._critical = self._normal = _NO_ENTRIES
         self._latest.clear()
         self._throttle = Throttle()
         self.queued_bytes = 0
@@ -313,7 +328,7 @@ class Outbox:
         while (entry := self._next()) is not None:
             if not self._try_send(entry.frame, entry.stamp):
                 # First, in its order (no longer a topic's waiting frame).
-                self._critical.appendleft(_Entry(entry.frame, None, entry.stamp))
+                self._critical_queue().appendleft(_Entry(entry.frame, None, entry.stamp))
                 self.queued_bytes += len(entry.frame)
                 return False
             if self.closed.is_set():

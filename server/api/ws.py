@@ -247,7 +247,7 @@ class _DirectInbox:
         self._direct = direct
         self._pause: Callable[[], None] = direct["pause"]
         self._resume: Callable[[], None] = direct["resume"]
-        self._backlog: deque[str | bytes] = deque()
+        self._backlog: deque[str | bytes] = _NO_BACKLOG  # a deque once a message waits
         self._task: asyncio.Task[None] | None = None
         self._stopped = False
         self._loop = asyncio.get_running_loop()
@@ -261,6 +261,11 @@ class _DirectInbox:
         ops = frames.ops
         self._eager = ops.s.store.kind == "embedded" and not ops.hub.bus.remote
 
+    def _held(self) -> deque[str | bytes]:
+        if self._backlog is _NO_BACKLOG:
+            self._backlog = deque()
+        return self._backlog
+
     def attach(self) -> None:
         """From now on the server hands each message to :meth:`feed`; those that came
         before are handled first."""
@@ -272,12 +277,12 @@ class _DirectInbox:
         if self._stopped or self.frames.conn.closed:
             return
         if self._task is not None:
-            self._backlog.append(data)
+            self._held().append(data)
             if len(self._backlog) >= _HELD_BEFORE_PAUSE:
                 self._pause()  # resumed when the backlog is handled
             return
         if rank > _PER_READ:  # a burst: the other sockets get their turn first
-            self._backlog.append(data)
+            self._held().append(data)
             self.idle.clear()
             self._task = self._loop.create_task(self._finish(asyncio.sleep(0)))
             return
@@ -309,7 +314,7 @@ class _DirectInbox:
         except Exception:
             self._fail()
         finally:
-            self._backlog.clear()
+            self._backlog = _NO_BACKLOG
             self._task = None
             self._resume()
             self.idle.set()
@@ -363,6 +368,8 @@ class _Resumed:
 
 
 _closing: set[asyncio.Task[None]] = set()
+#: A socket's backlog while none waits (a deque is made for the first that does).
+_NO_BACKLOG: Any = ()
 #: Messages held behind a waiting one before the socket's reading is paused.
 _HELD_BEFORE_PAUSE = 16
 #: Messages of one read of a socket handled at once; the rest of a burst (a read can
