@@ -216,10 +216,19 @@ class Journal:
         """Write every collection into a new base and start a new, empty journal."""
         async with self._lock:
             generation = self.generation + 1
-            chunks = [bson.encode({"gen": generation})]
-            for name, docs in snapshot():  # taken at once: no write comes in between
-                chunks.extend(_chunks(name, docs))
+            # The documents are taken at once (no write comes in between), then encoded a
+            # chunk at a time with the event loop let go between chunks: a store of
+            # hundreds of thousands of documents held every socket up for the whole of it.
+            # A write made meanwhile replaces a document, never changes one in place, so
+            # what was taken stays as it was.
+            taken = list(snapshot())
             folded = len(self._pending)  # recorded before the snapshot: in it
+            chunks = [bson.encode({"gen": generation})]
+            for name, docs in taken:
+                for chunk in _chunks(name, docs):
+                    chunks.append(chunk)
+                    await asyncio.sleep(0)
+            del taken
             await asyncio.to_thread(_write_file, self.path, chunks)
             self.generation = generation
             header = bson.encode({"gen": generation})

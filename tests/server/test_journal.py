@@ -123,3 +123,32 @@ async def test_a_journal_that_outgrows_the_base_is_folded_in_while_running(
     again = await opened(tmp_path)  # the first one "crashed": no close
     assert await ids(again) == list(range(390, 400))
     await again.close()
+
+
+async def test_writes_made_while_a_compaction_encodes_are_all_kept(tmp_path: Path) -> None:
+    """Compaction lets the event loop go between chunks of documents: the writes made
+    meanwhile (inserts, updates, deletes) are neither lost nor folded in twice."""
+    import asyncio
+
+    store = await opened(tmp_path)
+    for n in range(3000):  # several chunks
+        await store["things"].insert({"_id": n, "v": 0})
+    await store.flush()
+    journal = store.journal  # type: ignore[attr-defined]
+    compacting = asyncio.create_task(journal.compact(store._snapshot))  # type: ignore[attr-defined]
+    turns = 0
+    while not compacting.done():  # a write at each turn the compaction gives back
+        await store["things"].update({"_id": turns}, set={"v": 1})
+        await store["things"].insert({"_id": 10_000 + turns, "v": 2})
+        await store["things"].delete({"_id": 2999 - turns})
+        turns += 1
+        await asyncio.sleep(0)
+    await compacting
+    assert turns > 5  # the loop had turns while it encoded (six chunks and more)
+    await store.flush()
+    again = await opened(tmp_path)  # the first one "crashed": no close
+    docs = {d["_id"]: d["v"] for d in await again["things"].find({})}
+    expected = {n: (1 if n < turns else 0) for n in range(3000 - turns)}
+    expected.update({10_000 + t: 2 for t in range(turns)})
+    assert docs == expected
+    await again.close()
