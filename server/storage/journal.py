@@ -25,6 +25,7 @@ written.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import logging
 import os
 from collections import Counter
@@ -80,19 +81,53 @@ def _entries(path: Path) -> Iterator[dict[str, Any]]:
 
 def _write_file(path: Path, chunks: list[bytes]) -> None:
     """``path`` replaced whole by ``chunks``: written to a temporary file, fsynced, renamed."""
-    _private_dir(path.parent)
-    tmp = path.with_name(path.name + ".tmp")
-    with _open_private(tmp, append=False) as fh:
-        for chunk in chunks:
-            fh.write(chunk)
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, path)
-    dir_fd = os.open(path.parent, os.O_RDONLY)
+    new = _NewFile(path)
     try:
-        os.fsync(dir_fd)
-    finally:
-        os.close(dir_fd)
+        for chunk in chunks:
+            new.write(chunk)
+    except BaseException:
+        new.drop()
+        raise
+    new.finish()
+
+
+class _NewFile:
+    """A file that replaces ``path`` whole: written to a temporary file beside it, then
+    fsynced and renamed over it (:meth:`finish`), or given up (:meth:`drop`)."""
+
+    def __init__(self, path: Path) -> None:
+        _private_dir(path.parent)
+        self.path = path
+        self.tmp = path.with_name(path.name + ".tmp")
+        self.fh = _open_private(self.tmp, append=False)
+
+    def write(self, chunk: bytes) -> None:
+        self.fh.write(chunk)
+
+    def size(self) -> int:
+        return self.fh.tell()
+
+    def drop(self) -> None:
+        """Closed and removed; ``path`` stays as it was."""
+        self.fh.close()
+        with contextlib.suppress(OSError):
+            os.unlink(self.tmp)
+
+    def finish(self) -> None:
+        """Fsynced and renamed over ``path`` (given up if that fails)."""
+        try:
+            self.fh.flush()
+            os.fsync(self.fh.fileno())
+            self.fh.close()
+            os.replace(self.tmp, self.path)
+        except BaseException:
+            self.drop()
+            raise
+        dir_fd = os.open(self.path.parent, os.O_RDONLY)
+        try:
+            os.fsync(dir_fd)
+        finally:
+            os.close(dir_fd)
 
 
 class Journal:
@@ -221,20 +256,28 @@ class Journal:
             # hundreds of thousands of documents held every socket up for the whole of it.
             # A write made meanwhile replaces a document, never changes one in place, so
             # what was taken stays as it was.
+            # Each chunk goes to the new base's file as it is made: the encoded store is
+            # never held whole in memory.
             taken = list(snapshot())
             folded = len(self._pending)  # recorded before the snapshot: in it
-            chunks = [bson.encode({"gen": generation})]
-            for name, docs in taken:
-                for chunk in _chunks(name, docs):
-                    chunks.append(chunk)
-                    await asyncio.sleep(0)
+            base = _NewFile(self.path)
+            try:
+                base.write(bson.encode({"gen": generation}))
+                for name, docs in taken:
+                    for chunk in _chunks(name, docs):
+                        base.write(chunk)
+                        await asyncio.sleep(0)
+            except BaseException:
+                base.drop()
+                raise
             del taken
-            await asyncio.to_thread(_write_file, self.path, chunks)
+            base_bytes = base.size()
+            await asyncio.to_thread(base.finish)
             self.generation = generation
             header = bson.encode({"gen": generation})
             await asyncio.to_thread(_write_file, self.journal_path, [header])
             self._journal_started = True
-            self.base_bytes = sum(len(c) for c in chunks)
+            self.base_bytes = base_bytes
             self.journal_bytes = len(header)
             del self._pending[:folded]
 

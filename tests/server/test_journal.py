@@ -70,13 +70,15 @@ async def test_a_failed_compaction_keeps_the_former_files_and_the_pending_writes
     base = tmp_path / "store.snapshot"
     before = base.read_bytes() if base.exists() else None
 
-    def disk_full(path: Path, chunks: list[bytes]) -> None:
+    def disk_full(new: Any) -> None:  # the new base cannot be made durable
+        new.drop()  # given up, as finish gives it up on a failure
         raise OSError(28, "No space left on device")
 
-    monkeypatch.setattr(journal_module, "_write_file", disk_full)
+    monkeypatch.setattr(journal_module._NewFile, "finish", disk_full)
     with pytest.raises(OSError):
         await store.close()
     assert (base.read_bytes() if base.exists() else None) == before
+    assert not (tmp_path / "store.snapshot.tmp").exists()
     monkeypatch.undo()
     await store.flush()  # the write compaction did not fold in reaches the journal
     again = await opened(tmp_path)
@@ -137,7 +139,7 @@ async def test_writes_made_while_a_compaction_encodes_are_all_kept(tmp_path: Pat
     journal = store.journal  # type: ignore[attr-defined]
     compacting = asyncio.create_task(journal.compact(store._snapshot))  # type: ignore[attr-defined]
     turns = 0
-    while not compacting.done():  # a write at each turn the compaction gives back
+    while not compacting.done() and turns < 1000:  # writes at the turns it gives back
         await store["things"].update({"_id": turns}, set={"v": 1})
         await store["things"].insert({"_id": 10_000 + turns, "v": 2})
         await store["things"].delete({"_id": 2999 - turns})
