@@ -152,7 +152,9 @@ class InstanceService:
         now = self.clock()
         tick = time.monotonic()
         if self._courses is None or tick - self._courses_read >= self.settings.contact_write_s:
-            self._courses = {d["instance_id"]: d for d in await self.repo.courses()}
+            # This replica's own are read from its copies below, at every pass.
+            courses = await self.repo.courses(skip=self._by_id)
+            self._courses = {d["instance_id"]: d for d in courses}
             self._courses_read = tick
             self._ended.clear()
         # Online: an open long poll, or contact within stale_after_s (presence_of).

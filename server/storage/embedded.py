@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import logging
 import operator
-from collections.abc import Iterable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
@@ -245,7 +245,11 @@ class EmbeddedCollection(Collection):
         projection: Mapping[str, Any] | None = None,
     ) -> list[Doc]:
         docs = self._select(_stored(dict(flt or {})), sort, limit)
-        return [_aware(_project(d, projection)) for d in docs]
+        if not projection:
+            return [_aware(d) for d in docs]
+        keep = _kept(projection)
+        # A projection makes a new document: only the values in it are copied.
+        return [{k: _aware(v) for k, v in d.items() if keep(k)} for d in docs]
 
     async def count(self, flt: Filter | None = None) -> int:
         if not flt:
@@ -453,15 +457,14 @@ def _apply(doc: Doc, update: Mapping[str, Any]) -> Doc:
     return doc
 
 
-def _project(doc: Doc, projection: Mapping[str, Any] | None) -> Doc:
-    if not projection:
-        return doc
+def _kept(projection: Mapping[str, Any]) -> Callable[[str], bool]:
+    """Whether a projection keeps a top-level field: the fields it shows (and ``_id``
+    unless hidden), or every field but those it hides."""
     shown = {k for k, v in projection.items() if v}
     hidden = {k for k, v in projection.items() if not v}
     if shown:
-        keep = shown | ({"_id"} if "_id" not in hidden else set())
-        return {k: v for k, v in doc.items() if k in keep}
-    return {k: v for k, v in doc.items() if k not in hidden}
+        return (shown | ({"_id"} if "_id" not in hidden else set())).__contains__
+    return lambda k: k not in hidden
 
 
 #: The embedded store's journal is folded into its base once it is past this size and

@@ -19,6 +19,7 @@ refuses arrays nested in arrays, which MongoDB takes) and never reads into it.
 
 from __future__ import annotations
 
+from collections.abc import Container
 from datetime import datetime
 from typing import Any
 
@@ -70,12 +71,13 @@ class InstancesRepo:
     async def get_many(self, instance_ids: list[str]) -> list[Doc]:
         return [_unpack(d) or d for d in await self.instances.get_many(instance_ids)]
 
-    async def courses(self) -> list[Doc]:
+    async def courses(self, skip: Container[str] = ()) -> list[Doc]:
         """Each unfinished instance's ids, last contact and latest sample, and no more (the
-        collision forecast reads them every pass)."""
+        collision forecast reads them), but those in ``skip`` (whose latest sample the
+        caller has: theirs is not unpacked)."""
         fields = {"instance_id": 1, "vehicle_id": 1, "last_seen": 1, "position": 1}
         docs = await self.instances.find({"finished_at": None}, projection=fields)
-        return [_unpack(d) or d for d in docs]
+        return [_unpack(d) or d for d in docs if d["_id"] not in skip]
 
     async def unfinished(self) -> list[Doc]:
         return [_unpack(d) or d for d in await self.instances.find({"finished_at": None})]
