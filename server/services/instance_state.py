@@ -11,7 +11,7 @@ from server.domain.latency import LinkDelay
 from server.domain.presence import Presence
 
 
-@dataclass
+@dataclass(slots=True)  # 10,000 of them, walked by every sweep: no __dict__ each
 class InstanceState:
     instance_id: str
     vehicle_id: str
