@@ -20,7 +20,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
-from bson import ObjectId
+from bson import Binary, ObjectId
 from sortedcontainers import SortedList
 
 from server.storage.base import (
@@ -49,6 +49,8 @@ def _stored(value: Any) -> Any:
         if value.tzinfo is not None:
             value = value.astimezone(UTC).replace(tzinfo=None)
         return value.replace(microsecond=value.microsecond // 1000 * 1000)
+    if type(value) is Binary and value.subtype == 0:
+        return bytes(value)  # as the driver reads it back (and a plain value to the collector)
     return value
 
 
@@ -72,6 +74,25 @@ def _rank(value: Any) -> tuple[int, Any]:
     if value is None:
         return (5, 0)
     return (_get_compare_type(value), value)
+
+
+#: BSON's rank of an ObjectId among types (mongomock's order).
+_OID_RANK = 35
+
+
+def _id_entry(_id: Any) -> tuple[tuple[int, Any], Any]:
+    """An ``_id``'s rank and key in an index entry. An ObjectId is held as its 12 bytes
+    (which order as it does): an entry of plain values is one the collector stops
+    scanning, and a telemetry bucket makes three entries a second per vehicle."""
+    if type(_id) is ObjectId:
+        raw = _id.binary
+        return (_OID_RANK, raw), raw
+    return _rank(_id), _id
+
+
+def _id_of(item: tuple[Any, ...]) -> Any:
+    """The ``_id`` an index entry stands for."""
+    return ObjectId(item[2]) if item[1][0] == _OID_RANK and type(item[2]) is bytes else item[2]
 
 
 _RANGE_OPS = {"$gt": operator.gt, "$gte": operator.ge, "$lt": operator.lt, "$lte": operator.le}
@@ -141,11 +162,11 @@ class _Index:
         if not _scalar(first):
             return None
         if self.second is None:
-            return None, (_rank(first), _rank(doc["_id"]), doc["_id"])
+            return None, (_rank(first), *_id_entry(doc["_id"]))
         second = doc.get(self.second)
         if not _scalar(second):
             return None
-        return first, (_rank(second), _rank(doc["_id"]), doc["_id"])
+        return first, (_rank(second), *_id_entry(doc["_id"]))
 
     def unique_key(self, doc: Doc) -> tuple[Any, ...]:
         return tuple(repr(_rank(doc.get(f))) for f in self.fields)
@@ -213,7 +234,7 @@ class _Index:
         elif self.ordered is not None:
             return None  # a one-field index narrows nothing without a condition on it
         hi = max(lo, hi)
-        return hi - lo, (item[2] for item in members.islice(lo, hi)), field
+        return hi - lo, (_id_of(item) for item in members.islice(lo, hi)), field
 
 
 class EmbeddedCollection(Collection):

@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from bson import ObjectId
 
 from server.settings import Settings
 from server.storage import Duplicate, Rejected, Store, open_store
@@ -104,9 +105,11 @@ async def test_unique_index_refuses_a_second_key(store: Store) -> None:
     assert await coll.count() == 2
 
 
-async def test_indexed_queries_answer_as_a_scan_would(store: Store) -> None:
+@pytest.mark.parametrize("object_ids", [False, True], ids=["int-ids", "objectid-ids"])
+async def test_indexed_queries_answer_as_a_scan_would(store: Store, object_ids: bool) -> None:
     """The embedded store plans these shapes on its ordered indexes; MongoDB on its own.
-    Both must give what a plain reading of the filter gives."""
+    Both must give what a plain reading of the filter gives (with the ``_id`` a driver
+    makes, an ObjectId, too: the embedded index keeps it as its bytes)."""
     rng = random.Random(7)
     coll = store["buckets"]
     await coll.create_index([("vehicle_id", 1), ("max_seq", 1)])
@@ -118,7 +121,7 @@ async def test_indexed_queries_answer_as_a_scan_would(store: Store) -> None:
         start = T0 + timedelta(seconds=rng.randrange(0, 3600), milliseconds=i)
         docs.append(
             {
-                "_id": i,
+                "_id": ObjectId(i.to_bytes(12, "big")) if object_ids else i,
                 "vehicle_id": rng.choice(["usv-1", "usv-2", "auv-3"]),
                 "max_seq": seqs[i],
                 "start": start,
