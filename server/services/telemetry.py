@@ -97,7 +97,10 @@ class _Vehicle:
     due_at: float = 0.0  # monotonic time it is written at the latest (its age is up)
     max_age_s: float = 0.0  # this vehicle's bucket age (period_of bucket_max_age_s)
     unflushed: list[int] = field(default_factory=list)  # max_seq of buckets awaiting a flush
-    latest: Sample | None = None
+    #: The latest sample in its stored form (a dict, shared with the open bucket: read,
+    #: never changed). Not the model: one per vehicle, replaced every second, each
+    #: would outlive a young collection and be scanned by the next one.
+    latest: Doc | None = None
 
 
 #: BSON size of a sample's fixed fields (seq, ts, position, depth, heading, speed, battery).
@@ -171,9 +174,8 @@ class TelemetryService:
         latest = await self.repo.latest_sample(vehicle_id)
         state.high = max(state.high, high)
         state.durable = max(state.durable, high)  # what was stored before is durable
-        stored = _sample(latest) if latest is not None else None
-        if stored is not None and (state.latest is None or stored.ts > state.latest.ts):
-            state.latest = stored
+        if latest is not None and (state.latest is None or latest["ts"] > state.latest["ts"]):
+            state.latest = latest
         state.loaded = True
 
     async def ingest(
@@ -248,17 +250,18 @@ class TelemetryService:
             state.pending.append(doc)
             state.pending_bytes += _size(doc)
             latest = state.latest
+            latest_ts = latest["ts"] if latest is not None else None
             result.replayed.append(
-                (latest is not None and sample.ts < latest.ts) or sample.ts < stale_before
+                (latest_ts is not None and sample.ts < latest_ts) or sample.ts < stale_before
             )
-            if latest is None or sample.ts >= latest.ts:
-                state.latest = sample
-                result.latest_doc = doc
+            if latest_ts is None or sample.ts >= latest_ts:
+                state.latest = doc
+                result.latest, result.latest_doc = sample, doc
         result.accepted = len(result.stored)
         result.acked_through_seq = state.high
         result.durable_through_seq = state.durable
-        if state.latest is not before:
-            result.latest = state.latest
+        if state.latest is before:
+            result.latest = result.latest_doc = None
         return result
 
     def _full(self, state: _Vehicle) -> bool:
@@ -353,7 +356,7 @@ class TelemetryService:
         state = self._state(vehicle_id)
         async with state.lock:
             await self._load(vehicle_id, state)
-            return state.latest
+            return _sample(state.latest) if state.latest is not None else None
 
     def durable_through_seq(self, vehicle_id: str) -> int:
         state = self._vehicles.get(vehicle_id)
