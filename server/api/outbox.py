@@ -69,7 +69,7 @@ class LazyEvent(asyncio.Event):
 
     _NONE_WAITING: Any = ()
 
-    def __init__(self) -> None:  # noqa: D107 - asyncio.Event's, without the deque
+    def __init__(self) -> None:
         self._waiters = self._NONE_WAITING
         self._value = False
 

@@ -35,11 +35,11 @@ from collections.abc import Callable
 from typing import Any
 
 from uvicorn.protocols.websockets.websockets_sansio_impl import WebSocketsSansIOProtocol
-
-from server.api.outbox import LazyEvent
 from websockets.frames import apply_mask
 from websockets.http11 import Request
 from websockets.protocol import State
+
+from server.api.outbox import LazyEvent
 
 __all__ = ["DIRECT", "LiveWebSocketProtocol", "Message"]
 

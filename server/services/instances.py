@@ -164,9 +164,7 @@ class InstanceService:
             for state in self._by_id.values()
             if state.position is not None
             and state.finished_at is None
-            and (
-                state.polling > 0 or (state.last_seen is not None and fresh <= state.last_seen)
-            )
+            and (state.polling > 0 or (state.last_seen is not None and fresh <= state.last_seen))
         ]
         by_id = self._by_id
         for instance_id, doc in self._courses.items():

@@ -28,6 +28,7 @@ def period_of(key: str, period_s: float) -> float:
     same key always gets the same period (never longer than ``period_s``)."""
     return period_s * (1.0 - SPREAD * zlib.crc32(key.encode()) / 2**32)
 
+
 #: Work between two turns of the event loop (seconds).
 SLICE_S = 0.005
 

@@ -30,9 +30,9 @@ yet written (the open bucket), the latest position and the durable mark.
 from __future__ import annotations
 
 import asyncio
+import heapq
 import logging
 import time
-import heapq
 from dataclasses import dataclass, field
 from datetime import datetime, timedelta
 from typing import Any
