@@ -8,7 +8,7 @@ from typing import Any
 from xml.sax.saxutils import escape, quoteattr
 
 from fleet_protocol import format_ts
-from server.services.telemetry import TRACK_FIELDS, TrackResult
+from server.services.telemetry_views import TRACK_FIELDS, TrackResult
 
 CSV_COLUMNS = ("ts", *TRACK_FIELDS)
 MEDIA_TYPES = {
