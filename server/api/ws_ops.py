@@ -102,14 +102,12 @@ class OpRunner:
         kind = type(op)
         instances = self.conn.instances
         own_update = kind is UpdateParamOp and op.instance_id in instances
-        # A vehicle's own socket: its update_param is all the contact there is to count.
-        # A gateway's: every instance it serves counts this frame.
-        counted = own_update and len(instances) == 1
-        if contact and not counted:
+        over_rate = self._over_rate(op.id)
+        # On a vehicle's own socket an update_param that goes on counts the contact itself;
+        # on a gateway's, every instance the socket serves counts this frame.
+        if contact and (over_rate or not (own_update and len(instances) == 1)):
             self.hub.touch(self.conn)
-        if self._over_rate(op.id):
-            if contact and counted:
-                self.hub.touch(self.conn)
+        if over_rate:
             return None
         if kind is PublishOp and not self.hub.bus.remote:
             self._publish_now(op)

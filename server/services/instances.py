@@ -24,7 +24,7 @@ from fleet_protocol import Sample, StartInstance
 from server.domain.access import Principal
 from server.domain.clock import Clock
 from server.domain.events import InstanceFinished, PresenceChanged, StateWritten
-from server.domain.presence import Presence, presence_of
+from server.domain.presence import Presence, is_online, online_since, presence_of
 from server.errors import Conflict, Forbidden, NotFound, Unavailable
 from server.errors import InstanceFinished as Finished
 from server.services.auth import AuthService
@@ -157,14 +157,14 @@ class InstanceService:
             self._courses = {d["instance_id"]: d for d in courses}
             self._courses_read = tick
             self._ended.clear()
-        # Online: an open long poll, or contact within stale_after_s (presence_of).
-        fresh = now - timedelta(seconds=self.settings.stale_after_s)
+        since = online_since(now, self.settings.stale_after_s)
         out = [
             (state.vehicle_id, state.instance_id, state.position)
             for state in self._by_id.values()
             if state.position is not None
-            and state.finished_at is None
-            and (state.polling > 0 or (state.last_seen is not None and fresh <= state.last_seen))
+            and is_online(
+                state.last_seen, since, finished=state.finished, polling=state.polling > 0
+            )
         ]
         by_id = self._by_id
         for instance_id, doc in self._courses.items():
@@ -364,7 +364,7 @@ class InstanceService:
         """
         ahead = now + timedelta(seconds=self.settings.read_ahead_s)
         # Most vehicles are online and fresh: one comparison each, presence_of for the rest.
-        fresh = ahead - timedelta(seconds=self.settings.stale_after_s)
+        fresh = online_since(ahead, self.settings.stale_after_s)
         near = [
             s
             for s in states

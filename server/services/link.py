@@ -160,7 +160,7 @@ class VehicleLink:
         state = await self.live(principal, body.instance_id, arrived)
         self._merge(state, body, arrived, transport)
         result = await self.telemetry.ingest(state.vehicle_id, state.instance_id, body.samples)
-        return self._stored(state, result, arrived)
+        return self._after_ingest(state, result, arrived)
 
     def update_param_now(
         self, principal: Principal, body: UpdateParam, transport: str
@@ -175,7 +175,7 @@ class VehicleLink:
         self.instances.touch(state, arrived)
         self._merge(state, body, arrived, transport)
         result = self.telemetry.ingest_now(state.vehicle_id, body.samples)
-        return self._stored(state, result, arrived)
+        return self._after_ingest(state, result, arrived)
 
     def _merge(
         self, state: InstanceState, body: UpdateParam, arrived: datetime, transport: str
@@ -184,7 +184,7 @@ class VehicleLink:
             self._timed(state, body, arrived, transport)
         self.instances.merge_params(state, body.params)
 
-    def _stored(
+    def _after_ingest(
         self, state: InstanceState, result: IngestResult, arrived: datetime
     ) -> dict[str, Any]:
         if result.latest is not None:
