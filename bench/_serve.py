@@ -1,7 +1,10 @@
 """The server for the HTTP bench, in its own process: ``python -m bench._serve PORT DIR TOKEN``.
 
-The real app (embedded store in DIR) plus one hidden trivial route,
-``GET /_bench/trivial``, served by the same process as the baseline.
+The real app (embedded store in DIR) plus two hidden routes served by the same
+process: ``GET /_bench/trivial`` (the baseline) and ``POST /_bench/parse_only``
+(update_param's body read and answered, nothing done). It runs as
+``fleet-server`` does (``server.cli.run``: uvicorn, the collector and allocator
+settings, no access log).
 """
 
 from __future__ import annotations
@@ -9,10 +12,9 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-import uvicorn
-
 from fleet_protocol import UpdateParam, UpdateParamResult
 from server.app import create_app
+from server.cli import run
 from server.settings import Settings
 
 
@@ -42,7 +44,7 @@ def main() -> None:
     app.router.routes.insert(0, app.router.routes.pop())  # before the dashboard's "/" mount
     app.add_api_route("/_bench/parse_only", parse_only, methods=["POST"], include_in_schema=False)
     app.router.routes.insert(0, app.router.routes.pop())
-    uvicorn.run(app, host="127.0.0.1", port=port, log_level="warning", access_log=False)
+    run(settings, app)  # as ``fleet-server`` runs it: the same process settings
 
 
 if __name__ == "__main__":

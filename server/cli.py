@@ -5,13 +5,16 @@ from __future__ import annotations
 import ctypes
 import ctypes.util
 import gc
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import typer
 import uvicorn
 
 from server.logs import log_config
 from server.settings import Settings
+
+if TYPE_CHECKING:
+    from fastapi import FastAPI
 
 
 def _settings_help() -> str:
@@ -41,11 +44,15 @@ def serve(
     run(settings)
 
 
-def run(settings: Settings) -> None:
+def run(settings: Settings, app: FastAPI | None = None) -> None:
+    """Serve ``app`` (by default the one ``create_app`` builds from ``settings``) the way
+    the server runs in the field: the collector and allocator settled, uvicorn's
+    WebSocket options, logs without tokens."""
     from server.api.ws_direct import uvicorn_ws_options
     from server.app import create_app
 
-    app = create_app(settings)
+    if app is None:
+        app = create_app(settings)
     _settle_gc()
     _settle_malloc(settings.ws_max_binary_bytes)
     uvicorn.run(
