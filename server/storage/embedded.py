@@ -77,8 +77,11 @@ class EmbeddedCollection(Collection):
         docs = self._select(_stored(dict(flt or {})), sort, limit)
         if not projection:
             return [_aware(d) for d in docs]
-        keep = _kept(projection)
         # A projection makes a new document: only the values in it are copied.
+        shown = _shown(projection)
+        if shown is not None:  # the few fields it names are looked up, not every field
+            return [{k: _aware(d[k]) for k in shown if k in d} for d in docs]
+        keep = _kept(projection)
         return [{k: _aware(v) for k, v in d.items() if keep(k)} for d in docs]
 
     async def count(self, flt: Filter | None = None) -> int:
@@ -285,6 +288,15 @@ def _apply(doc: Doc, update: Mapping[str, Any]) -> Doc:
         else:
             raise NotImplementedError(f"the embedded store does not apply {op}")
     return doc
+
+
+def _shown(projection: Mapping[str, Any]) -> tuple[str, ...] | None:
+    """The top-level fields an inclusion projection shows, ``_id`` first unless hidden (in
+    this order, where the driver keeps the document's); None for one that only hides."""
+    shown = tuple(k for k, v in projection.items() if v and k != "_id")
+    if not shown and not projection.get("_id"):
+        return None
+    return (("_id",) if projection.get("_id", 1) else ()) + shown
 
 
 def _kept(projection: Mapping[str, Any]) -> Callable[[str], bool]:

@@ -202,6 +202,11 @@ class _Index:
                 if not _scalar(bound):
                     return None
                 key = (_rank(_stored(bound)),)
+                # A range matches values of its bound's type only (BSON's type brackets,
+                # which mongomock's matching follows): a null is never below a date.
+                bracket = key[0][0]
+                lo = max(lo, members.bisect_left(((bracket,),)))
+                hi = min(hi, members.bisect_left(((bracket + 1,),)))
                 if op in ("$gt", "$gte"):
                     at = members.bisect_right((*key, (99,))) if op == "$gt" else None
                     lo = max(lo, at if at is not None else members.bisect_left(key))

@@ -178,6 +178,40 @@ async def test_projection(store: Store) -> None:
     assert await coll.find({}, projection={"secret": 0}) == [{"_id": "a", "x": 1, "y": 2}]
     assert await coll.find({}, projection={"x": 1}) == [{"_id": "a", "x": 1}]
     assert await coll.find({}, projection={"_id": 0, "y": 1}) == [{"y": 2}]
+    assert await coll.find({}, projection={"_id": 1}) == [{"_id": "a"}]
+    assert await coll.find({}, projection={"_id": 0}) == [{"x": 1, "y": 2, "secret": 3}]
+    assert await coll.find({}, projection={"x": 1, "gone": 1}) == [{"_id": "a", "x": 1}]
+
+
+async def test_a_range_matches_its_own_type_only(store: Store) -> None:
+    """On an indexed field too, a range takes values of its bound's type (BSON's type
+    brackets): no null, number or string is below a date, no date above a number."""
+    coll = store["mixed"]
+    await coll.create_index([("at", 1)])
+    values: dict[str, Any] = {
+        "null": None,
+        "zero": 0,
+        "big": 10**12,
+        "text": "2026",
+        "early": T0 - timedelta(days=1),
+        "late": T0 + timedelta(days=1),
+        "yes": True,
+    }
+    for name, value in values.items():
+        await coll.insert({"_id": name, "at": value})
+    await coll.insert({"_id": "missing"})
+
+    async def ids(flt: dict[str, Any]) -> list[str]:
+        return sorted(d["_id"] for d in await coll.find(flt))
+
+    assert await ids({"at": {"$lt": T0}}) == ["early"]
+    assert await ids({"at": {"$gte": T0}}) == ["late"]
+    assert await ids({"at": {"$gt": 5}}) == ["big"]
+    assert await ids({"at": {"$lte": 5}}) == ["zero"]
+    assert await ids({"at": {"$gte": ""}}) == ["text"]
+    assert await ids({"at": {"$gt": 5, "$lt": T0}}) == []
+    assert await coll.delete({"at": {"$lt": T0}}) == 1
+    assert await ids({}) == ["big", "late", "missing", "null", "text", "yes", "zero"]
 
 
 async def test_equalities_match_as_mongodb_matches_them(store: Store) -> None:
