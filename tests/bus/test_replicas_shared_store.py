@@ -18,7 +18,7 @@ import asyncio
 import contextlib
 from collections.abc import AsyncIterator, Callable
 from contextlib import asynccontextmanager
-from datetime import datetime
+from datetime import UTC, datetime
 from typing import Any
 
 import httpx
@@ -309,3 +309,65 @@ async def test_redis_away_each_replica_serves_its_own_and_catches_up_after(
             # Redis back: the stop accepted on A while B was cut off reaches B's socket.
             pushed = await recv_until(car, lambda f: f["op"] == "command", within_s=20)
             assert pushed["command_id"] == stop_id
+
+
+async def _sailing(
+    api: httpx.AsyncClient, headers: dict[str, str], instance_id: str, course: dict[str, float]
+) -> None:
+    """The vehicle's agent: its position and course to its replica every 0.3 s."""
+    seq = 0
+    while True:
+        seq += 1
+        sample = {"seq": seq, "ts": datetime.now(UTC).isoformat(), **course}
+        r = await api.post(
+            "/upper/update_param",
+            headers=headers,
+            json={"instance_id": instance_id, "samples": [sample]},
+        )
+        assert r.status_code == 200, r.text
+        await asyncio.sleep(0.3)
+
+
+async def test_the_collision_forecast_sees_the_vehicles_of_both_replicas(
+    make_settings: Callable[..., Settings], redis_server: RedisServer
+) -> None:
+    """One replica forecasts for all: two vehicles heading at each other, each on its own
+    replica, raise the risk on both (the other replica's course read from the store)."""
+    forecast = {"separation_m": 10.0, "forecast_s": 60.0, "forecast_every_s": 0.2}
+    async with two_replicas(make_settings, redis_server, **forecast) as (api_a, api_b, _):
+        courses = {
+            "a": {"lat": 43.0, "lon": 15.0, "speed_mps": 5.0, "heading_deg": 90.0},
+            "b": {"lat": 43.0, "lon": 15.001, "speed_mps": 5.0, "heading_deg": 270.0},
+        }
+        agents = []
+        vehicles = {}
+        for name, api in (("a", api_a), ("b", api_b)):
+            vid, vehicle = await make_vehicle(api_a)
+            r = await api.post(
+                "/upper/start_instance",
+                headers=vehicle,
+                json={"vehicle_id": vid, "capabilities": ["stop"]},
+            )
+            instance_id = r.json()["instance_id"]
+            vehicles[name] = vid
+            agents.append(asyncio.create_task(_sailing(api, vehicle, instance_id, courses[name])))
+
+        async def risks() -> list[str] | None:
+            found = []
+            for vid in vehicles.values():
+                r = await api_a.get(
+                    "/api/events",
+                    headers=ADMIN,
+                    params={"vehicle_id": vid, "kind": "collision_risk"},
+                )
+                assert r.status_code == 200, r.text
+                found += [e["data"]["other_vehicle_id"] for e in r.json()["events"]]
+            return found if len(set(found)) == 2 else None
+
+        try:
+            seen = await _until(risks, within_s=15)
+        finally:
+            for agent in agents:
+                agent.cancel()
+            await asyncio.gather(*agents, return_exceptions=True)
+        assert set(seen) == set(vehicles.values())
