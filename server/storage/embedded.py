@@ -54,17 +54,21 @@ class EmbeddedCollection(Collection):
         self.name = raw.name
         sync = raw.__dict__.get("_AsyncMongoMockCollection__collection", raw)
         self._sync = sync
-        self._table: Any = sync._store  # mongomock's _id -> document table
+        # mongomock's _id -> document table, as the plain mapping it keeps: its store
+        # takes a lock and looks for expired documents at each access, and only the
+        # event loop's thread reads or writes a collection (no TTL index is made here).
+        self._table: dict[Any, Doc] = sync._store._documents
         self._indexes: dict[tuple[str, ...], _Index] = {}
 
     # -- reads ------------------------------------------------------------------------
 
     async def get(self, _id: Any) -> Doc | None:
-        doc = self._table[_id] if _id in self._table else None
+        doc = self._table.get(_id)
         return None if doc is None else _aware(doc)
 
     async def get_many(self, ids: Iterable[Any]) -> list[Doc]:
-        return [_aware(self._table[i]) for i in ids if i in self._table]
+        table = self._table
+        return [_aware(doc) for i in ids if (doc := table.get(i)) is not None]
 
     async def find(
         self,
@@ -99,8 +103,9 @@ class EmbeddedCollection(Collection):
             candidates.reverse()
         out: list[Doc] = []
         plain = _plain(flt)
+        table = self._table
         for _id in candidates:
-            doc = self._table[_id] if _id in self._table else None
+            doc = table.get(_id)
             if doc is None or not (
                 _equal(plain, doc) if plain is not None else filter_applies(flt, doc)
             ):
@@ -137,7 +142,7 @@ class EmbeddedCollection(Collection):
                 best = (size, field != sort_by, ids, field)
         if best is not None:
             return list(best[2]), best[3]
-        return [d["_id"] for d in self._table.documents], None
+        return list(self._table), None
 
     # -- writes ------------------------------------------------------------------------
 
@@ -263,14 +268,14 @@ class EmbeddedCollection(Collection):
         if name in self._indexes:
             return
         index = _Index(keys, unique)
-        for doc in self._table.documents:
+        for doc in self._table.values():
             index.check(doc)
             index.add(doc)
         self._indexes[name] = index
 
     def documents(self) -> list[Doc]:
         """Every stored document (stored form), for the journal's snapshot."""
-        return list(self._table.documents)
+        return list(self._table.values())
 
 
 def _apply(doc: Doc, update: Mapping[str, Any]) -> Doc:
