@@ -78,16 +78,19 @@ def _settle_gc() -> None:
     CPython's default thresholds (700, 10, 10) scan the old ones again and
     again (measured at 5,000 vehicles: a full collection of ~0.4 s every few
     seconds, the bulk of the p99). A larger first threshold collects young
-    garbage as before. The middle generation is collected after 10 young
+    garbage as before. The middle generation is collected after 5 young
     collections: what it scans is what survived them (stored buckets and
-    their index entries, mostly), and after 50 one pass took 170 to 240 ms at
-    10,000 vehicles, a stall every ~25 s that made the p99; after 10 a pass
-    is a fifth of that, five times as often. The oldest generation keeps its
-    pace (after 250 middle ones, and only once it has grown by a quarter).
+    their index entries, the socket's keepalive timers), and a pass holds
+    every socket for its length. Near a full core the acks queued behind a
+    stall take several times its length to drain, so shorter passes, more
+    often, make the p99: at 10,000 vehicles a pass took 170 to 240 ms every
+    ~25 s after 50 young collections, 40 to 80 ms after 10, 20 to 50 ms
+    after 5. The oldest generation keeps its pace (after 250 middle ones, and
+    only once it has grown by a quarter).
     """
     gc.collect()
     gc.freeze()
-    gc.set_threshold(10_000, 10, 250)
+    gc.set_threshold(10_000, 5, 250)
 
 
 #: glibc's mallopt parameters (malloc.h).
