@@ -118,7 +118,9 @@ class _LeanApp:
 def _query_values(query: tuple[_Query, ...], request: Request, values: dict[str, Any]) -> bool:
     """Each query parameter's value, as FastAPI's field validates it; False: leave it to
     FastAPI (absent and required, empty, or not valid)."""
-    params = request.query_params
+    params = _undecoded_query(request.scope.get("query_string", b""))
+    if params is None:
+        params = request.query_params
     for q in query:
         raw = params.get(q.name)
         if raw is None:
@@ -133,6 +135,20 @@ def _query_values(query: tuple[_Query, ...], request: Request, values: dict[str,
             return False
         values[q.name] = value
     return True
+
+
+def _undecoded_query(raw: bytes) -> dict[str, str] | None:
+    """The query string's parameters when it has nothing to decode (ASCII, no ``%`` or
+    ``+``), as Starlette reads them: pairs split on ``&``, a name alone has an empty
+    value, the last of a repeated name counts. None otherwise: Starlette decodes it."""
+    if b"%" in raw or b"+" in raw or not raw.isascii():
+        return None
+    params: dict[str, str] = {}
+    for pair in raw.decode("ascii").split("&"):
+        if pair:
+            name, _, value = pair.partition("=")
+            params[name] = value
+    return params
 
 
 def _body_value(

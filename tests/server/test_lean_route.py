@@ -209,6 +209,14 @@ async def test_get_control_answers_as_fastapi_does(app: FastAPI, client: httpx.A
         f"instance_id={iid}&wait_s=abc",
         f"instance_id={other_iid}",
         "instance_id=i-unknown",
+        # read by the lean path itself, or left to Starlette when there is something to decode
+        f"&instance_id={iid}&&wait_s=0&",
+        f"instance_id={iid}&wait_s",
+        f"instance_id={iid}&other=a=b",
+        f"instance_id={iid}&wait_s=0%2E5",
+        f"instance_id={iid}&wait_s=+0",
+        f"instance_id=%69{iid[1:]}",
+        f"instance_id={iid}&note=%C3%A9",
     ]
     for query in queries:
         for auth in (vh, {}, {"Authorization": "Bearer fct_nope"}, ADMIN, other):
