@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import inspect
 import typing
-from collections.abc import Awaitable, Callable
+from collections.abc import Awaitable, Callable, Mapping
 from copy import deepcopy
 from dataclasses import dataclass
 from typing import Any
@@ -118,9 +118,8 @@ class _LeanApp:
 def _query_values(query: tuple[_Query, ...], request: Request, values: dict[str, Any]) -> bool:
     """Each query parameter's value, as FastAPI's field validates it; False: leave it to
     FastAPI (absent and required, empty, or not valid)."""
-    params = _undecoded_query(request.scope.get("query_string", b""))
-    if params is None:
-        params = request.query_params
+    undecoded = _undecoded_query(request.scope.get("query_string", b""))
+    params: Mapping[str, str] = request.query_params if undecoded is None else undecoded
     for q in query:
         raw = params.get(q.name)
         if raw is None:
