@@ -31,10 +31,12 @@ async def serve(
     store: Store | None = None,
     port: int | None = None,
     app: Any = None,
+    **uvicorn_options: Any,
 ) -> AsyncIterator[str]:
     """Yields the base URL (``http://127.0.0.1:PORT``) while the server runs (on ``store``
     when given: the caller's open store, which it closes; on ``port`` when given; ``app``:
-    the app to serve, made by the caller who wants to reach its services)."""
+    the app to serve, made by the caller who wants to reach its services; the rest: more
+    of uvicorn's options)."""
     port = port or free_port()
     config = uvicorn.Config(
         app or create_app(settings, store=store),
@@ -46,6 +48,7 @@ async def serve(
         # A test's client may sit idle for longer than uvicorn's 5 s while it waits on
         # the server (presence moving on): its kept-alive connection is not dropped.
         timeout_keep_alive=120,
+        **uvicorn_options,
     )
     server = uvicorn.Server(config)
     task = asyncio.create_task(server.serve())

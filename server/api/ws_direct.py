@@ -17,6 +17,12 @@ still arrives through ``receive``), pings, flow control.
 ``attach`` returns the messages that were already queued, for the app to
 handle first. ``pause()`` and ``resume()`` stop and restart reading from the
 socket, for an app whose handling of a message has to wait.
+
+Keepalive pings are the server's :class:`~server.api.keepalive.KeepaliveWheel`
+(one timer for all its sockets, no ping to a socket its peer is talking on),
+not a timer pair per socket: every ``ws_ping_interval`` an idle socket is
+pinged, and one whose ping is unanswered an interval later is closed (1011;
+the interval stands for ``ws_ping_timeout`` too).
 ``send_nowait(message)`` writes a text or binary message at once when the
 transport is not asking the writer to wait, and says whether it did (the
 socket's outbox sends the rest through ``send`` as usual); ``abort()`` drops
@@ -31,14 +37,17 @@ ran with.
 
 from __future__ import annotations
 
+import logging
+import os
 from collections.abc import Callable
 from typing import Any
 
 from uvicorn.protocols.websockets.websockets_sansio_impl import WebSocketsSansIOProtocol
-from websockets.frames import apply_mask
+from websockets.frames import Frame, apply_mask
 from websockets.http11 import Request
 from websockets.protocol import State
 
+from server.api.keepalive import KeepaliveWheel
 from server.api.outbox import LazyEvent
 
 __all__ = ["DIRECT", "LiveWebSocketProtocol", "Message"]
@@ -47,6 +56,11 @@ __all__ = ["DIRECT", "LiveWebSocketProtocol", "Message"]
 DIRECT = "fleet.websocket.direct"
 
 Message = str | bytes
+
+log = logging.getLogger("fleet.ws")
+
+#: The attribute of uvicorn's ``Config`` (one per server) that holds its wheel.
+_WHEEL = "_fleet_keepalive_wheel"
 
 
 class LiveWebSocketProtocol(WebSocketsSansIOProtocol):
@@ -137,7 +151,56 @@ class LiveWebSocketProtocol(WebSocketsSansIOProtocol):
         if not self.transport.is_closing():
             self.transport.abort()
 
+    # ---- keepalive (server/api/keepalive.py) -----------------------------------------
+    _heard = False  # bytes from the peer since the wheel's last visit
+
+    def start_keepalive(self) -> None:
+        if self.ping_interval is not None and self.ping_interval > 0:
+            self._wheel().add(self)
+
+    def stop_keepalive(self) -> None:
+        wheel = getattr(self.config, _WHEEL, None)
+        if wheel is not None:
+            wheel.discard(self)
+        super().stop_keepalive()
+
+    def _wheel(self) -> KeepaliveWheel:
+        wheel = getattr(self.config, _WHEEL, None)
+        if wheel is None or wheel.loop is not self.loop:
+            assert self.ping_interval is not None
+            wheel = KeepaliveWheel(self.loop, self.ping_interval)
+            setattr(self.config, _WHEEL, wheel)
+        return wheel
+
+    def handle_pong(self, event: Frame) -> None:
+        if self.pending_ping_payload is None or bytes(event.data) != self.pending_ping_payload:
+            return  # unsolicited, or the answer to an older ping
+        self.last_ping_rtt = self.loop.time() - self.ping_sent_at
+        self.pending_ping_payload = None
+        self._heard = False  # a pong alone is no traffic: an idle socket is pinged each time
+
+    def ping_due(self) -> bool:
+        return self.pending_ping_payload is not None
+
+    def heard_since(self) -> bool:
+        heard, self._heard = self._heard, False
+        return heard
+
+    def send_ping(self) -> None:
+        if self.close_sent or self.transport.is_closing():
+            return
+        self.pending_ping_payload = os.urandom(4)
+        self.ping_sent_at = self.loop.time()
+        self.conn.send_ping(self.pending_ping_payload)
+        self.transport.write(b"".join(self.conn.data_to_send()))
+
+    def ping_lost(self) -> None:
+        log.info("a WebSocket peer did not answer a ping in %.0f s: closed", self.ping_interval)
+        self.keepalive_timeout()
+
+    # ---- reading -------------------------------------------------------------------------
     def data_received(self, data: bytes) -> None:
+        self._heard = True
         self._rank = 0
         conn = self.conn
         if (
