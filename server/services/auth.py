@@ -9,12 +9,9 @@ other replicas is down), an entry is trusted for at most
 :data:`UNCONFIRMED_TRUST_S` before the store is asked again, so that a
 revocation takes effect everywhere within that time.
 
-``/auth/token`` answers an unknown user, or one without a password, after the
-same argon2 work as a known one (against a dummy hash), and counts failed
-attempts per client address and per username in the store (every replica
-counts the same ones): past ``FLEET_LOGIN_FAILURES_PER_ADDRESS`` or
-``FLEET_LOGIN_FAILURES_PER_USER`` within ``FLEET_LOGIN_WINDOW_S`` it is 429
-``rate_limited`` with ``Retry-After``, without looking at the password.
+``/auth/token`` checks a password as :class:`~server.services.logins.Logins`
+says (argon2, the same work for an unknown user, failed logins limited per
+address and per user) and issues a session token.
 """
 
 from __future__ import annotations
@@ -22,9 +19,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import hashlib
-import ipaddress
 import logging
-import math
 import secrets
 import time
 from collections.abc import Callable
@@ -32,14 +27,12 @@ from dataclasses import dataclass
 from datetime import datetime, timedelta
 from typing import Any
 
-from argon2 import PasswordHasher
-from argon2.exceptions import InvalidHashError, VerificationError
-
 from fleet_protocol import CreateGateway, CreateUser, CreateVehicle, PatchUser, utcnow
 from server.domain.access import Principal
 from server.domain.clock import Clock
 from server.domain.events import TokensRevoked, UserChanged
 from server.errors import Conflict, Invalid, NotFound, RateLimited, Unauthorized
+from server.services.logins import Logins
 from server.services.messagebus import MessageBus
 from server.settings import Settings
 from server.storage.accounts import AccountsRepo
@@ -58,23 +51,6 @@ def digest(token: str) -> str:
 
 def new_token() -> str:
     return TOKEN_PREFIX + secrets.token_urlsafe(32)
-
-
-def client_key(host: str | None) -> str:
-    """What failed logins are counted by for a client address: the address itself, an
-    IPv6 one by its /64 (one subscriber's share: it has them all), an IPv4 one mapped in
-    IPv6 as IPv4."""
-    if not host:
-        return "unknown"
-    try:
-        addr = ipaddress.ip_address(host)
-    except ValueError:
-        return host[:64]
-    if isinstance(addr, ipaddress.IPv6Address):
-        if addr.ipv4_mapped is not None:
-            return str(addr.ipv4_mapped)
-        return str(ipaddress.IPv6Network((addr, 64), strict=False))
-    return str(addr)
 
 
 @dataclass
@@ -109,14 +85,12 @@ class AuthService:
         self.clock = clock
         #: Whether revocations made on other replicas reach this one now (the bus is up).
         self._news_flows = news_flows
-        self._hasher = PasswordHasher()
+        self.logins = Logins(settings, repo, clock)
         self._cache: dict[str, _Cached] = {}
         self._buckets: dict[str, _Bucket] = {}
         #: token id -> set when it is revoked, while someone waits on it (long polls).
         self._revoked: dict[str, asyncio.Event] = {}
         self._waiting: dict[str, int] = {}
-        #: What an unknown user's password is checked against (made once, on first use).
-        self._dummy_hash: str | None = None
 
     async def load(self) -> None:
         await self.repo.ensure_indexes()
@@ -292,86 +266,14 @@ class AuthService:
 
     # ---- login --------------------------------------------------------
     async def login(self, username: str, password: str, address: str | None) -> tuple[str, int]:
-        """A session token for a right password; 401 otherwise, after the same work
-        whether the user exists or not; 429 past the failed-login limits.
-
-        The attempt is recorded before the password is checked and counted again after,
-        so that a burst of attempts at once gets no more checks than the limit; a
-        successful one is deleted (only failures count), a refused one too.
-        """
-        now = self.clock()
-        attempt: dict[str, Any] = {
-            "attempt_id": secrets.token_hex(12),
-            "address": client_key(address),
-            "user": username,
-            "at": now,
-        }
-        await self._check_login_limits(attempt, now, recorded=False)
-        await self.repo.insert_login_attempt(attempt)
-        try:
-            await self._check_login_limits(attempt, now, recorded=True)
-        except RateLimited:
-            await self.repo.drop_login_attempt(attempt["attempt_id"])
-            raise
-        user = await self.repo.user(username)
-        ok = await self._password_matches((user or {}).get("password_hash"), password)
-        if not ok or user is None or user.get("disabled"):
-            raise Unauthorized("wrong username or password")  # the attempt stays: a failure
-        await self.repo.drop_login_attempt(attempt["attempt_id"])
+        """A session token for a right password (:meth:`Logins.check`)."""
+        await self.logins.check(username, password, address)
         ttl = self.settings.token_ttl_s
         return await self._issue("user", username, ttl_s=ttl, purpose="session"), ttl
 
-    async def _password_matches(self, stored: str | None, password: str) -> bool:
-        """argon2 verification, against a dummy hash when there is no stored one (unknown
-        user, user without a password): the answer takes as long either way."""
-        if not stored:
-            if self._dummy_hash is None:
-                self._dummy_hash = await asyncio.to_thread(
-                    self._hasher.hash, secrets.token_urlsafe(32)
-                )
-            await self._verify(self._dummy_hash, password)
-            return False  # whatever was sent
-        return await self._verify(stored, password)
-
-    async def _verify(self, stored: str, password: str) -> bool:
-        try:
-            return bool(await asyncio.to_thread(self._hasher.verify, stored, password))
-        except (VerificationError, InvalidHashError):
-            return False
-
-    async def _check_login_limits(
-        self, attempt: dict[str, Any], now: datetime, *, recorded: bool
-    ) -> None:
-        """429 when the attempt's address or user is past its limit of failures in the
-        window (``recorded``: the attempt itself is among those counted)."""
-        since = now - timedelta(seconds=self.settings.login_window_s)
-        limits = (
-            ("address", self.settings.login_failures_per_address, "from this address"),
-            ("user", self.settings.login_failures_per_user, "for this user"),
-        )
-        for field, limit, whose in limits:
-            count = await self.repo.count_login_attempts(field, attempt[field], since)
-            if recorded:
-                count -= 1  # the others, this one aside
-            if count < limit:
-                continue
-            # Free again once enough of the oldest leave the window for one more attempt.
-            oldest = await self.repo.login_attempts_of(
-                field, attempt[field], since, count - limit + 1
-            )
-            free_at = oldest[-1]["at"] + timedelta(seconds=self.settings.login_window_s)
-            wait = max(1, math.ceil((free_at - now).total_seconds()))
-            raise RateLimited(
-                f"too many failed logins {whose}; try again in {wait} s",
-                retry_after_s=wait,
-                details={"limit": field, "retry_after_s": wait},
-            )
-
     async def drop_old_login_attempts(self, now: datetime) -> int:
         """Forget the attempts older than the window (the retention loop)."""
-        return await self.repo.drop_login_attempts_before(
-            now - timedelta(seconds=self.settings.login_window_s)
-        )
+        return await self.logins.drop_old_attempts(now)
 
     # ---- administration -------------------------------------------------
     async def create_vehicle(self, body: CreateVehicle) -> str:
@@ -468,7 +370,7 @@ class AuthService:
         return await self._issue("user", body.username)
 
     async def _hash(self, password: str | None) -> str | None:
-        return None if password is None else await asyncio.to_thread(self._hasher.hash, password)
+        return None if password is None else await self.logins.hash(password)
 
     async def list_users(self) -> list[dict[str, Any]]:
         return await self.repo.all_users()

@@ -17,7 +17,7 @@ import pytest
 from asgi_lifespan import LifespanManager
 
 from server.app import create_app
-from server.services.auth import client_key
+from server.services.logins import client_key
 from server.settings import Settings
 from tests.factories import ADMIN, FakeClock, bearer, make_user
 
