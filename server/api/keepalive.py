@@ -8,8 +8,10 @@ collector scans them all again and again (measured at 10,000 vehicles: about
 
 :class:`KeepaliveWheel` holds a server's sockets in ``SLOTS`` slots and visits
 one slot every ``interval / SLOTS`` seconds, so each socket once an interval.
-A socket tells the wheel what it heard (:meth:`Keepalive.heard`, any bytes
-from the peer; :meth:`Keepalive.answered`, the pong to its ping). At a visit:
+A socket keeps two facts for it: whether its ping waits for a pong
+(:meth:`Keepalive.ping_due`), and whether its peer sent anything since the
+last visit (:meth:`Keepalive.heard_since`; a pong alone does not count, so an
+idle socket is pinged every interval). At a visit:
 
 - a ping left unanswered since the last visit, a whole interval: the peer is
   gone and the socket is closed (1011), as uvicorn does after its timeout;
