@@ -74,15 +74,15 @@ class InstancesRepo:
     async def courses(self, skip: Container[str] = ()) -> list[Doc]:
         """Each unfinished instance's ids, last contact and latest sample, and no more (the
         collision forecast reads them), but those in ``skip`` (whose latest sample the
-        caller has: theirs is not unpacked)."""
+        caller has). Their ids are read first: when all are in ``skip`` (one replica),
+        nothing more is."""
         unfinished = {"finished_at": None}
         ids = await self.instances.find(unfinished, projection={"_id": 1})
-        others = [d["_id"] for d in ids if d["_id"] not in skip]
-        if not others:  # one replica: all its own, and nothing more is read
+        if all(d["_id"] in skip for d in ids):
             return []
         fields = {"instance_id": 1, "vehicle_id": 1, "last_seen": 1, "position": 1}
-        docs = await self.instances.find({**unfinished, "_id": {"$in": others}}, projection=fields)
-        return [_unpack(d) or d for d in docs]
+        docs = await self.instances.find(unfinished, projection=fields)
+        return [_unpack(d) or d for d in docs if d["_id"] not in skip]
 
     async def unfinished(self) -> list[Doc]:
         return [_unpack(d) or d for d in await self.instances.find({"finished_at": None})]
