@@ -14,7 +14,7 @@ them (datetimes UTC-aware, truncated to the millisecond as BSON stores them).
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -36,9 +36,11 @@ from server.storage.embedded_index import (
     _differ,
     _equal,
     _Index,
+    _kept,
     _plain,
     _rank,
     _scalar,
+    _shown,
     _stored,
 )
 from server.storage.journal import Journal
@@ -293,25 +295,6 @@ def _apply(doc: Doc, update: Mapping[str, Any]) -> Doc:
         else:
             raise NotImplementedError(f"the embedded store does not apply {op}")
     return doc
-
-
-def _shown(projection: Mapping[str, Any]) -> tuple[str, ...] | None:
-    """The top-level fields an inclusion projection shows, ``_id`` first unless hidden (in
-    this order, where the driver keeps the document's); None for one that only hides."""
-    shown = tuple(k for k, v in projection.items() if v and k != "_id")
-    if not shown and not projection.get("_id"):
-        return None
-    return (("_id",) if projection.get("_id", 1) else ()) + shown
-
-
-def _kept(projection: Mapping[str, Any]) -> Callable[[str], bool]:
-    """Whether a projection keeps a top-level field: the fields it shows (and ``_id``
-    unless hidden), or every field but those it hides."""
-    shown = {k for k, v in projection.items() if v}
-    hidden = {k for k, v in projection.items() if not v}
-    if shown:
-        return (shown | ({"_id"} if "_id" not in hidden else set())).__contains__
-    return lambda k: k not in hidden
 
 
 #: The embedded store's journal is folded into its base once it is past this size and

@@ -1,15 +1,16 @@
 """The embedded store's values and ordered indexes (:mod:`server.storage.embedded`).
 
 How a document is held (the stored form: BSON's datetimes and binaries) and
-given back (the driver's form), how two values order as BSON orders them,
-the equalities matched without mongomock, and :class:`_Index`, an ordered
-index of one or two fields that plans the query shapes the repositories use.
+given back (the driver's form), what a projection keeps of it, how two
+values order as BSON orders them, the equalities matched without mongomock,
+and :class:`_Index`, an ordered index of one or two fields that plans the
+query shapes the repositories use.
 """
 
 from __future__ import annotations
 
 import operator
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator, Mapping
 from datetime import UTC, datetime
 from typing import Any
 
@@ -45,6 +46,25 @@ def _aware(value: Any) -> Any:
     if isinstance(value, list):
         return [_aware(v) for v in value]
     return value
+
+
+def _shown(projection: Mapping[str, Any]) -> tuple[str, ...] | None:
+    """The top-level fields an inclusion projection shows, ``_id`` first unless hidden (in
+    this order, where the driver keeps the document's); None for one that only hides."""
+    shown = tuple(k for k, v in projection.items() if v and k != "_id")
+    if not shown and not projection.get("_id"):
+        return None
+    return (("_id",) if projection.get("_id", 1) else ()) + shown
+
+
+def _kept(projection: Mapping[str, Any]) -> Callable[[str], bool]:
+    """Whether a projection keeps a top-level field: the fields it shows (and ``_id``
+    unless hidden), or every field but those it hides."""
+    shown = {k for k, v in projection.items() if v}
+    hidden = {k for k, v in projection.items() if not v}
+    if shown:
+        return (shown | ({"_id"} if "_id" not in hidden else set())).__contains__
+    return lambda k: k not in hidden
 
 
 def _rank(value: Any) -> tuple[int, Any]:
