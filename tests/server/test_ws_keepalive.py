@@ -120,5 +120,5 @@ async def test_a_peer_that_talks_is_not_pinged(base: str) -> None:
             async with asyncio.timeout(5):
                 reply = json.loads(await ws.until(0x1, answer=True))
             assert reply.get("id") == str(n), reply
-            await asyncio.sleep(INTERVAL_S / 3)
+            await asyncio.sleep(INTERVAL_S / 3)  # the peer's cadence, not a wait
         assert ws.pings == 0
