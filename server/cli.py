@@ -80,7 +80,7 @@ def _settle_gc() -> None:
     seconds, the bulk of the p99). A larger first threshold collects young
     garbage as before. The middle generation is collected after 5 young
     collections: what it scans is what survived them (stored buckets and
-    their index entries, the socket's keepalive timers), and a pass holds
+    their index entries, instance records written back), and a pass holds
     every socket for its length. Near a full core the acks queued behind a
     stall take several times its length to drain, so shorter passes, more
     often, make the p99: at 10,000 vehicles a pass took 170 to 240 ms every
