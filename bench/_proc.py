@@ -66,3 +66,10 @@ def stop(process: subprocess.Popen[bytes], sig: int = signal.SIGTERM, within_s: 
         except subprocess.TimeoutExpired:
             process.kill()
             process.wait()
+
+
+def rss_mb(pid: int) -> float:
+    """A process's resident memory, MB."""
+    import psutil
+
+    return float(psutil.Process(pid).memory_info().rss / 2**20)
