@@ -9,14 +9,14 @@ from datetime import UTC, datetime
 from typing import Annotated, Any
 
 from pydantic import (
-    AfterValidator,
     BaseModel,
     ConfigDict,
     Field,
+    GetPydanticSchema,
     PlainSerializer,
     WithJsonSchema,
 )
-from pydantic_core import PydanticCustomError
+from pydantic_core import core_schema
 
 from fleet_protocol.values import (
     MAX_SAMPLE_DATA_BYTES,
@@ -60,7 +60,8 @@ def _as_utc(value: datetime) -> datetime:
 def format_ts(value: datetime) -> str:
     """ISO 8601 UTC with milliseconds, the contract's one time format."""
     global _formatted
-    if value.tzinfo is not UTC:
+    tz = value.tzinfo
+    if tz is not UTC and (tz is None or value.utcoffset()):  # UTC by another tzinfo: as it is
         value = _as_utc(value)
     # The text up to the second is kept while the second is the same (the hot paths
     # stamp thousands a second): the rest is a table look-up.
@@ -98,25 +99,34 @@ def parse_ts(text: str) -> datetime:
 _RANGE_CTX = {"low": format_ts(MIN_TIMESTAMP), "high": format_ts(MAX_TIMESTAMP)}
 
 
-def _in_range(value: datetime) -> datetime:
-    """In UTC, within ``MIN_TIMESTAMP`` and ``MAX_TIMESTAMP`` (a conversion near year 1 or
-    9999 overflows: out of range too)."""
-    try:
-        utc = value.astimezone(UTC) if value.tzinfo is not None else value.replace(tzinfo=UTC)
-        if MIN_TIMESTAMP <= utc <= MAX_TIMESTAMP:
-            return utc
-    except OverflowError:
-        pass
-    raise PydanticCustomError(
-        "timestamp_range", "a timestamp lies between {low} and {high}", _RANGE_CTX
+def _timestamp_schema(_source: Any, _handler: Any) -> core_schema.CoreSchema:
+    """A datetime within ``MIN_TIMESTAMP`` and ``MAX_TIMESTAMP``, always aware in UTC.
+
+    pydantic checks the bounds itself (a naive time counts as UTC). A time in UTC
+    already (``Z``, ``+00:00``: what clients send) is taken as pydantic reads it, with
+    no Python call; any other (naive, or another offset) is then converted to UTC.
+    Every failure (not a time, out of range) is the one error ``timestamp``.
+    """
+    bounds: dict[str, Any] = {"ge": MIN_TIMESTAMP, "le": MAX_TIMESTAMP}
+    in_utc = core_schema.datetime_schema(tz_constraint=0, **bounds)
+    other = core_schema.no_info_after_validator_function(
+        _as_utc, core_schema.datetime_schema(**bounds)
+    )
+    return core_schema.custom_error_schema(
+        core_schema.union_schema([in_utc, other], mode="left_to_right"),
+        custom_error_type="timestamp",
+        custom_error_message=(
+            f"a timestamp is ISO 8601 from {_RANGE_CTX['low']} to {_RANGE_CTX['high']}"
+        ),
     )
 
 
 #: A point in time: ISO 8601 in, ``format_ts`` out; between 1970-01-01 and 2100-01-01
-#: (``fleet_protocol.values.MIN_TIMESTAMP`` / ``MAX_TIMESTAMP``, both included).
+#: (``fleet_protocol.values.MIN_TIMESTAMP`` / ``MAX_TIMESTAMP``, both included). Its
+#: value has an offset of zero (its tzinfo ``UTC`` or pydantic's own zero offset).
 Timestamp = Annotated[
     datetime,
-    AfterValidator(_in_range),
+    GetPydanticSchema(_timestamp_schema),
     PlainSerializer(format_ts, return_type=str, when_used="json"),
     WithJsonSchema(
         {

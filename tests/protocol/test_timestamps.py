@@ -27,3 +27,50 @@ def test_now_ts_lies_between_two_readings_of_the_clock():
         after = format_ts(utcnow())
         assert before <= stamp <= after, (before, stamp, after)
         assert len(stamp) == 24 and stamp.endswith("Z")
+
+
+def test_a_timestamp_field_reads_every_offset_into_utc_within_its_range():
+    from pydantic import TypeAdapter
+
+    from fleet_protocol.common import Timestamp
+
+    read = TypeAdapter(Timestamp).validate_json
+    expected = datetime(2026, 5, 1, 12, 0, 3, 456000, tzinfo=UTC)
+    for text in (
+        "2026-05-01T12:00:03.456Z",
+        "2026-05-01T12:00:03.456+00:00",
+        "2026-05-01T14:00:03.456+02:00",
+        "2026-05-01T12:00:03.456",  # naive: UTC
+    ):
+        value = read(f'"{text}"')
+        assert value == expected, text
+        assert value.utcoffset() == timedelta(0), text
+        assert format_ts(value) == "2026-05-01T12:00:03.456Z", text
+    assert read('"1970-01-01T00:00:00Z"') == datetime(1970, 1, 1, tzinfo=UTC)
+    assert read('"2100-01-01T00:00:00Z"') == datetime(2100, 1, 1, tzinfo=UTC)
+    assert read('"2100-01-01T01:00:00+01:00"') == datetime(2100, 1, 1, tzinfo=UTC)
+
+
+def test_a_timestamp_out_of_range_or_not_a_time_is_one_error_naming_the_range():
+    from pydantic import TypeAdapter, ValidationError
+
+    from fleet_protocol.common import Timestamp
+
+    read = TypeAdapter(Timestamp).validate_json
+    for text in (
+        '"1969-12-31T23:59:59Z"',
+        '"2100-01-01T00:00:01Z"',
+        '"2099-12-31T23:59:30-00:01"',  # 2100-01-01T00:00:30Z
+        '"2100-01-01T00:00:01"',  # naive: UTC
+        '"0001-01-01T00:00:00+01:00"',
+        '"yesterday"',
+    ):
+        try:
+            read(text)
+        except ValidationError as exc:
+            (error,) = exc.errors()
+            assert error["type"] == "timestamp", text
+            assert "1970-01-01T00:00:00.000Z" in error["msg"], text
+            assert "2100-01-01T00:00:00.000Z" in error["msg"], text
+        else:
+            raise AssertionError(f"{text} was read")
