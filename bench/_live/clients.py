@@ -1,4 +1,5 @@
-"""The bench's clients: WebSocket helpers, a raw HTTP/1.1 client, the event loop runner."""
+"""The bench's clients: WebSocket helpers, a raw HTTP/1.1 client, an answer's check, the
+event loop runner."""
 
 from __future__ import annotations
 
@@ -10,8 +11,16 @@ import time
 from collections.abc import Awaitable, Callable, Sequence
 from typing import Any
 
+import httpx
 import websockets
 from websockets.asyncio.client import ClientConnection
+
+
+def ok(r: httpx.Response) -> httpx.Response:
+    """``r``, when it is not an error; else RuntimeError naming the call and the answer."""
+    if r.status_code >= 400:
+        raise RuntimeError(f"{r.request.method} {r.request.url.path}: {r.status_code} {r.text}")
+    return r
 
 
 async def ws_connect(url: str, token: str | None = None) -> ClientConnection:

@@ -34,8 +34,8 @@ from server.api.outbox import Frame, LazyEvent, Outbox
 from server.api.ws_direct import DIRECT
 from server.api.ws_ops import OpRunner
 from server.errors import FleetError, Unauthorized
-from server.services.auth import digest
 from server.services.registry import Services
+from server.services.tokens import digest
 
 Scope = MutableMapping[str, Any]
 Receive = Callable[[], Awaitable[MutableMapping[str, Any]]]

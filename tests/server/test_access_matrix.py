@@ -27,7 +27,7 @@ from asgi_lifespan import LifespanManager
 
 from fleet_protocol import ClientOp, VehicleOp, utcnow
 from server.app import create_app
-from server.services.auth import digest, new_token
+from server.services.tokens import digest, new_token
 from server.settings import Settings
 from tests.factories import ADMIN, bearer, sample
 from tests.live import recv_until, serve, ws_url
