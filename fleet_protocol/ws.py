@@ -70,6 +70,7 @@ __all__ = [
     "FrameError",
     "HeartbeatOp",
     "LaggingPush",
+    "PartialBatch",
     "PublishOp",
     "Push",
     "RegisterOp",
@@ -372,9 +373,59 @@ class FrameError(Exception):
         return ErrorPush(error=self.error)
 
 
+class PartialBatch(FrameError):
+    """A ``batch`` whose envelope is sound but some of whose ops are not valid.
+
+    The batch is taken as its ops sent one after the other: :attr:`batch` holds the
+    valid ones, in order, to be run; :attr:`refused` one :class:`FrameError` per
+    invalid op (its :meth:`~FrameError.reply` acks it by its own ``id``). One bad op in
+    a gateway's batch does not hold the others up (its units' samples among them).
+    As a :class:`FrameError` it is the whole frame's refusal (every field named as in
+    the batch: ``ops.1.samples.0.ts``), the answer when no op is valid.
+    """
+
+    def __init__(self, whole: FrameError, batch: BatchOp, refused: list[FrameError]) -> None:
+        super().__init__(whole.error, whole.op_id)
+        self.batch = batch
+        self.refused = refused
+
+
+class _BatchFrame(_Op):
+    """A batch's envelope, its ops not read yet."""
+
+    op: Literal["batch"]
+    ops: list[Any] = Field(min_length=1, max_length=MAX_BATCH_OPS)
+
+
+_single_vehicle_adapter: TypeAdapter[Any] = TypeAdapter(_SingleVehicleOp)
+
+
 def parse_vehicle_op(frame: str | bytes) -> Any:
-    """One op of ``/ws/vehicle`` (a :data:`VehicleOp` member), or :class:`FrameError`."""
-    return _parse(_vehicle_adapter, frame)
+    """One op of ``/ws/vehicle`` (a :data:`VehicleOp` member), or :class:`FrameError`
+    (:class:`PartialBatch` for a sound batch some of whose ops are not valid)."""
+    try:
+        return _parse(_vehicle_adapter, frame)
+    except FrameError as whole:
+        raise _partial_batch(frame, whole) or whole from None
+
+
+def _partial_batch(frame: str | bytes, whole: FrameError) -> PartialBatch | None:
+    """The batch's valid ops and the others' refusals, when ``frame`` is a batch whose
+    envelope is sound; None for anything else (the frame is refused whole)."""
+    try:
+        envelope = _BatchFrame.model_validate(json.loads(frame))
+    except (ValueError, RecursionError):  # not JSON, or not a batch (a ValidationError)
+        return None
+    valid: list[Any] = []
+    refused: list[FrameError] = []
+    for inner in envelope.ops:
+        try:
+            valid.append(_parse(_single_vehicle_adapter, json.dumps(inner)))
+        except FrameError as exc:
+            refused.append(exc)
+    if not refused:
+        return None  # every op valid alone: the fault is not in one of them
+    return PartialBatch(whole, BatchOp.model_construct(id=envelope.id, ops=valid), refused)
 
 
 def parse_client_op(frame: str | bytes) -> Any:

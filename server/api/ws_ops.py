@@ -19,6 +19,7 @@ from fleet_protocol.ws import (
     FinishInstanceOp,
     FrameError,
     HeartbeatOp,
+    PartialBatch,
     PublishOp,
     RegisterOp,
     StartInstanceOp,
@@ -97,6 +98,8 @@ class OpRunner:
                 self.hub.touch(self.conn)
             if self._over_rate(None):
                 return None
+            if isinstance(exc, PartialBatch):
+                return self._partial(exc)
             self.conn.outbox.put(exc.reply().frame())
             return None
         kind = type(op)
@@ -170,10 +173,7 @@ class OpRunner:
         counts once)."""
         kind = type(op)  # parsed ops are exactly these classes: no isinstance walk
         if kind is BatchOp:
-            for inner in op.ops:
-                await self.run(inner)
-            if op.id:
-                self.conn.outbox.put(AckPush.success(op.id, {"count": len(op.ops)}).frame())
+            await self._run_batch(op)
             return
         try:
             result = await self.dispatch(op)
@@ -191,6 +191,30 @@ class OpRunner:
                 await self.hub.attach_instance(self.conn, state)
         elif kind is SubscribeOp:
             await self.hub.start_streams(self.conn, op.topics)
+
+    async def _run_batch(self, batch: BatchOp, refused: int = 0) -> None:
+        """A batch's ops, one after the other; its own ``id`` acked with how many ran (and
+        how many were refused, when some were)."""
+        for inner in batch.ops:
+            await self.run(inner)
+        if batch.id:
+            result = {"count": len(batch.ops)}
+            if refused:
+                result["refused"] = refused
+            self.conn.outbox.put(AckPush.success(batch.id, result).frame())
+
+    def _partial(self, exc: PartialBatch) -> Coroutine[Any, Any, None] | None:
+        """A batch some of whose ops are invalid: each of those refused by its own ``id``
+        (an ``error`` push for one without, when others run), the valid ones run. None
+        valid: the frame is refused whole (by the batch's ``id``), as any bad frame."""
+        batch = exc.batch
+        for refusal in exc.refused:
+            if refusal.op_id is not None or batch.ops:
+                self.conn.outbox.put(refusal.reply().frame())
+        if not batch.ops:
+            self.conn.outbox.put(exc.reply().frame())
+            return None
+        return self._run_batch(batch, len(exc.refused))
 
     def _publish_now(self, op: PublishOp) -> None:
         """:meth:`run` for a ``publish`` on a local bus, where nothing waits."""

@@ -20,6 +20,7 @@ from fleet_protocol.ws import (
     FrameError,
     HeartbeatOp,
     LaggingPush,
+    PartialBatch,
     PublishOp,
     RegisterOp,
     RoutesPush,
@@ -95,6 +96,47 @@ def test_a_batch_inside_a_batch_is_refused():
     body = failure(parse_vehicle_op, frame(op="batch", id="b", ops=[{"op": "batch", "ops": []}]))
     assert body["ok"] is False
     assert body["error"]["details"][0]["field"] == "ops.0.op"
+
+
+def test_a_batch_with_some_bad_ops_keeps_the_good_ones_and_refuses_each_bad_one():
+    good = {"op": "update_param", "id": "g", "instance_id": "i-1", "samples": []}
+    bad_ts = {"op": "update_param", "id": "t", "instance_id": "i-1"}
+    bad_ts["samples"] = [{"seq": 1, "ts": "soon", "lat": 1, "lon": 2}]
+    bad_anonymous = {"op": "heartbeat", "instance_id": 5}
+    hb = {"op": "heartbeat", "id": "h", "instance_id": "i-1"}
+    with pytest.raises(PartialBatch) as caught:
+        parse_vehicle_op(frame(op="batch", id="b", ops=[good, bad_ts, hb, bad_anonymous]))
+    partial = caught.value
+    assert [type(op) for op in partial.batch.ops] == [UpdateParamOp, HeartbeatOp]
+    assert [op.id for op in partial.batch.ops] == ["g", "h"]
+    assert partial.batch.id == "b"
+    first, second = (json.loads(r.reply().frame()) for r in partial.refused)
+    assert first["op"] == "ack" and first["id"] == "t" and first["ok"] is False
+    assert first["error"]["details"][0]["field"] == "samples.0.ts"
+    assert second["op"] == "error"  # no id: nothing to ack
+    assert second["error"]["details"][0]["field"] == "instance_id"
+    # As a frame error it is the whole batch's refusal, each field named within the batch.
+    whole = json.loads(partial.reply().frame())
+    assert whole["id"] == "b" and whole["ok"] is False
+    fields = {d["field"] for d in whole["error"]["details"]}
+    assert fields == {"ops.1.samples.0.ts", "ops.3.instance_id"}
+
+
+def test_a_batch_with_no_good_op_or_a_bad_envelope_is_refused_whole():
+    bad = {"op": "heartbeat", "id": "h", "instance_id": 5}
+    with pytest.raises(PartialBatch) as caught:
+        parse_vehicle_op(frame(op="batch", id="b", ops=[bad]))
+    assert caught.value.batch.ops == []
+    assert [r.op_id for r in caught.value.refused] == ["h"]
+    for envelope in (
+        frame(op="batch", id="b", ops="x"),
+        frame(op="batch", id="b", ops=[]),
+        frame(op="batch", id="b" * 100, ops=[bad]),
+        frame(op="batch", id="b", ops=[{"op": "heartbeat", "instance_id": "i-1"}] * 257),
+    ):
+        with pytest.raises(FrameError) as whole:
+            parse_vehicle_op(envelope)
+        assert not isinstance(whole.value, PartialBatch), envelope[:60]
 
 
 def test_client_socket_refuses_vehicle_ops():

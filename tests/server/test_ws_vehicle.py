@@ -204,6 +204,52 @@ async def test_gateway_batches_ops_for_its_vehicles(base: str, api: httpx.AsyncC
         assert acks["b1"]["ok"] is True
 
 
+async def test_one_bad_op_in_a_gateway_batch_does_not_hold_up_the_others(
+    base: str, api: httpx.AsyncClient
+) -> None:
+    v1, _ = await make_vehicle(api)
+    v2, _ = await make_vehicle(api)
+    r = await api.post(
+        "/api/gateways", headers=ADMIN, json={"gateway_id": "gw-part", "vehicles": [v1, v2]}
+    )
+    gw = r.json()["token"]
+    async with await connect(base, "/ws/vehicle", gw) as ws:
+        i1 = await call(ws, "start_instance", "s1", vehicle_id=v1, capabilities=CAPS)
+        i2 = await call(ws, "start_instance", "s2", vehicle_id=v2, capabilities=CAPS)
+        bad = sample(2)
+        bad["ts"] = "not a time"
+        ops = [
+            {
+                "op": "update_param",
+                "id": "u1",
+                "instance_id": i1["instance_id"],
+                "samples": [sample(1)],
+            },
+            {
+                "op": "update_param",
+                "id": "u2",
+                "instance_id": i2["instance_id"],
+                "samples": [sample(1), bad],
+            },
+            {"op": "heartbeat", "id": "h2", "instance_id": i2["instance_id"]},
+        ]
+        await ws.send(json.dumps({"op": "batch", "id": "b1", "ops": ops}))
+        acks = {}
+        while len(acks) < 4:
+            got = await recv_until(ws, lambda f: f["op"] == "ack")
+            acks[got["id"]] = got
+        assert acks["u1"]["ok"] is True and acks["u1"]["accepted"] == 1
+        assert acks["h2"]["ok"] is True
+        assert acks["u2"]["ok"] is False
+        assert acks["u2"]["error"]["details"][0]["field"] == "samples.1.ts"
+        assert acks["b1"]["ok"] is True
+        assert (acks["b1"]["count"], acks["b1"]["refused"]) == (2, 1)
+    r = await api.get(f"/api/vehicles/{v1}/telemetry", headers=ADMIN)
+    assert [s["seq"] for s in r.json()["samples"]] == [1]
+    r = await api.get(f"/api/vehicles/{v2}/telemetry", headers=ADMIN)
+    assert r.json()["samples"] == []  # its op was refused whole, as alone
+
+
 GARBAGE_FRAMES = [
     "",
     "null",
