@@ -30,7 +30,10 @@ def parse_when(text: str, now: datetime | None = None) -> datetime:
     relative = _RELATIVE.match(spoken.replace(" ", ""))
     if relative:
         seconds = sum(float(n) * _UNITS[u] for n, u in _PART.findall(relative.group(1)))
-        return now - timedelta(seconds=seconds)
+        try:
+            return now - timedelta(seconds=seconds)
+        except OverflowError:  # before year 1
+            raise BadTime(f"not a time: {text!r} lies before year 1") from None
     try:
         when = datetime.fromisoformat(text.strip().replace("Z", "+00:00").replace("z", "+00:00"))
     except ValueError:
@@ -38,7 +41,10 @@ def parse_when(text: str, now: datetime | None = None) -> datetime:
             f"not a time: {text!r} (give 30s, 10m, 2h, 1d, 1h30m, now, or ISO 8601 "
             "like 2026-11-22T10:00:00Z)"
         ) from None
-    return when.replace(tzinfo=UTC) if when.tzinfo is None else when.astimezone(UTC)
+    try:
+        return when.replace(tzinfo=UTC) if when.tzinfo is None else when.astimezone(UTC)
+    except OverflowError:  # its offset takes it past year 1 or 9999
+        raise BadTime(f"not a time: {text!r} lies outside years 1 to 9999 in UTC") from None
 
 
 def when_text(text: str | None, now: datetime | None = None) -> str | None:

@@ -52,6 +52,15 @@ def test_iso_times_are_taken_as_given_and_naive_ones_as_utc() -> None:
             parse_when(bad, NOW)
 
 
+@pytest.mark.parametrize(
+    "text",
+    ["0001-01-01T00:00:00+01:00", "9999-12-31T23:59:59-05:00", "100000000d", "99999999999w"],
+)
+def test_a_time_past_what_a_clock_can_hold_is_a_bad_time_not_a_crash(text: str) -> None:
+    with pytest.raises(BadTime, match="not a time"):
+        parse_when(text, NOW)
+
+
 FLEET: list[dict[str, Any]] = [
     {"vehicle_id": "usv-1", "name": "Alpha", "instance_id": "i-1"},
     {"vehicle_id": "usv-2", "name": "Bravo", "instance_id": "i-2"},
