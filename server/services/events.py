@@ -9,6 +9,7 @@ from typing import Any
 from server.domain.access import Principal
 from server.domain.clock import Clock
 from server.domain.events import EventRecorded
+from server.errors import Invalid
 from server.services.messagebus import MessageBus
 from server.storage.events import EventsRepo
 
@@ -59,6 +60,11 @@ class EventService:
     ) -> list[dict[str, Any]]:
         end = end or self.clock() + timedelta(seconds=1)
         start = start or end - timedelta(days=1)
+        if start >= end:  # as a track's window
+            raise Invalid(
+                "from must come before to",
+                details=[{"field": "from", "message": "must be earlier than to"}],
+            )
         if vehicle_id is not None:
             vehicle_ids: list[str] | None = [vehicle_id]
         elif principal.is_admin:

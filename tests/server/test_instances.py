@@ -160,3 +160,23 @@ async def test_events_record_instance_life(client: httpx.AsyncClient) -> None:
     r = await client.get("/api/events", headers=ADMIN, params={"vehicle_id": vid})
     kinds = [(e["kind"], e["data"].get("action")) for e in r.json()["events"]]
     assert ("instance", "started") in kinds
+
+
+async def test_an_events_window_that_ends_before_it_begins_is_422_as_a_tracks(
+    client: httpx.AsyncClient,
+) -> None:
+    vid, vh = await make_vehicle(client)
+    await start_instance(client, vid, vh)
+    for params in (
+        {"from": "2100-01-01T00:00:00Z", "to": "1970-01-01T00:00:00Z"},
+        {"from": "2026-01-01T00:00:00Z", "to": "2026-01-01T00:00:00Z"},
+        {"from": "2099-01-01T00:00:00Z"},  # to: now
+    ):
+        for path in ("/api/events", f"/api/vehicles/{vid}/track"):
+            r = await client.get(path, headers=ADMIN, params=params)
+            assert r.status_code == 422, (path, params, r.text)
+            assert r.json()["error"]["details"] == [
+                {"field": "from", "message": "must be earlier than to"}
+            ]
+    r = await client.get("/api/events", headers=ADMIN, params={"from": "2026-01-01T00:00:00Z"})
+    assert r.status_code == 200 and r.json()["events"]
