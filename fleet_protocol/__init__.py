@@ -17,4 +17,5 @@ from fleet_protocol.obstacles import *  # noqa: F403
 from fleet_protocol.upper import *  # noqa: F403
 from fleet_protocol.values import *  # noqa: F403
 from fleet_protocol.ws import *  # noqa: F403
+from fleet_protocol.ws_frames import *  # noqa: F403
 from fleet_protocol.zones import *  # noqa: F403

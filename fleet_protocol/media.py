@@ -8,7 +8,8 @@ from fleet_protocol.common import Timestamp, WireModel
 from fleet_protocol.errors import ErrorBody
 from fleet_protocol.topics import Topic
 from fleet_protocol.values import Text
-from fleet_protocol.ws import MAX_MEDIA_HEADER_BYTES, FrameError, _error_body
+from fleet_protocol.ws import MAX_MEDIA_HEADER_BYTES
+from fleet_protocol.ws_frames import FrameError, error_body
 
 __all__ = ["MediaHeader", "decode_media_frame", "encode_media_frame"]
 
@@ -38,5 +39,5 @@ def decode_media_frame(frame: bytes) -> tuple[MediaHeader, bytes]:
     try:
         header = MediaHeader.model_validate_json(frame[:end])
     except ValidationError as exc:
-        raise FrameError(_error_body(exc)) from None
+        raise FrameError(error_body(exc)) from None
     return header, frame[end + 1 :]

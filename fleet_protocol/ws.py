@@ -12,10 +12,8 @@ fields are defined once. Ops in:
   publish.
 
 Pushes out: ``ack``, ``error``, ``command``, ``control``, ``event``,
-``routes``, ``lagging``. Parse a text frame with :func:`parse_vehicle_op` or
-:func:`parse_client_op`; a bad frame raises :class:`FrameError`, whose
-:meth:`FrameError.reply` is the push to send back (an ``ack`` with
-``ok: false`` when the frame carried a usable ``id``, else an ``error``).
+``routes``, ``lagging``. A text frame is read into these by
+:mod:`fleet_protocol.ws_frames`.
 
 Binary frames (media topics) are in :mod:`fleet_protocol.media`.
 """
@@ -23,8 +21,7 @@ Binary frames (media topics) are in :mod:`fleet_protocol.media`.
 from __future__ import annotations
 
 import functools
-import json
-from typing import Annotated, Any, ClassVar, Literal, get_args
+from typing import Annotated, Any, ClassVar, Literal
 
 from pydantic import (
     BaseModel,
@@ -32,15 +29,13 @@ from pydantic import (
     Field,
     SerializationInfo,
     SerializerFunctionWrapHandler,
-    TypeAdapter,
-    ValidationError,
     model_serializer,
 )
 from pydantic_core import PydanticSerializationError, to_json
 
 from fleet_protocol.commands import CommandObject
 from fleet_protocol.common import Identifier, Timestamp, WireModel
-from fleet_protocol.errors import ErrorBody, FieldError
+from fleet_protocol.errors import ErrorBody
 from fleet_protocol.topics import Topic
 from fleet_protocol.upper import (
     ControlInfo,
@@ -51,7 +46,7 @@ from fleet_protocol.upper import (
     UpdateFbMessage,
     UpdateParam,
 )
-from fleet_protocol.values import JsonValue, Text, safe_dumps, shown_text
+from fleet_protocol.values import JsonValue, Text, safe_dumps
 
 __all__ = [
     "MAX_BATCH_OPS",
@@ -67,10 +62,8 @@ __all__ = [
     "EventPush",
     "FailsafePush",
     "FinishInstanceOp",
-    "FrameError",
     "HeartbeatOp",
     "LaggingPush",
-    "PartialBatch",
     "PublishOp",
     "Push",
     "RegisterOp",
@@ -81,9 +74,6 @@ __all__ = [
     "UpdateFbMessageOp",
     "UpdateParamOp",
     "VehicleOp",
-    "field_errors",
-    "parse_client_op",
-    "parse_vehicle_op",
 ]
 
 MAX_OP_ID_CHARS = 64
@@ -352,158 +342,3 @@ Push = (
     | RoutesPush
     | LaggingPush
 )
-
-# -- parsing ------------------------------------------------------------------
-
-_vehicle_adapter: TypeAdapter[Any] = TypeAdapter(VehicleOp)
-_client_adapter: TypeAdapter[Any] = TypeAdapter(ClientOp)
-
-
-class FrameError(Exception):
-    """A frame that is not a valid op; :meth:`reply` is what to send back."""
-
-    def __init__(self, error: ErrorBody, op_id: str | None = None) -> None:
-        super().__init__(error.message)
-        self.error = error
-        self.op_id = op_id
-
-    def reply(self) -> AckPush | ErrorPush:
-        if self.op_id is not None:
-            return AckPush.failure(self.op_id, self.error)
-        return ErrorPush(error=self.error)
-
-
-class PartialBatch(FrameError):
-    """A ``batch`` whose envelope is sound but some of whose ops are not valid.
-
-    The batch is taken as its ops sent one after the other: :attr:`batch` holds the
-    valid ones, in order, to be run; :attr:`refused` one :class:`FrameError` per
-    invalid op (its :meth:`~FrameError.reply` acks it by its own ``id``). One bad op in
-    a gateway's batch does not hold the others up (its units' samples among them).
-    As a :class:`FrameError` it is the whole frame's refusal (every field named as in
-    the batch: ``ops.1.samples.0.ts``), the answer when no op is valid.
-    """
-
-    def __init__(self, whole: FrameError, batch: BatchOp, refused: list[FrameError]) -> None:
-        super().__init__(whole.error, whole.op_id)
-        self.batch = batch
-        self.refused = refused
-
-
-class _BatchFrame(_Op):
-    """A batch's envelope, its ops not read yet."""
-
-    op: Literal["batch"]
-    ops: list[Any] = Field(min_length=1, max_length=MAX_BATCH_OPS)
-
-
-_single_vehicle_adapter: TypeAdapter[Any] = TypeAdapter(_SingleVehicleOp)
-
-
-def parse_vehicle_op(frame: str | bytes) -> Any:
-    """One op of ``/ws/vehicle`` (a :data:`VehicleOp` member), or :class:`FrameError`
-    (:class:`PartialBatch` for a sound batch some of whose ops are not valid)."""
-    try:
-        return _parse(_vehicle_adapter, frame)
-    except FrameError as whole:
-        raise _partial_batch(frame, whole) or whole from None
-
-
-def _partial_batch(frame: str | bytes, whole: FrameError) -> PartialBatch | None:
-    """The batch's valid ops and the others' refusals, when ``frame`` is a batch whose
-    envelope is sound; None for anything else (the frame is refused whole)."""
-    try:
-        envelope = _BatchFrame.model_validate(json.loads(frame))
-    except (ValueError, RecursionError):  # not JSON, or not a batch (a ValidationError)
-        return None
-    valid: list[Any] = []
-    refused: list[FrameError] = []
-    for inner in envelope.ops:
-        try:
-            valid.append(_parse(_single_vehicle_adapter, json.dumps(inner)))
-        except FrameError as exc:
-            refused.append(exc)
-    if not refused:
-        return None  # every op valid alone: the fault is not in one of them
-    return PartialBatch(whole, BatchOp.model_construct(id=envelope.id, ops=valid), refused)
-
-
-def parse_client_op(frame: str | bytes) -> Any:
-    """One op of ``/ws/client`` (a :data:`ClientOp` member), or :class:`FrameError`."""
-    return _parse(_client_adapter, frame)
-
-
-def _parse(adapter: TypeAdapter[Any], frame: str | bytes) -> Any:
-    try:
-        # The core validator itself: TypeAdapter.validate_json only adds Python-side checks.
-        return adapter.validator.validate_json(frame)
-    except ValidationError as exc:
-        error = exc
-    if error.errors(include_url=False)[0]["type"] == "json_invalid":
-        error = _python_errors(adapter, frame) or error
-    raise FrameError(_error_body(error), _salvage_id(frame))
-
-
-def _python_errors(adapter: TypeAdapter[Any], frame: str | bytes) -> ValidationError | None:
-    """The errors with their fields for a frame the JSON parser refused but Python's
-    ``json`` reads (a lone surrogate in a string: ``"\\ud800"``), as HTTP sees them."""
-    try:
-        value = json.loads(frame)
-    except (ValueError, RecursionError):
-        return None
-    try:
-        adapter.validator.validate_python(value)
-    except ValidationError as exc:
-        return exc
-    return None
-
-
-def _error_body(exc: ValidationError) -> ErrorBody:
-    if any(err["type"] == "json_invalid" for err in exc.errors(include_url=False)):
-        return ErrorBody(code="invalid", message="the frame is not valid JSON")
-    details = field_errors(exc)
-    summary = "; ".join(f"{d.field}: {d.message}" for d in details[:3])
-    return ErrorBody(code="invalid", message=f"invalid op ({summary})", details=details)
-
-
-def field_errors(exc: ValidationError) -> list[FieldError]:
-    """Each error's field (``samples.0.data.x``; pydantic's union tags left out) and message,
-    never the value itself: what a 422 or a log line may show."""
-    details: list[FieldError] = []
-    for err in exc.errors(include_url=False, include_input=False):
-        loc = [str(part) for part in err["loc"]]
-        # Drop the union tag pydantic inserts ("update_param" in ops.0.update_param.x).
-        field = shown_text(".".join(p for p in loc if p not in _OP_TAGS))
-        message = shown_text(err["msg"].removeprefix("Value error, "))
-        if err["type"] == "union_tag_invalid":
-            field, message = (
-                _join(field, "op"),
-                f"unknown op; expected one of {err['ctx']['expected_tags']}",
-            )
-        elif err["type"] == "union_tag_not_found":
-            field, message = _join(field, "op"), "the frame has no 'op'"
-        elif not field:
-            field = "frame"
-        details.append(FieldError(field=field, message=message))
-    return details
-
-
-_OP_TAGS = frozenset(  # every op's tag: the members of the union, and batch
-    m.model_fields["op"].default for m in (*get_args(get_args(_SingleVehicleOp)[0]), BatchOp)
-)
-
-
-def _join(path: str, name: str) -> str:
-    return f"{path}.{name}" if path else name
-
-
-def _salvage_id(frame: str | bytes) -> str | None:
-    """The frame's ``id``, when it has a usable one, so a failure can be acked."""
-    try:
-        value = json.loads(frame)
-    except (ValueError, RecursionError):  # RecursionError: nested past the stack
-        return None
-    op_id = value.get("id") if isinstance(value, dict) else None
-    if isinstance(op_id, str) and 0 < len(op_id) <= MAX_OP_ID_CHARS and shown_text(op_id) == op_id:
-        return op_id
-    return None

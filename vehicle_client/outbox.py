@@ -44,7 +44,7 @@ from typing import Any
 from pydantic import ValidationError
 
 from fleet_protocol import Sample
-from fleet_protocol.ws import field_errors
+from fleet_protocol.ws_frames import field_errors
 
 log = logging.getLogger(__name__)
 

@@ -17,9 +17,7 @@ from fleet_protocol.ws import (
     BatchOp,
     ErrorPush,
     FinishInstanceOp,
-    FrameError,
     HeartbeatOp,
-    PartialBatch,
     PublishOp,
     RegisterOp,
     StartInstanceOp,
@@ -27,9 +25,8 @@ from fleet_protocol.ws import (
     UnsubscribeOp,
     UpdateFbMessageOp,
     UpdateParamOp,
-    parse_client_op,
-    parse_vehicle_op,
 )
+from fleet_protocol.ws_frames import FrameError, PartialBatch, parse_client_op, parse_vehicle_op
 from server.api.live_hub import Connection, LiveHub
 from server.domain.topics import UnitRef, check_read, check_write, gateways_named, unit_for
 from server.errors import FleetError, Invalid, RateLimited

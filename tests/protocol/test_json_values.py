@@ -32,13 +32,10 @@ from fleet_protocol.topics import validate_topic
 from fleet_protocol.values import check_text, json_problem, json_safe, safe_dumps
 from fleet_protocol.ws import (
     EventPush,
-    FrameError,
     PublishOp,
     _Push,
-    field_errors,
-    parse_client_op,
-    parse_vehicle_op,
 )
+from fleet_protocol.ws_frames import FrameError, field_errors, parse_client_op, parse_vehicle_op
 
 TS = "2026-11-22T10:00:00.000Z"
 

@@ -17,19 +17,16 @@ from fleet_protocol.ws import (
     ControlPush,
     ErrorPush,
     EventPush,
-    FrameError,
     HeartbeatOp,
     LaggingPush,
-    PartialBatch,
     PublishOp,
     RegisterOp,
     RoutesPush,
     StartInstanceOp,
     SubscribeOp,
     UpdateParamOp,
-    parse_client_op,
-    parse_vehicle_op,
 )
+from fleet_protocol.ws_frames import FrameError, PartialBatch, parse_client_op, parse_vehicle_op
 
 TS = "2026-11-22T10:00:00.123Z"
 

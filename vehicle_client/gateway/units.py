@@ -39,14 +39,13 @@ from fleet_protocol.ws import (
     AckPush,
     ErrorPush,
     EventPush,
-    FrameError,
     PublishOp,
     RegisterOp,
     RoutesPush,
     SubscribeOp,
     UnsubscribeOp,
-    parse_client_op,
 )
+from fleet_protocol.ws_frames import FrameError, parse_client_op
 from vehicle_client.errors import AgentError, FatalError
 from vehicle_client.gateway.forwarding import TopicRouter, write_refusal
 from vehicle_client.gateway.unit_queue import DEFAULT_UNIT_QUEUE, UnitQueue
