@@ -20,15 +20,23 @@ import asyncio
 import json
 from collections.abc import AsyncGenerator, Sequence
 from dataclasses import dataclass
-from types import TracebackType
-from typing import Any, Self
 
-import httpx
 import websockets
 
 from fleet_protocol.links import CLOSE_FORBIDDEN, CLOSE_UNAUTHORIZED, websocket_url
+from remote_client.sdk_admin import AdminCalls
+from remote_client.sdk_session import Body, FleetApiError, given
 
-Body = dict[str, Any]
+__all__ = [
+    "AmbiguousName",
+    "Body",
+    "FleetApiError",
+    "FleetClient",
+    "TrackPage",
+    "UnknownVehicle",
+    "pick_vehicle",
+    "shown_status",
+]
 
 #: WebSocket close codes that refuse the token or the socket, as HTTP statuses.
 REFUSING_CLOSE_CODES = {CLOSE_UNAUTHORIZED: 401, CLOSE_FORBIDDEN: 403}
@@ -36,27 +44,6 @@ REFUSING_CLOSE_CODES = {CLOSE_UNAUTHORIZED: 401, CLOSE_FORBIDDEN: 403}
 STATUS_OF_CODE = {
     "unauthorized": 401, "forbidden": 403, "not_found": 404, "invalid": 422, "rate_limited": 429,
 }  # fmt: skip
-
-
-class FleetApiError(Exception):
-    """The server refused a call: its HTTP status and the contract's error envelope."""
-
-    def __init__(
-        self, status: int, code: str, message: str, details: list[dict[str, Any]] | None = None
-    ) -> None:
-        super().__init__(f"{status} {code}: {message}")
-        self.status = status
-        self.code = code
-        self.message = message
-        self.details = details or []
-
-    @classmethod
-    def of(cls, response: httpx.Response) -> FleetApiError:
-        try:
-            error = response.json()["error"]
-            return cls(response.status_code, error["code"], error["message"], error.get("details"))
-        except (ValueError, KeyError, TypeError):
-            return cls(response.status_code, "http_error", response.text[:500])
 
 
 class UnknownVehicle(FleetApiError):
@@ -97,40 +84,8 @@ def shown_status(command: Body) -> str:
     return str(command.get("status"))
 
 
-class FleetClient:
+class FleetClient(AdminCalls):
     """One operator's (or field manager's) session with a fleet-cloud server."""
-
-    def __init__(
-        self,
-        server: str,
-        token: str,
-        *,
-        client: httpx.AsyncClient | None = None,
-        timeout_s: float = 30.0,
-    ) -> None:
-        self.server = server.rstrip("/")
-        self._headers = {"Authorization": f"Bearer {token}"}
-        self._own_client = client is None
-        self._http = client or httpx.AsyncClient(base_url=self.server, timeout=timeout_s)
-
-    async def __aenter__(self) -> Self:
-        return self
-
-    async def __aexit__(
-        self, kind: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
-    ) -> None:
-        await self.aclose()
-
-    async def aclose(self) -> None:
-        if self._own_client:
-            await self._http.aclose()
-
-    async def call(self, method: str, path: str, **kwargs: Any) -> Any:
-        """Any route of the contract: its JSON answer, or :class:`FleetApiError`."""
-        response = await self._http.request(method, path, headers=self._headers, **kwargs)
-        if response.status_code >= 400:
-            raise FleetApiError.of(response)
-        return response.json()
 
     # ---- the fleet -------------------------------------------------------------
     async def vehicles(self) -> Body:
@@ -148,7 +103,7 @@ class FleetClient:
     ) -> Body:
         """``connect_instance``: ``{"instance": {...}}`` of an instance, or of a vehicle's
         current (or latest) one."""
-        body = _given(instance_id=instance_id, vehicle_id=vehicle_id)
+        body = given(instance_id=instance_id, vehicle_id=vehicle_id)
         answer: Body = await self.call("POST", "/client/connect_instance", json=body)
         return answer
 
@@ -273,7 +228,7 @@ class FleetClient:
         limit: int = 1000,
     ) -> Body:
         """``GET /api/events``: ``{"events": [...]}``, oldest first."""
-        query = _given(vehicle_id=vehicle_id, kind=kind, limit=limit)
+        query = given(vehicle_id=vehicle_id, kind=kind, limit=limit)
         query.update({k: v for k, v in (("from", since), ("to", until)) if v})
         body: Body = await self.call("GET", "/api/events", params=query)
         return body
@@ -303,7 +258,7 @@ class FleetClient:
         speed_mps: float | None = None,
         ttl_s: int = 30,
     ) -> Body:
-        args = _given(lat=lat, lon=lon, speed_mps=speed_mps)
+        args = given(lat=lat, lon=lon, speed_mps=speed_mps)
         return await self.submit([instance_id], {"type": "go_to", "args": args}, ttl_s)
 
     async def keep_station(
@@ -316,7 +271,7 @@ class FleetClient:
         ttl_s: int = 30,
     ) -> Body:
         """Hold ``lat, lon`` (both or neither: where each vehicle is) within ``radius_m``."""
-        args = _given(lat=lat, lon=lon, radius_m=radius_m)
+        args = given(lat=lat, lon=lon, radius_m=radius_m)
         return await self.submit(instance_ids, {"type": "keep_station", "args": args}, ttl_s)
 
     async def follow_path(
@@ -330,7 +285,7 @@ class FleetClient:
     ) -> Body:
         """Waypoints as ``(lat, lon)``; ``plan``: the server routes around obstacles."""
         points = [{"lat": lat, "lon": lon} for lat, lon in waypoints]
-        args = _given(waypoints=points, speed_mps=speed_mps, plan=plan or None)
+        args = given(waypoints=points, speed_mps=speed_mps, plan=plan or None)
         return await self.submit([instance_id], {"type": "follow_path", "args": args}, ttl_s)
 
     async def commands(self, instance_id: str) -> Body:
@@ -366,7 +321,7 @@ class FleetClient:
         """The lease ``{holder, granted_by, expires_at, operator_timeout_s}`` (a field
         manager or an admin). With ``operator_timeout_s`` it lapses when the holder's
         client sends no heartbeat (:meth:`keep_leases_alive`) for that long."""
-        body = {"instance_id": instance_id, "user": user, "duration_s": duration_s} | _given(
+        body = {"instance_id": instance_id, "user": user, "duration_s": duration_s} | given(
             operator_timeout_s=operator_timeout_s
         )
         answer: Body = await self.call("POST", "/client/grant_control", json=body)
@@ -374,7 +329,7 @@ class FleetClient:
 
     async def deny_control(self, instance_id: str, user: str, reason: str | None = None) -> Body:
         """Decline ``user``'s pending request for control (a field manager, an admin)."""
-        body = {"instance_id": instance_id, "user": user} | _given(reason=reason)
+        body = {"instance_id": instance_id, "user": user} | given(reason=reason)
         answer: Body = await self.call("POST", "/client/deny_control", json=body)
         return answer
 
@@ -386,111 +341,6 @@ class FleetClient:
 
     async def _on_instance(self, route: str, instance_id: str) -> Body:
         body: Body = await self.call("POST", f"/client/{route}", json={"instance_id": instance_id})
-        return body
-
-    # ---- administration (admins) -----------------------------------------------
-    async def users(self) -> Body:
-        """``{"users": [{username, role, vehicles, disabled, created_at}, ...]}``."""
-        body: Body = await self.call("GET", "/api/users")
-        return body
-
-    async def create_user(
-        self,
-        username: str,
-        role: str,
-        vehicles: Sequence[str] = (),
-        *,
-        password: str | None = None,
-    ) -> Body:
-        """``{username, role, token, vehicles}``: the token is shown this once."""
-        body = _given(username=username, role=role, vehicles=list(vehicles), password=password)
-        answer: Body = await self.call("POST", "/api/users", json=body)
-        return answer
-
-    async def update_user(
-        self,
-        username: str,
-        *,
-        role: str | None = None,
-        vehicles: Sequence[str] | None = None,
-        disabled: bool | None = None,
-        password: str | None = None,
-    ) -> Body:
-        """``PATCH /api/users/{username}``: only the fields given change; the user's view."""
-        listed = list(vehicles) if vehicles is not None else None
-        body = _given(role=role, vehicles=listed, disabled=disabled, password=password)
-        answer: Body = await self.call("PATCH", f"/api/users/{username}", json=body)
-        return answer
-
-    async def create_vehicle(
-        self, vehicle_id: str, name: str = "", vehicle_type: str = "usv"
-    ) -> Body:
-        """``{vehicle_id, token}``: the vehicle's token, shown this once."""
-        body = {"vehicle_id": vehicle_id, "name": name, "vehicle_type": vehicle_type}
-        answer: Body = await self.call("POST", "/api/vehicles", json=body)
-        return answer
-
-    async def gateways(self) -> Body:
-        """``{"gateways": [{gateway_id, vehicles, created_at, active_tokens}, ...]}`` (admin)."""
-        body: Body = await self.call("GET", "/api/gateways")
-        return body
-
-    async def create_gateway(self, gateway_id: str, vehicles: Sequence[str]) -> Body:
-        """``{gateway_id, token, vehicles}``: the gateway's token, shown this once."""
-        body = {"gateway_id": gateway_id, "vehicles": list(vehicles)}
-        answer: Body = await self.call("POST", "/api/gateways", json=body)
-        return answer
-
-    async def rotate_token(self, kind: str, subject: str) -> Body:
-        """A new token for a ``vehicle``, ``gateway`` or ``user``, every former one revoked
-        (the answer of ``POST /api/{kind}s/{subject}/rotate_token``)."""
-        body: Body = await self.call("POST", f"/api/{_plural(kind)}/{subject}/rotate_token")
-        return body
-
-    async def revoke_tokens(self, kind: str, subject: str) -> Body:
-        """Every token of a ``vehicle``, ``gateway`` or ``user`` revoked: ``{"ok": true}``."""
-        body: Body = await self.call("POST", f"/api/{_plural(kind)}/{subject}/revoke_tokens")
-        return body
-
-    # ---- safety: zones, failsafes, operator liveness, the control log --------------
-    async def zones(self) -> Body:
-        """``{"zones": [...], "version"}``: the operating areas and no-go zones."""
-        body: Body = await self.call("GET", "/api/zones")
-        return body
-
-    async def create_zone(
-        self,
-        name: str,
-        kind: str,
-        polygon: Body,
-        vehicles: Sequence[str] = (),
-        clearance_m: float | None = None,
-    ) -> Body:
-        """(admin) A zone: ``kind`` ``no_go`` or ``operating_area``, ``polygon`` GeoJSON."""
-        fields = _given(clearance_m=clearance_m)
-        body: Body = await self.call(
-            "POST",
-            "/api/zones",
-            json={"name": name, "kind": kind, "polygon": polygon, "vehicles": list(vehicles)}
-            | fields,
-        )
-        return body
-
-    async def delete_zone(self, zone_id: str) -> Body:
-        body: Body = await self.call("DELETE", f"/api/zones/{zone_id}")
-        return body
-
-    async def failsafe(self, vehicle_id: str) -> Body:
-        """The vehicle's failsafe policy, and whether its instance applies it."""
-        body: Body = await self.call("GET", f"/api/vehicles/{vehicle_id}/failsafe")
-        return body
-
-    async def set_failsafe(self, vehicle_id: str, **policy: Any) -> Body:
-        """(manager of the vehicle, admin) The whole policy: ``action``, ``after_s``,
-        ``home`` ({lat, lon}), ``on_breach``, ``low_battery_pct``."""
-        body: Body = await self.call(
-            "PUT", f"/api/vehicles/{vehicle_id}/failsafe", json=_given(**policy)
-        )
         return body
 
     async def me(self) -> Body:
@@ -599,18 +449,3 @@ def pick_vehicle(ref: str, fleet: Sequence[Body]) -> Body:
     if not named:
         raise UnknownVehicle(ref)
     return named[0]
-
-
-_KINDS = {"vehicle": "vehicles", "gateway": "gateways", "user": "users"}
-
-
-def _plural(kind: str) -> str:
-    try:
-        return _KINDS[kind]
-    except KeyError:
-        raise ValueError(f"kind is vehicle, gateway or user, not {kind!r}") from None
-
-
-def _given(**fields: Any) -> Body:
-    """The fields that are set (a command's optional ``args`` left out when ``None``)."""
-    return {k: v for k, v in fields.items() if v is not None}

@@ -11,7 +11,7 @@ and ``X-Track-Next-From`` in headers.
 
 from __future__ import annotations
 
-from datetime import datetime, timedelta
+from datetime import timedelta
 from typing import Annotated, Literal
 
 from fastapi import APIRouter, Depends, Path, Query
@@ -22,7 +22,7 @@ from server.api import track_formats
 from server.api.deps import ServicesDep, Viewer
 from server.api.responses import SafeJSONResponse
 from server.domain.track import TRACK_PAGE_CAP
-from server.errors import Invalid
+from server.domain.windows import ordered, window
 
 router = APIRouter(tags=["telemetry"])
 
@@ -44,19 +44,6 @@ From = Annotated[Timestamp | None, Query(alias="from")]
 To = Annotated[Timestamp | None, Query(alias="to")]
 
 
-def _window(
-    start: datetime | None, end: datetime | None, now: datetime
-) -> tuple[datetime, datetime]:
-    end = end or now
-    start = start or end - DEFAULT_WINDOW
-    if start >= end:
-        raise Invalid(
-            "from must come before to",
-            details=[{"field": "from", "message": "must be earlier than to"}],
-        )
-    return start, end
-
-
 @router.get("/api/vehicles/{vehicle_id}/track", response_model=Track)
 async def track(
     vehicle_id: VisibleVehicle,
@@ -66,7 +53,7 @@ async def track(
     max_points: Annotated[int | None, Query(ge=2, le=TRACK_PAGE_CAP)] = None,
     fmt: Annotated[Literal["json", "geojson", "gpx", "csv"], Query(alias="format")] = "json",
 ) -> Response:
-    start, end = _window(start, end, s.clock())
+    start, end = window(start, end, s.clock(), DEFAULT_WINDOW)
     result = await s.telemetry.track(vehicle_id, start, end, max_points)
     headers = track_formats.paging_headers(result)
     media = track_formats.MEDIA_TYPES.get(fmt)
@@ -94,8 +81,7 @@ async def telemetry(
     after_seq: Annotated[int, Query(ge=-1, le=2**62)] = -1,
     limit: Annotated[int, Query(ge=1, le=MAX_PAGE)] = 1000,
 ) -> TelemetryPage:
-    if start is not None and end is not None and start >= end:
-        _window(start, end, s.clock())
+    ordered(start, end)
     samples, next_after = await s.telemetry.page(
         vehicle_id, after_seq=after_seq, start=start, end=end, limit=limit
     )

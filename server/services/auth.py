@@ -11,36 +11,27 @@ whose tokens it issues and revokes.
 from __future__ import annotations
 
 import contextlib
-from collections.abc import Callable
+import functools
 from datetime import datetime
 from typing import Any
 
 from fleet_protocol import CreateGateway, CreateUser, CreateVehicle, PatchUser, utcnow
 from server.domain.access import Principal
-from server.domain.clock import Clock
 from server.domain.events import UserChanged
 from server.errors import Conflict, Invalid, NotFound
 from server.services.logins import Logins
-from server.services.messagebus import MessageBus
 from server.services.tokens import Tokens, digest
-from server.settings import Settings
-from server.storage.accounts import AccountsRepo
 from server.storage.backends import Duplicate
 
 BOOTSTRAP_ADMIN = "admin"
 
 
 class AuthService(Tokens):
-    def __init__(
-        self,
-        settings: Settings,
-        repo: AccountsRepo,
-        messages: MessageBus,
-        news_flows: Callable[[], bool] = lambda: True,
-        clock: Clock = utcnow,
-    ) -> None:
-        super().__init__(settings, repo, messages, news_flows, clock)
-        self.logins = Logins(settings, repo, clock)
+    """Built as :class:`Tokens` is (the same arguments); :attr:`logins` made from them."""
+
+    @functools.cached_property
+    def logins(self) -> Logins:
+        return Logins(self.settings, self.repo, self.clock)
 
     async def load(self) -> None:
         await self.repo.ensure_indexes()

@@ -9,7 +9,7 @@ from typing import Any
 from server.domain.access import Principal
 from server.domain.clock import Clock
 from server.domain.events import EventRecorded
-from server.errors import Invalid
+from server.domain.windows import ordered
 from server.services.messagebus import MessageBus
 from server.storage.events import EventsRepo
 
@@ -58,11 +58,7 @@ class EventService:
         end: datetime | None,
         limit: int,
     ) -> list[dict[str, Any]]:
-        if start is not None and end is not None and start >= end:  # as a track's window
-            raise Invalid(
-                "from must come before to",
-                details=[{"field": "from", "message": "must be earlier than to"}],
-            )
+        ordered(start, end)
         # A ``from`` still to come, with no ``to``, finds nothing (a client following
         # the log from its own clock, a little ahead of the server's, is not refused).
         end = end or self.clock() + timedelta(seconds=1)

@@ -173,14 +173,20 @@ async def test_revoked_token_closes_the_open_socket(base: str, api: httpx.AsyncC
         assert await _close_code(ws) == 4401
 
 
+async def _gateway(api: httpx.AsyncClient, gateway_id: str, vehicles: list[str]) -> str:
+    """A gateway for ``vehicles``: its token."""
+    r = await api.post(
+        "/api/gateways", headers=ADMIN, json={"gateway_id": gateway_id, "vehicles": vehicles}
+    )
+    assert r.status_code == 201, r.text
+    return str(r.json()["token"])
+
+
 async def test_gateway_batches_ops_for_its_vehicles(base: str, api: httpx.AsyncClient) -> None:
     v1, _ = await make_vehicle(api)
     v2, _ = await make_vehicle(api)
     v3, _ = await make_vehicle(api)
-    r = await api.post(
-        "/api/gateways", headers=ADMIN, json={"gateway_id": "gw-ws", "vehicles": [v1, v2]}
-    )
-    gw = r.json()["token"]
+    gw = await _gateway(api, "gw-ws", [v1, v2])
     async with await connect(base, "/ws/vehicle", gw) as ws:
         await ws.send(
             json.dumps(
@@ -209,10 +215,7 @@ async def test_one_bad_op_in_a_gateway_batch_does_not_hold_up_the_others(
 ) -> None:
     v1, _ = await make_vehicle(api)
     v2, _ = await make_vehicle(api)
-    r = await api.post(
-        "/api/gateways", headers=ADMIN, json={"gateway_id": "gw-part", "vehicles": [v1, v2]}
-    )
-    gw = r.json()["token"]
+    gw = await _gateway(api, "gw-part", [v1, v2])
     async with await connect(base, "/ws/vehicle", gw) as ws:
         i1 = await call(ws, "start_instance", "s1", vehicle_id=v1, capabilities=CAPS)
         i2 = await call(ws, "start_instance", "s2", vehicle_id=v2, capabilities=CAPS)

@@ -1,0 +1,74 @@
+"""The SDK's session with a server: one HTTP client, the token, a call and its refusal."""
+
+from __future__ import annotations
+
+from types import TracebackType
+from typing import Any, Self
+
+import httpx
+
+Body = dict[str, Any]
+
+__all__ = ["Body", "FleetApiError", "Session", "given"]
+
+
+class FleetApiError(Exception):
+    """The server refused a call: its HTTP status and the contract's error envelope."""
+
+    def __init__(
+        self, status: int, code: str, message: str, details: list[dict[str, Any]] | None = None
+    ) -> None:
+        super().__init__(f"{status} {code}: {message}")
+        self.status = status
+        self.code = code
+        self.message = message
+        self.details = details or []
+
+    @classmethod
+    def of(cls, response: httpx.Response) -> FleetApiError:
+        try:
+            error = response.json()["error"]
+            return cls(response.status_code, error["code"], error["message"], error.get("details"))
+        except (ValueError, KeyError, TypeError):
+            return cls(response.status_code, "http_error", response.text[:500])
+
+
+class Session:
+    """One HTTP client to a server with a token: :meth:`call` any route of the contract."""
+
+    def __init__(
+        self,
+        server: str,
+        token: str,
+        *,
+        client: httpx.AsyncClient | None = None,
+        timeout_s: float = 30.0,
+    ) -> None:
+        self.server = server.rstrip("/")
+        self._headers = {"Authorization": f"Bearer {token}"}
+        self._own_client = client is None
+        self._http = client or httpx.AsyncClient(base_url=self.server, timeout=timeout_s)
+
+    async def __aenter__(self) -> Self:
+        return self
+
+    async def __aexit__(
+        self, kind: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        await self.aclose()
+
+    async def aclose(self) -> None:
+        if self._own_client:
+            await self._http.aclose()
+
+    async def call(self, method: str, path: str, **kwargs: Any) -> Any:
+        """Any route of the contract: its JSON answer, or :class:`FleetApiError`."""
+        response = await self._http.request(method, path, headers=self._headers, **kwargs)
+        if response.status_code >= 400:
+            raise FleetApiError.of(response)
+        return response.json()
+
+
+def given(**fields: Any) -> Body:
+    """The fields that are set (a command's optional ``args`` left out when ``None``)."""
+    return {k: v for k, v in fields.items() if v is not None}
