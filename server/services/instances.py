@@ -260,8 +260,10 @@ class InstanceService:
         state.last_seen = self.clock() if now is None else now
         state.moved = True
 
-    def merge_params(self, state: InstanceState, params: dict[str, Any]) -> None:
-        """Shallow merge; ``null`` deletes a key."""
+    def merge_params(
+        self, state: InstanceState, params: dict[str, Any], now: datetime | None = None
+    ) -> None:
+        """Shallow merge; ``null`` deletes a key. ``now``: the call's time (else the clock's)."""
         if not params:
             return
         for key, value in params.items():
@@ -269,7 +271,7 @@ class InstanceService:
                 state.params.pop(key, None)
             else:
                 state.params[key] = value
-        state.params_updated_at = self.clock()
+        state.params_updated_at = self.clock() if now is None else now
         state.dirty = True
 
     def set_position(

@@ -182,7 +182,7 @@ class VehicleLink:
     ) -> None:
         if body.sent_at is not None:
             self._timed(state, body, arrived, transport)
-        self.instances.merge_params(state, body.params)
+        self.instances.merge_params(state, body.params, arrived)
 
     def _after_ingest(
         self, state: InstanceState, result: IngestResult, arrived: datetime

@@ -218,36 +218,42 @@ class TelemetryService(TelemetryViews):
 
     def _accept(self, vehicle_id: str, state: _Vehicle, samples: list[Sample]) -> IngestResult:
         """Take the new samples into the open bucket (synchronous: the caller holds the turn)."""
-        before = state.latest
-        stale_before = self.clock() - self._offline_after
         result = IngestResult(0, 0, -1, -1, None)
         high = state.high
+        stored = result.stored
         for sample in samples:
             if sample.seq <= high:
                 result.duplicates += 1
                 continue
             high = sample.seq
-            result.stored.append(sample)
-        docs = _stored(result.stored)
+            stored.append(sample)
         state.high = high
-        for sample, doc in zip(result.stored, docs, strict=True):
-            if not state.pending:
-                self._open(vehicle_id, state)
-            state.pending.append(doc)
-            state.pending_bytes += _size(doc)
-            latest = state.latest
-            latest_ts = latest["ts"] if latest is not None else None
-            result.replayed.append(
-                (latest_ts is not None and sample.ts < latest_ts) or sample.ts < stale_before
-            )
-            if latest_ts is None or sample.ts >= latest_ts:
-                state.latest = doc
-                result.latest, result.latest_doc = sample, doc
-        result.accepted = len(result.stored)
-        result.acked_through_seq = state.high
+        result.accepted = len(stored)
+        result.acked_through_seq = high
         result.durable_through_seq = state.durable
-        if state.latest is before:
-            result.latest = result.latest_doc = None
+        if not stored:
+            return result
+        # The same instant in the samples' own tzinfo: two datetimes of one tzinfo are
+        # compared without a call to either's utcoffset (one per sample saved).
+        stale_before = self.clock() - self._offline_after
+        if (tz := stored[0].ts.tzinfo) is not None:
+            stale_before = stale_before.astimezone(tz)
+        pending, replayed = state.pending, result.replayed
+        if not pending:
+            self._open(vehicle_id, state)
+        latest = state.latest
+        latest_ts = latest["ts"] if latest is not None else None
+        added = 0
+        for sample, doc in zip(stored, _stored(stored), strict=True):
+            pending.append(doc)
+            added += _size(doc) if "data" in doc else _SAMPLE_BYTES
+            ts = sample.ts
+            replayed.append((latest_ts is not None and ts < latest_ts) or ts < stale_before)
+            if latest_ts is None or ts >= latest_ts:
+                latest, latest_ts = doc, ts
+                result.latest, result.latest_doc = sample, doc
+        state.pending_bytes += added
+        state.latest = latest
         return result
 
     def _full(self, state: _Vehicle) -> bool:
@@ -259,6 +265,8 @@ class TelemetryService(TelemetryViews):
     def _chunk(self, state: _Vehicle) -> tuple[list[Doc], int]:
         """The oldest pending samples that make one bucket (by count and bytes)."""
         cap, max_bytes = self.settings.bucket_samples, self.settings.bucket_max_bytes
+        if len(state.pending) <= cap and state.pending_bytes <= max_bytes:
+            return state.pending[:], state.pending_bytes  # all of it: the common case
         size = 0
         for i, doc in enumerate(state.pending[:cap]):
             grown = size + _size(doc)
