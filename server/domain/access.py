@@ -2,9 +2,10 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from datetime import datetime
-from typing import Literal
+from typing import Any, Literal
 
 PrincipalKind = Literal["user", "vehicle", "gateway"]
 ROLE_RANK = {"viewer": 0, "operator": 1, "manager": 2, "admin": 3}
@@ -44,3 +45,15 @@ class Principal:
 
     def label(self) -> str:
         return self.name if self.kind == "user" else f"{self.kind}:{self.name}"
+
+
+def enabled_admin(user: Mapping[str, Any]) -> bool:
+    """Whether a stored user is an admin who can sign in."""
+    return user.get("role") == "admin" and not user.get("disabled")
+
+
+def unseats_admin(user: Mapping[str, Any], role: str | None, disabled: bool | None) -> bool:
+    """Whether a change of ``role`` or ``disabled`` (None: unchanged) leaves an enabled
+    admin without the admin's rights. The last one may not lose them: nobody could
+    give them back."""
+    return enabled_admin(user) and ((role is not None and role != "admin") or bool(disabled))

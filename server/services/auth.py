@@ -12,11 +12,12 @@ from __future__ import annotations
 
 import contextlib
 import functools
+import logging
 from datetime import datetime
 from typing import Any
 
 from fleet_protocol import CreateGateway, CreateUser, CreateVehicle, PatchUser, utcnow
-from server.domain.access import Principal
+from server.domain.access import Principal, enabled_admin, unseats_admin
 from server.domain.events import UserChanged
 from server.errors import Conflict, Invalid, NotFound
 from server.services.logins import Logins
@@ -24,6 +25,8 @@ from server.services.tokens import Tokens, digest
 from server.storage.backends import Duplicate
 
 BOOTSTRAP_ADMIN = "admin"
+
+log = logging.getLogger("fleet.auth")
 
 
 class AuthService(Tokens):
@@ -51,6 +54,7 @@ class AuthService(Tokens):
                         "created_at": utcnow(),
                     }
                 )
+        await self._keep_an_admin()
         given = self.settings.admin_token
         if given is not None:
             token = given.get_secret_value()
@@ -65,6 +69,14 @@ class AuthService(Tokens):
         # No token given: each start revokes the former printed one and prints a new one.
         await self._revoke({"subject": BOOTSTRAP_ADMIN, "purpose": "bootstrap"})
         return await self._issue("user", BOOTSTRAP_ADMIN, purpose="bootstrap")
+
+    async def _keep_an_admin(self) -> None:
+        """With no enabled admin left (a store from an older version let the last one be
+        demoted or disabled), the bootstrap admin is an enabled admin again."""
+        if any(enabled_admin(user) for user in await self.repo.all_users()):
+            return
+        await self.repo.update_user(BOOTSTRAP_ADMIN, {"role": "admin", "disabled": False})
+        log.warning("no enabled admin was left: %r is one again", BOOTSTRAP_ADMIN)
 
     # ---- login --------------------------------------------------------
     async def login(self, username: str, password: str, address: str | None) -> tuple[str, int]:
@@ -190,7 +202,12 @@ class AuthService(Tokens):
         from ``/auth/token``) but the one ``actor`` made this call with; the API token
         stays. A change of role, vehicles or ``disabled`` goes out as
         :class:`~server.domain.events.UserChanged` (leases the user may no longer hold end)."""
-        await self.get_user(username)
+        user = await self.get_user(username)
+        if unseats_admin(user, body.role, body.disabled) and not await self._other_admin(username):
+            raise Conflict(
+                f"{username} is the last enabled admin: make another user admin first",
+                code="last_admin",
+            )
         fields: dict[str, Any] = body.model_dump(exclude_none=True, exclude={"password"})
         if body.vehicles is not None:
             await self._require_vehicles(body.vehicles)
@@ -205,6 +222,12 @@ class AuthService(Tokens):
         if body.role is not None or body.vehicles is not None or body.disabled is not None:
             await self.messages.emit(UserChanged(username, actor))
         return await self.get_user(username)
+
+    async def _other_admin(self, username: str) -> bool:
+        return any(
+            enabled_admin(user) and user["username"] != username
+            for user in await self.repo.all_users()
+        )
 
     async def _end_sessions(self, username: str, keep: Principal | None) -> None:
         """Revoke the user's session tokens, but the one ``keep`` holds if it is theirs."""

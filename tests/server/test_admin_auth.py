@@ -190,3 +190,45 @@ async def test_admin_token_from_the_environment_survives_revocation_and_restart(
             r = await c.post("/api/users/admin/revoke_tokens", headers=ADMIN)
             assert r.status_code == 200
             assert (await c.get("/api/users", headers=ADMIN)).status_code == 401
+
+
+async def test_the_last_enabled_admin_cannot_be_demoted_or_disabled(
+    client: httpx.AsyncClient,
+) -> None:
+    for change in ({"role": "viewer"}, {"disabled": True}):
+        r = await client.patch("/api/users/admin", headers=ADMIN, json=change)
+        assert r.status_code == 409, r.text
+        assert r.json()["error"]["code"] == "last_admin"
+    assert (await client.get("/api/users/admin", headers=ADMIN)).json()["role"] == "admin"
+    # With a second admin, the first may step down; the second is then the last one.
+    second, second_headers = await make_user(client, "admin")
+    r = await client.patch("/api/users/admin", headers=ADMIN, json={"role": "operator"})
+    assert r.status_code == 200 and r.json()["role"] == "operator"
+    r = await client.patch(f"/api/users/{second}", headers=second_headers, json={"disabled": True})
+    assert r.status_code == 409
+    r = await client.patch("/api/users/admin", headers=second_headers, json={"role": "admin"})
+    assert r.status_code == 200
+
+
+async def test_a_store_left_without_an_admin_gets_its_admin_back_at_start(
+    make_settings: object,
+) -> None:
+    """A store in which the last admin was disabled (as an older version allowed): the
+    next start makes the bootstrap admin an enabled admin again."""
+    from asgi_lifespan import LifespanManager
+
+    from server.app import create_app
+
+    settings = make_settings()  # type: ignore[operator]
+    app = create_app(settings)
+    async with LifespanManager(app):
+        accounts = app.state.services.auth.repo
+        await accounts.update_user("admin", {"role": "viewer", "disabled": True})
+    app = create_app(settings)
+    async with (
+        LifespanManager(app) as m,
+        httpx.AsyncClient(transport=httpx.ASGITransport(app=m.app), base_url="http://t") as c,
+    ):
+        r = await c.get("/api/users/admin", headers=ADMIN)
+        assert r.status_code == 200
+        assert r.json()["role"] == "admin" and r.json()["disabled"] is False
