@@ -7,7 +7,7 @@ from typing import Literal
 from pydantic import Field
 
 from fleet_protocol.common import Identifier, Timestamp, WireModel
-from fleet_protocol.values import Text
+from fleet_protocol.values import Label, Text
 
 __all__ = [
     "CallerView",
@@ -35,8 +35,8 @@ ROLE_RANK = {"viewer": 0, "operator": 1, "manager": 2, "admin": 3}
 
 class CreateVehicle(WireModel):
     vehicle_id: Identifier
-    name: Text = Field(default="", max_length=128)
-    vehicle_type: Text = Field(default="usv", min_length=1, max_length=32)
+    name: Label = Field(default="", max_length=128)
+    vehicle_type: Label = Field(default="usv", min_length=1, max_length=32)
 
 
 class VehicleCreated(WireModel):

@@ -7,7 +7,7 @@ from typing import Literal
 from pydantic import Field, field_validator
 
 from fleet_protocol.common import Latitude, Longitude, Timestamp, WireModel
-from fleet_protocol.values import Text
+from fleet_protocol.values import Label, Text
 
 __all__ = [
     "MAX_OBSTACLE_VERTICES",
@@ -52,7 +52,7 @@ class PolygonGeometry(WireModel):
 
 
 class CreateObstacle(WireModel):
-    name: Text = Field(min_length=1, max_length=128)
+    name: Label = Field(min_length=1, max_length=128)
     polygon: PolygonGeometry
     clearance_m: float | None = Field(
         default=None,

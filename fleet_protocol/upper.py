@@ -8,7 +8,7 @@ from pydantic import Field
 
 from fleet_protocol.commands import ACK_STATUSES, CommandObject, CommandType
 from fleet_protocol.common import Identifier, LatLon, Sample, Timestamp, WireModel
-from fleet_protocol.values import Params, Text
+from fleet_protocol.values import Label, Params, Text
 
 __all__ = [
     "MAX_CLOCK_OFFSET_S",
@@ -105,8 +105,10 @@ class StartInstance(WireModel):
     ``MAX_PARAMS`` entries (``docs/limits.md``)."""
 
     vehicle_id: Identifier
-    name: Text = Field(default="", max_length=128)
-    vehicle_type: Text = Field(default="usv", min_length=1, max_length=32)
+    #: Empty: the name the vehicle has (as registered, or as its last start gave it).
+    name: Label = Field(default="", max_length=128)
+    #: None: the type it has (as registered, or as its last start gave it).
+    vehicle_type: Label | None = Field(default=None, min_length=1, max_length=32)
     capabilities: list[CommandType] = Field(default_factory=list, max_length=16)
     params: Params = Field(default_factory=dict)
 

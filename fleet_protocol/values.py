@@ -320,6 +320,22 @@ def check_text(value: str) -> str:
 #: A ``str`` field: no lone surrogates (pydantic's plain ``str`` lets them through).
 Text = Annotated[str, AfterValidator(check_text)]
 
+#: Control characters (C0, DEL, C1): a terminal obeys them rather than showing them.
+_CONTROL = re.compile("[\x00-\x1f\x7f-\x9f]")
+
+
+def check_label(value: str) -> str:
+    if _CONTROL.search(value) is not None:
+        raise PydanticCustomError(
+            "string_control", "a name is shown on screens: no control characters"
+        )
+    return value
+
+
+#: A name people read on a console or a terminal (a vehicle's, an obstacle's): ``Text``
+#: without control characters (NUL, escape sequences, line breaks).
+Label = Annotated[str, AfterValidator(check_text), AfterValidator(check_label)]
+
 
 # -- the other way: stored values that break a rule, made safe to send --------
 

@@ -206,7 +206,8 @@ class InstanceService:
         if resumed:
             if body.name:
                 state.name = body.name
-            state.vehicle_type = body.vehicle_type
+            if body.vehicle_type:
+                state.vehicle_type = body.vehicle_type
             state.capabilities = list(body.capabilities)
             self.merge_params(state, body.params)
             await self._write(state, time.monotonic(), whole=True)
@@ -238,7 +239,7 @@ class InstanceService:
                 instance_id="i-" + secrets.token_hex(8),
                 vehicle_id=vehicle_id,
                 name=body.name or meta.get("name") or vehicle_id,
-                vehicle_type=body.vehicle_type,
+                vehicle_type=body.vehicle_type or meta.get("vehicle_type") or "usv",
                 capabilities=list(body.capabilities),
                 started_at=now,
                 params=dict(body.params),

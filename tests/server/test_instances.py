@@ -182,3 +182,36 @@ async def test_an_events_window_that_ends_before_it_begins_is_422_as_a_tracks(
     # A from still to come and no to: nothing yet (a log followed by a clock a little ahead).
     r = await client.get("/api/events", headers=ADMIN, params={"from": "2099-01-01T00:00:00Z"})
     assert r.status_code == 200 and r.json()["events"] == []
+
+
+async def test_a_start_without_a_type_keeps_the_registered_one(client: httpx.AsyncClient) -> None:
+    vid, vh = await make_vehicle(client, vehicle_type="auv")
+
+    async def shown_type() -> str:
+        r = await client.get(f"/api/vehicles/{vid}", headers=ADMIN)
+        assert r.status_code == 200, r.text
+        return str(r.json()["vehicle_type"])
+
+    for _ in range(2):  # a new instance, then the same one resumed
+        r = await client.post("/upper/start_instance", headers=vh, json={"vehicle_id": vid})
+        assert r.status_code == 200, r.text
+        assert await shown_type() == "auv"
+    r = await client.post(
+        "/upper/start_instance", headers=vh, json={"vehicle_id": vid, "vehicle_type": "rov"}
+    )
+    assert r.status_code == 200 and await shown_type() == "rov"
+
+
+@pytest.mark.parametrize("name", ["\x1b[2J\x1b[31mHACKED", "a\x00b", "two\nlines", "c1\x9bx"])
+async def test_a_name_with_control_characters_is_422(client: httpx.AsyncClient, name: str) -> None:
+    vid, vh = await make_vehicle(client)
+    r = await client.post(
+        "/upper/start_instance", headers=vh, json={"vehicle_id": vid, "name": name}
+    )
+    assert r.status_code == 422, r.text
+    assert [d["field"] for d in r.json()["error"]["details"]] == ["name"]
+    r = await client.post(
+        "/api/vehicles", headers=ADMIN, json={"vehicle_id": "ctl-1", "name": name}
+    )
+    assert r.status_code == 422, r.text
+    assert [d["field"] for d in r.json()["error"]["details"]] == ["name"]
