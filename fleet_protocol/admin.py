@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Literal
 
-from pydantic import Field
+from pydantic import Field, StrictBool
 
 from fleet_protocol.common import Identifier, Timestamp, WireModel
 from fleet_protocol.values import Label, Text
@@ -107,7 +107,7 @@ class UserList(WireModel):
 class PatchUser(WireModel):
     role: Role | None = None
     vehicles: list[Identifier] | None = Field(default=None, max_length=10000)
-    disabled: bool | None = None
+    disabled: StrictBool | None = None
     password: Text | None = Field(default=None, min_length=1, max_length=256)
 
 

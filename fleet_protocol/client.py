@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Literal
 
-from pydantic import Field, ValidationInfo, field_validator, model_validator
+from pydantic import Field, StrictInt, ValidationInfo, field_validator, model_validator
 
 from fleet_protocol.commands import CommandObject, CommandSpec
 from fleet_protocol.common import Identifier, Sample, Timestamp, WireModel
@@ -71,7 +71,7 @@ class GetParamResult(WireModel):
 class SubmitControl(WireModel):
     instance_ids: list[Text] = Field(min_length=1, max_length=1000)
     command: CommandSpec
-    ttl_s: int = Field(default=30, ge=1, le=3600)
+    ttl_s: StrictInt = Field(default=30, ge=1, le=3600)
 
     @field_validator("instance_ids")
     @classmethod
@@ -122,10 +122,10 @@ class ControlRequestList(WireModel):
 
 class GrantControl(InstanceRef):
     user: Identifier
-    duration_s: int = Field(ge=1, le=86400)
+    duration_s: StrictInt = Field(ge=1, le=86400)
     #: The lease lapses (and the vehicle holds station) when the holder's client sends no
     #: ``POST /client/heartbeat`` for this long; unset: it runs to its expiry.
-    operator_timeout_s: int | None = Field(default=None, ge=2, le=3600)
+    operator_timeout_s: StrictInt | None = Field(default=None, ge=2, le=3600)
 
 
 class DenyControl(InstanceRef):

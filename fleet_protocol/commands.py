@@ -6,7 +6,7 @@ import hashlib
 from collections.abc import Mapping, Sequence
 from typing import Literal, get_args
 
-from pydantic import Field, ValidationError, model_validator
+from pydantic import Field, StrictBool, StrictFloat, ValidationError, model_validator
 
 from fleet_protocol.common import Latitude, LatLon, Longitude, Timestamp, WireModel
 from fleet_protocol.values import JsonObject, ServedObject, Text
@@ -59,13 +59,13 @@ class StopArgs(WireModel):
 class GoToArgs(WireModel):
     lat: Latitude
     lon: Longitude
-    speed_mps: float | None = Field(default=None, gt=0, le=50, allow_inf_nan=False)
+    speed_mps: StrictFloat | None = Field(default=None, gt=0, le=50, allow_inf_nan=False)
 
 
 class KeepStationArgs(WireModel):
     lat: Latitude | None = None
     lon: Longitude | None = None
-    radius_m: float = Field(default=2.0, gt=0, le=10_000, allow_inf_nan=False)
+    radius_m: StrictFloat = Field(default=2.0, gt=0, le=10_000, allow_inf_nan=False)
 
     @model_validator(mode="after")
     def _both_or_neither(self) -> KeepStationArgs:
@@ -76,8 +76,8 @@ class KeepStationArgs(WireModel):
 
 class FollowPathArgs(WireModel):
     waypoints: list[LatLon] = Field(min_length=1, max_length=MAX_WAYPOINTS)
-    speed_mps: float | None = Field(default=None, gt=0, le=50, allow_inf_nan=False)
-    plan: bool = False
+    speed_mps: StrictFloat | None = Field(default=None, gt=0, le=50, allow_inf_nan=False)
+    plan: StrictBool = False
     #: The planned path, filled in by the server when ``plan`` is true.
     path: list[LatLon] | None = None
     #: The hash of the route the vehicle is to follow (``path`` if planned, else the
@@ -118,7 +118,7 @@ class CommandSpec(WireModel):
     type: CommandType
     #: Checked as a free-form object first, then by the type's model (``ARGS_MODELS``).
     args: JsonObject = Field(default_factory=dict)
-    max_drift_m: float | None = Field(default=None, gt=0, le=1_000_000, allow_inf_nan=False)
+    max_drift_m: StrictFloat | None = Field(default=None, gt=0, le=1_000_000, allow_inf_nan=False)
 
     @model_validator(mode="after")
     def _validate_args(self) -> CommandSpec:

@@ -14,6 +14,8 @@ from pydantic import (
     Field,
     GetPydanticSchema,
     PlainSerializer,
+    StrictFloat,
+    StrictInt,
     WithJsonSchema,
 )
 from pydantic_core import core_schema
@@ -137,8 +139,8 @@ Timestamp = Annotated[
     ),
 ]
 Identifier = Annotated[str, Field(pattern=ID_PATTERN, examples=["usv-1"])]
-Latitude = Annotated[float, Field(ge=-90, le=90, allow_inf_nan=False)]
-Longitude = Annotated[float, Field(ge=-180, le=180, allow_inf_nan=False)]
+Latitude = Annotated[StrictFloat, Field(ge=-90, le=90, allow_inf_nan=False)]
+Longitude = Annotated[StrictFloat, Field(ge=-180, le=180, allow_inf_nan=False)]
 
 
 class WireModel(BaseModel):
@@ -167,14 +169,14 @@ class Sample(WireModel):
     ``$``, ``.`` or NUL, nesting at most ``MAX_JSON_DEPTH``: ``docs/limits.md``).
     """
 
-    seq: int = Field(ge=1, le=2**62, description="per vehicle, rising; 0 means none yet")
+    seq: StrictInt = Field(ge=1, le=2**62, description="per vehicle, rising; 0 means none yet")
     ts: Timestamp
     lat: Latitude
     lon: Longitude
-    depth_m: float | None = Field(default=None, allow_inf_nan=False)
-    heading_deg: float | None = Field(default=None, ge=0, le=360, allow_inf_nan=False)
-    speed_mps: float | None = Field(default=None, ge=0, le=200, allow_inf_nan=False)
-    battery_pct: float | None = Field(default=None, ge=0, le=100, allow_inf_nan=False)
+    depth_m: StrictFloat | None = Field(default=None, allow_inf_nan=False)
+    heading_deg: StrictFloat | None = Field(default=None, ge=0, le=360, allow_inf_nan=False)
+    speed_mps: StrictFloat | None = Field(default=None, ge=0, le=200, allow_inf_nan=False)
+    battery_pct: StrictFloat | None = Field(default=None, ge=0, le=100, allow_inf_nan=False)
     data: SampleData = None
 
     @classmethod

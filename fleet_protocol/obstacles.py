@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Literal
 
-from pydantic import Field, field_validator
+from pydantic import Field, StrictFloat, field_validator
 
 from fleet_protocol.common import Latitude, Longitude, Timestamp, WireModel
 from fleet_protocol.values import Label, Text
@@ -54,7 +54,7 @@ class PolygonGeometry(WireModel):
 class CreateObstacle(WireModel):
     name: Label = Field(min_length=1, max_length=128)
     polygon: PolygonGeometry
-    clearance_m: float | None = Field(
+    clearance_m: StrictFloat | None = Field(
         default=None,
         ge=0,
         le=10_000,

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Literal
 
-from pydantic import Field
+from pydantic import Field, StrictBool, StrictFloat, StrictInt
 
 from fleet_protocol.commands import ACK_STATUSES, CommandObject, CommandType
 from fleet_protocol.common import Identifier, LatLon, Sample, Timestamp, WireModel
@@ -69,23 +69,23 @@ class FailsafePolicy(WireModel):
     with each change; the vehicle acknowledges the version it applies.
     """
 
-    after_s: float = Field(default=30.0, gt=0, le=86_400, allow_inf_nan=False)
+    after_s: StrictFloat = Field(default=30.0, gt=0, le=86_400, allow_inf_nan=False)
     action: FailsafeAction = "keep_station"
     home: LatLon | None = None
-    on_breach: bool = False
-    low_battery_pct: float | None = Field(default=None, ge=0, le=100, allow_inf_nan=False)
-    version: int = Field(default=0, ge=0, le=2**62)
+    on_breach: StrictBool = False
+    low_battery_pct: StrictFloat | None = Field(default=None, ge=0, le=100, allow_inf_nan=False)
+    version: StrictInt = Field(default=0, ge=0, le=2**62)
 
 
 class SetFailsafe(WireModel):
     """``PUT /api/vehicles/{vehicle_id}/failsafe``: the vehicle's whole policy (a field
     left out takes the server's default: ``FLEET_FAILSAFE_AFTER_S``, ``FLEET_FAILSAFE_ACTION``)."""
 
-    after_s: float | None = Field(default=None, gt=0, le=86_400, allow_inf_nan=False)
+    after_s: StrictFloat | None = Field(default=None, gt=0, le=86_400, allow_inf_nan=False)
     action: FailsafeAction | None = None
     home: LatLon | None = None
-    on_breach: bool = False
-    low_battery_pct: float | None = Field(default=None, ge=0, le=100, allow_inf_nan=False)
+    on_breach: StrictBool = False
+    low_battery_pct: StrictFloat | None = Field(default=None, ge=0, le=100, allow_inf_nan=False)
 
 
 class FailsafeView(WireModel):
@@ -151,10 +151,10 @@ class UpdateParam(InstanceRef):
     params: Params = Field(default_factory=dict)
     samples: list[Sample] = Field(default_factory=list, max_length=MAX_SAMPLES_PER_CALL)
     sent_at: Timestamp | None = None
-    clock_offset_s: float | None = Field(
+    clock_offset_s: StrictFloat | None = Field(
         default=None, ge=-MAX_CLOCK_OFFSET_S, le=MAX_CLOCK_OFFSET_S, allow_inf_nan=False
     )
-    rtt_s: float | None = Field(default=None, ge=0, le=86_400, allow_inf_nan=False)
+    rtt_s: StrictFloat | None = Field(default=None, ge=0, le=86_400, allow_inf_nan=False)
 
 
 class UpdateParamResult(WireModel):
@@ -175,7 +175,7 @@ class GetControlResult(WireModel):
 class FbAck(WireModel):
     command_id: Text = Field(min_length=1, max_length=64)
     status: AckStatus
-    progress: float | None = Field(default=None, ge=0, le=100, allow_inf_nan=False)
+    progress: StrictFloat | None = Field(default=None, ge=0, le=100, allow_inf_nan=False)
     detail: Text | None = Field(default=None, max_length=512)
     #: With ``accepted`` for a ``follow_path``: the hash of the path the vehicle stored.
     path_hash: Text | None = Field(default=None, max_length=128)
@@ -185,7 +185,7 @@ class UpdateFbMessage(InstanceRef):
     control_mode: ControlMode | None = None
     acks: list[FbAck] = Field(default_factory=list, max_length=256)
     #: The version of the failsafe policy the vehicle applies now.
-    failsafe_version: int | None = Field(default=None, ge=0, le=2**62)
+    failsafe_version: StrictInt | None = Field(default=None, ge=0, le=2**62)
 
 
 class UpdateFbMessageResult(WireModel):

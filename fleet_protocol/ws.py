@@ -29,6 +29,7 @@ from pydantic import (
     Field,
     SerializationInfo,
     SerializerFunctionWrapHandler,
+    StrictInt,
     model_serializer,
 )
 from pydantic_core import PydanticSerializationError, to_json
@@ -135,7 +136,7 @@ class SubscribeOp(_UnitOp):
     op: Literal["subscribe"] = "subscribe"
     topics: TopicList
     #: At most one event per topic every ``throttle_ms`` (the latest value wins).
-    throttle_ms: int = Field(default=0, ge=0, le=3_600_000)
+    throttle_ms: StrictInt = Field(default=0, ge=0, le=3_600_000)
 
 
 class UnsubscribeOp(_UnitOp):

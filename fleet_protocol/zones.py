@@ -13,7 +13,7 @@ from __future__ import annotations
 
 from typing import Literal
 
-from pydantic import Field
+from pydantic import Field, StrictFloat
 
 from fleet_protocol.common import Identifier, Timestamp, WireModel
 from fleet_protocol.obstacles import PolygonGeometry
@@ -31,7 +31,7 @@ class CreateZone(WireModel):
     #: The vehicles it applies to; empty: every vehicle (a no-go zone only: an operating
     #: area holds the vehicles it lists).
     vehicles: list[Identifier] = Field(default_factory=list, max_length=1000)
-    clearance_m: float | None = Field(
+    clearance_m: StrictFloat | None = Field(
         default=None,
         ge=0,
         le=10_000,
@@ -44,7 +44,7 @@ class PatchZone(WireModel):
     name: Text | None = Field(default=None, min_length=1, max_length=128)
     polygon: PolygonGeometry | None = None
     vehicles: list[Identifier] | None = Field(default=None, max_length=1000)
-    clearance_m: float | None = Field(default=None, ge=0, le=10_000, allow_inf_nan=False)
+    clearance_m: StrictFloat | None = Field(default=None, ge=0, le=10_000, allow_inf_nan=False)
 
 
 class ZoneView(WireModel):

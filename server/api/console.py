@@ -11,12 +11,15 @@ out of the OpenAPI document.
 from __future__ import annotations
 
 import logging
+from collections.abc import Sequence
 from pathlib import Path
 
 from fastapi import APIRouter, FastAPI
 from fastapi.openapi.docs import get_swagger_ui_html
 from fastapi.responses import HTMLResponse
 from fastapi.staticfiles import StaticFiles
+from starlette.routing import BaseRoute, Match, Mount
+from starlette.types import ASGIApp, Scope
 
 from server.settings import Settings
 
@@ -77,4 +80,22 @@ def install(app: FastAPI, settings: Settings) -> None:
         if (modules / package).is_dir():
             app.mount(prefix, StaticFiles(directory=modules / package))
     if CONSOLE_DIR.is_dir():
-        app.mount("/", StaticFiles(directory=CONSOLE_DIR, html=True), name="web")
+        files = StaticFiles(directory=CONSOLE_DIR, html=True)
+        app.router.routes.append(_Console(app.router.routes, files))
+
+
+class _Console(Mount):
+    """``/``: the console's files, for the paths no route of the app has. A path a route
+    has, asked with a method it does not take (``GET /upper/heartbeat``), stays that
+    route's: 405, not the 404 of a missing file."""
+
+    def __init__(self, routes: Sequence[BaseRoute], files: ASGIApp) -> None:
+        super().__init__("/", app=files, name="web")
+        self._routes = routes
+
+    def matches(self, scope: Scope) -> tuple[Match, Scope]:
+        if scope["type"] == "http" and any(
+            route is not self and route.matches(scope)[0] is Match.PARTIAL for route in self._routes
+        ):
+            return Match.NONE, {}
+        return super().matches(scope)

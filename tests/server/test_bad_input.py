@@ -85,6 +85,13 @@ async def test_unknown_route_and_method_are_enveloped(client: httpx.AsyncClient)
     assert r.status_code == 404 and r.json()["error"]["code"] == "not_found"
     r = await client.delete("/upper/start_instance", headers=ADMIN)
     assert r.status_code == 405 and "error" in r.json()
+    # GET too, although the console's files answer GET for the paths no route has.
+    for method, path in (("GET", "/upper/heartbeat"), ("GET", "/client/submit_control")):
+        r = await client.request(method, path, headers=ADMIN)
+        assert r.status_code == 405, (method, path, r.status_code)
+        assert r.json()["error"]["code"] == "method_not_allowed" and "POST" in r.headers["allow"]
+    assert (await client.head("/healthz")).status_code == 405
+    assert (await client.get("/")).status_code == 200  # the console itself
 
 
 @pytest.mark.parametrize("seed", [1, 2])
@@ -132,3 +139,49 @@ async def test_seq_starts_at_one(client: httpx.AsyncClient) -> None:
     )
     assert r.status_code == 422
     assert r.json()["error"]["details"][0]["field"] == "samples.0.seq"
+
+
+SAMPLE = {"seq": 1, "ts": "2026-11-22T10:00:00Z", "lat": 43.0, "lon": 15.0}
+
+
+@pytest.mark.parametrize(
+    ("route", "body", "field"),
+    [
+        ("/upper/update_param", {"samples": [{**SAMPLE, "lat": True}]}, "samples.0.lat"),
+        ("/upper/update_param", {"samples": [{**SAMPLE, "lon": "15.5"}]}, "samples.0.lon"),
+        ("/upper/update_param", {"samples": [{**SAMPLE, "seq": "30"}]}, "samples.0.seq"),
+        ("/upper/update_param", {"samples": [{**SAMPLE, "seq": 3.0}]}, "samples.0.seq"),
+        ("/upper/update_param", {"rtt_s": "0.1"}, "rtt_s"),
+        ("/client/grant_control", {"user": "admin", "duration_s": True}, "duration_s"),
+        ("/client/grant_control", {"user": "admin", "duration_s": "600"}, "duration_s"),
+        ("/client/submit_control", {"command": {"type": "stop"}, "ttl_s": "60"}, "ttl_s"),
+        (
+            "/client/submit_control",
+            {"command": {"type": "go_to", "args": {"lat": "43.9", "lon": 15.0}}},
+            "command.args.lat",
+        ),
+        (
+            "/client/submit_control",
+            {"command": {"type": "follow_path", "args": {"waypoints": [], "plan": "yes"}}},
+            "command.args.plan",
+        ),
+    ],
+)
+async def test_a_value_of_the_wrong_json_type_is_422_not_converted(
+    client: httpx.AsyncClient, route: str, body: dict[str, object], field: str
+) -> None:
+    """A number is a JSON number and a flag a JSON boolean: ``true`` is not 1, ``"43"`` not
+    43 (a sample at lat ``true`` was stored at 1.0)."""
+    vid, vh = await make_vehicle(client)
+    iid = (await start_instance(client, vid, vh))["instance_id"]
+    headers = vh if route.startswith("/upper") else ADMIN
+    extra = {"instance_ids": [iid]} if "submit" in route else {"instance_id": iid}
+    r = await client.post(route, headers=headers, json={**extra, **body})
+    assert r.status_code == 422, r.text
+    assert field in [d["field"] for d in r.json()["error"]["details"]]
+
+
+async def test_a_flag_of_the_wrong_json_type_is_422(client: httpx.AsyncClient) -> None:
+    r = await client.patch("/api/users/admin", headers=ADMIN, json={"disabled": "yes"})
+    assert r.status_code == 422, r.text
+    assert r.json()["error"]["details"][0]["field"] == "disabled"
