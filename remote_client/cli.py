@@ -23,6 +23,8 @@ from remote_client.cli_common import (
     TokenOpt,
     dump,
     fail,
+    finite,
+    lat_lon,
     print_queued,
     run,
     say,
@@ -53,7 +55,7 @@ VehiclesArg = typer.Argument(..., help="vehicle ids or names, or instance ids")
 #: Negative coordinates (-33.9) are arguments, not unknown options.
 COORDINATES = {"ignore_unknown_options": True}
 TtlOpt = typer.Option(30, help="seconds the order stays valid")
-SpeedOpt = typer.Option(None, help="m/s")
+SpeedOpt = typer.Option(None, callback=finite, help="m/s")
 
 
 @app.command()
@@ -75,8 +77,8 @@ def stop(
 @app.command(context_settings=COORDINATES)
 def goto(
     vehicle: str = VehicleArg,
-    lat: float = typer.Argument(..., help="degrees"),
-    lon: float = typer.Argument(..., help="degrees"),
+    lat: float = typer.Argument(..., callback=finite, help="degrees"),
+    lon: float = typer.Argument(..., callback=finite, help="degrees"),
     speed: float | None = SpeedOpt,
     ttl: int = TtlOpt,
     server: str = ServerOpt,
@@ -95,9 +97,15 @@ def goto(
 @app.command()
 def station(
     vehicles: list[str] = VehiclesArg,
-    lat: float | None = typer.Option(None, help="degrees; none: where the vehicle is"),
-    lon: float | None = typer.Option(None, help="degrees; none: where the vehicle is"),
-    radius: float | None = typer.Option(None, help="metres (the server's default: 2)"),
+    lat: float | None = typer.Option(
+        None, callback=finite, help="degrees; none: where the vehicle is"
+    ),
+    lon: float | None = typer.Option(
+        None, callback=finite, help="degrees; none: where the vehicle is"
+    ),
+    radius: float | None = typer.Option(
+        None, callback=finite, help="metres (the server's default: 2)"
+    ),
     ttl: int = TtlOpt,
     server: str = ServerOpt,
     token: str = TokenOpt,
@@ -129,10 +137,9 @@ def path(
     points = []
     for text in waypoints:
         try:
-            lat, lon = (float(part) for part in text.split(","))
+            points.append(lat_lon(text))
         except ValueError:
             fail(f"not a LAT,LON pair: {text!r}")
-        points.append((lat, lon))
 
     async def act(fleet: FleetClient) -> dict[str, Any]:
         instance_id = await fleet.instance_id_of(vehicle)
@@ -314,7 +321,7 @@ def release(
 def watch(
     topics: list[str] = typer.Argument(None, help="topics to follow; none: fleet"),
     count: int | None = typer.Option(None, min=1, help="stop after this many events"),
-    seconds: float | None = typer.Option(None, min=0, help="stop after this long"),
+    seconds: float | None = typer.Option(None, min=0, callback=finite, help="stop after this long"),
     throttle_ms: int = typer.Option(0, min=0, help="at most one event per topic per N ms"),
     server: str = ServerOpt,
     token: str = TokenOpt,

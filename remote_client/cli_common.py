@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+import math
 from collections.abc import Awaitable, Callable
 from datetime import UTC, datetime
 from typing import Any, NoReturn, TypeVar
@@ -81,6 +82,27 @@ def fail(message: str) -> NoReturn:
     """Bad arguments: the message on stderr, exit 2."""
     errors.print(message, style="red", markup=False, highlight=False)
     raise typer.Exit(FAILED)
+
+
+def finite(param: typer.CallbackParam, value: float | None) -> float | None:
+    """The callback of every float a command takes: NaN and the infinities are bad
+    arguments (no position, distance, speed or time is one, and JSON cannot carry them)."""
+    if value is not None and not math.isfinite(value):
+        fail(f"{_shown_name(param)} is a finite number, not {value}")
+    return value
+
+
+def lat_lon(text: str) -> tuple[float, float]:
+    """``LAT,LON`` as two finite numbers; ValueError when it is not that."""
+    lat, lon = (float(part) for part in text.split(","))
+    if not (math.isfinite(lat) and math.isfinite(lon)):
+        raise ValueError(f"not finite: {text!r}")
+    return lat, lon
+
+
+def _shown_name(param: typer.CallbackParam) -> str:
+    """``--radius`` for an option, ``LAT`` for an argument."""
+    return param.opts[0] if param.param_type_name == "option" else str(param.name).upper()
 
 
 def window(

@@ -19,6 +19,8 @@ from remote_client.cli_common import (
     TokenOpt,
     dump,
     fail,
+    finite,
+    lat_lon,
     list_when_bare,
     run,
     say,
@@ -72,7 +74,9 @@ def zones_add(
     vehicle: list[str] = typer.Option(
         None, "--vehicle", "-v", help="a vehicle it applies to; repeat (an area needs one)"
     ),
-    clearance: float | None = typer.Option(None, help="metres a planned path keeps from it"),
+    clearance: float | None = typer.Option(
+        None, callback=finite, help="metres a planned path keeps from it"
+    ),
     server: str = ServerOpt,
     token: str = TokenOpt,
     as_json: bool = JsonOpt,
@@ -154,10 +158,14 @@ def failsafe_show(
 def failsafe_set(
     vehicle: str = typer.Argument(..., help="vehicle id or name"),
     action: str = typer.Argument(..., help="none, keep_station, stop or return_home"),
-    after: float | None = typer.Option(None, help="seconds without the server (default 30)"),
+    after: float | None = typer.Option(
+        None, callback=finite, help="seconds without the server (default 30)"
+    ),
     home: str | None = typer.Option(None, help="LAT,LON for return_home (default: its start)"),
     on_breach: bool = typer.Option(False, help="act also when it enters a no-go zone"),
-    low_battery: float | None = typer.Option(None, help="a low_battery event below this %"),
+    low_battery: float | None = typer.Option(
+        None, callback=finite, help="a low_battery event below this %"
+    ),
     server: str = ServerOpt,
     token: str = TokenOpt,
     as_json: bool = JsonOpt,
@@ -168,7 +176,7 @@ def failsafe_set(
     where = None
     if home is not None:
         try:
-            lat, lon = (float(x) for x in home.split(","))
+            lat, lon = lat_lon(home)
         except ValueError:
             fail(f"--home is LAT,LON, not {home!r}")
         where = {"lat": lat, "lon": lon}
@@ -189,7 +197,7 @@ def failsafe_set(
 
 # ---- keeping leases alive ----------------------------------------------------------------
 def alive(
-    seconds: float | None = typer.Option(None, min=0, help="stop after this long"),
+    seconds: float | None = typer.Option(None, min=0, callback=finite, help="stop after this long"),
     server: str = ServerOpt,
     token: str = TokenOpt,
 ) -> None:
