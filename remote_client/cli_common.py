@@ -11,8 +11,9 @@ from __future__ import annotations
 import asyncio
 import json
 import math
-from collections.abc import Awaitable, Callable
+from collections.abc import Awaitable, Callable, Sequence
 from datetime import UTC, datetime
+from pathlib import Path
 from typing import Any, NoReturn, TypeVar
 
 import httpx
@@ -79,8 +80,8 @@ def list_when_bare(
 
 
 def fail(message: str) -> NoReturn:
-    """Bad arguments: the message on stderr, exit 2."""
-    errors.print(message, style="red", markup=False, highlight=False)
+    """Bad arguments: the message on stderr (one line, however long), exit 2."""
+    errors.print(message, style="red", markup=False, highlight=False, soft_wrap=True)
     raise typer.Exit(FAILED)
 
 
@@ -103,6 +104,21 @@ def lat_lon(text: str) -> tuple[float, float]:
 def _shown_name(param: typer.CallbackParam) -> str:
     """``--radius`` for an option, ``LAT`` for an argument."""
     return param.opts[0] if param.param_type_name == "option" else str(param.name).upper()
+
+
+def file_format(output: str, fmt: str | None, formats: Sequence[str]) -> str:
+    """The format to write: ``--format``'s, else the one ``-o``'s ending names (``.gpx``:
+    gpx), else, on stdout (``-``), the first of ``formats``. A format not among them, or
+    a file whose ending names none without ``--format``, is a bad argument."""
+    if fmt is None and output != "-":
+        fmt = Path(output).suffix.lower().removeprefix(".")
+        if fmt not in formats:
+            endings = ", ".join(f".{f}" for f in formats)
+            fail(f"-o {output} names no format: end it in one of {endings}, or give --format")
+    fmt = fmt or formats[0]
+    if fmt not in formats:
+        fail(f"--format is one of {', '.join(formats)}, not {fmt!r}")
+    return fmt
 
 
 def window(

@@ -31,6 +31,7 @@ from remote_client.cli_common import (
     UntilOpt,
     dump,
     fail,
+    file_format,
     run,
     window,
 )
@@ -38,7 +39,7 @@ from remote_client.lines import event_text, position_text
 from remote_client.localcopy import LocalCopy, SyncResult, sync_vehicle
 from remote_client.output import console, errors
 from remote_client.sdk import FleetClient
-from remote_client.tracks import FORMATS, TrackJoiner, format_for, plot_png
+from remote_client.tracks import FORMATS, TrackJoiner, plot_png
 
 VehicleArg = typer.Argument(..., help="vehicle id or name")
 #: The track's window when ``--since`` is not given (the server's default too).
@@ -107,15 +108,18 @@ def export(
     vehicle: str = VehicleArg,
     since: str | None = SinceOpt,
     until: str | None = UntilOpt,
-    fmt: str = typer.Option("jsonl", "--format", help="jsonl (a sample per line) or csv"),
+    fmt: str | None = typer.Option(
+        None,
+        "--format",
+        help="jsonl (a sample per line) or csv (default: from -o's ending, else jsonl)",
+    ),
     output: str = typer.Option("-", "--output", "-o", help="file to write; -: stdout"),
     page: int = typer.Option(10_000, min=1, max=10_000, help="samples per request"),
     server: str = ServerOpt,
     token: str = TokenOpt,
 ) -> None:
     """Every stored telemetry sample of a vehicle, in seq order, page by page."""
-    if fmt not in ("jsonl", "csv"):
-        fail(f"--format is jsonl or csv, not {fmt!r}")
+    fmt = file_format(output, fmt, streams.EXPORT_FORMATS)
     start, end = window(since, until)
     with contextlib.ExitStack() as stack:
         out = sys.stdout if output == "-" else stack.enter_context(open(output, "w", newline=""))
@@ -149,9 +153,7 @@ def track(
     The window defaults to the last 24 h. Long tracks come page by page, with a
     progress bar on a terminal.
     """
-    fmt = format_for(output, fmt)
-    if fmt not in FORMATS:
-        fail(f"--format is one of {', '.join(FORMATS)}, not {fmt!r}")
+    fmt = file_format(output, fmt, FORMATS)
     if fmt == "png" and output == "-":
         fail("a PNG needs a file: give -o FILE.png")
     now = datetime.now(UTC)

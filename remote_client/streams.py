@@ -22,6 +22,8 @@ from remote_client.sdk import FleetApiError, FleetClient
 
 log = logging.getLogger(__name__)
 
+#: ``export``'s formats, each also the file name ending that chooses it; the first on stdout.
+EXPORT_FORMATS = ("jsonl", "csv")
 #: CSV columns of ``export``: the sample's fields, then ``data`` as JSON text.
 SAMPLE_COLUMNS = ("seq", "ts", "lat", "lon", "depth_m", "heading_deg", "speed_mps", "battery_pct")
 

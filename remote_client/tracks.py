@@ -11,19 +11,11 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-__all__ = ["FORMATS", "TrackJoiner", "format_for", "plot_png"]
+__all__ = ["FORMATS", "TrackJoiner", "plot_png"]
 
-#: ``--format`` values, and the file name endings that choose them.
+#: ``--format`` values, each also the file name ending that chooses it; the first on stdout.
 FORMATS = ("json", "geojson", "gpx", "csv", "png")
-_ENDINGS = {".json": "json", ".geojson": "geojson", ".gpx": "gpx", ".csv": "csv", ".png": "png"}
 GPX_NS = "http://www.topografix.com/GPX/1/1"
-
-
-def format_for(output: str, fmt: str | None) -> str:
-    """The format asked for, else the one the output file's name ends with, else JSON."""
-    if fmt is not None:
-        return fmt
-    return _ENDINGS.get(Path(output).suffix.lower(), "json") if output != "-" else "json"
 
 
 class TrackJoiner:

@@ -193,11 +193,15 @@ async def test_export_writes_every_sample_page_by_page(
         assert [int(r["seq"]) for r in table] == list(range(1, 26))
         assert json.loads(table[3]["data"]) == {"sonar": "ok"} and table[0]["data"] == ""
         assert float(table[0]["depth_m"]) == 1.5
+        by_ending = tmp_path / "again.CSV"  # no --format: the file's ending chooses csv
+        again = await _fleetctl(base, ADMIN_TOKEN, "export", vid, "-o", str(by_ending))
+        assert again.exit_code == 0, again.output
+        assert by_ending.read_text() == target.read_text()
 
         unknown = await _fleetctl(base, ADMIN_TOKEN, "export", "no-such-vehicle")
         assert unknown.exit_code == 1 and "404" in unknown.stderr
         wrong = await _fleetctl(base, ADMIN_TOKEN, "export", vid, "--format", "xml")
-        assert wrong.exit_code == 2 and "jsonl or csv" in wrong.stderr
+        assert wrong.exit_code == 2 and "jsonl, csv" in wrong.stderr
 
 
 async def test_watch_takes_a_lost_link_up_again(make_settings: Callable[..., Settings]) -> None:

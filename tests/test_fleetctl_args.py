@@ -6,17 +6,28 @@ The server named here listens nowhere: a command that sent a request would end w
 
 from __future__ import annotations
 
-import pytest
+from pathlib import Path
 
+import pytest
+from typer.testing import Result
+
+from remote_client.cli import app
 from tests.factories import ADMIN_TOKEN
-from tests.fleetctl_run import fleetctl
+from tests.fleetctl_run import runner
 from tests.live import free_port
 
 
-@pytest.fixture
-def nowhere() -> str:
-    """A server URL nobody listens on."""
-    return f"http://127.0.0.1:{free_port()}"
+def fleetctl(*args: str) -> Result:
+    """``fleetctl ARGS`` with ``FLEET_SERVER`` a port nobody listens on."""
+    env = {"FLEET_SERVER": f"http://127.0.0.1:{free_port()}", "FLEET_TOKEN": ADMIN_TOKEN}
+    return runner.invoke(app, list(args), env=env)
+
+
+def assert_refused(result: Result, named: str) -> None:
+    """Exit 2, one line on stderr naming ``named``, nothing on stdout."""
+    assert result.exit_code == 2, result.output
+    assert result.stderr.count("\n") == 1 and named in result.stderr, result.stderr
+    assert result.stdout == ""
 
 
 @pytest.mark.parametrize(
@@ -38,10 +49,35 @@ def nowhere() -> str:
         (("failsafe", "set", "Alpha", "return_home", "--home", "43.94,-inf"), "--home"),
     ],
 )
-async def test_a_float_that_is_not_finite_is_refused_before_anything_is_sent(
-    nowhere: str, args: tuple[str, ...], named: str
+def test_a_float_that_is_not_finite_is_refused_before_anything_is_sent(
+    args: tuple[str, ...], named: str
 ) -> None:
-    refused = await fleetctl(nowhere, ADMIN_TOKEN, *args)
-    assert refused.exit_code == 2, refused.output
-    assert refused.stderr.count("\n") == 1 and named in refused.stderr
-    assert refused.stdout == ""
+    assert_refused(fleetctl(*args), named)
+
+
+TRACK_ENDINGS = ".json, .geojson, .gpx, .csv, .png"
+
+
+@pytest.mark.parametrize(
+    ("args", "endings"),
+    [
+        (("track", "Alpha", "--since", "10m", "-o", "alpha.kml"), TRACK_ENDINGS),
+        (("track", "Alpha", "-o", "alpha"), TRACK_ENDINGS),
+        (("export", "Alpha", "-o", "alpha.json"), ".jsonl, .csv"),
+        (("export", "Alpha", "-o", "alpha.txt"), ".jsonl, .csv"),
+    ],
+)
+def test_a_file_whose_ending_names_no_format_is_refused_before_anything_is_sent(
+    args: tuple[str, ...], endings: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.chdir(tmp_path)
+    assert_refused(fleetctl(*args), endings)
+    assert list(tmp_path.iterdir()) == []  # no file written, not even an empty one
+
+
+def test_format_names_the_format_whatever_the_file_is_called(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.chdir(tmp_path)
+    chosen = fleetctl("track", "Alpha", "--format", "gpx", "-o", "alpha.kml")
+    assert chosen.exit_code == 3 and "cannot reach" in chosen.stderr  # past the arguments

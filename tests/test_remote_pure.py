@@ -15,7 +15,7 @@ import pytest
 from remote_client.lines import event_lines
 from remote_client.sdk import AmbiguousName, UnknownVehicle, pick_vehicle, shown_status
 from remote_client.times import BadTime, parse_when, when_text
-from remote_client.tracks import GPX_NS, TrackJoiner, format_for, plot_png
+from remote_client.tracks import GPX_NS, TrackJoiner, plot_png
 
 NOW = datetime(2026, 11, 22, 12, 0, 0, tzinfo=UTC)
 
@@ -188,12 +188,6 @@ def test_track_pages_join_into_one_document_of_their_format() -> None:
     tree = ET.fromstring(gpx.text().split("\n", 1)[1])
     assert len(tree.findall(f".//{{{GPX_NS}}}trkpt")) == 5 and gpx.points == 5
     assert len(tree.findall(f".//{{{GPX_NS}}}trkseg")) == 1
-
-
-def test_the_format_follows_the_file_name_unless_given() -> None:
-    assert format_for("a.GPX", None) == "gpx" and format_for("a.png", None) == "png"
-    assert format_for("a.geojson", None) == "geojson" and format_for("a.txt", None) == "json"
-    assert format_for("-", None) == "json" and format_for("a.gpx", "csv") == "csv"
 
 
 def test_a_plot_is_a_png() -> None:
