@@ -9,9 +9,10 @@ from typing import TYPE_CHECKING, Any
 
 import typer
 import uvicorn
+from pydantic import ValidationError
 
 from server.logs import log_config
-from server.settings import Settings
+from server.settings import Settings, env_name, refusals
 
 if TYPE_CHECKING:
     from fastapi import FastAPI
@@ -23,7 +24,7 @@ def _settings_help() -> str:
         default: Any = field.default
         if default is None:
             default = "unset"
-        lines.append(f"  FLEET_{name.upper():<27} {field.description} [default: {default}]")
+        lines.append(f"  {env_name(name):<33} {field.description} [default: {default}]")
     return "\n\n".join(["Run the fleet-cloud server.", "\n".join(lines)])
 
 
@@ -40,8 +41,20 @@ def serve(
         overrides["host"] = host
     if port is not None:
         overrides["port"] = port
-    settings = Settings(**overrides)
-    run(settings)
+    run(load_settings(**overrides))
+
+
+def load_settings(**overrides: Any) -> Settings:
+    """The settings from the environment (and ``.env``), ``overrides`` (the command line's
+    options) over them. A bad one is a line on stderr naming its variable (or option) and
+    what it takes, and exit 2."""
+    try:
+        return Settings(**overrides)
+    except ValidationError as exc:
+        for field, problem in refusals(exc).items():
+            name = f"--{field}" if field in overrides else env_name(field)
+            typer.echo(f"{name}: {problem}", err=True)
+        raise SystemExit(2) from None
 
 
 def run(settings: Settings, app: FastAPI | None = None) -> None:

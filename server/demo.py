@@ -31,8 +31,8 @@ import uvicorn
 
 from server.api.ws_direct import uvicorn_ws_options
 from server.app import create_app
+from server.cli import load_settings
 from server.logs import log_config
-from server.settings import Settings
 
 DATA = Path("data")
 VEHICLES = [
@@ -111,7 +111,7 @@ def _start_agents(
 
 
 async def main() -> None:
-    settings = Settings()
+    settings = load_settings()
     app = create_app(settings)
     server = uvicorn.Server(
         uvicorn.Config(

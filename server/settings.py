@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Literal
 
-from pydantic import Field, SecretStr
+from pydantic import Field, SecretStr, ValidationError
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
 from fleet_protocol.links import MAX_BINARY_FRAME_BYTES, MAX_TEXT_FRAME_BYTES
@@ -241,3 +241,20 @@ class Settings(BaseSettings):
         replicas, ``contact_write_s`` (another may be in contact with the vehicle); with
         one, nothing is newer than this replica's copy."""
         return self.contact_write_s if self.redis_url is not None else 0.0
+
+
+def env_name(field: str) -> str:
+    """The environment variable of a setting: ``token_ttl_s`` is ``FLEET_TOKEN_TTL_S``."""
+    return f"{Settings.model_config.get('env_prefix', '')}{field.upper()}"
+
+
+def refusals(exc: ValidationError) -> dict[str, str]:
+    """What is wrong with each bad setting of ``exc``, by field name, in pydantic's words
+    (``input should be greater than or equal to 60``); the values are not repeated, since
+    some are secrets."""
+    found: dict[str, list[str]] = {}
+    for error in exc.errors():
+        field = str(error["loc"][0]) if error["loc"] else "settings"
+        message = error["msg"]
+        found.setdefault(field, []).append(message[:1].lower() + message[1:])
+    return {field: "; ".join(messages) for field, messages in found.items()}

@@ -1,0 +1,37 @@
+"""``fleet-server``'s command line: a bad setting is refused before anything starts."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from server.cli import app
+
+
+def test_each_bad_setting_is_one_line_naming_its_variable_and_what_it_takes(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.chdir(tmp_path)  # no .env but this test's
+    env = {"FLEET_TOKEN_TTL_S": "2", "FLEET_LOG_FORMAT": "xml", "FLEET_ADMIN_TOKEN": "secret-x"}
+    refused = CliRunner().invoke(app, ["--port", "8011"], env=env)
+    assert refused.exit_code == 2, refused.output
+    assert sorted(refused.stderr.splitlines()) == [
+        "FLEET_LOG_FORMAT: input should be 'text' or 'json'",
+        "FLEET_TOKEN_TTL_S: input should be greater than or equal to 60",
+    ]
+    assert refused.stdout == ""
+
+
+def test_a_bad_option_is_named_as_the_option_and_a_bad_line_of_dot_env_as_its_variable(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / ".env").write_text("FLEET_STALE_AFTER_S=0\n")
+    refused = CliRunner().invoke(app, ["--port", "70000"])
+    assert refused.exit_code == 2, refused.output
+    assert sorted(refused.stderr.splitlines()) == [
+        "--port: input should be less than or equal to 65535",
+        "FLEET_STALE_AFTER_S: input should be greater than 0",
+    ]
