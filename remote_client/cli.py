@@ -18,6 +18,7 @@ from rich.table import Table
 from remote_client import cli_data, streams
 from remote_client.cli_admin import gateways_app, users_app, vehicles_app
 from remote_client.cli_common import (
+    Commands,
     JsonOpt,
     ServerOpt,
     TokenOpt,
@@ -34,6 +35,7 @@ from remote_client.output import console
 from remote_client.sdk import FleetClient, UnknownVehicle, pick_vehicle, shown_status
 
 app = typer.Typer(
+    cls=Commands,
     add_completion=False,
     no_args_is_help=True,
     help="Operate a fleet-cloud fleet: list vehicles, send missions, manage control, "

@@ -3,7 +3,8 @@ and printing answers for people or for scripts.
 
 Exit codes: 0 done; 1 the server (or the fleet, for a vehicle name nobody goes by)
 refused; 2 a server error or bad arguments (an ambiguous name among them);
-3 the server cannot be reached.
+3 the server cannot be reached; 141 (128 + SIGPIPE, as a Unix tool's) nobody reads
+the answer any more (``fleetctl watch | head -1``).
 """
 
 from __future__ import annotations
@@ -18,9 +19,10 @@ from typing import Any, NoReturn, TypeVar
 
 import httpx
 import typer
+from typer.core import TyperGroup
 
 from remote_client import streams
-from remote_client.output import console, errors
+from remote_client.output import OutputClosed, console, errors, quiet_stdout
 from remote_client.sdk import AmbiguousName, FleetApiError, FleetClient
 from remote_client.times import BadTime, when_text
 
@@ -40,7 +42,19 @@ UntilOpt = typer.Option(
 T = TypeVar("T")
 
 #: Exit codes.
-REFUSED, FAILED, UNREACHABLE = 1, 2, 3
+REFUSED, FAILED, UNREACHABLE, OUTPUT_CLOSED = 1, 2, 3, 128 + 13
+
+
+class Commands(TyperGroup):
+    """``fleetctl``'s commands. One whose stdout is closed (its reader has gone) stops at
+    once, quietly, with exit 141, as a Unix tool ended by SIGPIPE does."""
+
+    def invoke(self, ctx: Any) -> Any:  # a click Context (typer's own click: typer._click)
+        try:
+            return super().invoke(ctx)
+        except (OutputClosed, BrokenPipeError):
+            quiet_stdout()
+            raise typer.Exit(OUTPUT_CLOSED) from None
 
 
 def run(server: str, token: str, action: Callable[[FleetClient], Awaitable[T]]) -> T:

@@ -2,7 +2,35 @@
 
 from __future__ import annotations
 
+import os
+import sys
+
 from rich.console import Console
 
 console = Console()
 errors = Console(stderr=True)  # stdout stays the answer alone (what --json scripts read)
+
+
+class OutputClosed(Exception):
+    """Nobody reads the answer any more: stdout's reader has gone (``watch ... | head -1``).
+    Not an ``OSError``, so that no handler of a lost link takes it for one."""
+
+
+def answer_line(text: str) -> None:
+    """A line of the answer on stdout at once; OutputClosed when nobody reads it any more."""
+    try:
+        print(text, flush=True)
+    except BrokenPipeError:
+        raise OutputClosed from None
+
+
+def quiet_stdout() -> None:
+    """stdout to the null device, so that what is still buffered for a reader that has gone
+    is dropped at exit rather than failing again (Python's advice on SIGPIPE)."""
+    try:
+        fd = sys.stdout.fileno()
+    except (AttributeError, OSError, ValueError):
+        return  # not a file (a test's capture): nothing is flushed to a pipe at exit
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, fd)
+    os.close(devnull)

@@ -17,7 +17,7 @@ import websockets
 from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
 
 from remote_client.lines import event_lines
-from remote_client.output import errors
+from remote_client.output import answer_line, errors
 from remote_client.sdk import FleetApiError, FleetClient
 
 log = logging.getLogger(__name__)
@@ -78,8 +78,9 @@ async def watch(fleet: FleetClient, follow: Follow) -> None:
     """Print each event of ``follow.topics`` until ``count`` events or ``seconds``. A lost
     link is taken up again and each topic's current state comes first again (the changes
     while the link was down are not replayed: ``export`` has every sample); a refusal is
-    exit 1, a server not reachable at the start exit 3. While it runs, the leases the
-    caller holds are kept alive (``FleetClient.keep_leases_alive``)."""
+    exit 1, a server not reachable at the start exit 3; stdout closed (OutputClosed) ends
+    it, not taken for a lost link. While it runs, the leases the caller holds are kept
+    alive (``FleetClient.keep_leases_alive``)."""
     seen = failures = 0
     try:
         async with fleet, asyncio.timeout(follow.seconds), _leases_kept(fleet):
@@ -139,7 +140,7 @@ def print_event(push: dict[str, Any], as_json: bool) -> None:
     """An event as one JSON line (``--json``), or as readable lines (``remote_client.lines``:
     one per event; the ``fleet`` topic's current state, one per vehicle)."""
     if as_json:
-        print(json.dumps(push), flush=True)
+        answer_line(json.dumps(push))
         return
     for line in event_lines(push):
-        print(line, flush=True)
+        answer_line(line)

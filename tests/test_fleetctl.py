@@ -233,6 +233,76 @@ async def test_watch_takes_a_lost_link_up_again(make_settings: Callable[..., Set
     assert "link lost" in (await watcher.stderr.read()).decode()
 
 
+async def test_watch_stops_quietly_when_its_output_is_closed(
+    make_settings: Callable[..., Settings],
+) -> None:
+    """``fleetctl watch ... | head -1``: once head has gone, the next event ends the
+    watch at once, exit 141 (as SIGPIPE would), no traceback, no link taken for lost."""
+    async with serve(make_settings()) as base, httpx.AsyncClient(base_url=base) as c:
+        vid, vh = await make_vehicle(c)
+        iid = (await start_instance(c, vid, vh))["instance_id"]
+        seq = 1
+        body = {"instance_id": iid, "samples": [sample(seq)]}
+        assert (await c.post("/upper/update_param", headers=vh, json=body)).is_success
+        read_end, write_end = os.pipe()
+        env = {**os.environ, "FLEET_SERVER": base, "FLEET_TOKEN": ADMIN_TOKEN}
+        watcher = await asyncio.create_subprocess_exec(
+            sys.executable, "-m", "remote_client.cli", "watch", f"vehicle/{vid}/telemetry",
+            env=env, stdout=write_end, stderr=asyncio.subprocess.PIPE,
+        )  # fmt: skip
+        os.close(write_end)
+        try:
+            with os.fdopen(read_end, "rb") as head:  # head -1: a line, then gone
+                first = await asyncio.to_thread(head.readline)
+            exited = asyncio.ensure_future(watcher.wait())
+            async with asyncio.timeout(20):
+                while not exited.done():  # events until it notices
+                    seq += 1
+                    body = {"instance_id": iid, "samples": [sample(seq)]}
+                    assert (await c.post("/upper/update_param", headers=vh, json=body)).is_success
+                    await asyncio.wait({exited}, timeout=0.05)
+        finally:
+            if watcher.returncode is None:
+                watcher.kill()
+                await watcher.wait()
+        assert watcher.stderr is not None
+        stderr = (await watcher.stderr.read()).decode()
+    assert first.startswith(b"current ") and vid.encode() in first
+    assert watcher.returncode == 141, stderr
+    assert stderr == ""  # neither "link lost" nor a traceback
+
+
+async def test_export_stops_quietly_when_its_output_is_closed(
+    make_settings: Callable[..., Settings],
+) -> None:
+    """``fleetctl export ... | head -1`` on more samples than a pipe holds: exit 141, quiet."""
+    async with serve(make_settings()) as base, httpx.AsyncClient(base_url=base) as c:
+        vid, vh = await make_vehicle(c)
+        iid = (await start_instance(c, vid, vh))["instance_id"]
+        for first_seq in range(1, 2001, 200):  # ~300 kB of JSON lines, a pipe holds 64 kB
+            body = {"instance_id": iid, "samples": [sample(first_seq + i) for i in range(200)]}
+            assert (await c.post("/upper/update_param", headers=vh, json=body)).is_success
+        read_end, write_end = os.pipe()
+        env = {**os.environ, "FLEET_SERVER": base, "FLEET_TOKEN": ADMIN_TOKEN}
+        exporter = await asyncio.create_subprocess_exec(
+            sys.executable, "-m", "remote_client.cli", "export", vid, "--page", "100",
+            env=env, stdout=write_end, stderr=asyncio.subprocess.PIPE,
+        )  # fmt: skip
+        os.close(write_end)
+        try:
+            with os.fdopen(read_end, "rb") as head:
+                first = await asyncio.to_thread(head.readline)
+            async with asyncio.timeout(20):
+                _, stderr = await exporter.communicate()
+        finally:
+            if exporter.returncode is None:
+                exporter.kill()
+                await exporter.wait()
+    assert json.loads(first)["seq"] == 1
+    assert exporter.returncode == 141, stderr
+    assert stderr == b""
+
+
 async def _named(c: httpx.AsyncClient, vid: str, vh: dict[str, str], name: str) -> str:
     """Start an instance that announces ``name`` as the vehicle's display name."""
     body = {"vehicle_id": vid, "name": name, "vehicle_type": "usv",
