@@ -41,6 +41,16 @@ class CreateZone(WireModel):
 
 
 class PatchZone(WireModel):
+    """The fields to change; one left out (or null) is kept. A patch that changes
+    nothing leaves the zone, its version and ``updated_at`` as they are."""
+
+    #: Only the zone's own kind is taken (a client may send back the zone it read): a
+    #: zone's kind cannot change, another is a 422 naming ``kind``.
+    kind: ZoneKind | None = Field(
+        default=None,
+        description="the zone's own kind, or left out: a zone's kind cannot change "
+        "(delete it and create another); another kind is a 422",
+    )
     name: Text | None = Field(default=None, min_length=1, max_length=128)
     polygon: PolygonGeometry | None = None
     vehicles: list[Identifier] | None = Field(default=None, max_length=1000)

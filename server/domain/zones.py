@@ -11,10 +11,10 @@ fine at the size of a harbour or a survey area.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from functools import cached_property
-from typing import Literal
+from typing import Any, Literal
 
 import shapely
 from shapely.geometry import LineString, Point, Polygon
@@ -22,6 +22,7 @@ from shapely.geometry.base import BaseGeometry
 from shapely.ops import unary_union
 
 from server.domain.planning import Zone
+from server.errors import Invalid
 
 ZoneKind = Literal["no_go", "operating_area"]
 #: (lat, lon) in degrees.
@@ -251,3 +252,22 @@ def keep_out(zones: ZoneSet, vehicle_id: str) -> list[Zone]:
                 island = tuple((lat, lon) for lon, lat in hole.coords)
                 out.append(Zone((island,), 0.0, name))
     return out
+
+
+def zone_changes(zone: Mapping[str, Any], wanted: Mapping[str, Any]) -> dict[str, Any]:
+    """What a patch changes of a zone: each field of ``wanted`` (None: not given) whose
+    value is not the zone's already; empty when nothing changes (the zone keeps its
+    version). A zone's kind cannot change (delete it and draw another): a ``kind`` other
+    than its own is refused, naming the field."""
+    kind = wanted.get("kind")
+    if kind is not None and kind != zone["kind"]:
+        message = (
+            f"a zone's kind cannot change (this one is {zone['kind']}): "
+            "delete it and create a zone of the other kind"
+        )
+        raise Invalid(message, details=[{"field": "kind", "message": message}])
+    return {
+        name: value
+        for name, value in wanted.items()
+        if name != "kind" and value is not None and value != zone.get(name)
+    }

@@ -14,7 +14,7 @@ from typing import Any
 
 from fleet_protocol import CreateZone, PatchZone
 from server.domain.clock import Clock
-from server.domain.zones import Area, ZoneSet
+from server.domain.zones import Area, ZoneSet, zone_changes
 from server.errors import Invalid, NotFound
 from server.services.auth import AuthService
 from server.services.events import EventService
@@ -103,13 +103,19 @@ class ZoneService:
         doc = await self.get(zone_id)
         if body.polygon is not None:
             check_polygon(body.polygon)
-            doc["polygon"] = body.polygon.model_dump(mode="json")
-        if body.name is not None:
-            doc["name"] = body.name
-        if body.vehicles is not None:
-            doc["vehicles"] = sorted(set(body.vehicles))
-        if body.clearance_m is not None:
-            doc["clearance_m"] = body.clearance_m
+        changes = zone_changes(
+            doc,
+            {
+                "kind": body.kind,
+                "name": body.name,
+                "polygon": None if body.polygon is None else body.polygon.model_dump(mode="json"),
+                "vehicles": None if body.vehicles is None else sorted(set(body.vehicles)),
+                "clearance_m": body.clearance_m,
+            },
+        )
+        if not changes:
+            return doc  # nothing changes: the same version, the same updated_at
+        doc.update(changes)
         await self._check(doc["kind"], doc["vehicles"])
         doc["version"] = await self.repo.next_version()
         doc["updated_at"] = self.clock()

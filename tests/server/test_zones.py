@@ -81,6 +81,34 @@ async def test_zones_are_drawn_listed_changed_and_removed_with_a_rising_version(
     assert (await w.http.delete(f"/api/zones/{first['zone_id']}", headers=ADMIN)).status_code == 404
 
 
+async def test_a_zone_s_kind_cannot_change_and_a_patch_that_changes_nothing_keeps_it(
+    w: World,
+) -> None:
+    made = await zone(w, no_go(clearance_m=3))
+    url = f"/api/zones/{made['zone_id']}"
+    w.clock.advance(60)  # a change now would move updated_at
+    r = await w.http.patch(url, headers=ADMIN, json={"kind": "operating_area"})
+    assert r.status_code == 422, r.text
+    assert [d["field"] for d in r.json()["error"]["details"]] == ["kind"]
+    assert "cannot change" in r.json()["error"]["message"]
+    for same in (
+        {},
+        {"unknown": 1},
+        {"kind": "no_go"},
+        {"name": made["name"], "clearance_m": 3.0, "polygon": made["polygon"], "vehicles": []},
+        made,  # the zone as read, sent back whole
+    ):
+        r = await w.http.patch(url, headers=ADMIN, json=same)
+        assert r.status_code == 200, (same, r.text)
+        assert r.json() == made, same
+    listed = (await w.http.get("/api/zones", headers=ADMIN)).json()
+    assert listed["version"] == made["version"] and listed["zones"] == [made]
+    r = await w.http.patch(url, headers=ADMIN, json={"kind": "no_go", "clearance_m": 4})
+    assert r.status_code == 200 and r.json()["clearance_m"] == 4
+    assert r.json()["version"] == made["version"] + 1
+    assert r.json()["updated_at"] > made["updated_at"]
+
+
 async def test_users_see_only_the_zones_of_their_vehicles(w: World) -> None:
     mine, theirs = await w.vehicle(), await w.vehicle()
     everyone = await zone(w, no_go("reef"))
