@@ -17,6 +17,7 @@ __all__ = [
     "COMMAND_TYPES",
     "FINAL_STATUSES",
     "MOTION_TYPES",
+    "SERVER_ARGS",
     "CommandObject",
     "CommandSpec",
     "CommandStatus",
@@ -111,6 +112,17 @@ ARGS_MODELS: dict[str, type[WireModel]] = {
     "follow_path": FollowPathArgs,
 }
 
+#: The args of a type that are the server's alone: it fills them in (``path`` when it
+#: plans, ``path_hash`` over what the vehicle drives), so a submit may not carry them.
+SERVER_ARGS: dict[str, dict[str, str]] = {
+    "follow_path": {
+        "path": "the path is filled in by the server, never sent: give waypoints "
+        "(with plan: true the server plans the path)",
+        "path_hash": "the path hash is filled in by the server over the route the vehicle "
+        "drives, never sent",
+    },
+}
+
 
 class CommandSpec(WireModel):
     """What an operator asks for: ``{type, args, max_drift_m?}``."""
@@ -122,12 +134,18 @@ class CommandSpec(WireModel):
 
     @model_validator(mode="after")
     def _validate_args(self) -> CommandSpec:
+        # The server's own args (SERVER_ARGS) are refused, whatever their value: what the
+        # vehicle drives, and what the zones are checked against, is the server's.
+        theirs = SERVER_ARGS.get(self.type, {})
+        refused = [f"args.{name}: {why}" for name, why in theirs.items() if name in self.args]
         model = ARGS_MODELS[self.type]
         try:
-            parsed = model.model_validate(self.args)
+            parsed = model.model_validate({k: v for k, v in self.args.items() if k not in theirs})
         except ValidationError as exc:
             # Re-raise with field paths under ``args`` so a 422 names them.
-            raise ValueError(_args_message(exc)) from None
+            raise ValueError("; ".join([*refused, _args_message(exc)])) from None
+        if refused:
+            raise ValueError("; ".join(refused))
         self.args = parsed.model_dump(exclude_none=True)
         return self
 

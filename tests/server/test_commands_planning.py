@@ -6,6 +6,7 @@ from collections.abc import AsyncIterator, Callable
 
 import pytest
 
+from fleet_protocol import path_hash, route_of
 from server.domain.geo import from_local, to_local
 from server.settings import Settings
 from tests.server.commanding import World, world
@@ -64,3 +65,44 @@ async def test_a_waypoint_on_top_of_another_vehicle_is_422(w: World) -> None:
     error = r.json()["error"]
     assert error["code"] == "invalid"
     assert other.vehicle_id in error["message"]
+
+
+@pytest.mark.parametrize("plan", [False, True])
+async def test_a_path_or_path_hash_sent_by_the_client_is_refused(w: World, plan: bool) -> None:
+    """``path`` and ``path_hash`` are the server's: a submit carrying either is 422 naming
+    it, for one vehicle and for many, and nothing is queued (the vehicle would drive the
+    client's path, which no check saw)."""
+    a, b = await w.vehicle(), await w.vehicle()
+    op = await w.person("operator", a, b)
+    for v in (a, b):
+        assert (await w.grant(v, op.username)).status_code == 200
+    own = {"waypoints": [at(100, 0)], "plan": plan}
+    sent = {"path": [{"lat": 0, "lon": 0}], "path_hash": "sha256:00"}
+    for targets in ([a], [a, b]):
+        for extra, fields in [
+            ({"path": sent["path"]}, ["command.args.path"]),
+            ({"path_hash": sent["path_hash"]}, ["command.args.path_hash"]),
+            (sent, ["command.args.path", "command.args.path_hash"]),
+            ({"path": None}, ["command.args.path"]),
+        ]:
+            command = {"type": "follow_path", "args": {**own, **extra}}
+            r = await w.submit(op, targets, command)
+            assert r.status_code == 422, (targets, extra, r.text)
+            error = r.json()["error"]
+            assert error["code"] == "invalid"
+            assert [d["field"] for d in error["details"]] == fields
+            assert all("filled in by the server" in d["message"] for d in error["details"])
+    # Beside another bad arg, both are named.
+    bad = {"type": "follow_path", "args": {"waypoints": [], "path": sent["path"]}}
+    r = await w.submit(op, [a], bad)
+    assert r.status_code == 422
+    fields = [d["field"] for d in r.json()["error"]["details"]]
+    assert fields == ["command.args.path", "command.args.waypoints"]
+    for v in (a, b):
+        assert await w.poll(v) == []
+    # Without them, the route driven and hashed is the server's own.
+    cid = await w.queued(op, a, {"type": "follow_path", "args": own})
+    args = (await w.command(cid))["args"]
+    assert ("path" in args) is plan
+    assert args["path_hash"] == path_hash(route_of(args))
+    assert route_of(args)[-1] == pytest.approx(at(100, 0))
