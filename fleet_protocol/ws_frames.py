@@ -59,16 +59,19 @@ class PartialBatch(FrameError):
 
     The batch is taken as its ops sent one after the other: :attr:`batch` holds the
     valid ones, in order, to be run; :attr:`refused` one :class:`FrameError` per
-    invalid op (its :meth:`~FrameError.reply` acks it by its own ``id``). One bad op in
-    a gateway's batch does not hold the others up (its units' samples among them).
+    invalid op (its :meth:`~FrameError.reply` acks it by its own ``id``); and
+    :attr:`in_order` the batch as sent, each op either parsed or its
+    :class:`FrameError`, so that each is answered in its place. One bad op in a
+    gateway's batch does not hold the others up (its units' samples among them).
     As a :class:`FrameError` it is the whole frame's refusal (every field named as in
     the batch: ``ops.1.samples.0.ts``), the answer when no op is valid.
     """
 
-    def __init__(self, whole: FrameError, batch: BatchOp, refused: list[FrameError]) -> None:
+    def __init__(self, whole: FrameError, batch: BatchOp, in_order: list[Any]) -> None:
         super().__init__(whole.error, whole.op_id)
         self.batch = batch
-        self.refused = refused
+        self.in_order = in_order
+        self.refused = [op for op in in_order if isinstance(op, FrameError)]
 
 
 class _BatchFrame(_Op):
@@ -97,16 +100,16 @@ def _partial_batch(frame: str | bytes, whole: FrameError) -> PartialBatch | None
         envelope = _BatchFrame.model_validate(json.loads(frame))
     except (ValueError, RecursionError):  # not JSON, or not a batch (a ValidationError)
         return None
-    valid: list[Any] = []
-    refused: list[FrameError] = []
+    in_order: list[Any] = []  # each op parsed, or its refusal
     for inner in envelope.ops:
         try:
-            valid.append(_parse(_single_vehicle_adapter, json.dumps(inner)))
+            in_order.append(_parse(_single_vehicle_adapter, json.dumps(inner)))
         except FrameError as exc:
-            refused.append(exc)
-    if not refused:
+            in_order.append(exc)
+    valid = [op for op in in_order if not isinstance(op, FrameError)]
+    if len(valid) == len(in_order):
         return None  # every op valid alone: the fault is not in one of them
-    return PartialBatch(whole, BatchOp.model_construct(id=envelope.id, ops=valid), refused)
+    return PartialBatch(whole, BatchOp.model_construct(id=envelope.id, ops=valid), in_order)
 
 
 def parse_client_op(frame: str | bytes) -> Any:

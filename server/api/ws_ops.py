@@ -189,11 +189,17 @@ class OpRunner:
         elif kind is SubscribeOp:
             await self.hub.start_streams(self.conn, op.topics)
 
-    async def _run_batch(self, batch: BatchOp, refused: int = 0) -> None:
-        """A batch's ops, one after the other; its own ``id`` acked with how many ran (and
-        how many were refused, when some were)."""
-        for inner in batch.ops:
-            await self.run(inner)
+    async def _run_batch(
+        self, batch: BatchOp, in_order: list[Any] | None = None, refused: int = 0
+    ) -> None:
+        """A batch's ops, one after the other (``in_order``, when given: the batch as sent,
+        an invalid op's :class:`FrameError` in its place, answered there); its own ``id``
+        acked with how many ran (and how many were refused, when some were)."""
+        for inner in batch.ops if in_order is None else in_order:
+            if type(inner) is FrameError:
+                self.conn.outbox.put(inner.reply().frame())
+            else:
+                await self.run(inner)
         if batch.id:
             result = {"count": len(batch.ops)}
             if refused:
@@ -201,17 +207,18 @@ class OpRunner:
             self.conn.outbox.put(AckPush.success(batch.id, result).frame())
 
     def _partial(self, exc: PartialBatch) -> Coroutine[Any, Any, None] | None:
-        """A batch some of whose ops are invalid: each of those refused by its own ``id``
-        (an ``error`` push for one without, when others run), the valid ones run. None
-        valid: the frame is refused whole (by the batch's ``id``), as any bad frame."""
+        """A batch some of whose ops are invalid: the ops answered in the order sent, each
+        invalid one refused in its place by its own ``id`` (an ``error`` push for one
+        without), the valid ones run. None valid: each refused by its ``id``, then the
+        frame refused whole (by the batch's ``id``), as any bad frame."""
         batch = exc.batch
-        for refusal in exc.refused:
-            if refusal.op_id is not None or batch.ops:
-                self.conn.outbox.put(refusal.reply().frame())
         if not batch.ops:
+            for refusal in exc.refused:
+                if refusal.op_id is not None:
+                    self.conn.outbox.put(refusal.reply().frame())
             self.conn.outbox.put(exc.reply().frame())
             return None
-        return self._run_batch(batch, len(exc.refused))
+        return self._run_batch(batch, exc.in_order, len(exc.refused))
 
     def _publish_now(self, op: PublishOp) -> None:
         """:meth:`run` for a ``publish`` on a local bus, where nothing waits."""

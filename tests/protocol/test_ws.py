@@ -107,6 +107,10 @@ def test_a_batch_with_some_bad_ops_keeps_the_good_ones_and_refuses_each_bad_one(
     assert [type(op) for op in partial.batch.ops] == [UpdateParamOp, HeartbeatOp]
     assert [op.id for op in partial.batch.ops] == ["g", "h"]
     assert partial.batch.id == "b"
+    # The batch as sent: each bad op's refusal in its place, to be answered there.
+    ids = [op.op_id if isinstance(op, FrameError) else op.id for op in partial.in_order]
+    assert ids == ["g", "t", "h", None]
+    assert [isinstance(op, FrameError) for op in partial.in_order] == [False, True, False, True]
     first, second = (json.loads(r.reply().frame()) for r in partial.refused)
     assert first["op"] == "ack" and first["id"] == "t" and first["ok"] is False
     assert first["error"]["details"][0]["field"] == "samples.0.ts"

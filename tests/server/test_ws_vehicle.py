@@ -253,6 +253,42 @@ async def test_one_bad_op_in_a_gateway_batch_does_not_hold_up_the_others(
     assert r.json()["samples"] == []  # its op was refused whole, as alone
 
 
+async def test_the_ops_of_a_batch_are_answered_in_the_order_sent(
+    base: str, api: httpx.AsyncClient
+) -> None:
+    """Valid, refused on running (an unknown instance), refused on reading (an unknown op,
+    an op without id): each answered in its place, then the batch's own ack."""
+    v1, _ = await make_vehicle(api)
+    gw = await _gateway(api, "gw-order", [v1])
+    async with await connect(base, "/ws/vehicle", gw) as ws:
+        i1 = (await call(ws, "start_instance", "s1", vehicle_id=v1, capabilities=CAPS))[
+            "instance_id"
+        ]
+        ops = [
+            {"op": "heartbeat", "id": "b1", "instance_id": i1},
+            {"op": "heartbeat", "id": "b2", "instance_id": "i-nobody"},
+            {"op": "no_such_op", "id": "b3"},
+            {"op": "heartbeat", "instance_id": 5},
+            {"op": "heartbeat", "id": "b5", "instance_id": i1},
+        ]
+        await ws.send(json.dumps({"op": "batch", "id": "b", "ops": ops}))
+        answers = []
+        while not answers or answers[-1].get("id") != "b":
+            answers.append(await recv_until(ws, lambda f: f["op"] in ("ack", "error")))
+    assert [(a["op"], a.get("id"), a.get("ok")) for a in answers] == [
+        ("ack", "b1", True),
+        ("ack", "b2", False),
+        ("ack", "b3", False),
+        ("error", None, None),
+        ("ack", "b5", True),
+        ("ack", "b", True),
+    ]
+    assert answers[1]["error"]["code"] == "not_found"
+    assert answers[2]["error"]["details"][0]["field"] == "op"
+    assert answers[3]["error"]["details"][0]["field"] == "instance_id"
+    assert (answers[-1]["count"], answers[-1]["refused"]) == (3, 2)
+
+
 GARBAGE_FRAMES = [
     "",
     "null",
