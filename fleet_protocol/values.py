@@ -74,6 +74,7 @@ __all__ = [
     "json_safe",
     "safe_dumps",
     "shown_text",
+    "unreadable_json",
 ]
 
 #: Integers: signed 64-bit, what BSON's widest integer (``int64``) holds.
@@ -96,6 +97,13 @@ MAX_SAMPLE_DATA_BYTES = 8192
 #: the ``from``/``to`` query parameters keep to it.
 MIN_TIMESTAMP = datetime(1970, 1, 1, tzinfo=UTC)
 MAX_TIMESTAMP = datetime(2100, 1, 1, tzinfo=UTC)
+
+#: Why a body or frame nested past what its JSON reader goes (pydantic's parser: 200
+#: levels; Python's ``json``: its recursion limit) cannot be read.
+_TOO_DEEP_MSG = (
+    f"nested too deep to be read (a value is nested at most {MAX_JSON_DEPTH} levels: "
+    "docs/limits.md)"
+)
 
 _SURROGATE = re.compile("[\ud800-\udfff]")
 
@@ -392,3 +400,22 @@ def _key_text(key: Any) -> str:
 def safe_dumps(value: Any) -> str:
     """Compact JSON text of :func:`json_safe` ``(value)``: what the encoders fall back to."""
     return json.dumps(json_safe(value), separators=(",", ":"), ensure_ascii=False)
+
+
+def unreadable_json(error: object, raw: object = None) -> str:
+    """Why a text a JSON reader refused cannot be read, to follow "the body is" or "the
+    frame is": nested too deep, not valid UTF-8, or not valid JSON. ``error`` is the
+    reader's exception (Python's ``json``) or its message (pydantic's ``json_invalid``);
+    ``raw``, the bytes it read when known (pydantic's parser calls a byte that is not
+    UTF-8 outside a string an unexpected character)."""
+    if isinstance(raw, bytes):
+        try:
+            raw.decode("utf-8")
+        except UnicodeDecodeError:
+            return "not valid UTF-8"
+    text = str(error)
+    if isinstance(error, RecursionError) or "recursion limit exceeded" in text:
+        return _TOO_DEEP_MSG
+    if isinstance(error, UnicodeDecodeError) or "invalid unicode code point" in text:
+        return "not valid UTF-8"
+    return "not valid JSON"

@@ -14,7 +14,7 @@ from typing import Any, Literal, get_args
 from pydantic import Field, TypeAdapter, ValidationError
 
 from fleet_protocol.errors import ErrorBody, FieldError
-from fleet_protocol.values import shown_text
+from fleet_protocol.values import shown_text, unreadable_json
 from fleet_protocol.ws import (
     MAX_BATCH_OPS,
     MAX_OP_ID_CHARS,
@@ -143,8 +143,10 @@ def _python_errors(adapter: TypeAdapter[Any], frame: str | bytes) -> ValidationE
 
 
 def error_body(exc: ValidationError) -> ErrorBody:
-    if any(err["type"] == "json_invalid" for err in exc.errors(include_url=False)):
-        return ErrorBody(code="invalid", message="the frame is not valid JSON")
+    for err in exc.errors(include_url=False, include_input=False):
+        if err["type"] == "json_invalid":
+            why = unreadable_json(err.get("ctx", {}).get("error", ""))
+            return ErrorBody(code="invalid", message=f"the frame is {why}")
     details = field_errors(exc)
     summary = "; ".join(f"{d.field}: {d.message}" for d in details[:3])
     return ErrorBody(code="invalid", message=f"invalid op ({summary})", details=details)

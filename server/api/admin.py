@@ -153,7 +153,7 @@ async def _login_body(request: Request) -> LoginRequest:
             return LoginRequest.model_validate(form)
         return LoginRequest.model_validate_json(raw)
     except ValidationError as exc:
-        raise RequestValidationError(exc.errors()) from None
+        raise RequestValidationError(exc.errors(), body=raw) from None
 
 
 _LOGIN_SCHEMA = {

@@ -11,7 +11,7 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
-from fleet_protocol.values import shown_text
+from fleet_protocol.values import shown_text, unreadable_json
 from server.api.responses import SafeJSONResponse
 from server.errors import FleetError, RateLimited, Unavailable
 
@@ -63,7 +63,8 @@ def field_errors(errors: list[dict[str, Any]]) -> list[dict[str, str]]:
                 out.append({"field": f"{name}.{m.group(1)}", "message": m.group(2)})
             continue
         if err.get("type") == "json_invalid":
-            name, msg = "body", "the body is not valid JSON"
+            why = unreadable_json(err.get("ctx", {}).get("error", ""))
+            name, msg = "body", f"the body is {why}"
         out.append({"field": name, "message": msg})
     return out
 
@@ -78,12 +79,23 @@ def install(app: FastAPI) -> None:
 
     @app.exception_handler(RequestValidationError)
     async def _invalid(_: Request, exc: RequestValidationError) -> JSONResponse:
-        details = field_errors(list(exc.errors()))
+        errors = list(exc.errors())
+        if errors and errors[0].get("type") == "json_invalid":  # the body was not read
+            why = unreadable_json(errors[0].get("ctx", {}).get("error", ""), exc.body)
+            message = f"the body is {why}"
+            return envelope(422, "invalid", message, [{"field": "body", "message": message}])
+        details = field_errors(errors)
         fields = ", ".join(d["field"] for d in details)
         return envelope(422, "invalid", f"invalid input: {fields}", details)
 
     @app.exception_handler(StarletteHTTPException)
     async def _http(_: Request, exc: StarletteHTTPException) -> JSONResponse:
+        cause = exc.__cause__
+        if exc.status_code == 400 and isinstance(cause, ValueError | RecursionError):
+            # FastAPI's "error parsing the body": a body Python's json could not read
+            # (not UTF-8, nested past its recursion limit), as any other unreadable body.
+            message = "the body is " + unreadable_json(cause)
+            return envelope(422, "invalid", message, [{"field": "body", "message": message}])
         code = _HTTP_CODES.get(exc.status_code, "error")
         message = exc.detail if isinstance(exc.detail, str) else code.replace("_", " ")
         return envelope(exc.status_code, code, message, headers=getattr(exc, "headers", None))

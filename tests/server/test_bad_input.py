@@ -64,6 +64,34 @@ async def test_malformed_json_is_422(client: httpx.AsyncClient) -> None:
     assert r.json()["error"]["code"] == "invalid"
 
 
+async def test_every_unreadable_body_is_422_naming_body_and_saying_why(
+    client: httpx.AsyncClient,
+) -> None:
+    """Not JSON, not UTF-8, nested past what a JSON reader goes: the same 422 naming
+    ``body`` on every kind of route (a vehicle's lean route, FastAPI's, the login), its
+    message saying why; never FastAPI's 400 "error parsing the body"."""
+    vid, vh = await make_vehicle(client)
+    iid = (await start_instance(client, vid, vh))["instance_id"]
+    deep = b"[" * 10_000 + b"]" * 10_000
+    bodies = [
+        (b'{"instance_id": "' + iid.encode() + b'", "x": ' + deep + b"}", "nested too deep"),
+        (b'{"instance_id": "' + iid.encode() + b'", "x": "\xff\xfe"}', "not valid UTF-8"),
+        (b"\xff" * 8, "not valid UTF-8"),
+        (b'{"instance_id": "' + iid.encode() + b'", "sam', "not valid JSON"),
+    ]
+    routes = [("/upper/update_param", vh), ("/api/vehicles", ADMIN), ("/auth/token", {})]
+    for path, who in routes:
+        for body, why in bodies:
+            headers = {**who, "content-type": "application/json"}
+            r = await client.post(path, headers=headers, content=body)
+            assert r.status_code == 422, (path, why, r.text)
+            error = r.json()["error"]
+            assert error["code"] == "invalid"
+            assert [d["field"] for d in error["details"]] == ["body"], (path, why, error)
+            assert why in error["details"][0]["message"], (path, why, error)
+            assert why in error["message"], (path, why, error)
+
+
 async def test_over_size_body_is_413(make_settings: object) -> None:
     from asgi_lifespan import LifespanManager
 

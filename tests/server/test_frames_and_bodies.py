@@ -62,6 +62,24 @@ async def test_a_frame_nested_1000_deep_is_an_error_not_1011(base: str) -> None:
         assert (await call(ws, "subscribe", "s", topics=["fleet"]))["ok"] is True  # goes on
 
 
+async def test_a_frame_nested_too_deep_is_refused_as_such_not_as_bad_json(base: str) -> None:
+    """Valid JSON nested past what the frame reader goes is refused saying so (in an
+    unknown field too), not as "not valid JSON"; bad JSON still says that."""
+    async with await connect(base, "/ws/client", ADMIN_TOKEN) as ws:
+        for depth, op_id in ((5000, None), (300, "u")):
+            deep = "[" * depth + "]" * depth
+            head = '{"op": "subscribe", ' + (f'"id": "{op_id}", ' if op_id else "")
+            await ws.send(head + '"topics": ["fleet"], "x": ' + deep + "}")
+            reply = await recv_until(ws, lambda f: f["op"] in ("error", "ack"))
+            assert reply.get("id") == op_id and reply.get("ok") in (None, False), reply
+            assert "nested too deep" in reply["error"]["message"], reply
+            assert "32 levels" in reply["error"]["message"], reply
+        await ws.send('{"op": "subscribe", "topics": ["fleet"')
+        reply = await recv_until(ws, lambda f: f["op"] == "error")
+        assert reply["error"]["message"] == "the frame is not valid JSON"
+        assert (await call(ws, "subscribe", "s", topics=["fleet"]))["ok"] is True  # goes on
+
+
 async def test_every_frame_counts_toward_the_rate_malformed_ones_too(base: str) -> None:
     async with await connect(base, "/ws/client", ADMIN_TOKEN) as ws:
         for _ in range(60):  # three times the rate of 20 a second, at once
