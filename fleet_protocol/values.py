@@ -34,12 +34,12 @@ from __future__ import annotations
 import json
 import math
 import re
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from datetime import UTC, datetime
 from typing import Annotated, Any
 
 from pydantic import (
-    AfterValidator,
+    BeforeValidator,
     PlainValidator,
     SerializerFunctionWrapHandler,
     ValidationError,
@@ -64,12 +64,14 @@ __all__ = [
     "MIN_TIMESTAMP",
     "JsonObject",
     "JsonValue",
+    "Label",
     "Params",
     "SampleData",
     "ServedObject",
     "ServedObjects",
     "Text",
     "check_text",
+    "error_text",
     "json_problem",
     "json_safe",
     "safe_dumps",
@@ -319,21 +321,36 @@ SampleData = Annotated[
 ]
 
 
-def check_text(value: str) -> str:
-    if value.isascii() or _SURROGATE.search(value) is None:
+def check_text(value: object) -> object:
+    """A string without lone surrogates; anything else for the ``str`` schema to refuse."""
+    if not isinstance(value, str) or value.isascii() or _SURROGATE.search(value) is None:
         return value
     raise PydanticCustomError("string_unicode", _TEXT_MSG)
 
 
-#: A ``str`` field: no lone surrogates (pydantic's plain ``str`` lets them through).
-Text = Annotated[str, AfterValidator(check_text)]
+def error_text(err: Mapping[str, Any]) -> str:
+    """A pydantic error's message for a 422 (without pydantic's "Value error, " prefix).
+    A length bound on an optional string (``Text | None``) is checked by pydantic's
+    generic length rule, whose message counts "items": it is told in characters."""
+    ctx = err.get("ctx") or {}
+    if err.get("type") == "too_long" and isinstance(err.get("input"), str):
+        return f"String should have at most {ctx.get('max_length')} characters"
+    if err.get("type") == "too_short" and isinstance(err.get("input"), str):
+        return f"String should have at least {ctx.get('min_length')} characters"
+    return str(err.get("msg", "invalid value")).removeprefix("Value error, ")
+
+
+#: A ``str`` field: no lone surrogates (pydantic's plain ``str`` lets them through). The
+#: check runs before the ``str`` schema, so that a field's ``max_length`` is that
+#: schema's own ("String should have at most 128 characters"), not a generic length.
+Text = Annotated[str, BeforeValidator(check_text)]
 
 #: Control characters (C0, DEL, C1): a terminal obeys them rather than showing them.
 _CONTROL = re.compile("[\x00-\x1f\x7f-\x9f]")
 
 
-def check_label(value: str) -> str:
-    if _CONTROL.search(value) is not None:
+def check_label(value: object) -> object:
+    if isinstance(value, str) and _CONTROL.search(value) is not None:
         raise PydanticCustomError(
             "string_control", "a name is shown on screens: no control characters"
         )
@@ -342,7 +359,7 @@ def check_label(value: str) -> str:
 
 #: A name people read on a console or a terminal (a vehicle's, an obstacle's): ``Text``
 #: without control characters (NUL, escape sequences, line breaks).
-Label = Annotated[str, AfterValidator(check_text), AfterValidator(check_label)]
+Label = Annotated[str, BeforeValidator(check_text), BeforeValidator(check_label)]
 
 
 # -- the other way: stored values that break a rule, made safe to send --------

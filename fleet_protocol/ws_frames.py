@@ -14,7 +14,7 @@ from typing import Any, Literal, get_args
 from pydantic import Field, TypeAdapter, ValidationError
 
 from fleet_protocol.errors import ErrorBody, FieldError
-from fleet_protocol.values import shown_text, unreadable_json
+from fleet_protocol.values import error_text, shown_text, unreadable_json
 from fleet_protocol.ws import (
     MAX_BATCH_OPS,
     MAX_OP_ID_CHARS,
@@ -143,7 +143,7 @@ def _python_errors(adapter: TypeAdapter[Any], frame: str | bytes) -> ValidationE
 
 
 def error_body(exc: ValidationError) -> ErrorBody:
-    for err in exc.errors(include_url=False, include_input=False):
+    for err in exc.errors(include_url=False):  # the input read, never shown
         if err["type"] == "json_invalid":
             why = unreadable_json(err.get("ctx", {}).get("error", ""))
             return ErrorBody(code="invalid", message=f"the frame is {why}")
@@ -156,11 +156,11 @@ def field_errors(exc: ValidationError) -> list[FieldError]:
     """Each error's field (``samples.0.data.x``; pydantic's union tags left out) and message,
     never the value itself: what a 422 or a log line may show."""
     details: list[FieldError] = []
-    for err in exc.errors(include_url=False, include_input=False):
+    for err in exc.errors(include_url=False):  # the input read, never shown
         loc = [str(part) for part in err["loc"]]
         # Drop the union tag pydantic inserts ("update_param" in ops.0.update_param.x).
         field = shown_text(".".join(p for p in loc if p not in _OP_TAGS))
-        message = shown_text(err["msg"].removeprefix("Value error, "))
+        message = shown_text(error_text(err))
         if err["type"] == "union_tag_invalid":
             field, message = (
                 _join(field, "op"),

@@ -11,7 +11,7 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
-from fleet_protocol.values import shown_text, unreadable_json
+from fleet_protocol.values import error_text, shown_text, unreadable_json
 from server.api.responses import SafeJSONResponse
 from server.errors import FleetError, RateLimited, Unavailable
 
@@ -54,7 +54,7 @@ def field_errors(errors: list[dict[str, Any]]) -> list[dict[str, str]]:
         # A discriminated/union tag in the path is noise for the reader.
         loc = [p for p in loc if not p.startswith("function-")]
         name = shown_text(".".join(loc)) or "body"
-        msg = str(err.get("msg", "invalid value")).removeprefix("Value error, ")
+        msg = error_text(err)
         # Command args are validated as one value: split their messages by field.
         parts = [_ARGS_PART.match(p) for p in msg.split("; ")]
         if parts and all(parts):

@@ -10,7 +10,7 @@ from datetime import UTC, datetime
 from typing import Annotated, Any, Union, get_args, get_origin
 
 import pytest
-from pydantic import AfterValidator, BaseModel, ValidationError
+from pydantic import AfterValidator, BaseModel, BeforeValidator, ValidationError
 from pydantic.fields import FieldInfo
 
 import fleet_protocol
@@ -281,7 +281,7 @@ _CHECKED_BY = {check_text, validate_topic}
 
 def _str_checked(metadata: list[Any]) -> bool:
     for item in metadata:
-        if isinstance(item, AfterValidator) and item.func in _CHECKED_BY:
+        if isinstance(item, AfterValidator | BeforeValidator) and item.func in _CHECKED_BY:
             return True
         if getattr(item, "pattern", None):  # a pattern of ASCII characters (identifiers)
             return True

@@ -213,3 +213,20 @@ async def test_a_flag_of_the_wrong_json_type_is_422(client: httpx.AsyncClient) -
     r = await client.patch("/api/users/admin", headers=ADMIN, json={"disabled": "yes"})
     assert r.status_code == 422, r.text
     assert r.json()["error"]["details"][0]["field"] == "disabled"
+
+
+async def test_a_string_too_long_is_told_in_characters(client: httpx.AsyncClient) -> None:
+    vid, vh = await make_vehicle(client)
+    iid = (await start_instance(client, vid, vh))["instance_id"]
+    ack = {"command_id": "c-1", "status": "accepted", "detail": "x" * 1000}
+    r = await client.post(
+        "/upper/update_fbmessage", headers=vh, json={"instance_id": iid, "acks": [ack]}
+    )
+    assert r.status_code == 422, r.text
+    assert r.json()["error"]["details"] == [
+        {"field": "acks.0.detail", "message": "String should have at most 512 characters"}
+    ]
+    r = await client.post(
+        "/upper/start_instance", headers=vh, json={"vehicle_id": vid, "name": "n" * 200}
+    )
+    assert r.json()["error"]["details"][0]["message"].endswith("at most 128 characters")
