@@ -175,7 +175,8 @@ class GetControlResult(WireModel):
 class FbAck(WireModel):
     command_id: Text = Field(min_length=1, max_length=64)
     status: AckStatus
-    progress: StrictFloat | None = Field(default=None, ge=0, le=100, allow_inf_nan=False)
+    #: How far along: a fraction from 0 (begun) to 1 (done), as the console shows it in %.
+    progress: StrictFloat | None = Field(default=None, ge=0, le=1, allow_inf_nan=False)
     detail: Text | None = Field(default=None, max_length=512)
     #: With ``accepted`` for a ``follow_path``: the hash of the path the vehicle stored.
     path_hash: Text | None = Field(default=None, max_length=128)

@@ -193,10 +193,13 @@ async def test_update_fbmessage_refusals(w: World) -> None:
         (v.headers, {"instance_id": "i-nope"}, 404),
         (v.headers, {**good, "control_mode": "asleep"}, 422),
         (v.headers, {**good, "acks": [{"command_id": "c-1", "status": "queued"}]}, 422),
-        (
-            v.headers,
-            {**good, "acks": [{"command_id": "c-1", "status": "done", "progress": 101}]},
-            422,
+        *(
+            (
+                v.headers,
+                {**good, "acks": [{"command_id": "c-1", "status": "done", "progress": p}]},
+                422,
+            )
+            for p in (1.5, 50, -0.1)  # a fraction from 0 to 1, not a percentage
         ),
     ]
     for headers, body, status in cases:
