@@ -67,11 +67,16 @@ class GatewayList(WireModel):
     gateways: list[GatewayView]
 
 
+#: The shortest password a user is given (a login is checked against argon2 whatever its
+#: length; this bounds only the passwords set).
+MIN_PASSWORD_CHARS = 8
+
+
 class CreateUser(WireModel):
     username: Identifier
     role: Role
     vehicles: list[Identifier] = Field(default_factory=list, max_length=10000)
-    password: Text | None = Field(default=None, min_length=1, max_length=256)
+    password: Text | None = Field(default=None, min_length=MIN_PASSWORD_CHARS, max_length=256)
 
 
 class UserCreated(WireModel):
@@ -108,7 +113,7 @@ class PatchUser(WireModel):
     role: Role | None = None
     vehicles: list[Identifier] | None = Field(default=None, max_length=10000)
     disabled: StrictBool | None = None
-    password: Text | None = Field(default=None, min_length=1, max_length=256)
+    password: Text | None = Field(default=None, min_length=MIN_PASSWORD_CHARS, max_length=256)
 
 
 class LoginRequest(WireModel):

@@ -5,12 +5,14 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Literal
 
-from pydantic import Field, SecretStr, ValidationError
+from pydantic import Field, SecretStr, ValidationError, field_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
 from fleet_protocol.links import MAX_BINARY_FRAME_BYTES, MAX_TEXT_FRAME_BYTES
 
 DAY_S = 86400
+#: The shortest ``FLEET_ADMIN_TOKEN`` taken: the admin's token opens everything.
+MIN_ADMIN_TOKEN_CHARS = 16
 
 
 class Settings(BaseSettings):
@@ -35,7 +37,9 @@ class Settings(BaseSettings):
     host: str = Field(default="127.0.0.1", description="address to listen on")
     port: int = Field(default=8000, ge=0, le=65535, description="port to listen on")
     admin_token: SecretStr | None = Field(
-        default=None, description="bootstrap admin token; unset on a fresh store: one is printed"
+        default=None,
+        description=f"bootstrap admin token, at least {MIN_ADMIN_TOKEN_CHARS} characters; "
+        "unset on a fresh store: one is printed",
     )
     heartbeat_interval_s: float = Field(default=1.0, gt=0, description="agents' heartbeat period")
     stale_after_s: float = Field(default=3.0, gt=0, description="presence: online -> stale")
@@ -219,6 +223,16 @@ class Settings(BaseSettings):
         "unset: server/web/node_modules beside the code",
     )
 
+    @field_validator("admin_token")
+    @classmethod
+    def _long_enough(cls, token: SecretStr | None) -> SecretStr | None:
+        if token is not None and len(token.get_secret_value()) < MIN_ADMIN_TOKEN_CHARS:
+            raise ValueError(
+                f"an admin token has at least {MIN_ADMIN_TOKEN_CHARS} characters "
+                "(python3 -c 'import secrets; print(secrets.token_urlsafe(32))' makes one)"
+            )
+        return token
+
     @property
     def embedded(self) -> bool:
         return self.mongo_url is None
@@ -255,6 +269,6 @@ def refusals(exc: ValidationError) -> dict[str, str]:
     found: dict[str, list[str]] = {}
     for error in exc.errors():
         field = str(error["loc"][0]) if error["loc"] else "settings"
-        message = error["msg"]
+        message = str(error["msg"]).removeprefix("Value error, ")
         found.setdefault(field, []).append(message[:1].lower() + message[1:])
     return {field: "; ".join(messages) for field, messages in found.items()}

@@ -153,10 +153,16 @@ async def test_users_are_added_changed_disabled_and_their_tokens_issued_and_revo
         assert (await fleetctl(base, fresh, "vehicles")).exit_code == 1
 
         with_password = await fleetctl(
-            base, ADMIN_TOKEN, "users", "add", "bo", "--ask-password", input="s3cret\ns3cret\n"
+            base,
+            ADMIN_TOKEN,
+            "users",
+            "add",
+            "bo",
+            "--ask-password",
+            input="s3cret-harbour\ns3cret-harbour\n",
         )
         assert with_password.exit_code == 0, with_password.output
-        login = await c.post("/auth/token", json={"username": "bo", "password": "s3cret"})
+        login = await c.post("/auth/token", json={"username": "bo", "password": "s3cret-harbour"})
         assert login.status_code == 200 and login.json()["token_type"] == "bearer"
 
         bad_role = await fleetctl(base, ADMIN_TOKEN, "users", "add", "cy", "--role", "captain")

@@ -232,3 +232,15 @@ async def test_a_store_left_without_an_admin_gets_its_admin_back_at_start(
         r = await c.get("/api/users/admin", headers=ADMIN)
         assert r.status_code == 200
         assert r.json()["role"] == "admin" and r.json()["disabled"] is False
+
+
+async def test_a_password_set_has_at_least_8_characters(client: httpx.AsyncClient) -> None:
+    r = await client.post(
+        "/api/users",
+        headers=ADMIN,
+        json={"username": "pw-short", "role": "viewer", "password": "x"},
+    )
+    assert r.status_code == 422 and r.json()["error"]["details"][0]["field"] == "password"
+    name, _ = await make_user(client, "viewer", password="eight-ch")
+    r = await client.patch(f"/api/users/{name}", headers=ADMIN, json={"password": "short"})
+    assert r.status_code == 422 and r.json()["error"]["details"][0]["field"] == "password"

@@ -18,9 +18,12 @@ def test_each_bad_setting_is_one_line_naming_its_variable_and_what_it_takes(
     refused = CliRunner().invoke(app, ["--port", "8011"], env=env)
     assert refused.exit_code == 2, refused.output
     assert sorted(refused.stderr.splitlines()) == [
+        "FLEET_ADMIN_TOKEN: an admin token has at least 16 characters "
+        "(python3 -c 'import secrets; print(secrets.token_urlsafe(32))' makes one)",
         "FLEET_LOG_FORMAT: input should be 'text' or 'json'",
         "FLEET_TOKEN_TTL_S: input should be greater than or equal to 60",
     ]
+    assert "secret-x" not in refused.output
     assert refused.stdout == ""
 
 
