@@ -34,11 +34,26 @@ _HTTP_CODES = {
 }
 
 
+#: The longest message an answer carries: one that quotes what a client sent (an id in a
+#: path) does not send it all back.
+MAX_MESSAGE_CHARS = 300
+_CONTROL = re.compile("[\x00-\x1f\x7f-\x9f]")
+
+
+def said(message: str) -> str:
+    """A message as an answer carries it: control characters shown as escapes (``\\x00``),
+    cut at :data:`MAX_MESSAGE_CHARS`."""
+    message = _CONTROL.sub(lambda m: f"\\x{ord(m.group()):02x}", message)
+    if len(message) > MAX_MESSAGE_CHARS:
+        message = message[: MAX_MESSAGE_CHARS - 1] + "…"
+    return message
+
+
 def envelope(
     status: int, code: str, message: str, details: Any = None, headers: dict[str, str] | None = None
 ) -> JSONResponse:
     return SafeJSONResponse(
-        {"error": {"code": code, "message": message, "details": details}},
+        {"error": {"code": code, "message": said(message), "details": details}},
         status_code=status,
         headers=headers,
     )

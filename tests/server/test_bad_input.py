@@ -230,3 +230,12 @@ async def test_a_string_too_long_is_told_in_characters(client: httpx.AsyncClient
         "/upper/start_instance", headers=vh, json={"vehicle_id": vid, "name": "n" * 200}
     )
     assert r.json()["error"]["details"][0]["message"].endswith("at most 128 characters")
+
+
+async def test_a_message_never_sends_a_long_or_raw_id_back(client: httpx.AsyncClient) -> None:
+    r = await client.get("/api/vehicles/" + "x" * 5000, headers=ADMIN)
+    assert r.status_code == 404 and len(r.json()["error"]["message"]) <= 300
+    r = await client.get("/api/vehicles/a%00b%1b%5B2J", headers=ADMIN)
+    assert r.status_code == 404
+    message = r.json()["error"]["message"]
+    assert "\x00" not in message and "\x1b" not in message and "a\\x00b\\x1b[2J" in message
