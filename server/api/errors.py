@@ -84,6 +84,18 @@ def field_errors(errors: list[dict[str, Any]]) -> list[dict[str, str]]:
     return out
 
 
+def _not_read_as_json(errors: list[dict[str, Any]], content_type: str | None) -> bool:
+    """Whether the body was refused whole because it came without a JSON content type
+    (``curl -d`` sends ``application/x-www-form-urlencoded``): FastAPI then does not
+    read it as JSON, and the model finds no object."""
+    media = (content_type or "").partition(";")[0].strip().lower()
+    return (
+        bool(errors)
+        and all(tuple(err.get("loc", ())) == ("body",) for err in errors)
+        and not (media == "application/json" or media.endswith("+json"))
+    )
+
+
 def install(app: FastAPI) -> None:
     @app.exception_handler(FleetError)
     async def _fleet(_: Request, exc: FleetError) -> JSONResponse:
@@ -93,11 +105,17 @@ def install(app: FastAPI) -> None:
         return envelope(exc.status, exc.code, exc.message, exc.details, headers)
 
     @app.exception_handler(RequestValidationError)
-    async def _invalid(_: Request, exc: RequestValidationError) -> JSONResponse:
+    async def _invalid(request: Request, exc: RequestValidationError) -> JSONResponse:
         errors = list(exc.errors())
         if errors and errors[0].get("type") == "json_invalid":  # the body was not read
             why = unreadable_json(errors[0].get("ctx", {}).get("error", ""), exc.body)
             message = f"the body is {why}"
+            return envelope(422, "invalid", message, [{"field": "body", "message": message}])
+        if _not_read_as_json(errors, request.headers.get("content-type")):
+            message = (
+                "the body is read as JSON only when sent with Content-Type: application/json "
+                f"(this one: {request.headers.get('content-type') or 'none'})"
+            )
             return envelope(422, "invalid", message, [{"field": "body", "message": message}])
         details = field_errors(errors)
         fields = ", ".join(d["field"] for d in details)

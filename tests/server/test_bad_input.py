@@ -239,3 +239,17 @@ async def test_a_message_never_sends_a_long_or_raw_id_back(client: httpx.AsyncCl
     assert r.status_code == 404
     message = r.json()["error"]["message"]
     assert "\x00" not in message and "\x1b" not in message and "a\\x00b\\x1b[2J" in message
+
+
+@pytest.mark.parametrize("content_type", ["application/x-www-form-urlencoded", "text/plain", None])
+async def test_a_json_body_without_its_content_type_is_told_so(
+    client: httpx.AsyncClient, content_type: str | None
+) -> None:
+    """``curl -d`` sends a form's content type: the answer says what is missing."""
+    headers = {**ADMIN, **({"Content-Type": content_type} if content_type else {})}
+    body = b'{"vehicle_id": "ct-1", "name": "x"}'
+    r = await client.post("/api/vehicles", headers=headers, content=body)
+    assert r.status_code == 422, r.text
+    error = r.json()["error"]
+    assert error["details"][0]["field"] == "body"
+    assert "Content-Type: application/json" in error["message"]
