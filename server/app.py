@@ -27,6 +27,7 @@ from server.api import (
     upper_control,
     zones,
 )
+from server.api.durable import DurableAnswers
 from server.api.limits import BodyLimit
 from server.api.openapi import document_errors
 from server.api.ws import LIVE_PATHS, serve_live
@@ -125,6 +126,7 @@ def create_app(
         app.include_router(module.router)
     app.include_router(fleet_telemetry.router)
     console.install(app, settings)
+    app.add_middleware(DurableAnswers)
     app.add_middleware(MetricsMiddleware, metrics=metrics)
     app.add_middleware(BodyLimit, max_bytes=settings.max_body_bytes)
     return app

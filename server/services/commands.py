@@ -161,6 +161,7 @@ class CommandService(CommandLanes):
             await self._audit(cmd, principal, args=cmd.args)
         for gone in superseded:
             await self._finished(gone)
+        await self.repo.make_durable()  # a 202 is a command that outlives a crash
         return [
             {"instance_id": c.instance_id, "command_id": c.command_id, "status": "queued"}
             for c in made
@@ -181,6 +182,7 @@ class CommandService(CommandLanes):
         )
         if life.cancel(cmd, self.clock(), f"by {principal.name}"):
             await self._finished(cmd, actor=principal)
+            await self.repo.make_durable()
         return cmd
 
     async def get(self, principal: Principal, command_id: str) -> Command:
@@ -292,7 +294,8 @@ class CommandService(CommandLanes):
         state = await self.instances.for_vehicle_caller(principal, instance_id)
         self.instances.touch(state)
         was = state.control_mode
-        if await self.instances.set_control_mode(state, control_mode):
+        moved = await self.instances.set_control_mode(state, control_mode)
+        if moved:
             await self.events.record(  # failsafe and local control matter to the operators
                 "control_mode",
                 vehicle_id=state.vehicle_id,
@@ -342,6 +345,8 @@ class CommandService(CommandLanes):
                 self._moved(cmd)
         if acks:
             self.messages.emit_now(StateWritten(state.instance_id, "commands"))
+        if acks or moved:  # the vehicle forgets what it sent once it is answered
+            await self.repo.make_durable()
         abort.extend(lane.take_aborts())
         return list(dict.fromkeys(abort))
 

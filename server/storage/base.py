@@ -127,6 +127,13 @@ class Store(ABC):
         """Make every write so far durable; whether anything was written."""
         return False
 
+    async def make_durable(self) -> bool:
+        """Every write so far durable before an answer says it was taken (a command
+        accepted, a vehicle's ack): only the writes themselves, never a compaction.
+        False when that cannot be done now (logged; durable at the first flush that
+        works): the caller answers all the same, never with an error."""
+        return True  # an acknowledged write is durable already
+
     async def close(self) -> None:  # noqa: B027 - nothing to close by default
         """Let go of the connection; the embedded store writes its snapshot."""
 

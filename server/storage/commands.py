@@ -17,6 +17,7 @@ from server.storage.backends import Doc, Duplicate, Store
 
 class CommandsRepo:
     def __init__(self, store: Store) -> None:
+        self.store = store
         self.active = store["commands_active"]
         self.finished = store["commands"]
 
@@ -24,6 +25,10 @@ class CommandsRepo:
         await self.active.create_index([("instance_id", 1), ("seq", 1)])
         await self.finished.create_index([("instance_id", 1), ("issued_at", 1)])
         await self.finished.create_index([("ended_at", 1)])
+
+    async def make_durable(self) -> None:
+        """What was written so far survives a crash (the embedded store's journal)."""
+        await self.store.make_durable()
 
     async def all_active(self) -> list[Doc]:
         return await self.active.find({}, sort=[("seq", 1)])

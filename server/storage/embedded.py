@@ -380,6 +380,15 @@ class EmbeddedStore(Store):
             await self.journal.compact(self._snapshot)
         return flushed
 
+    async def make_durable(self) -> bool:
+        """The journal appended and fsynced (callers at the same moment share one)."""
+        try:
+            await self.journal.flush()
+        except OSError as exc:
+            log.error("writes answered before they are durable: the journal failed (%s)", exc)
+            return False
+        return True
+
     async def close(self) -> None:
         await self.journal.flush()
         await self.journal.compact(self._snapshot)

@@ -41,3 +41,30 @@ async def test_queues_and_leases_survive_a_clean_restart(
             )
             assert dropped in [c["command_id"] for c in r.json()["commands"]]
             assert len(r.json()["commands"]) == 4
+
+
+async def test_what_was_answered_outlives_a_crash(
+    make_settings: Callable[..., Settings],
+) -> None:
+    """The server dies with no time to flush (the journal's own flush an hour away): a
+    command answered 202, a vehicle's ack answered 200, a cancel and a zone answered are
+    on disk for the server that starts next (on MongoDB, an acknowledged write is)."""
+    settings, clock = make_settings(snapshot_interval_s=3600), FakeClock()
+    async with world(settings, clock) as w:
+        v = await w.vehicle()
+        op = await w.operator_in_control(v, duration_s=600)
+        running = await w.queued(op, v, GO_TO, ttl_s=600)
+        await w.poll(v)
+        await w.ack(v, (running, "accepted"))
+        waiting = await w.queued(op, v, GO_TO, ttl_s=600)
+        dropped = await w.queued(op, v, GO_TO, ttl_s=600)
+        r = await w.http.post(
+            "/client/cancel_command", headers=op.headers, json={"command_id": dropped}
+        )
+        assert r.status_code == 200, r.text
+        # Another server starts on what is on disk while this one still runs: as after a
+        # SIGKILL, nothing this one holds in memory reaches the next.
+        async with world(settings, clock) as after:
+            assert statuses(await after.command(running))[-1] == "accepted"
+            assert (await after.command(waiting))["status"] == "queued"
+            assert (await after.command(dropped))["status"] == "cancelled"
