@@ -160,6 +160,13 @@ def test_log_in_and_watch_the_fleet_move_live(
     page.goto("/")
     expect(page.locator("#login-form")).to_be_visible()
     shots(page, "login")
+    # a token pasted that the server refuses: the login page says so
+    page.click("#login details summary")
+    page.fill("#login-token", "fct_not-a-token-anybody-has")
+    page.click("#login-token-go")
+    expect(page.locator("#login-error")).to_have_text(
+        "this token was refused: it is wrong, revoked or expired"
+    )
     log_in(page, "ana")
     expect(page.locator("#who")).to_have_text("ana · operator")
     for vehicle_id in ALL:

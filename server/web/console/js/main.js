@@ -20,17 +20,30 @@ function showLogin(message = "") {
   $("login-user").focus();
 }
 
-async function start(token) {
+// What the login page says when a token is refused (401) at start.
+const REFUSED = {
+  pasted: "this token was refused: it is wrong, revoked or expired",
+  saved: "your session has ended (expired or revoked): sign in again",
+};
+
+// Set before the page reloads on a refused token, read once by the page that follows.
+const ENDED = "fleet-session-ended";
+
+async function start(token, refused = REFUSED.saved) {
   let me;
+  let started = false;
   const api = new Api(token, () => {
+    if (!started) return; // the first call's refusal is said on the login page below
     saveToken(null);
+    sessionStorage.setItem(ENDED, "1");
     location.reload();
   });
   try {
     me = await api.get("/api/me");
+    started = true;
   } catch (e) {
     saveToken(null);
-    return showLogin(e.status === 401 ? "" : e.message);
+    return showLogin(e.status === 401 ? refused : e.message);
   }
   const config = await fetch("/console/config.json").then((r) => r.json()).catch(() => ({}));
   let MapView;
@@ -63,7 +76,7 @@ $("login-token-go").addEventListener("click", async () => {
   if (!token) return;
   saveToken(token);
   $("login-token").value = "";
-  await start(token);
+  await start(token, REFUSED.pasted);
 });
 
 // ---- the console ----------------------------------------------------------------------
@@ -467,4 +480,7 @@ class Console {
 // ---- start ---------------------------------------------------------------------------------
 const token = savedToken();
 if (token) start(token);
-else showLogin();
+else if (sessionStorage.getItem(ENDED)) {
+  sessionStorage.removeItem(ENDED);
+  showLogin(REFUSED.saved);
+} else showLogin();
