@@ -164,6 +164,7 @@ class Console {
     } else if (state === "refused") {
       link.textContent = "refused: log in again";
       saveToken(null);
+      sessionStorage.setItem(ENDED, "1");
       setTimeout(() => location.reload(), 1500);
     } else {
       link.textContent = this.wasLost ? "link lost · reconnecting…" : "connecting…";
