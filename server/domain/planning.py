@@ -215,9 +215,8 @@ def _check_waypoints(
             f"waypoint {index} is within {radii[k]:g} m of {obstacles[k].name or 'an obstacle'}"
         )
     area = areas[int(np.argmax(in_area[index]))]
-    raise NoPath(
-        f"waypoint {index} is inside {area.label} or within its clearance of {area.clearance:g} m"
-    )
+    within = f" or within its clearance of {area.clearance:g} m" if area.clearance else ""
+    raise NoPath(f"waypoint {index} is inside {area.label}{within}")
 
 
 def _leg(

@@ -166,7 +166,11 @@ class Admission:
                 route = [(float(p["lat"]), float(p["lon"])) for p in route_of(args)]
                 start = position_of(state)
                 if plan and self.separation_m > 0 and len(targets) > 1:
-                    name = f"the path planned for {state.vehicle_id} (FLEET_SEPARATION_M)"
+                    name = (
+                        f"the {self.separation_m:g} m about the path planned for "
+                        f"{state.vehicle_id} (vehicles sent together keep FLEET_SEPARATION_M "
+                        "apart: give each its own waypoints)"
+                    )
                     way = [start, *route] if start is not None else route
                     planned.append(corridor(way, self.separation_m, name))
             by_instance[state.instance_id] = args

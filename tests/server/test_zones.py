@@ -294,7 +294,8 @@ async def test_multi_vehicle_plans_keep_the_separation(w: World) -> None:
     same = {"type": "follow_path", "args": {"waypoints": [at(200, 20)], "plan": True}}
     r = await w.submit(op, [a, b], same)
     assert r.status_code == 422
-    assert "path planned for" in r.json()["error"]["message"]
+    message = r.json()["error"]["message"]
+    assert "the 10 m about the path planned for" in message and "clearance of 0" not in message
     # Crossing courses: the second goes round the first's path.
     crossing = {"type": "follow_path", "args": {"waypoints": [at(100, 40)], "plan": True}}
     r = await w.submit(op, [a], crossing)
