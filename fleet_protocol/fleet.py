@@ -2,13 +2,23 @@
 
 from __future__ import annotations
 
+from typing import Literal
+
 from pydantic import Field
 
 from fleet_protocol.common import Sample, Timestamp, WireModel
 from fleet_protocol.upper import ControlInfo, FailsafePolicy
 from fleet_protocol.values import ServedObject, ServedObjects, Text
 
-__all__ = ["Event", "EventList", "TelemetryPage", "Track", "VehicleList", "VehicleView"]
+__all__ = [
+    "Event",
+    "EventKind",
+    "EventList",
+    "TelemetryPage",
+    "Track",
+    "VehicleList",
+    "VehicleView",
+]
 
 
 class VehicleView(WireModel):
@@ -46,8 +56,35 @@ class TelemetryPage(WireModel):
     next_after_seq: int | None
 
 
+#: Every kind of event the server records (``GET /api/events?kind=``; docs/api.md).
+EventKind = Literal[
+    "instance",
+    "presence",
+    "command",
+    "control_request",
+    "control_grant",
+    "control_deny",
+    "control_revoke",
+    "control_release",
+    "control_expired",
+    "control_mode",
+    "hold_station",
+    "failsafe_changed",
+    "failsafe_acked",
+    "failsafe_entered",
+    "failsafe_left",
+    "zones_changed",
+    "zone_breach",
+    "zone_cleared",
+    "low_battery",
+    "battery_recovered",
+    "collision_risk",
+]
+
+
 class Event(WireModel):
     event_id: Text
+    #: One of :data:`EventKind` (``Text``: one an older or newer server recorded is read).
     kind: Text
     vehicle_id: Text | None = None
     instance_id: Text | None = None

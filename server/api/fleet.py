@@ -9,6 +9,7 @@ from fastapi import APIRouter, Query
 from fleet_protocol import (
     ConnectInstance,
     ConnectInstanceResult,
+    EventKind,
     EventList,
     GetParamResult,
     Timestamp,
@@ -54,7 +55,7 @@ async def list_events(
     user: Viewer,
     s: ServicesDep,
     vehicle_id: Annotated[str | None, Query(max_length=64)] = None,
-    kind: Annotated[str | None, Query(max_length=64)] = None,
+    kind: EventKind | None = None,
     start: Annotated[Timestamp | None, Query(alias="from")] = None,
     end: Annotated[Timestamp | None, Query(alias="to")] = None,
     limit: Annotated[int, Query(ge=1, le=10_000)] = 1000,

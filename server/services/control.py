@@ -21,7 +21,7 @@ from collections.abc import KeysView
 from datetime import datetime, timedelta
 from typing import Any
 
-from fleet_protocol import ControlInfo, format_ts
+from fleet_protocol import ControlInfo, EventKind, format_ts
 from server.domain import arbitration as rules
 from server.domain.access import Principal
 from server.domain.arbitration import ControlRequest, Grantee, Lease
@@ -350,7 +350,7 @@ class ControlService:
         self.messages.emit_now(ControlChanged(instance_id, vehicle_id, info))
 
     async def _audit(
-        self, kind: str, state: InstanceState, principal: Principal, data: dict[str, Any]
+        self, kind: EventKind, state: InstanceState, principal: Principal, data: dict[str, Any]
     ) -> None:
         await self.events.record(
             kind,

@@ -6,6 +6,7 @@ import secrets
 from datetime import datetime, timedelta
 from typing import Any
 
+from fleet_protocol import EventKind
 from server.domain.access import Principal
 from server.domain.clock import Clock
 from server.domain.events import EventRecorded
@@ -27,7 +28,7 @@ class EventService:
 
     async def record(
         self,
-        kind: str,
+        kind: EventKind,
         *,
         vehicle_id: str | None = None,
         instance_id: str | None = None,
@@ -53,7 +54,7 @@ class EventService:
         principal: Principal,
         *,
         vehicle_id: str | None,
-        kind: str | None,
+        kind: EventKind | None,
         start: datetime | None,
         end: datetime | None,
         limit: int,

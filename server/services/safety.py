@@ -24,7 +24,7 @@ import logging
 from collections.abc import Awaitable
 from typing import Any
 
-from fleet_protocol import FailsafePolicy, SetFailsafe
+from fleet_protocol import EventKind, FailsafePolicy, SetFailsafe
 from server.domain.access import Principal
 from server.domain.arbitration import may_grant
 from server.domain.clock import Clock
@@ -277,7 +277,7 @@ class SafetyService:
             data = {**self._zone_data(state, zone_id, entered=False), **where}
             await self._event("zone_cleared", state, data)
         if moved.battery is not None:
-            kind = "low_battery" if moved.battery == "low" else "battery_recovered"
+            kind: EventKind = "low_battery" if moved.battery == "low" else "battery_recovered"
             threshold = self.known_policy(state.vehicle_id).low_battery_pct
             data = {"battery_pct": sample.battery_pct, "threshold_pct": threshold, **where}
             await self._event(kind, state, data)
@@ -334,7 +334,7 @@ class SafetyService:
                 return kind, {"lat": home[0], "lon": home[1]}
         return "keep_station", {}
 
-    async def _event(self, kind: str, state: InstanceState, data: dict[str, Any]) -> None:
+    async def _event(self, kind: EventKind, state: InstanceState, data: dict[str, Any]) -> None:
         await self.events.record(
             kind, vehicle_id=state.vehicle_id, instance_id=state.instance_id, data=data
         )

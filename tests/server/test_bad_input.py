@@ -253,3 +253,12 @@ async def test_a_json_body_without_its_content_type_is_told_so(
     error = r.json()["error"]
     assert error["details"][0]["field"] == "body"
     assert "Content-Type: application/json" in error["message"]
+
+
+async def test_an_unknown_event_kind_is_422_naming_the_kinds(client: httpx.AsyncClient) -> None:
+    r = await client.get("/api/events", headers=ADMIN, params={"kind": "nonsense"})
+    assert r.status_code == 422, r.text
+    detail = r.json()["error"]["details"][0]
+    assert detail["field"] == "kind" and "zone_breach" in detail["message"]
+    r = await client.get("/api/events", headers=ADMIN, params={"kind": "presence"})
+    assert r.status_code == 200
