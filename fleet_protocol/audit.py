@@ -14,7 +14,8 @@ from collections.abc import Mapping, Sequence
 from typing import Any
 
 from fleet_protocol.common import Timestamp, WireModel
-from fleet_protocol.values import ServedObject, Text
+from fleet_protocol.served import ServedObject
+from fleet_protocol.values import Text
 
 __all__ = ["GENESIS", "AuditEntry", "AuditPage", "entry_hash", "first_break"]
 

@@ -9,7 +9,8 @@ from typing import Literal, get_args
 from pydantic import Field, StrictBool, StrictFloat, ValidationError, model_validator
 
 from fleet_protocol.common import Latitude, LatLon, Longitude, Timestamp, WireModel
-from fleet_protocol.values import JsonObject, ServedObject, Text
+from fleet_protocol.served import ServedObject
+from fleet_protocol.values import JsonObject, Text
 
 __all__ = [
     "ACK_STATUSES",

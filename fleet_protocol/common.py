@@ -20,12 +20,12 @@ from pydantic import (
 )
 from pydantic_core import core_schema
 
+from fleet_protocol.served import json_safe
 from fleet_protocol.values import (
     MAX_SAMPLE_DATA_BYTES,
     MAX_TIMESTAMP,
     MIN_TIMESTAMP,
     SampleData,
-    json_safe,
 )
 
 __all__ = [

@@ -7,8 +7,9 @@ from typing import Literal
 from pydantic import Field
 
 from fleet_protocol.common import Sample, Timestamp, WireModel
+from fleet_protocol.served import ServedObject, ServedObjects
 from fleet_protocol.upper import ControlInfo, FailsafePolicy
-from fleet_protocol.values import ServedObject, ServedObjects, Text
+from fleet_protocol.values import Text
 
 __all__ = [
     "Event",

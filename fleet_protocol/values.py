@@ -22,16 +22,14 @@ free-form value in one walk that stops at the first bad value and names it:
 range is :data:`MIN_TIMESTAMP` to :data:`MAX_TIMESTAMP`
 (:data:`fleet_protocol.common.Timestamp`).
 
-:func:`json_safe` is the other direction: a value already stored that breaks
-a rule (written by an older version) made into one JSON can hold, for the
-encoders that must still send it.
+The other direction, a value stored before a rule existed made safe to send,
+is :mod:`fleet_protocol.served`.
 
 Pydantic only: the server, the agent and the operator tools all check with it.
 """
 
 from __future__ import annotations
 
-import json
 import math
 import re
 from collections.abc import Callable, Mapping
@@ -41,15 +39,12 @@ from typing import Annotated, Any
 from pydantic import (
     BeforeValidator,
     PlainValidator,
-    SerializerFunctionWrapHandler,
     ValidationError,
     WithJsonSchema,
-    WrapSerializer,
 )
 from pydantic_core import (
     InitErrorDetails,
     PydanticCustomError,
-    PydanticSerializationError,
     to_json,
 )
 
@@ -62,19 +57,17 @@ __all__ = [
     "MAX_TIMESTAMP",
     "MIN_INT",
     "MIN_TIMESTAMP",
+    "SURROGATE",
     "JsonObject",
     "JsonValue",
     "Label",
     "Params",
     "SampleData",
-    "ServedObject",
-    "ServedObjects",
     "Text",
     "check_text",
     "error_text",
+    "escape_controls",
     "json_problem",
-    "json_safe",
-    "safe_dumps",
     "shown_text",
     "unreadable_json",
 ]
@@ -107,7 +100,8 @@ _TOO_DEEP_MSG = (
     "docs/limits.md)"
 )
 
-_SURROGATE = re.compile("[\ud800-\udfff]")
+#: A lone UTF-16 surrogate: what neither UTF-8 nor BSON can hold.
+SURROGATE = re.compile("[\ud800-\udfff]")
 
 _INT_MSG = f"an integer must lie within signed 64-bit ({MIN_INT} to {MAX_INT})"
 _FLOAT_MSG = "NaN and Infinity are not JSON numbers: send a finite number or null"
@@ -120,7 +114,7 @@ Problem = tuple[Path, str]
 
 
 def _has_surrogate(text: str) -> bool:
-    return not text.isascii() and _SURROGATE.search(text) is not None
+    return not text.isascii() and SURROGATE.search(text) is not None
 
 
 def _key_problem(key: object) -> str | None:
@@ -143,7 +137,7 @@ def _key_problem(key: object) -> str | None:
 
 def shown_text(text: str) -> str:
     """``text`` with any lone surrogate replaced by U+FFFD: for paths and messages."""
-    return text if text.isascii() else _SURROGATE.sub("\ufffd", text)
+    return text if text.isascii() else SURROGATE.sub("\ufffd", text)
 
 
 def _shown_key(key: object) -> str:
@@ -184,7 +178,7 @@ def _object_problem(value: dict[Any, Any], depth: int) -> Problem | None:
                 return [_shown_key(key)], message
         kind = type(item)
         if kind is str:
-            if item.isascii() or _SURROGATE.search(item) is None:
+            if item.isascii() or SURROGATE.search(item) is None:
                 continue
             return [key], _TEXT_MSG
         if kind is float:
@@ -218,7 +212,7 @@ def _array_problem(value: list[Any] | tuple[Any, ...], depth: int) -> Problem | 
                 continue
             return [index], _INT_MSG
         if kind is str:
-            if item.isascii() or _SURROGATE.search(item) is None:
+            if item.isascii() or SURROGATE.search(item) is None:
                 continue
             return [index], _TEXT_MSG
         if kind is bool or item is None:
@@ -323,7 +317,7 @@ SampleData = Annotated[
 
 def check_text(value: object) -> object:
     """A string without lone surrogates; anything else for the ``str`` schema to refuse."""
-    if not isinstance(value, str) or value.isascii() or _SURROGATE.search(value) is None:
+    if not isinstance(value, str) or value.isascii() or SURROGATE.search(value) is None:
         return value
     raise PydanticCustomError("string_unicode", _TEXT_MSG)
 
@@ -357,66 +351,15 @@ def check_label(value: object) -> object:
     return value
 
 
+def escape_controls(text: str) -> str:
+    """``text`` with each control character shown as its escape (``\\x1b``), for a
+    message that quotes what a client sent."""
+    return _CONTROL.sub(lambda m: f"\\x{ord(m.group()):02x}", text)
+
+
 #: A name people read on a console or a terminal (a vehicle's, an obstacle's): ``Text``
 #: without control characters (NUL, escape sequences, line breaks).
 Label = Annotated[str, BeforeValidator(check_text), BeforeValidator(check_label)]
-
-
-# -- the other way: stored values that break a rule, made safe to send --------
-
-
-def json_safe(value: Any, depth: int = 0) -> Any:
-    """``value`` with what JSON cannot hold replaced: integers past signed 64-bit as
-    strings, NaN and Infinity as null, lone surrogates as U+FFFD, keys as strings, other
-    objects as their ``str``; past :data:`MAX_JSON_DEPTH` * 4 levels, a string."""
-    if isinstance(value, str):
-        return _SURROGATE.sub("\ufffd", value) if not value.isascii() else value
-    if isinstance(value, bool) or value is None:
-        return value
-    if isinstance(value, int):
-        return int(value) if MIN_INT <= value <= MAX_INT else str(value)
-    if isinstance(value, float):
-        return float(value) if math.isfinite(value) else None
-    if depth > 4 * MAX_JSON_DEPTH:
-        return "…"
-    if isinstance(value, dict):
-        return {json_safe(_key_text(k)): json_safe(v, depth + 1) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [json_safe(v, depth + 1) for v in value]
-    if isinstance(value, datetime):
-        from fleet_protocol.common import format_ts  # common imports this module
-
-        try:
-            return format_ts(value)
-        except (OverflowError, ValueError):
-            return value.isoformat()
-    return json_safe(str(value), depth)
-
-
-def _serve_escaped(value: Any, handler: SerializerFunctionWrapHandler) -> Any:
-    try:
-        return handler(value)
-    except (PydanticSerializationError, UnicodeError):
-        return handler(json_safe(value))
-
-
-#: Free-form fields the server fills from the store (``Event.data``,
-#: ``GetParamResult.params``, ``TelemetryPage.samples``...): a value stored before a rule
-#: existed that JSON cannot hold is sent escaped (:func:`json_safe`) instead of failing
-#: the whole answer. One call per field; the walk only when serialising failed.
-ServedObject = Annotated[dict[str, Any], WrapSerializer(_serve_escaped, return_type=dict[str, Any])]
-ServedObjects = Annotated[
-    list[dict[str, Any]], WrapSerializer(_serve_escaped, return_type=list[dict[str, Any]])
-]
-
-
-def _key_text(key: Any) -> str:
-    return key if isinstance(key, str) else str(key)
-
-
-def safe_dumps(value: Any) -> str:
-    """Compact JSON text of :func:`json_safe` ``(value)``: what the encoders fall back to."""
-    return json.dumps(json_safe(value), separators=(",", ":"), ensure_ascii=False)
 
 
 def unreadable_json(error: object, raw: object = None) -> str:

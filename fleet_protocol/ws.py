@@ -37,6 +37,7 @@ from pydantic_core import PydanticSerializationError, to_json
 from fleet_protocol.commands import CommandObject
 from fleet_protocol.common import Identifier, Timestamp, WireModel
 from fleet_protocol.errors import ErrorBody
+from fleet_protocol.served import safe_dumps
 from fleet_protocol.topics import Topic
 from fleet_protocol.upper import (
     ControlInfo,
@@ -47,7 +48,7 @@ from fleet_protocol.upper import (
     UpdateFbMessage,
     UpdateParam,
 )
-from fleet_protocol.values import JsonValue, Text, safe_dumps
+from fleet_protocol.values import JsonValue, Text
 
 __all__ = [
     "MAX_BATCH_OPS",
@@ -207,7 +208,7 @@ class _Push(BaseModel):
 
     def frame(self) -> str:
         """The JSON text frame; a value JSON cannot hold (data stored by an older version)
-        is sent escaped (``fleet_protocol.values.json_safe``), never refused."""
+        is sent escaped (``fleet_protocol.served.json_safe``), never refused."""
         try:
             return self.model_dump_json()
         except PydanticSerializationError:

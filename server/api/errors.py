@@ -11,7 +11,7 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
-from fleet_protocol.values import error_text, shown_text, unreadable_json
+from fleet_protocol.values import error_text, escape_controls, shown_text, unreadable_json
 from server.api.responses import SafeJSONResponse
 from server.errors import FleetError, RateLimited, Unavailable
 
@@ -37,13 +37,12 @@ _HTTP_CODES = {
 #: The longest message an answer carries: one that quotes what a client sent (an id in a
 #: path) does not send it all back.
 MAX_MESSAGE_CHARS = 300
-_CONTROL = re.compile("[\x00-\x1f\x7f-\x9f]")
 
 
 def said(message: str) -> str:
     """A message as an answer carries it: control characters shown as escapes (``\\x00``),
     cut at :data:`MAX_MESSAGE_CHARS`."""
-    message = _CONTROL.sub(lambda m: f"\\x{ord(m.group()):02x}", message)
+    message = escape_controls(message)
     if len(message) > MAX_MESSAGE_CHARS:
         message = message[: MAX_MESSAGE_CHARS - 1] + "…"
     return message

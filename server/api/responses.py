@@ -3,12 +3,12 @@
 :class:`SafeJSONResponse` is orjson, and when orjson refuses a value (an
 integer past 64 bits, a lone surrogate, a key that is not a string: data
 stored by an older version), the same value made safe by
-:func:`fleet_protocol.values.json_safe` (integers past 64 bits as strings,
+:func:`fleet_protocol.served.json_safe` (integers past 64 bits as strings,
 NaN and Infinity as null, lone surrogates as U+FFFD, keys as strings). What
 the wire models accept today never needs it. The error envelope and the
 routes that build their ``JSONResponse`` themselves use it; routes with a
 response model are serialised by pydantic, whose free-form output fields
-escape the same way (``fleet_protocol.values.ServedObject``).
+escape the same way (``fleet_protocol.served.ServedObject``).
 
 :class:`ModelResponse` is an answer written straight from its pydantic model.
 FastAPI validates and re-serialises whatever a route returns; the vehicles'
@@ -26,7 +26,7 @@ from pydantic import BaseModel
 from pydantic_core import PydanticSerializationError
 from starlette.responses import JSONResponse, Response
 
-from fleet_protocol.values import safe_dumps
+from fleet_protocol.served import safe_dumps
 
 __all__ = ["ModelResponse", "SafeJSONResponse", "safe_json_bytes"]
 

@@ -161,7 +161,6 @@ class CommandService(CommandLanes):
             await self._audit(cmd, principal, args=cmd.args)
         for gone in superseded:
             await self._finished(gone)
-        await self.repo.make_durable()  # a 202 is a command that outlives a crash
         return [
             {"instance_id": c.instance_id, "command_id": c.command_id, "status": "queued"}
             for c in made
@@ -182,7 +181,6 @@ class CommandService(CommandLanes):
         )
         if life.cancel(cmd, self.clock(), f"by {principal.name}"):
             await self._finished(cmd, actor=principal)
-            await self.repo.make_durable()
         return cmd
 
     async def get(self, principal: Principal, command_id: str) -> Command:
@@ -345,8 +343,8 @@ class CommandService(CommandLanes):
                 self._moved(cmd)
         if acks:
             self.messages.emit_now(StateWritten(state.instance_id, "commands"))
-        if acks or moved:  # the vehicle forgets what it sent once it is answered
-            await self.repo.make_durable()
+        if acks or moved:  # the vehicle forgets what it sent once it is answered (an
+            await self.repo.make_durable()  # operator's submit: api/durable.py)
         abort.extend(lane.take_aborts())
         return list(dict.fromkeys(abort))
 

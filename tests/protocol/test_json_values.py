@@ -28,8 +28,9 @@ from fleet_protocol import (
     UpdateParam,
 )
 from fleet_protocol.errors import ErrorBody, ErrorEnvelope, FieldError
+from fleet_protocol.served import json_safe, safe_dumps
 from fleet_protocol.topics import validate_topic
-from fleet_protocol.values import check_text, json_problem, json_safe, safe_dumps
+from fleet_protocol.values import check_text, json_problem
 from fleet_protocol.ws import (
     EventPush,
     PublishOp,

@@ -8,7 +8,7 @@ import pytest
 
 from server.settings import Settings
 from tests.factories import FakeClock
-from tests.server.commanding import GO_TO, statuses, world
+from tests.server.commanding import GO_TO, Person, Vehicle, World, statuses, world
 
 # Each test runs on the embedded store and on FerretDB (the real MongoDB driver).
 pytestmark = pytest.mark.usefixtures("store_backend")
@@ -19,17 +19,7 @@ async def test_queues_and_leases_survive_a_clean_restart(
 ) -> None:
     settings, clock = make_settings(), FakeClock()
     async with world(settings, clock) as w:
-        v = await w.vehicle()
-        op = await w.operator_in_control(v, duration_s=600)
-        running = await w.queued(op, v, GO_TO, ttl_s=600)
-        await w.poll(v)
-        await w.ack(v, (running, "accepted"))
-        dropped = await w.queued(op, v, GO_TO, ttl_s=600)
-        r = await w.http.post(
-            "/client/cancel_command", headers=op.headers, json={"command_id": dropped}
-        )
-        assert r.status_code == 200, r.text
-        waiting = await w.queued(op, v, GO_TO, ttl_s=600)
+        v, op, running, dropped, waiting = await _one_of_each(w)
     async with world(settings, clock) as w:
         assert statuses(await w.command(running)) == ["queued", "delivered", "accepted"]
         assert (await w.command(dropped))["status"] == "cancelled"
@@ -47,24 +37,31 @@ async def test_what_was_answered_outlives_a_crash(
     make_settings: Callable[..., Settings],
 ) -> None:
     """The server dies with no time to flush (the journal's own flush an hour away): a
-    command answered 202, a vehicle's ack answered 200, a cancel and a zone answered are
-    on disk for the server that starts next (on MongoDB, an acknowledged write is)."""
+    command answered 202, a vehicle's ack answered 200 and a cancel answered are on disk
+    for the server that starts next (on MongoDB, an acknowledged write is)."""
     settings, clock = make_settings(snapshot_interval_s=3600), FakeClock()
     async with world(settings, clock) as w:
-        v = await w.vehicle()
-        op = await w.operator_in_control(v, duration_s=600)
-        running = await w.queued(op, v, GO_TO, ttl_s=600)
-        await w.poll(v)
-        await w.ack(v, (running, "accepted"))
-        waiting = await w.queued(op, v, GO_TO, ttl_s=600)
-        dropped = await w.queued(op, v, GO_TO, ttl_s=600)
-        r = await w.http.post(
-            "/client/cancel_command", headers=op.headers, json={"command_id": dropped}
-        )
-        assert r.status_code == 200, r.text
+        _, _, running, dropped, waiting = await _one_of_each(w)
         # Another server starts on what is on disk while this one still runs: as after a
         # SIGKILL, nothing this one holds in memory reaches the next.
         async with world(settings, clock) as after:
             assert statuses(await after.command(running))[-1] == "accepted"
             assert (await after.command(waiting))["status"] == "queued"
             assert (await after.command(dropped))["status"] == "cancelled"
+
+
+async def _one_of_each(w: World) -> tuple[Vehicle, Person, str, str, str]:
+    """A vehicle under an operator's lease with a command accepted, one cancelled and
+    one queued: ``(vehicle, operator, running, dropped, waiting)``."""
+    v = await w.vehicle()
+    op = await w.operator_in_control(v, duration_s=600)
+    running = await w.queued(op, v, GO_TO, ttl_s=600)
+    await w.poll(v)
+    await w.ack(v, (running, "accepted"))
+    dropped = await w.queued(op, v, GO_TO, ttl_s=600)
+    r = await w.http.post(
+        "/client/cancel_command", headers=op.headers, json={"command_id": dropped}
+    )
+    assert r.status_code == 200, r.text
+    waiting = await w.queued(op, v, GO_TO, ttl_s=600)
+    return v, op, running, dropped, waiting
