@@ -20,7 +20,14 @@ from server.api.responses import ModelResponse
 from server.bus.wire import dumps
 
 # The vehicles' calls: the plain ones are answered without FastAPI's request handler.
+# A request is matched against the routes in order: the most frequent call is first.
 router = APIRouter(prefix="/upper", tags=["vehicle"], route_class=LeanRoute)
+
+
+@router.post("/update_param", response_model=UpdateParamResult)
+async def update_param(body: UpdateParam, caller: VehicleCaller, s: ServicesDep) -> ModelResponse:
+    counts = await s.link.update_param(caller, body, "http")
+    return ModelResponse(dumps(counts))  # plain counters and the server's time, as text
 
 
 @router.post("/start_instance")
@@ -40,9 +47,3 @@ async def finish_instance(
 @router.post("/heartbeat")
 async def heartbeat(body: Heartbeat, caller: VehicleCaller, s: ServicesDep) -> HeartbeatResult:
     return await s.link.heartbeat(caller, body.instance_id)
-
-
-@router.post("/update_param", response_model=UpdateParamResult)
-async def update_param(body: UpdateParam, caller: VehicleCaller, s: ServicesDep) -> ModelResponse:
-    counts = await s.link.update_param(caller, body, "http")
-    return ModelResponse(dumps(counts))  # plain counters and the server's time, as text
