@@ -96,3 +96,6 @@ class Event(WireModel):
 
 class EventList(WireModel):
     events: list[Event]
+    #: The next page: the same query with ``after`` set to this; null when this page
+    #: was not full (there is no more, for now).
+    next_after: Text | None = None

@@ -82,7 +82,11 @@ def events(
     kind: str | None = typer.Option(None, help="only this kind (command, control_grant, ...)"),
     since: str | None = SinceOpt,
     until: str | None = UntilOpt,
-    limit: int = typer.Option(1000, min=1, max=10_000, help="at most this many"),
+    limit: int = typer.Option(1000, min=1, max=10_000, help="at most this many (a page)"),
+    after: str | None = typer.Option(
+        None, help="the page after this one: the cursor the page before ended with"
+    ),
+    every: bool = typer.Option(False, "--all", help="every page, one after the other"),
     server: str = ServerOpt,
     token: str = TokenOpt,
     as_json: bool = JsonOpt,
@@ -92,9 +96,15 @@ def events(
 
     async def act(fleet: FleetClient) -> dict[str, Any]:
         vehicle_id = await fleet.vehicle_id_of(vehicle) if vehicle else None
-        return await fleet.event_log(
-            vehicle_id=vehicle_id, kind=kind, since=start, until=end, limit=limit
-        )
+        cursor, got = after, []
+        while True:
+            page = await fleet.event_log(
+                vehicle_id=vehicle_id, kind=kind, since=start, until=end, limit=limit, after=cursor
+            )
+            got.extend(page["events"])
+            cursor = page.get("next_after")
+            if not every or cursor is None:
+                return {"events": got, "next_after": cursor}
 
     data = run(server, token, act)
     if as_json:
@@ -102,6 +112,12 @@ def events(
         return
     for event in data["events"]:
         print(f"{event['at']} {event.get('vehicle_id') or '-'} {event_text(event)}")
+    if data["next_after"] is not None:
+        errors.print(
+            f"more events: the same command with --after {data['next_after']} (or --all)",
+            markup=False,
+            highlight=False,
+        )
 
 
 def export(

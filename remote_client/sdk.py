@@ -226,9 +226,11 @@ class FleetClient(AdminCalls):
         since: str | None = None,
         until: str | None = None,
         limit: int = 1000,
+        after: str | None = None,
     ) -> Body:
-        """``GET /api/events``: ``{"events": [...]}``, oldest first."""
-        query = given(vehicle_id=vehicle_id, kind=kind, limit=limit)
+        """``GET /api/events``: ``{"events": [...], "next_after": cursor | None}``, oldest
+        first; ``after``: the ``next_after`` of the page before."""
+        query = given(vehicle_id=vehicle_id, kind=kind, limit=limit, after=after)
         query.update({k: v for k, v in (("from", since), ("to", until)) if v})
         body: Body = await self.call("GET", "/api/events", params=query)
         return body

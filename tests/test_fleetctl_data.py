@@ -210,6 +210,18 @@ async def test_params_events_and_export_with_names_and_relative_times(
         future = await fleetctl(base, ADMIN_TOKEN, "events", "Osprey", "--until", "1d")
         assert future.stdout == ""  # nothing a day ago
 
+        # A page at a time: the next page's cursor said on stderr, --all follows them.
+        whole = await fleetctl(base, ADMIN_TOKEN, "events", "Osprey")
+        lines = whole.stdout.splitlines()
+        assert len(lines) >= 3 and whole.stderr == ""
+        first = await fleetctl(base, ADMIN_TOKEN, "events", "Osprey", "--limit", "2")
+        assert first.stdout.splitlines() == lines[:2]
+        cursor = first.stderr.split("--after ")[1].split()[0]
+        rest = await fleetctl(base, ADMIN_TOKEN, "events", "Osprey", "--after", cursor)
+        assert rest.stdout.splitlines() == lines[2:] and rest.stderr == ""
+        every = await fleetctl(base, ADMIN_TOKEN, "events", "Osprey", "--limit", "1", "--all")
+        assert every.stdout.splitlines() == lines and every.stderr == ""
+
         out = tmp_path / "last.jsonl"
         recent = await fleetctl(
             base, ADMIN_TOKEN, "export", "Osprey", "--since", "5m", "-o", str(out)

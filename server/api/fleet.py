@@ -59,10 +59,11 @@ async def list_events(
     start: Annotated[Timestamp | None, Query(alias="from")] = None,
     end: Annotated[Timestamp | None, Query(alias="to")] = None,
     limit: Annotated[int, Query(ge=1, le=10_000)] = 1000,
+    after: Annotated[str | None, Query(max_length=128)] = None,
 ) -> EventList:
     if vehicle_id is not None:
         await s.views.visible_vehicle(user, vehicle_id)
-    docs = await s.events.query(
-        user, vehicle_id=vehicle_id, kind=kind, start=start, end=end, limit=limit
+    docs, next_after = await s.events.query(
+        user, vehicle_id=vehicle_id, kind=kind, start=start, end=end, limit=limit, after=after
     )
-    return EventList.model_validate({"events": docs})
+    return EventList.model_validate({"events": docs, "next_after": next_after})

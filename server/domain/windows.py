@@ -2,15 +2,24 @@
 
 ``from`` is inclusive, ``to`` exclusive; a window whose ``from`` is not before
 its ``to`` is refused (422 naming ``from``).
+
+A page of the event log ends with a cursor, ``next_after``: the last event's
+time and stored id (``<ISO time>_<24 hex digits>``), so that the next page
+starts right after it even when many events share one millisecond, and a
+cursor whose event has since been dropped by retention still works.
 """
 
 from __future__ import annotations
 
+import re
 from datetime import datetime, timedelta
 
+from fleet_protocol.common import format_ts, parse_ts
 from server.errors import Invalid
 
-__all__ = ["ordered", "window"]
+__all__ = ["after_cursor", "ordered", "page_cursor", "window"]
+
+_KEY = re.compile("[0-9a-f]{24}")  # a stored id (ObjectId) in hex
 
 
 def ordered(start: datetime | None, end: datetime | None) -> None:
@@ -31,3 +40,23 @@ def window(
     start = start or end - span
     ordered(start, end)
     return start, end
+
+
+def page_cursor(at: datetime, key: str) -> str:
+    """The cursor of the read's last item: its time and its id."""
+    return f"{format_ts(at)}_{key}"
+
+
+def after_cursor(text: str) -> tuple[datetime, str]:
+    """The time and id a cursor of :func:`page_cursor` holds; 422 naming ``after``
+    when ``text`` is not one."""
+    at, _, key = text.rpartition("_")
+    try:
+        if not _KEY.fullmatch(key):
+            raise ValueError(text)
+        return parse_ts(at), key
+    except ValueError:
+        raise Invalid(
+            "after is not a cursor this server gave",
+            details=[{"field": "after", "message": "use next_after of the page before"}],
+        ) from None

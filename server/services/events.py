@@ -10,7 +10,7 @@ from fleet_protocol import EventKind
 from server.domain.access import Principal
 from server.domain.clock import Clock
 from server.domain.events import EventRecorded
-from server.domain.windows import ordered
+from server.domain.windows import after_cursor, ordered, page_cursor
 from server.services.messagebus import MessageBus
 from server.storage.events import EventsRepo
 
@@ -58,12 +58,17 @@ class EventService:
         start: datetime | None,
         end: datetime | None,
         limit: int,
-    ) -> list[dict[str, Any]]:
+        after: str | None = None,
+    ) -> tuple[list[dict[str, Any]], str | None]:
+        """The events, oldest first, and the cursor of the next page (None when this
+        page is not full). ``after``: the cursor of the page before; without ``from``
+        the window then starts at its event, not a day back."""
         ordered(start, end)
+        past = after_cursor(after) if after is not None else None
         # A ``from`` still to come, with no ``to``, finds nothing (a client following
         # the log from its own clock, a little ahead of the server's, is not refused).
         end = end or self.clock() + timedelta(seconds=1)
-        start = start or end - timedelta(days=1)
+        start = start or (past[0] if past is not None else end - timedelta(days=1))
         if vehicle_id is not None:
             vehicle_ids: list[str] | None = [vehicle_id]
         elif principal.is_admin:
@@ -71,14 +76,21 @@ class EventService:
         else:
             vehicle_ids = sorted(principal.vehicles)
         if vehicle_ids == []:
-            return []
-        return await self.repo.query(
-            vehicle_ids=vehicle_ids,
-            kind=kind,
-            start=start,
-            end=end,
-            limit=min(limit, MAX_EVENTS_PER_QUERY),
+            return [], None
+        limit = min(limit, MAX_EVENTS_PER_QUERY)
+        docs = await self.repo.query(
+            vehicle_ids=vehicle_ids, kind=kind, start=start, end=end, limit=limit, after=past
         )
+        cursor = page_cursor(docs[-1]["at"], str(docs[-1]["_id"])) if len(docs) == limit else None
+        for doc in docs:
+            del doc["_id"]
+        return docs, cursor
+
+    async def latest(self, vehicle_id: str, count: int) -> list[dict[str, Any]]:
+        """The vehicle's last ``count`` events of the last day, oldest first (the caller
+        has checked that it sees the vehicle)."""
+        since = self.clock() - timedelta(days=1)
+        return [d for d in await self.repo.latest(vehicle_id, count) if d["at"] >= since]
 
     async def drop_before(self, before: datetime) -> int:
         return await self.repo.drop_before(before)

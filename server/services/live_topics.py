@@ -156,10 +156,8 @@ class ServerTopics:
             _, recent = await self.commands.recent(principal, state.instance_id)
             return {"commands": [_jsonable(c.wire()) for c in recent]}
         if kind == "events":
-            docs = await self.events.query(
-                principal, vehicle_id=vehicle_id, kind=None, start=None, end=None, limit=10_000
-            )
-            return {"events": [_jsonable(d) for d in docs[-RECENT_EVENTS:]]}
+            docs = await self.events.latest(vehicle_id, RECENT_EVENTS)
+            return {"events": [_jsonable(d) for d in docs]}
         return None
 
 

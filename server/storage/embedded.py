@@ -99,9 +99,14 @@ class EmbeddedCollection(Collection):
         """The stored documents matching ``flt`` (stored form), sorted, at most ``limit``."""
         from mongomock.filtering import filter_applies, resolve_sort_key
 
-        candidates, ordered_by = self._candidates(flt, sort[0][0] if sort else None)
-        simple = sort is not None and len(sort) == 1 and sort[0][0] == ordered_by
-        if simple and sort is not None and sort[0][1] < 0:
+        first = sort[0][0] if sort else None
+        candidates, ordered_by = self._candidates(flt, first)
+        # Candidates in the order of the sort's first field: with one field the first
+        # ``limit`` matches are the answer; with more, the matches up to the last of the
+        # ``limit``-th one's value of that field are all that can be.
+        by_index = sort is not None and first is not None and first == ordered_by
+        simple = by_index and sort is not None and len(sort) == 1
+        if by_index and sort is not None and sort[0][1] < 0:
             candidates.reverse()
         out: list[Doc] = []
         plain = _plain(flt)
@@ -112,6 +117,9 @@ class EmbeddedCollection(Collection):
                 _equal(plain, doc) if plain is not None else filter_applies(flt, doc)
             ):
                 continue
+            if limit and by_index and len(out) >= limit and first is not None:
+                if _differ(doc.get(first), out[limit - 1].get(first)):
+                    break
             out.append(doc)
             if limit and (simple or not sort) and len(out) >= limit:
                 return out

@@ -5,6 +5,8 @@ from __future__ import annotations
 from datetime import datetime
 from typing import Any
 
+from bson import ObjectId
+
 from server.storage.backends import Doc, Store
 
 
@@ -27,13 +29,30 @@ class EventsRepo:
         start: datetime,
         end: datetime,
         limit: int,
+        after: tuple[datetime, str] | None = None,
     ) -> list[Doc]:
+        """Events in ``(at, _id)`` order, each with its ``_id`` (an ObjectId: those one
+        server inserts in one millisecond keep the order they came in); ``after``: only
+        those past that pair (the ``_id`` as hex)."""
         flt: dict[str, Any] = {"at": {"$gte": start, "$lt": end}}
         if vehicle_ids is not None:
             flt["vehicle_id"] = vehicle_ids[0] if len(vehicle_ids) == 1 else {"$in": vehicle_ids}
         if kind:
             flt["kind"] = kind
-        return await self.events.find(flt, sort=[("at", 1)], limit=limit, projection={"_id": 0})
+        if after is not None:
+            at, key = after
+            flt["$or"] = [{"at": {"$gt": at}}, {"at": at, "_id": {"$gt": ObjectId(key)}}]
+        return await self.events.find(flt, sort=[("at", 1), ("_id", 1)], limit=limit)
+
+    async def latest(self, vehicle_id: str, count: int) -> list[Doc]:
+        """The vehicle's last ``count`` events, oldest first."""
+        docs = await self.events.find(
+            {"vehicle_id": vehicle_id},
+            sort=[("at", -1), ("_id", -1)],
+            limit=count,
+            projection={"_id": 0},
+        )
+        return docs[::-1]
 
     async def drop_before(self, before: datetime) -> int:
         return await self.events.delete({"at": {"$lt": before}})
