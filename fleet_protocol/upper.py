@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Annotated, Literal
 
 from pydantic import Field, StrictBool, StrictFloat, StrictInt
 
@@ -11,6 +11,8 @@ from fleet_protocol.common import Identifier, LatLon, Sample, Timestamp, WireMod
 from fleet_protocol.values import Label, Params, Text
 
 __all__ = [
+    "MAX_ACKS_PER_CALL",
+    "MAX_ACTIVE_COMMANDS",
     "MAX_CLOCK_OFFSET_S",
     "MAX_SAMPLES_PER_CALL",
     "ControlInfo",
@@ -35,6 +37,11 @@ __all__ = [
 ]
 
 ControlMode = Literal["idle", "remote", "local", "failsafe"]
+#: Acks in one ``update_fbmessage``.
+MAX_ACKS_PER_CALL = 256
+#: Commands a resuming vehicle names in ``active_commands``: its acks waiting to be sent
+#: (at most a call's worth at a time, and more behind them) and the one it carries out.
+MAX_ACTIVE_COMMANDS = 1024
 AckStatus = Literal["accepted", "executing", "done", "rejected", "failed"]
 assert set(ACK_STATUSES) == set(AckStatus.__args__)  # type: ignore[attr-defined]
 
@@ -111,6 +118,12 @@ class StartInstance(WireModel):
     vehicle_type: Label | None = Field(default=None, min_length=1, max_length=32)
     capabilities: list[CommandType] = Field(default_factory=list, max_length=16)
     params: Params = Field(default_factory=dict)
+    #: The commands the vehicle still carries out or has an ack to send for. Given (even
+    #: empty), every other command of the instance it had acknowledged (``accepted``,
+    #: ``executing``) is ``failed``: nothing on the vehicle will finish it. None: no word.
+    active_commands: list[Annotated[Text, Field(min_length=1, max_length=64)]] | None = Field(
+        default=None, max_length=MAX_ACTIVE_COMMANDS
+    )
 
 
 class StartInstanceResult(WireModel):
@@ -124,6 +137,9 @@ class StartInstanceResult(WireModel):
     server_time: Timestamp
     failsafe: FailsafePolicy
     control: ControlInfo | None = None
+    #: Of ``active_commands``, those the server has ended or does not know: never to be
+    #: carried out (as ``update_fbmessage``'s ``abort``).
+    abort: list[Text] = Field(default_factory=list)
 
 
 class FinishInstance(InstanceRef):
@@ -184,7 +200,7 @@ class FbAck(WireModel):
 
 class UpdateFbMessage(InstanceRef):
     control_mode: ControlMode | None = None
-    acks: list[FbAck] = Field(default_factory=list, max_length=256)
+    acks: list[FbAck] = Field(default_factory=list, max_length=MAX_ACKS_PER_CALL)
     #: The version of the failsafe policy the vehicle applies now.
     failsafe_version: StrictInt | None = Field(default=None, ge=0, le=2**62)
 

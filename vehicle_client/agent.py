@@ -26,6 +26,8 @@ from typing import Any
 from pydantic import ValidationError
 
 from fleet_protocol import (
+    MAX_ACKS_PER_CALL,
+    MAX_ACTIVE_COMMANDS,
     ControlInfo,
     FailsafePolicy,
     FbAck,
@@ -46,7 +48,6 @@ from vehicle_client.transport.base import Transport
 
 log = logging.getLogger(__name__)
 
-MAX_ACKS_PER_CALL = 256
 #: A long poll that comes back empty-handed this fast is not repeated sooner.
 MIN_POLL_GAP_S = 0.2
 #: The server clock is re-read at least this often (heartbeat's server_time).
@@ -188,6 +189,7 @@ class VehicleAgent:
             vehicle_type=self.adapter.vehicle_type,
             capabilities=sorted(self.pilot.capabilities),
             params=self.adapter.describe(),
+            active_commands=self._active_commands(),
         )
         sent = utcnow()
         res = await self.transport.start_instance(body)
@@ -195,6 +197,8 @@ class VehicleAgent:
         self.instance_id = res.instance_id
         self.on_control(res.control)
         self.on_failsafe(res.failsafe)
+        if res.abort:  # ended on the server while the link was down, or unknown to it
+            self._apply(self.pilot.on_abort(res.abort))
         self._heartbeat_s = res.heartbeat_interval_s
         await asyncio.to_thread(self.outbox.match_server, res.last_seq)
         self._cursor = 0  # re-send from the first sample not yet durable
@@ -215,6 +219,17 @@ class VehicleAgent:
         )
         self._fb_wake.set()
         self._uplink_wake.set()
+
+    def _active_commands(self) -> list[str] | None:
+        """What the server is told the vehicle still has in hand: the command it carries
+        out and those with an ack waiting to be sent (the server fails any other it had
+        acknowledged: after a restart of this agent, nothing would ever finish it).
+        None, no word, when they are more than a start may name."""
+        held = [a.command_id for a in self._acks]
+        if self.pilot.active_id is not None:
+            held.append(self.pilot.active_id)
+        distinct = list(dict.fromkeys(held))
+        return distinct if len(distinct) <= MAX_ACTIVE_COMMANDS else None
 
     @property
     def link_kind(self) -> str:

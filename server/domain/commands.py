@@ -9,6 +9,7 @@ for a command already final is recorded and leaves the status alone.
 from __future__ import annotations
 
 import copy
+from collections.abc import Collection, Iterable
 from dataclasses import dataclass, field
 from datetime import datetime, timedelta
 from enum import Enum
@@ -375,6 +376,21 @@ def cancel(cmd: Command, now: datetime, detail: str) -> bool:
         return False
     cmd.move("cancelled", now, detail)
     return True
+
+
+#: The detail of a command a resuming vehicle no longer carries out.
+DROPPED = "dropped: the vehicle resumed without it (its agent restarted or lost it)"
+
+
+def dropped(cmds: Iterable[Command], active: Collection[str]) -> list[Command]:
+    """The commands the vehicle acknowledged (``accepted``, ``executing``) that, resuming,
+    it does not name among those it carries out or has an ack to send for: nothing on the
+    vehicle will finish them."""
+    return [
+        c
+        for c in cmds
+        if not c.final and rank(c.status) >= RANK["accepted"] and c.command_id not in active
+    ]
 
 
 # ---- submit: all or nothing ---------------------------------------------------

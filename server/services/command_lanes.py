@@ -15,6 +15,7 @@ from collections import Counter
 from collections.abc import KeysView
 from typing import Any
 
+from server.domain import commands as life
 from server.domain.access import Principal
 from server.domain.clock import Clock
 from server.domain.commands import Command
@@ -66,6 +67,26 @@ class CommandLanes:
         """The instance finished on another replica (which ended its commands)."""
         if (lane := self._lanes.pop(instance_id, None)) is not None:
             lane.wake()
+
+    async def reconcile(self, state: InstanceState, active: list[str]) -> list[str]:
+        """A vehicle (re)started its instance naming the commands it still carries out or
+        has an ack to send for (``active_commands``). Each other one it had acknowledged
+        is ``failed`` (:data:`~server.domain.commands.DROPPED`); returns those it names
+        that the server has ended or does not know: the vehicle aborts them."""
+        lane = await self._sync(state.instance_id)
+        named = set(active)
+        dropped = life.dropped(list(lane.active.values()), named)
+        now = self.clock()
+        for cmd in dropped:
+            life.apply_ack(cmd, "failed", now, detail=life.DROPPED)
+            await self._finished(cmd)
+        abort = []
+        for command_id in dict.fromkeys(active):
+            if command_id not in lane.active:  # the lane holds every active one after _sync
+                abort.append(command_id)
+        if dropped:
+            await self.repo.make_durable()
+        return abort
 
     # ---- internals ------------------------------------------------------------------
     def _lane(self, instance_id: str) -> Lane:

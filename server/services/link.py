@@ -74,6 +74,8 @@ class Feedback(Protocol):
         self, principal: Principal, instance_id: str, control_mode: str | None, acks: list[Any]
     ) -> list[str]: ...
 
+    async def reconcile(self, state: InstanceState, active: list[str]) -> list[str]: ...
+
 
 class VehicleLink:
     def __init__(
@@ -98,6 +100,9 @@ class VehicleLink:
 
     async def start(self, principal: Principal, body: StartInstance) -> StartInstanceResult:
         state, resumed = await self.instances.start(principal, body)
+        abort: list[str] = []
+        if body.active_commands is not None:
+            abort = await self.commands.reconcile(state, body.active_commands)
         s = self.settings
         return StartInstanceResult(
             instance_id=state.instance_id,
@@ -110,6 +115,7 @@ class VehicleLink:
             server_time=self.instances.clock(),
             failsafe=await self.failsafes.for_start(state),
             control=self.leases.lease_info(state.instance_id),
+            abort=abort,
         )
 
     async def live(
