@@ -16,9 +16,10 @@ import os
 import re
 import time
 import xml.etree.ElementTree as ET
-from datetime import UTC, datetime
+from datetime import UTC, datetime, timedelta
 from pathlib import Path
 from typing import Any
+from zoneinfo import ZoneInfo
 
 import pytest
 from playwright.sync_api import expect
@@ -529,11 +530,28 @@ def test_replay_puts_each_marker_where_the_store_has_it(
 
 
 def test_a_lost_link_shows_and_comes_back(world: World, open_console: Any, shots: Shots) -> None:
-    page, _ = open_console()
+    page, _ = open_console(timezone_id="Europe/Zagreb")  # a browser an hour east of UTC
     log_in(page, "ana")
+    # Times are this browser's local times: the bar says which (UTC+1, or +2 in summer).
+    hours = datetime.now(ZoneInfo("Europe/Zagreb")).utcoffset() // timedelta(hours=1)
+    expect(page.locator("#tz")).to_have_text(f"times in UTC+0{hours}:00 (Europe/Zagreb)")
+    badge = page.locator(".presence").first
+    expect(badge).to_have_text("online")
+
+    def marked(content: str) -> None:
+        """Every presence badge ends with ``content`` (CSS: "?" while the link is lost)."""
+        page.wait_for_function(
+            """want => [...document.querySelectorAll('.presence')].every(
+                 el => getComputedStyle(el, '::after').content === want)""",
+            arg=content,
+            timeout=10_000,
+        )
+
+    marked("none")
     world.server.stop(grace_s=5.0)
     expect(page.locator("#link")).to_have_attribute("data-state", "lost")
     expect(page.locator("#link")).to_contain_text("link lost")
+    marked('"?"')  # presence as last heard, not vouched for
     shots(page, "link-lost")
     world.server.start()  # the same port and store; the agents find it again
     expect(page.locator("#link")).to_have_attribute("data-state", "live", timeout=30_000)
@@ -543,6 +561,7 @@ def test_a_lost_link_shows_and_comes_back(world: World, open_console: Any, shots
         expect(marker(page, vehicle_id)).to_have_attribute(
             "data-presence", "online", timeout=30_000
         )
+    marked("none")
     shots(page, "link-back")
 
 

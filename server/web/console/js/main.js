@@ -6,7 +6,7 @@ import { Api, login, saveToken, savedToken } from "./api.js";
 import { Fleet, TRAIL_MINUTES, topicsOf } from "./fleet.js";
 import { LiveLink } from "./live.js";
 import { ControlPanel, FleetTable, VehiclePanel } from "./panels.js";
-import { ago, confirmAction, h, toast, until } from "./ui.js";
+import { ago, confirmAction, h, toast, until, zoneText } from "./ui.js";
 
 const $ = (id) => document.getElementById(id);
 const PHONE = window.matchMedia("(max-width: 760px)");
@@ -94,6 +94,9 @@ class Console {
     window.fleetConsole = this;
 
     $("who").textContent = `${me.username} · ${me.role}`;
+    // Every time shown is this browser's local time: say in which zone, once.
+    $("tz").textContent = `times in ${zoneText()}`;
+    $("replay-zone").textContent = `local times, ${zoneText()}`;
     this.map = new MapView($("map"), config, this.fleet, {
       onPick: (id, additive) => this.pick(id, additive),
       onMapClick: (latlng) => this.mapClicked(latlng),

@@ -6,6 +6,7 @@ import { L, colourOf } from "./map.js";
 import { describeEvent } from "./panels.js";
 import { clock, dateTime, h, toast } from "./ui.js";
 
+const MAX_EVENTS_PER_VEHICLE = 100000;
 const MAX_POINTS_PER_VEHICLE = 50000; // five pages of the track route
 const HOLD_GAP_MS = 30000; // samples further apart than this: the marker waits, not glides
 const FLASH_MS = 1500;
@@ -161,7 +162,14 @@ export class Replay {
       for (const p of page.points) points.push({ ...p, t: Date.parse(p.ts) });
       from = page.truncated ? page.next_from : null;
     }
-    const { events } = await api.get("/api/events", { vehicle_id: id, from: new Date(start).toISOString(), to, limit: 10000 });
+    const events = [];
+    let after = null;
+    do {
+      const query = { vehicle_id: id, from: new Date(start).toISOString(), to, limit: 10000 };
+      const page = await api.get("/api/events", after ? { ...query, after } : query);
+      events.push(...page.events);
+      after = page.next_after;
+    } while (after && events.length < MAX_EVENTS_PER_VEHICLE);
     return {
       id,
       points,

@@ -28,7 +28,18 @@ export function clock(ts) {
 export function dateTime(ts) {
   const t = typeof ts === "number" ? ts : Date.parse(ts);
   if (!Number.isFinite(t)) return "–";
-  return new Date(t).toLocaleString([], { hour12: false });
+  return new Date(t).toLocaleString([], { hour12: false, timeZoneName: "short" });
+}
+
+/** The zone this browser shows times in: "UTC+01:00 (Europe/Zagreb)", or "UTC". */
+export function zoneText(at = new Date()) {
+  const minutes = -at.getTimezoneOffset();
+  const name = Intl.DateTimeFormat().resolvedOptions().timeZone || "";
+  if (minutes === 0 && (!name || name === "UTC" || name === "Etc/UTC")) return "UTC";
+  const sign = minutes < 0 ? "-" : "+";
+  const hh = String(Math.floor(Math.abs(minutes) / 60)).padStart(2, "0");
+  const mm = String(Math.abs(minutes) % 60).padStart(2, "0");
+  return `UTC${sign}${hh}:${mm}${name ? ` (${name})` : ""}`;
 }
 
 /** "4 s ago", "3 min ago", "2 h ago". */
