@@ -22,6 +22,7 @@ from tests.factories import ADMIN, FakeClock, make_user, make_vehicle, sample, s
 ALL_CAPABILITIES = ["stop", "go_to", "keep_station", "follow_path"]
 GO_TO = {"type": "go_to", "args": {"lat": 43.95, "lon": 15.45}}
 STOP = {"type": "stop", "args": {}}
+KEEP = {"type": "keep_station", "args": {}}
 
 
 @dataclass

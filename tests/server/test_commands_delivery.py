@@ -10,12 +10,10 @@ import pytest
 
 from server.settings import Settings
 from tests.factories import ADMIN
-from tests.server.commanding import GO_TO, STOP, Person, World, eventually, statuses, world
+from tests.server.commanding import GO_TO, KEEP, STOP, Person, World, eventually, statuses, world
 
 # Each test runs on the embedded store and on FerretDB (the real MongoDB driver).
 pytestmark = pytest.mark.usefixtures("store_backend")
-
-KEEP = {"type": "keep_station", "args": {}}
 
 
 @pytest.fixture

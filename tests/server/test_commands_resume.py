@@ -12,11 +12,9 @@ import pytest
 
 from server.settings import Settings
 from tests.factories import ADMIN
-from tests.server.commanding import GO_TO, Vehicle, World, statuses, world
+from tests.server.commanding import GO_TO, KEEP, Vehicle, World, statuses, world
 
 pytestmark = pytest.mark.usefixtures("store_backend")
-
-KEEP = {"type": "keep_station", "args": {}}
 
 
 @pytest.fixture
