@@ -186,6 +186,9 @@ class GetControlResult(WireModel):
     commands: list[CommandObject]
     #: The vehicle's failsafe policy, when it has a version the vehicle has not applied.
     failsafe: FailsafePolicy | None = None
+    #: Commands handed to the vehicle that ended on the server since (cancelled,
+    #: expired): it stops carrying them out. A long poll returns as soon as there is one.
+    abort: list[Text] = Field(default_factory=list)
 
 
 class FbAck(WireModel):

@@ -30,6 +30,7 @@ from pydantic import (
     SerializationInfo,
     SerializerFunctionWrapHandler,
     StrictInt,
+    field_validator,
     model_serializer,
 )
 from pydantic_core import PydanticSerializationError, to_json
@@ -54,6 +55,7 @@ __all__ = [
     "MAX_BATCH_OPS",
     "MAX_OP_ID_CHARS",
     "MAX_TOPICS_PER_OP",
+    "AbortPush",
     "AckPush",
     "AuthOp",
     "BatchOp",
@@ -92,6 +94,14 @@ class _Op(WireModel):
     """Fields every op carries: ``id`` (optional; with it, the op is acked)."""
 
     id: OpId | None = None
+
+    @field_validator("id", mode="before")
+    @classmethod
+    def _id_is_a_string(cls, value: object) -> object:
+        """An ``id`` sent is a string: ``null`` is refused (left out, the op is not acked)."""
+        if value is None:
+            raise ValueError("an op id is a string of 1 to 64 characters; leave it out for no ack")
+        return value
 
 
 # -- ops mirroring /upper/* ---------------------------------------------------
@@ -279,6 +289,20 @@ class CommandPush(_Push, CommandObject):
         return self.type == "stop"
 
 
+class AbortPush(_Push):
+    """Commands handed to the vehicle that ended on the server (cancelled, expired):
+    it stops carrying them out at once."""
+
+    op: Literal["abort"] = "abort"
+    instance_id: Text
+    command_ids: list[Text] = Field(min_length=1)
+
+    @property
+    def critical(self) -> bool:
+        """Like a ``stop``, never dropped by a queue bound."""
+        return True
+
+
 class ControlPush(_Push):
     """Who holds remote control of the instance now (``null``: nobody)."""
 
@@ -338,6 +362,7 @@ Push = (
     AckPush
     | ErrorPush
     | CommandPush
+    | AbortPush
     | ControlPush
     | FailsafePush
     | EventPush

@@ -337,6 +337,8 @@ class VehicleAgent:
             self._contact()
             if res.failsafe is not None:
                 self.on_failsafe(res.failsafe)
+            if res.abort:  # ended on the server (cancelled, say): stop carrying them out
+                self._apply(self.pilot.on_abort(res.abort))
             if res.commands:
                 now = self.clock.server_now(utcnow())
                 self._apply(self.pilot.on_commands(res.commands, now))

@@ -24,7 +24,14 @@ from fleet_protocol import format_ts, utcnow
 from fleet_protocol.common import now_ts, parse_ts
 from fleet_protocol.links import CLOSE_REPLACED, CLOSE_UNAUTHORIZED
 from fleet_protocol.topics import is_media_topic
-from fleet_protocol.ws import CommandPush, ControlPush, EventPush, FailsafePush, RoutesPush
+from fleet_protocol.ws import (
+    AbortPush,
+    CommandPush,
+    ControlPush,
+    EventPush,
+    FailsafePush,
+    RoutesPush,
+)
 from server.api.outbox import Outbox
 from server.bus import Bus, Message, Subscription
 from server.bus.wire import dumps
@@ -121,6 +128,9 @@ class LiveHub:
         for cmd in await self.commands.take(state):
             push = CommandPush.model_validate(cmd.wire())
             conn.outbox.put(push.frame(), critical=push.critical)
+        if aborts := self.commands.take_aborts(instance_id):
+            told = AbortPush(instance_id=instance_id, command_ids=aborts)
+            conn.outbox.put(told.frame(), critical=told.critical)
 
     async def attach_instance(self, conn: Connection, state: InstanceState) -> None:
         """This socket now serves the instance: commands and control go to it."""

@@ -52,8 +52,8 @@ async def get_control(
     wait_s: Annotated[float, Query(ge=0, le=30, allow_inf_nan=False)] = 0,
 ) -> ModelResponse:
     poll = s.commands.get_control(caller, instance_id, wait_s)
-    commands = await _unless_revoked(s, caller, poll, wait_s)
-    result: dict[str, Any] = {"commands": [c.wire() for c in commands]}
+    commands, abort = await _unless_revoked(s, caller, poll, wait_s)
+    result: dict[str, Any] = {"commands": [c.wire() for c in commands], "abort": abort}
     failsafe = await s.link.pending_failsafe(caller, instance_id)
     if failsafe is not None:  # a version the vehicle has not acknowledged yet
         result["failsafe"] = failsafe

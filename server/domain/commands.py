@@ -382,6 +382,17 @@ def cancel(cmd: Command, now: datetime, detail: str) -> bool:
 DROPPED = "dropped: the vehicle resumed without it (its agent restarted or lost it)"
 
 
+def ended_by_server(cmd: Command) -> bool:
+    """Whether ``cmd`` ended on the server's word, not the vehicle's (``expired``,
+    ``cancelled``, or ``failed`` as :data:`DROPPED`): a vehicle still carrying it out
+    must drop it (``abort``)."""
+    if cmd.status in ABORT_STATUSES:
+        return True
+    return cmd.status == "failed" and any(
+        h.get("status") == "failed" and h.get("detail") == DROPPED for h in cmd.history
+    )
+
+
 def dropped(cmds: Iterable[Command], active: Collection[str]) -> list[Command]:
     """The commands the vehicle acknowledged (``accepted``, ``executing``) that, resuming,
     it does not name among those it carries out or has an ack to send for: nothing on the

@@ -54,10 +54,16 @@ class CommandLanes:
             return
         known = set(lane.active)
         await self._sync(instance_id)
-        if set(lane.active) - known:
+        if set(lane.active) - known or lane.aborts:
             self._ready(lane)
         else:
             lane.wake()
+
+    def take_aborts(self, instance_id: str) -> list[str]:
+        """The commands handed to the instance's vehicle that ended since it was last told
+        (each told once: by the long poll, the socket or ``update_fbmessage``)."""
+        lane = self._lanes.get(instance_id)
+        return lane.take_aborts() if lane is not None else []
 
     @property
     def lane_ids(self) -> KeysView[str]:
@@ -150,11 +156,16 @@ class CommandLanes:
         return stored is not None and cmd.catch_up(stored)
 
     async def _finished(self, cmd: Command, actor: Principal | None = None) -> None:
-        """Record a command that just reached a final status (once, on every replica)."""
+        """Record a command that just reached a final status (once, on every replica).
+        One the vehicle had been handed and must now drop (cancelled, expired) is told to
+        it at once: the long poll returns, the socket gets an ``abort`` push."""
         lane = self._lanes.get(cmd.instance_id)
         if lane is not None:
             lane.retire(cmd)
-        if not await self.repo.finish(cmd.to_doc(), self.clock()):
+        recorded = await self.repo.finish(cmd.to_doc(), self.clock())
+        if lane is not None and lane.aborts:  # once the store no longer lists it as active
+            self._ready(lane)
+        if not recorded:
             await self._catch_up(cmd)  # another replica recorded its end first
             return
         self.messages.emit_now(StateWritten(cmd.instance_id, "commands"))

@@ -207,8 +207,9 @@ class CommandService(CommandLanes):
     # ---- vehicles -------------------------------------------------------------
     async def get_control(
         self, principal: Principal, instance_id: str, wait_s: float
-    ) -> list[Command]:
-        """Hand out what is due, waiting up to ``wait_s`` for something to come."""
+    ) -> tuple[list[Command], list[str]]:
+        """Hand out what is due, waiting up to ``wait_s`` for something to come; and the
+        commands handed out before that ended since (the vehicle aborts them)."""
         state = await self.instances.for_vehicle_caller(principal, instance_id)
         lane = self._lane(state.instance_id)
         if wait_s > 0 and lane.polls >= self.settings.long_poll_max:
@@ -224,9 +225,10 @@ class CommandService(CommandLanes):
             while True:
                 woken = lane.waiter()
                 out = await self.take(state)
+                aborts = self.take_aborts(state.instance_id)
                 remaining = deadline - loop.time()
-                if out or remaining <= 0 or state.finished:
-                    return out
+                if out or aborts or remaining <= 0 or state.finished:
+                    return out, aborts
                 try:
                     await asyncio.wait_for(woken.wait(), remaining)
                 except TimeoutError:
@@ -327,7 +329,7 @@ class CommandService(CommandLanes):
                 self._acked_first(cmd, now)
             if outcome is AckOutcome.LATE:
                 await self.repo.note_history(cmd.command_id, cmd.history)
-                if cmd.status in life.ABORT_STATUSES:
+                if life.ended_by_server(cmd):
                     abort.append(cmd.command_id)
             elif cmd.final:
                 await self._finished(cmd)
@@ -337,7 +339,7 @@ class CommandService(CommandLanes):
                 if cmd.final:  # so the ack came late: noted there, as any late ack
                     life.apply_ack(cmd, status, now, progress=ack.progress, detail=detail)
                     await self.repo.note_history(cmd.command_id, cmd.history)
-                    if cmd.status in life.ABORT_STATUSES:
+                    if life.ended_by_server(cmd):
                         abort.append(cmd.command_id)
             elif cmd.status != was:
                 self._moved(cmd)

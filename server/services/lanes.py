@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import asyncio
 
-from server.domain.commands import ABORT_STATUSES, Command
+from server.domain.commands import Command, ended_by_server
 
 
 class Lane:
@@ -36,7 +36,7 @@ class Lane:
         """An active command ended: the vehicle is told to abort it if it had it."""
         if self.active.pop(cmd.command_id, None) is None:
             return
-        if cmd.deliveries and cmd.status in ABORT_STATUSES:
+        if cmd.deliveries and ended_by_server(cmd):
             self.aborts.append(cmd.command_id)
 
     def merge(self, stored: list[Command]) -> list[Command]:

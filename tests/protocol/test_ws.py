@@ -11,6 +11,7 @@ from fleet_protocol import upper
 from fleet_protocol.errors import ErrorBody
 from fleet_protocol.media import MediaHeader, decode_media_frame, encode_media_frame
 from fleet_protocol.ws import (
+    AbortPush,
     AckPush,
     BatchOp,
     CommandPush,
@@ -27,6 +28,7 @@ from fleet_protocol.ws import (
     UpdateParamOp,
 )
 from fleet_protocol.ws_frames import FrameError, PartialBatch, parse_client_op, parse_vehicle_op
+from vehicle_client.transport.wire import parse_push
 
 TS = "2026-11-22T10:00:00.123Z"
 
@@ -180,6 +182,25 @@ def test_an_id_over_64_characters_is_refused_and_not_echoed():
     body = failure(parse_vehicle_op, frame(op="heartbeat", id="x" * 65, instance_id="i"))
     assert body["op"] == "error"
     assert body["error"]["details"][0]["field"] == "id"
+
+
+@pytest.mark.parametrize("parse", [parse_vehicle_op, parse_client_op])
+def test_a_null_id_is_refused_not_taken_for_no_id(parse):
+    """``id`` is a string: ``null`` would run the op with no ack the sender waits for."""
+    body = failure(parse, frame(op="subscribe", id=None, topics=["fleet"]))
+    assert body["op"] == "error"
+    assert body["error"]["details"][0]["field"] == "id"
+    assert "leave it out" in body["error"]["details"][0]["message"]
+    assert parse(frame(op="subscribe", topics=["fleet"])).id is None  # left out: fine
+
+
+def test_an_abort_push_reads_back_and_is_never_dropped():
+    push = AbortPush(instance_id="i-1", command_ids=["c-1", "c-2"])
+    assert json.loads(push.frame()) == {
+        "op": "abort", "instance_id": "i-1", "command_ids": ["c-1", "c-2"],
+    }  # fmt: skip
+    assert push.critical
+    assert parse_push(push.frame()) == push
 
 
 @pytest.mark.parametrize("text", ["not json", b"\xff\xfe", "[1, 2]", '"heartbeat"'])

@@ -96,14 +96,19 @@ class World:
         return command_id
 
     async def poll(self, vehicle: Vehicle, wait_s: float = 0) -> list[dict[str, Any]]:
+        commands: list[dict[str, Any]] = (await self.poll_answer(vehicle, wait_s))["commands"]
+        return commands
+
+    async def poll_answer(self, vehicle: Vehicle, wait_s: float = 0) -> dict[str, Any]:
+        """``get_control``'s whole answer (``commands``, ``abort``, ``failsafe``)."""
         r = await self.http.get(
             "/upper/get_control",
             headers=vehicle.headers,
             params={"instance_id": vehicle.instance_id, "wait_s": wait_s},
         )
         assert r.status_code == 200, r.text
-        commands: list[dict[str, Any]] = r.json()["commands"]
-        return commands
+        answer: dict[str, Any] = r.json()
+        return answer
 
     async def ack(
         self, vehicle: Vehicle, *acks: tuple[str, str], control_mode: str | None = None

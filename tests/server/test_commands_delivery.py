@@ -241,6 +241,24 @@ async def test_the_issuer_cancels_and_the_vehicle_is_told_to_abort(w: World) -> 
     assert (await w.ack(v))["abort"] == []
 
 
+async def test_a_long_poll_returns_at_once_with_a_running_command_cancelled(w: World) -> None:
+    """A go_to under way sends no ack for minutes: its cancel reaches the vehicle through
+    the long poll it keeps open, at once, and only once."""
+    v = await w.vehicle()
+    op = await w.operator_in_control(v)
+    cid = await w.queued(op, v, GO_TO)
+    await w.poll(v)
+    await w.ack(v, (cid, "accepted"), (cid, "executing"))
+    polling = asyncio.create_task(w.poll_answer(v, wait_s=30))
+    await asyncio.sleep(0)  # the poll is waiting
+    r = await w.http.post("/client/cancel_command", headers=op.headers, json={"command_id": cid})
+    assert r.status_code == 200 and r.json()["status"] == "cancelled", r.text
+    answer = await asyncio.wait_for(polling, 10)  # well before its 30 s
+    assert answer["abort"] == [cid] and answer["commands"] == []
+    assert (await w.poll_answer(v))["abort"] == []
+    assert (await w.ack(v))["abort"] == []
+
+
 async def test_cancelling_a_final_command_leaves_it_as_it_is(w: World) -> None:
     v = await w.vehicle()
     op = await w.operator_in_control(v)

@@ -4,6 +4,7 @@ tells it to abort what the server has ended (docs/commands.md, "A vehicle resume
 
 from __future__ import annotations
 
+import asyncio
 from collections.abc import AsyncIterator, Callable
 from typing import Any
 
@@ -54,11 +55,27 @@ async def test_a_command_the_vehicle_no_longer_has_is_failed_when_it_resumes(w: 
     ]
     assert any(e["data"].get("command_id") == cid and e["data"].get("status") == "failed"
                for e in events), events  # fmt: skip
-    # Ended: it is no longer among the instance's active commands, and a late ack of it
-    # is told to abort, as for any ended command.
-    assert (await w.ack(v, (cid, "done")))["abort"] == []
+    # Ended on the server's word: an ack of it later is recorded, leaves it failed, and
+    # is answered with abort, as for a cancelled one.
+    assert (await w.ack(v, (cid, "done")))["abort"] == [cid]
     cmd = await w.command(cid)
     assert cmd["status"] == "failed" and "ignored, already failed" in cmd["history"][-1]["detail"]
+
+
+async def test_a_dropped_command_still_carried_out_elsewhere_is_aborted(w: World) -> None:
+    """A second agent started with the vehicle's token (a failover left running) says it has
+    nothing: the first, still driving the command, is told to abort it, by its long poll
+    or by its next ack."""
+    v = await w.vehicle()
+    cid = await _executing(w, v, GO_TO)
+    polling = asyncio.create_task(w.poll_answer(v, wait_s=30))
+    await asyncio.sleep(0)
+    r = await _restart(w, v, [])
+    assert r.status_code == 200 and (await w.command(cid))["status"] == "failed"
+    assert (await asyncio.wait_for(polling, 10))["abort"] == [cid]
+    # An ack of it later, as of any command the server ended, is answered with abort.
+    assert (await w.ack(v, (cid, "executing")))["abort"] == [cid]
+    assert (await w.command(cid))["status"] == "failed"
 
 
 async def test_what_the_vehicle_names_stays_as_it_was(w: World) -> None:

@@ -105,6 +105,34 @@ async def test_command_is_pushed_at_once_and_acked(base: str, api: httpx.AsyncCl
     assert got["status"] == "accepted"
 
 
+async def test_a_command_cancelled_while_under_way_is_pushed_as_an_abort(
+    base: str, api: httpx.AsyncClient
+) -> None:
+    """Cancelled after the vehicle accepted it: the socket is told at once (``abort``),
+    not at the vehicle's next ``update_fbmessage``, which a go_to under way may not send."""
+    vid, vh = await make_vehicle(api)
+    async with await connect(base, "/ws/vehicle", token_of(vh)) as ws:
+        iid = await _start(ws, vid)
+        op = await _lease(api, vid, iid)
+        body = {
+            "instance_ids": [iid],
+            "command": {"type": "go_to", "args": {"lat": 43.95, "lon": 15.45}},
+        }
+        r = await api.post("/client/submit_control", headers=op, json=body)
+        command_id = r.json()["commands"][0]["command_id"]
+        await recv_until(ws, lambda f: f["op"] == "command")
+        acks = [{"command_id": command_id, "status": s} for s in ("accepted", "executing")]
+        ack = await call(ws, "update_fbmessage", "f1", instance_id=iid, acks=acks)
+        assert ack["ok"] is True and ack["abort"] == []
+        r = await api.post("/client/cancel_command", headers=op, json={"command_id": command_id})
+        assert r.status_code == 200 and r.json()["status"] == "cancelled", r.text
+        told = await recv_until(ws, lambda f: f["op"] == "abort")
+        assert told == {"op": "abort", "instance_id": iid, "command_ids": [command_id]}
+        # Told once: the next update_fbmessage does not say it again.
+        ack = await call(ws, "update_fbmessage", "f2", instance_id=iid, control_mode="idle")
+        assert ack["ok"] is True and ack["abort"] == []
+
+
 async def test_stop_jumps_the_queue_on_the_socket(base: str, api: httpx.AsyncClient) -> None:
     vid, vh = await make_vehicle(api)
     async with await connect(base, "/ws/vehicle", token_of(vh)) as ws:

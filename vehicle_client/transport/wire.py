@@ -18,17 +18,7 @@ from fleet_protocol.links import (
     CLOSE_UNAUTHORIZED,
     websocket_url,
 )
-from fleet_protocol.ws import (
-    MAX_BATCH_OPS,
-    AckPush,
-    CommandPush,
-    ControlPush,
-    ErrorPush,
-    EventPush,
-    FailsafePush,
-    LaggingPush,
-    RoutesPush,
-)
+from fleet_protocol.ws import MAX_BATCH_OPS, AckPush, Push
 from vehicle_client.errors import FatalError, RetryableError, SessionLost
 
 __all__ = [
@@ -44,17 +34,8 @@ __all__ = [
 ]
 
 
-AnyPush = Annotated[
-    AckPush
-    | ErrorPush
-    | CommandPush
-    | ControlPush
-    | FailsafePush
-    | EventPush
-    | RoutesPush
-    | LaggingPush,
-    Field(discriminator="op"),
-]
+#: Every push the server sends (``fleet_protocol.ws.Push``, the one list), told apart by op.
+AnyPush = Annotated[Push, Field(discriminator="op")]
 _push_adapter: TypeAdapter[Any] = TypeAdapter(AnyPush)
 
 

@@ -51,6 +51,7 @@ from fleet_protocol import (
     UpdateParamResult,
 )
 from fleet_protocol.ws import (
+    AbortPush,
     AckPush,
     CommandPush,
     ControlPush,
@@ -315,6 +316,11 @@ class WsLink:
                 if vehicle is not None:
                     vehicle.inbox.append(push)
                     vehicle.wake.set()
+            case AbortPush():
+                vehicle = self._for_instance(push.instance_id)
+                if vehicle is not None:
+                    vehicle.aborts.extend(push.command_ids)
+                    vehicle.wake.set()
             case ControlPush():
                 vehicle = self._for_instance(push.instance_id)
                 if vehicle is not None:
@@ -352,6 +358,8 @@ class WsTransport:
         self.on_control: Callable[[ControlInfo | None], None] | None = None
         #: A policy pushed and not yet handed to the agent.
         self.failsafe: FailsafePolicy | None = None
+        #: Commands the server ended since (``abort`` pushes), not yet handed to the agent.
+        self.aborts: list[str] = []
 
     def set_control(self, control: ControlInfo | None) -> None:
         changed = control != self.control
@@ -394,14 +402,15 @@ class WsTransport:
         the server that the socket has not shown.
         """
         sock = await self.link._open()
-        while not self.inbox and self.failsafe is None:
+        while not self.inbox and self.failsafe is None and not self.aborts:
             if sock.error is not None:
                 raise sock.error
             self.wake.clear()
             await self.wake.wait()
         commands, self.inbox = self.inbox, []
         failsafe, self.failsafe = self.failsafe, None
-        return GetControlResult.model_construct(commands=commands, failsafe=failsafe)
+        aborts, self.aborts = self.aborts, []
+        return GetControlResult.model_construct(commands=commands, failsafe=failsafe, abort=aborts)
 
     async def aclose(self) -> None:
         await self.link.aclose()

@@ -1,7 +1,8 @@
-"""A vehicle's agent that starts again tells the server what it still has in hand: a
-command it was carrying out when its computer was replaced (its outbox, and with it the
-commands it had seen, gone) ends ``failed`` instead of ``executing`` for ever, and one it
-still carries out after a lost link is left alone.
+"""Commands the vehicle and the server must agree on. A command cancelled while the boat
+carries it out stops the boat at once. A vehicle's agent that starts again tells the
+server what it still has in hand: a command it was carrying out when its computer was
+replaced (its outbox, and with it the commands it had seen, gone) ends ``failed`` instead
+of ``executing`` for ever, and one it still carries out after a lost link is left alone.
 
 The server in process, real agents with simulated vehicles over HTTP on the app's ASGI
 interface; every wait is a deadline on a condition.
@@ -22,11 +23,13 @@ from asgi_lifespan import LifespanManager
 from server.app import create_app
 from server.settings import Settings
 from tests.factories import ADMIN
+from tests.live import serve
 from vehicle_client.adapters.sim import SimAdapter
 from vehicle_client.agent import AgentConfig, VehicleAgent
 from vehicle_client.backoff import Backoff
 from vehicle_client.outbox import Outbox
 from vehicle_client.transport.http import HttpTransport
+from vehicle_client.transport.ws import WsLink
 
 START = (43.94, 15.44)
 FAR_EAST = {"lat": 43.94, "lon": 15.50}  # about 5 km: the boat is still on its way
@@ -173,3 +176,71 @@ async def test_a_command_carried_on_through_a_lost_link_is_left_alone(field: Fie
     cmd = await f.call("GET", f"/api/commands/{command_id}")
     assert cmd["status"] == "executing", cmd["history"]
     assert agent.pilot.active_id == command_id
+
+
+async def test_a_go_to_cancelled_under_way_stops_the_boat(field: Field) -> None:
+    """A go_to sends no ack while it runs: the cancel reaches the boat through its long
+    poll, and the boat gives up the target (the simulator's task ends, the pilot is idle)."""
+    f = field
+    token = (await f.call("POST", "/api/vehicles", json={"vehicle_id": "usv-r"}))["token"]
+    agent, _ = await f.agent(token, "cancel.db")
+    assert agent.instance_id is not None
+    await _grant_admin(f, agent.instance_id)
+    command_id = await f.go_far(agent.instance_id)
+    sim = agent.adapter.sim  # type: ignore[attr-defined]
+    assert sim.task is not None and agent.pilot.active_id == command_id
+
+    async def acks_answered() -> bool:  # its last update_fbmessage came back: none follows
+        return not agent._acks and agent._sent_mode == "remote"
+
+    await until(acks_answered, "the agent's acks answered")
+
+    cancelled = await f.call("POST", "/client/cancel_command", json={"command_id": command_id})
+    assert cancelled["status"] == "cancelled"
+
+    async def halted() -> bool:
+        return sim.task is None and agent.pilot.active_id is None
+
+    await until(halted, "the boat to give up the cancelled go_to")
+    assert agent.pilot.control_mode == "idle"
+
+
+async def test_over_the_socket_a_go_to_cancelled_under_way_stops_the_boat(
+    make_settings: Callable[..., Settings], tmp_path: Path
+) -> None:
+    """The same over a WebSocket: the server pushes ``abort`` the moment the cancel lands."""
+    async with serve(make_settings()) as base, httpx.AsyncClient(base_url=base) as http:
+        f = Field(None, http, tmp_path)
+        token = (await f.call("POST", "/api/vehicles", json={"vehicle_id": "usv-r"}))["token"]
+        link = WsLink(base, token)
+        agent = VehicleAgent(
+            AgentConfig(vehicle_id="usv-r", rate_hz=5.0, tick_s=0.05),
+            SimAdapter(*START, time_scale=5.0),
+            link.vehicle("usv-r"),
+            Outbox(tmp_path / "ws.db"),
+            backoff=Backoff(0.05, 0.2),
+        )
+        task = asyncio.create_task(agent.run())
+        try:
+            await until(Field._started(agent), "the instance started over the socket")
+            assert agent.link_kind == "ws" and agent.instance_id is not None
+            await _grant_admin(f, agent.instance_id)
+            command_id = await f.go_far(agent.instance_id)
+            sim = agent.adapter.sim  # type: ignore[attr-defined]
+
+            async def acks_answered() -> bool:
+                return not agent._acks and agent._sent_mode == "remote"
+
+            await until(acks_answered, "the agent's acks answered")
+            await f.call("POST", "/client/cancel_command", json={"command_id": command_id})
+
+            async def halted() -> bool:
+                return sim.task is None and agent.pilot.active_id is None
+
+            await until(halted, "the boat to give up the cancelled go_to")
+        finally:
+            task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await task
+            agent.outbox.close()
+            await link.aclose()
