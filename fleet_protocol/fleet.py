@@ -99,3 +99,6 @@ class EventList(WireModel):
     #: The next page: the same query with ``after`` set to this; null when this page
     #: was not full (there is no more, for now).
     next_after: Text | None = None
+    #: The cursor of this page's last event, full or not (null: no event): ``after`` it,
+    #: the events recorded since (a client following the log keeps the latest).
+    cursor: Text | None = None

@@ -63,7 +63,8 @@ async def list_events(
 ) -> EventList:
     if vehicle_id is not None:
         await s.views.visible_vehicle(user, vehicle_id)
-    docs, next_after = await s.events.query(
+    docs, cursor, full = await s.events.query(
         user, vehicle_id=vehicle_id, kind=kind, start=start, end=end, limit=limit, after=after
     )
-    return EventList.model_validate({"events": docs, "next_after": next_after})
+    page = {"events": docs, "next_after": cursor if full else None, "cursor": cursor}
+    return EventList.model_validate(page)

@@ -3,10 +3,10 @@
 ``from`` is inclusive, ``to`` exclusive; a window whose ``from`` is not before
 its ``to`` is refused (422 naming ``from``).
 
-A page of the event log ends with a cursor, ``next_after``: the last event's
-time and stored id (``<ISO time>_<24 hex digits>``), so that the next page
-starts right after it even when many events share one millisecond, and a
-cursor whose event has since been dropped by retention still works.
+A page of the event log carries a cursor, the last event's time and stored id
+(``<ISO time>_<24 hex digits>``), so that the next page starts right after it
+even when many events share one millisecond, and a cursor whose event has
+since been dropped by retention still works.
 """
 
 from __future__ import annotations
@@ -15,6 +15,7 @@ import re
 from datetime import datetime, timedelta
 
 from fleet_protocol.common import format_ts, parse_ts
+from fleet_protocol.values import MAX_TIMESTAMP, MIN_TIMESTAMP
 from server.errors import Invalid
 
 __all__ = ["after_cursor", "ordered", "page_cursor", "window"]
@@ -54,9 +55,12 @@ def after_cursor(text: str) -> tuple[datetime, str]:
     try:
         if not _KEY.fullmatch(key):
             raise ValueError(text)
-        return parse_ts(at), key
-    except ValueError:
+        when = parse_ts(at)
+        if not MIN_TIMESTAMP <= when <= MAX_TIMESTAMP:
+            raise ValueError(text)
+        return when, key
+    except (ValueError, OverflowError):  # OverflowError: a year 1 time in another zone
         raise Invalid(
-            "after is not a cursor this server gave",
-            details=[{"field": "after", "message": "use next_after of the page before"}],
+            "after is not a cursor of this server (a time from 1970 to 2100, '_', 24 hex digits)",
+            details=[{"field": "after", "message": "use next_after or cursor of a page"}],
         ) from None

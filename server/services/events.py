@@ -59,10 +59,10 @@ class EventService:
         end: datetime | None,
         limit: int,
         after: str | None = None,
-    ) -> tuple[list[dict[str, Any]], str | None]:
-        """The events, oldest first, and the cursor of the next page (None when this
-        page is not full). ``after``: the cursor of the page before; without ``from``
-        the window then starts at its event, not a day back."""
+    ) -> tuple[list[dict[str, Any]], str | None, bool]:
+        """The events, oldest first; the cursor of the last one (None: none); whether the
+        page is full (there may be more). ``after``: a cursor of a page before; without
+        ``from`` the window then starts at its event, not a day back."""
         ordered(start, end)
         past = after_cursor(after) if after is not None else None
         # A ``from`` still to come, with no ``to``, finds nothing (a client following
@@ -76,15 +76,15 @@ class EventService:
         else:
             vehicle_ids = sorted(principal.vehicles)
         if vehicle_ids == []:
-            return [], None
+            return [], None, False
         limit = min(limit, MAX_EVENTS_PER_QUERY)
         docs = await self.repo.query(
             vehicle_ids=vehicle_ids, kind=kind, start=start, end=end, limit=limit, after=past
         )
-        cursor = page_cursor(docs[-1]["at"], str(docs[-1]["_id"])) if len(docs) == limit else None
+        cursor = page_cursor(docs[-1]["at"], str(docs[-1]["_id"])) if docs else None
         for doc in docs:
             del doc["_id"]
-        return docs, cursor
+        return docs, cursor, len(docs) == limit
 
     async def latest(self, vehicle_id: str, count: int) -> list[dict[str, Any]]:
         """The vehicle's last ``count`` events of the last day, oldest first (the caller

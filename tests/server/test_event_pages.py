@@ -102,6 +102,12 @@ async def test_a_page_after_a_cursor_keeps_the_querys_filters(
         "2026-01-01T00:00:00.000Z_" + "0" * 23,
         "2026-01-01T00:00:00.000Z_" + "g" * 24,
         "x" * 129,
+        # out of the range every time of the API has (1970 to 2100), and out of Python's
+        # once put in UTC (a 500 before)
+        "0001-01-01T00:00:00+01:00_" + "a" * 24,
+        "9999-12-31T23:59:59-01:00_" + "a" * 24,
+        "0001-01-01T00:00:00Z_" + "a" * 24,
+        "2100-01-01T00:00:00.001Z_" + "a" * 24,
     ],
 )
 async def test_a_cursor_the_server_did_not_give_is_422_naming_after(
@@ -125,3 +131,27 @@ async def test_a_cursor_outlives_its_event(client: httpx.AsyncClient) -> None:
     )
     assert r.status_code == 200, r.text
     assert any(e["kind"] == "instance" for e in r.json()["events"])
+
+
+async def test_a_client_following_the_log_keeps_the_cursor_of_the_last_page(
+    client: httpx.AsyncClient,
+) -> None:
+    """``cursor`` is on every page with an event, full or not: after it, only what came since."""
+    vid, vh = await make_vehicle(client)
+    await _instance_lives(client, vid, vh, 1)
+    r = await client.get("/api/events", headers=ADMIN, params={"vehicle_id": vid})
+    first = r.json()
+    assert first["events"] and first["next_after"] is None and first["cursor"]
+    r = await client.get(
+        "/api/events", headers=ADMIN, params={"vehicle_id": vid, "after": first["cursor"]}
+    )
+    assert r.json() == {"events": [], "next_after": None, "cursor": None}
+    await _instance_lives(client, vid, vh, 1)
+    r = await client.get(
+        "/api/events", headers=ADMIN, params={"vehicle_id": vid, "after": first["cursor"]}
+    )
+    since = r.json()["events"]
+    assert [e["data"].get("action") for e in since if e["kind"] == "instance"] == [
+        "started", "finished",
+    ]  # fmt: skip
+    assert not {e["event_id"] for e in since} & {e["event_id"] for e in first["events"]}
