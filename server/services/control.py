@@ -73,9 +73,17 @@ class ControlService:
         self._requests_swept: datetime | None = None
 
     async def load(self) -> None:
+        """The leases, as the store has them. A lease that lapses when its holder's client
+        falls silent counts that client as heard now: while this server was down, the
+        client had nothing to reach, and it gets its ``operator_timeout_s`` to find the
+        server back (a restart does not end every such lease: docs/safety.md)."""
         await self.repo.ensure_indexes()
+        now = self.clock()
         for doc in await self.repo.all_leases():
             lease = Lease.from_doc(doc)
+            if lease.operator_timeout_s is not None and now < lease.expires_at:
+                if await self.repo.operator_seen(lease.instance_id, lease.holder, now):
+                    lease = dataclasses.replace(lease, operator_seen_at=now)
             self._leases[lease.instance_id] = lease
 
     # ---- reads ----------------------------------------------------------

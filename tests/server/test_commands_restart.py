@@ -7,7 +7,7 @@ from collections.abc import Callable
 import pytest
 
 from server.settings import Settings
-from tests.factories import FakeClock
+from tests.factories import ADMIN, FakeClock
 from tests.server.commanding import GO_TO, Person, Vehicle, World, statuses, world
 
 # Each test runs on the embedded store and on FerretDB (the real MongoDB driver).
@@ -65,3 +65,35 @@ async def _one_of_each(w: World) -> tuple[Vehicle, Person, str, str, str]:
     assert r.status_code == 200, r.text
     waiting = await w.queued(op, v, GO_TO, ttl_s=600)
     return v, op, running, dropped, waiting
+
+
+async def test_a_restart_gives_a_lease_needing_a_live_client_its_timeout_again(
+    make_settings: Callable[..., Settings],
+) -> None:
+    """The server was down longer than the holder's ``operator_timeout_s``: its client had
+    nothing to reach. The server that starts counts the client as heard then, and the lease
+    lapses only if the client stays silent for the timeout after that."""
+    settings, clock = make_settings(), FakeClock()
+    async with world(settings, clock) as w:
+        v = await w.vehicle()
+        op = await w.person("operator", v)
+        body = {
+            "instance_id": v.instance_id,
+            "user": op.username,
+            "duration_s": 600,
+            "operator_timeout_s": 10,
+        }
+        assert (await w.http.post("/client/grant_control", headers=ADMIN, json=body)).is_success
+    clock.advance(60)  # down for a minute
+    async with world(settings, clock) as w:
+        assert (await w.submit(op, [v], GO_TO)).status_code == 202  # still the holder
+        clock.advance(11)  # and now silent for longer than its timeout
+        await w.services.control.sweep()
+        r = await w.http.post(
+            "/client/connect_instance", headers=ADMIN, json={"instance_id": v.instance_id}
+        )
+        assert r.json()["instance"]["control"] is None
+        events = (
+            await w.http.get("/api/events", headers=ADMIN, params={"kind": "control_expired"})
+        ).json()["events"]
+        assert [e["data"]["reason"] for e in events] == ["operator_silent"]
