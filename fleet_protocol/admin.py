@@ -2,12 +2,20 @@
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Annotated, Literal
 
-from pydantic import Field, StrictBool
+from pydantic import AfterValidator, Field, StrictBool
 
 from fleet_protocol.common import Identifier, Timestamp, WireModel
 from fleet_protocol.values import Label, Text
+
+
+def _once_each(ids: list[str]) -> list[str]:
+    return list(dict.fromkeys(ids))
+
+
+#: Vehicle ids given to a user or a gateway: each kept once, in the order first given.
+VehicleIds = Annotated[list[Identifier], AfterValidator(_once_each)]
 
 __all__ = [
     "CallerView",
@@ -46,7 +54,7 @@ class VehicleCreated(WireModel):
 
 class CreateGateway(WireModel):
     gateway_id: Identifier
-    vehicles: list[Identifier] = Field(default_factory=list, max_length=1000)
+    vehicles: VehicleIds = Field(default_factory=list, max_length=1000)
 
 
 class GatewayCreated(WireModel):
@@ -75,7 +83,7 @@ MIN_PASSWORD_CHARS = 8
 class CreateUser(WireModel):
     username: Identifier
     role: Role
-    vehicles: list[Identifier] = Field(default_factory=list, max_length=10000)
+    vehicles: VehicleIds = Field(default_factory=list, max_length=10000)
     password: Text | None = Field(default=None, min_length=MIN_PASSWORD_CHARS, max_length=256)
 
 
@@ -111,7 +119,7 @@ class UserList(WireModel):
 
 class PatchUser(WireModel):
     role: Role | None = None
-    vehicles: list[Identifier] | None = Field(default=None, max_length=10000)
+    vehicles: VehicleIds | None = Field(default=None, max_length=10000)
     disabled: StrictBool | None = None
     password: Text | None = Field(default=None, min_length=MIN_PASSWORD_CHARS, max_length=256)
 

@@ -26,6 +26,8 @@ from remote_client.cli_common import (
     fail,
     finite,
     lat_lon,
+    latitude,
+    longitude,
     print_queued,
     run,
     say,
@@ -79,8 +81,8 @@ def stop(
 @app.command(context_settings=COORDINATES)
 def goto(
     vehicle: str = VehicleArg,
-    lat: float = typer.Argument(..., callback=finite, help="degrees"),
-    lon: float = typer.Argument(..., callback=finite, help="degrees"),
+    lat: float = typer.Argument(..., callback=latitude, help="degrees, -90 to 90"),
+    lon: float = typer.Argument(..., callback=longitude, help="degrees, -180 to 180"),
     speed: float | None = SpeedOpt,
     ttl: int = TtlOpt,
     server: str = ServerOpt,
@@ -100,10 +102,10 @@ def goto(
 def station(
     vehicles: list[str] = VehiclesArg,
     lat: float | None = typer.Option(
-        None, callback=finite, help="degrees; none: where the vehicle is"
+        None, callback=latitude, help="degrees; none: where the vehicle is"
     ),
     lon: float | None = typer.Option(
-        None, callback=finite, help="degrees; none: where the vehicle is"
+        None, callback=longitude, help="degrees; none: where the vehicle is"
     ),
     radius: float | None = typer.Option(
         None, callback=finite, help="metres (the server's default: 2)"
@@ -141,7 +143,7 @@ def path(
         try:
             points.append(lat_lon(text))
         except ValueError:
-            fail(f"not a LAT,LON pair: {text!r}")
+            fail(f"not a LAT,LON pair (-90 to 90, -180 to 180): {text!r}")
 
     async def act(fleet: FleetClient) -> dict[str, Any]:
         instance_id = await fleet.instance_id_of(vehicle)

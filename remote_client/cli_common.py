@@ -107,11 +107,30 @@ def finite(param: typer.CallbackParam, value: float | None) -> float | None:
     return value
 
 
+def latitude(param: typer.CallbackParam, value: float | None) -> float | None:
+    """A latitude argument: from -90 to 90 (refused here, before anything is sent)."""
+    finite(param, value)
+    if value is not None and not -90 <= value <= 90:
+        fail(f"{_shown_name(param)} is a latitude, from -90 to 90, not {value}")
+    return value
+
+
+def longitude(param: typer.CallbackParam, value: float | None) -> float | None:
+    """A longitude argument: from -180 to 180 (refused here, before anything is sent)."""
+    finite(param, value)
+    if value is not None and not -180 <= value <= 180:
+        fail(f"{_shown_name(param)} is a longitude, from -180 to 180, not {value}")
+    return value
+
+
 def lat_lon(text: str) -> tuple[float, float]:
-    """``LAT,LON`` as two finite numbers; ValueError when it is not that."""
+    """``LAT,LON``: a latitude (-90 to 90) and a longitude (-180 to 180); ValueError when
+    it is not that."""
     lat, lon = (float(part) for part in text.split(","))
     if not (math.isfinite(lat) and math.isfinite(lon)):
         raise ValueError(f"not finite: {text!r}")
+    if not (-90 <= lat <= 90 and -180 <= lon <= 180):
+        raise ValueError(f"out of range: {text!r}")
     return lat, lon
 
 

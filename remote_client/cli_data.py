@@ -6,6 +6,7 @@ from __future__ import annotations
 import contextlib
 import json
 import sys
+import typing
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
 from typing import Any
@@ -21,6 +22,7 @@ from rich.progress import (
 )
 from rich.table import Table
 
+from fleet_protocol import EventKind
 from fleet_protocol.common import format_ts, parse_ts
 from remote_client import streams
 from remote_client.cli_common import (
@@ -41,6 +43,8 @@ from remote_client.output import console, errors
 from remote_client.sdk import FleetClient
 from remote_client.tracks import FORMATS, TrackJoiner, plot_png
 
+#: The kinds ``--kind`` takes: the server's (``fleet_protocol.EventKind``).
+EVENT_KINDS: tuple[str, ...] = typing.get_args(EventKind)
 VehicleArg = typer.Argument(..., help="vehicle id or name")
 #: The track's window when ``--since`` is not given (the server's default too).
 DEFAULT_WINDOW = timedelta(hours=24)
@@ -92,6 +96,8 @@ def events(
     as_json: bool = JsonOpt,
 ) -> None:
     """The event log: presence, control, commands, alarms; oldest first."""
+    if kind is not None and kind not in EVENT_KINDS:
+        fail(f"--kind is one of {', '.join(EVENT_KINDS)}; not {kind!r}")
     start, end = window(since, until)
 
     async def act(fleet: FleetClient) -> dict[str, Any]:

@@ -178,7 +178,7 @@ def failsafe_set(
         try:
             lat, lon = lat_lon(home)
         except ValueError:
-            fail(f"--home is LAT,LON, not {home!r}")
+            fail(f"--home is LAT,LON (-90 to 90, -180 to 180), not {home!r}")
         where = {"lat": lat, "lon": lon}
 
     async def act(fleet: FleetClient) -> dict[str, Any]:

@@ -55,6 +55,24 @@ def test_a_float_that_is_not_finite_is_refused_before_anything_is_sent(
     assert_refused(fleetctl(*args), named)
 
 
+@pytest.mark.parametrize(
+    ("args", "named"),
+    [
+        (("goto", "Alpha", "91", "15"), "LAT is a latitude, from -90 to 90"),
+        (("goto", "Alpha", "--", "-90.5", "15"), "LAT is a latitude"),
+        (("goto", "Alpha", "43.94", "180.01"), "LON is a longitude, from -180 to 180"),
+        (("station", "Alpha", "--lat", "43", "--lon", "-181"), "--lon is a longitude"),
+        (("path", "Alpha", "43.94,15", "95,15"), "'95,15'"),
+        (("failsafe", "set", "Alpha", "return_home", "--home", "43.94,200"), "--home"),
+        (("events", "--kind", "bogus"), "--kind is one of instance, presence, command"),
+    ],
+)
+def test_a_position_out_of_range_or_an_unknown_kind_is_refused_before_anything_is_sent(
+    args: tuple[str, ...], named: str
+) -> None:
+    assert_refused(fleetctl(*args), named)
+
+
 TRACK_ENDINGS = ".json, .geojson, .gpx, .csv, .png"
 
 

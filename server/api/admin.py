@@ -27,6 +27,7 @@ from fleet_protocol import (
     VehicleCreated,
 )
 from server.api.deps import Admin, ServicesDep, Viewer
+from server.errors import Invalid
 
 router = APIRouter(tags=["admin"])
 
@@ -147,8 +148,14 @@ async def me(user: Viewer) -> CallerView:
 async def _login_body(request: Request) -> LoginRequest:
     """JSON as the contract says, or an OAuth2-style form (what many clients send)."""
     raw = await request.body()
+    content_type = request.headers.get("content-type", "")
+    if content_type.startswith("multipart/form-data"):
+        raise Invalid(
+            "send the login as JSON or as application/x-www-form-urlencoded",
+            details=[{"field": "body", "message": "multipart/form-data is not read here"}],
+        )
     try:
-        if request.headers.get("content-type", "").startswith("application/x-www-form-urlencoded"):
+        if content_type.startswith("application/x-www-form-urlencoded"):
             form = {k: v[0] for k, v in parse_qs(raw.decode("utf-8", "replace")).items()}
             return LoginRequest.model_validate(form)
         return LoginRequest.model_validate_json(raw)

@@ -262,3 +262,24 @@ async def test_an_unknown_event_kind_is_422_naming_the_kinds(client: httpx.Async
     assert detail["field"] == "kind" and "zone_breach" in detail["message"]
     r = await client.get("/api/events", headers=ADMIN, params={"kind": "presence"})
     assert r.status_code == 200
+
+
+async def test_a_users_vehicles_are_kept_once_each(client: httpx.AsyncClient) -> None:
+    a, _ = await make_vehicle(client)
+    b, _ = await make_vehicle(client)
+    body = {"username": "dup-1", "role": "operator", "vehicles": [a, b] * 1000}
+    r = await client.post("/api/users", headers=ADMIN, json=body)
+    assert r.status_code == 201, r.text
+    assert sorted(r.json()["vehicles"]) == sorted([a, b])
+    r = await client.patch("/api/users/dup-1", headers=ADMIN, json={"vehicles": [b, b]})
+    assert r.status_code == 200 and r.json()["vehicles"] == [b]
+
+
+async def test_a_login_sent_as_multipart_is_told_what_to_send(client: httpx.AsyncClient) -> None:
+    r = await client.post("/auth/token", files={"username": (None, "a"), "password": (None, "b")})
+    assert r.status_code == 422, r.text
+    error = r.json()["error"]
+    assert "x-www-form-urlencoded" in error["message"]
+    assert error["details"] == [
+        {"field": "body", "message": "multipart/form-data is not read here"}
+    ]
