@@ -423,6 +423,12 @@ def test_field_manager_grants_control_on_a_phone(
     assert 850 < left <= 900, left
     box = lease.locator("button", has_text="Revoke").bounding_box()
     assert box is not None and box["height"] >= 32  # a thumb can hit it
+    # Revoke asks first (the vehicle would hold station): cancelled here, nothing changes
+    lease.locator("button", has_text="Revoke").tap()
+    expect(page.locator("#confirm-title")).to_have_text("Revoke ben's control of H2OmniX Charlie?")
+    page.locator("#confirm-cancel").tap()
+    expect(page.locator("#confirm")).not_to_be_visible()
+    expect(lease).to_contain_text("ben until")
     assert page.evaluate("document.documentElement.scrollWidth") <= 390
     shots(page, "phone-granted", full_page=True)
     # ben's other request (for the boat ana holds) is declined
@@ -458,6 +464,13 @@ def test_replay_puts_each_marker_where_the_store_has_it(
     page.click("#replay-load")
     expect(page.locator("#replay-bar")).to_be_visible()
     expect(page.locator(".vicon.replay")).to_have_count(2)
+
+    # said on the map and beside the link's state: never read as live
+    def after(selector: str) -> str:
+        return str(page.locator(selector).evaluate("el => getComputedStyle(el, '::after').content"))
+
+    assert after("#map-pane") == '"REPLAY: recorded positions, not live"'
+    assert after("#link") == '" · map: replay"'
     start, end = page.evaluate("[fleetConsole.replay.start, fleetConsole.replay.end]")
     stored = {
         v: world.fleet.call(
@@ -526,6 +539,7 @@ def test_replay_puts_each_marker_where_the_store_has_it(
     ]
     page.click("#replay-exit")
     expect(page.locator(".vicon.replay")).to_have_count(0)
+    assert after("#map-pane") == "none" and after("#link") == "none"
     expect(marker(page, "demo-usv-1")).to_be_visible()
 
 
@@ -658,3 +672,31 @@ def test_expected_at_is_the_stored_sample_on_its_time() -> None:
     assert expected_at(points, t0 + 5000) == (1.5, 3.0)
     assert expected_at(points, t0 + 20_000) == (2.0, 4.0)
     assert math.isclose(expected_at(points, t0 + 10_000)[0], 2.0)
+
+
+def test_people_are_told_when_control_changes(
+    world: World, open_console: Any, shots: Shots
+) -> None:
+    """Whatever tab is open: the operator when their control begins or ends, the field
+    manager when someone asks for it (and the Control tab counts the requests)."""
+    instance = world.instances["demo-usv-2"]
+    operator, _ = open_console()
+    log_in(operator, "ben")
+    manager, _ = open_console()
+    log_in(manager, "mia")
+    tab = manager.locator('.tabs [data-tab="control"]')
+    expect(tab).to_have_text("Control")
+    world.as_user("ben", "POST", "/client/request_control", json={"instance_id": instance})
+    expect(manager.locator("#toasts")).to_contain_text("ben asks for control of H2OmniX Bravo")
+    expect(tab).to_have_text("Control (1)")
+    shots(manager, "manager-told-of-request")
+    world.fleet.call("POST", "/client/revoke_control", json={"instance_id": instance})
+    body = {"instance_id": instance, "user": "ben", "duration_s": 600}
+    world.as_user("mia", "POST", "/client/grant_control", json=body)
+    toasts = operator.locator("#toasts")
+    expect(toasts).to_contain_text("you now hold control of H2OmniX Bravo (granted by mia)")
+    expect(tab).to_have_text("Control")  # the request was answered by the grant
+    world.as_user("mia", "POST", "/client/revoke_control", json={"instance_id": instance})
+    expect(toasts).to_contain_text("your control of H2OmniX Bravo was revoked by mia")
+    shots(operator, "operator-told")
+

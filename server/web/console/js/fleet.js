@@ -75,7 +75,13 @@ export class Fleet extends EventTarget {
     for (const view of data.vehicles || []) {
       const known = this.vehicles.has(view.vehicle_id);
       const v = this.vehicle(view.vehicle_id);
+      const was = v.view.presence;
       v.view = { ...v.view, ...view };
+      if (known && !snapshot && view.presence && view.presence !== was) {
+        this.dispatchEvent(new CustomEvent("presence", {
+          detail: { id: v.id, was, now: view.presence },
+        }));
+      }
       if (view.control !== undefined) v.control = view.control;
       if (view.position) this.addToTrail(v, view.position);
       if (!known) this.dispatchEvent(new CustomEvent("added", { detail: { id: v.id } }));

@@ -3,10 +3,10 @@
 // developer tools, and for the browser tests).
 
 import { Api, login, saveToken, savedToken } from "./api.js";
-import { Fleet, TRAIL_MINUTES, topicsOf } from "./fleet.js";
+import { Fleet, TRAIL_MINUTES, isFinal, topicsOf } from "./fleet.js";
 import { LiveLink } from "./live.js";
 import { ControlPanel, FleetTable, VehiclePanel } from "./panels.js";
-import { ago, confirmAction, h, toast, until, zoneText } from "./ui.js";
+import { ago, clock, confirmAction, h, toast, until, zoneText } from "./ui.js";
 
 const $ = (id) => document.getElementById(id);
 const PHONE = window.matchMedia("(max-width: 760px)");
@@ -120,6 +120,7 @@ class Console {
     this.fleet.addEventListener("event", (e) => {
       if (e.detail.event.kind === "zones_changed") this.loadShapes(); // a zone of a vehicle
     });
+    this.fleet.addEventListener("presence", (e) => this.presenceChanged(e.detail));
     this.live = new LiveLink({
       token: api.token,
       pingTopic: `user/${me.username}/console-ping`,
@@ -172,6 +173,21 @@ class Console {
     } else {
       link.textContent = this.wasLost ? "link lost · reconnecting…" : "connecting…";
     }
+  }
+
+  /** A vehicle that goes offline in the middle of a command is said at once: its map label
+   * would otherwise still read "executing". */
+  presenceChanged({ id, now }) {
+    if (now !== "offline") return;
+    const cmd = this.fleet.latestCommand(id);
+    if (!cmd || isFinal(cmd.status)) return;
+    const v = this.fleet.vehicles.get(id);
+    const heard = this.fleet.lastContact(id);
+    toast(
+      `${v.view.name || id} went offline during ${cmd.type.replace(/_/g, " ")} (${cmd.stage}); ` +
+        `last heard ${Number.isFinite(heard) ? clock(heard) : "–"}: what it does now is unknown`,
+      "error",
+    );
   }
 
   /** Once a second: the "ago" and "until" texts move on (no call to the server). */
@@ -411,7 +427,7 @@ class Console {
         run: () => this.requestControl(v.id),
       });
     } else {
-      toast(`${type} refused: ${e.explain()}`, "error");
+      toast(notSent(type, e), "error");
     }
   }
 
@@ -448,7 +464,7 @@ class Console {
       }
       toast(`stop sent to ${made.length} vehicle(s)`, "ok");
     } catch (e) {
-      toast(`stop refused: ${e.explain()}`, "error");
+      toast(notSent("stop", e), "error");
     }
   }
 
@@ -479,6 +495,16 @@ class Console {
       toast(`cancel refused: ${e.explain()}`, "error");
     }
   }
+}
+
+/** Why a command did not go: refused by the server, or never sent (no connection), in
+ * which case each vehicle's own failsafe is what acts, after its link-loss time. */
+function notSent(type, e) {
+  if (e.code === "unreachable") {
+    return `${type} NOT sent: no connection to the server. Try again; a vehicle that ` +
+      "hears nothing from it applies its failsafe after its link-loss time.";
+  }
+  return `${type} refused: ${e.explain()}`;
 }
 
 // ---- start ---------------------------------------------------------------------------------

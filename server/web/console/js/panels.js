@@ -3,7 +3,7 @@
 // and leases; an operator's own). Each redraws from the Fleet state when it changes.
 
 import { isFinal, stageOf } from "./fleet.js";
-import { ago, clock, dateTime, h, toast, until } from "./ui.js";
+import { ago, clock, confirmAction, dateTime, h, toast, until } from "./ui.js";
 
 const DURATIONS = [
   [300, "5 min"], [900, "15 min"], [1800, "30 min"], [3600, "1 h"], [7200, "2 h"],
@@ -259,10 +259,11 @@ export function describeEvent(e) {
   const d = e.data || {};
   if (e.kind === "command") {
     const stage = d.status ? stageOf(d.status, d.detail) : "";
-    const detail = d.detail && d.detail !== "superseded_by_stop"
+    const who = e.actor ? e.actor.replace(/^user:/, "") : null;
+    // a cancel's detail is "by <who>": said once, not "(by ana) by ana"
+    const detail = d.detail && d.detail !== "superseded_by_stop" && d.detail !== `by ${who}`
       ? ` (${d.detail.replace(/^superseded_by /, "by ")})` : "";
-    return `${d.type || ""} ${stage}${detail}` +
-      (e.actor ? ` by ${e.actor.replace(/^user:/, "")}` : "");
+    return `${d.type || ""} ${stage}${detail}` + (who ? ` by ${who}` : "");
   }
   if (e.kind === "control_mode") {
     return `${d.was ? `${d.was} → ` : ""}${d.control_mode || "?"}`;
@@ -355,10 +356,36 @@ export class ControlPanel {
       const { id, event } = e.detail;
       if (event.kind.startsWith("control_")) this.loadRequests();
       if (event.kind === "hold_station" && this.managed(id)) {
-        const v = ctx.fleet.vehicles.get(id);
-        toast(`${v ? v.view.name || id : id} holds station: ${describeEvent(event)}`, "info");
+        toast(`${this.nameOf(id)} holds station: ${describeEvent(event)}`, "info");
       }
+      this.tellMine(id, event);
     });
+  }
+
+  nameOf(id) {
+    const v = this.ctx.fleet.vehicles.get(id);
+    return v ? v.view.name || id : id;
+  }
+
+  /** What happens to this user's own control, and (for a manager) who asks for it, as a
+   * toast whatever tab is open: nobody learns of it by chance in a side panel. */
+  tellMine(id, event) {
+    const me = this.ctx.me.username;
+    const d = event.data || {};
+    const by = (event.actor || "").replace(/^user:/, "");
+    const name = this.nameOf(id);
+    if (event.kind === "control_request" && this.managed(id) && by !== me) {
+      toast(`${by} asks for control of ${name}: see Control`, "info");
+    } else if (event.kind === "control_grant" && d.holder === me && by !== me) {
+      toast(`you now hold control of ${name} (granted by ${by})`, "ok");
+    } else if (event.kind === "control_deny" && d.user === me) {
+      toast(`${by} declined your request for ${name}${d.reason ? `: ${d.reason}` : ""}`, "error");
+    } else if (event.kind === "control_revoke" && d.holder === me && by !== me) {
+      toast(`your control of ${name} was revoked by ${by || "the server"}; it holds station`, "error");
+    } else if (event.kind === "control_expired" && d.holder === me) {
+      const why = d.reason === "operator_silent" ? "this console was silent too long" : "its time ran out";
+      toast(`your control of ${name} ended (${why}); it holds station`, "error");
+    }
   }
 
   get manages() {
@@ -410,6 +437,8 @@ export class ControlPanel {
   }
 
   draw() {
+    const tab = document.querySelector('.tabs [data-tab="control"]');
+    if (tab) tab.textContent = this.manages && this.requests.length ? `Control (${this.requests.length})` : "Control";
     const parts = [h("h2", {}, "Control")];
     if (this.manages) parts.push(this.requestSection(), this.grantForm());
     parts.push(this.leaseSection(), this.safetyLog());
@@ -585,6 +614,15 @@ export class ControlPanel {
   }
 
   async revoke(v) {
+    const name = v.view.name || v.id;
+    const holder = v.control ? v.control.holder : "its holder";
+    const ok = await confirmAction({
+      title: `Revoke ${holder}'s control of ${name}?`,
+      text: `${name} holds station at once; the commands ${holder} queued and it has not ` +
+        "begun are cancelled.",
+      confirm: "Revoke",
+    });
+    if (!ok) return;
     try {
       await this.ctx.api.post("/client/revoke_control", { instance_id: v.view.instance_id });
       toast(`control of ${v.view.name || v.id} revoked`, "ok");
