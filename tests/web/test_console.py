@@ -209,7 +209,7 @@ def test_log_in_and_watch_the_fleet_move_live(
 def test_select_a_vehicle_and_send_go_to_by_clicking_the_map(
     world: World, open_console: Any, shots: Shots
 ) -> None:
-    page, _ = open_console()
+    page, guard = open_console()
     log_in(page, "ana")
     start = position(world, "demo-usv-1")
     centre_on(page, start["lat"], start["lon"], 19)
@@ -261,6 +261,21 @@ def test_select_a_vehicle_and_send_go_to_by_clicking_the_map(
     expect(page.locator("#selection")).to_have_text("2 selected: H2OmniX Alpha, H2OmniX Bravo")
     expect(marker(page, "demo-usv-2")).to_have_class(re.compile(r"\bselected\b"))
     before = held["command_id"]
+    # a radius or a speed out of its field's range is said, and nothing is sent (a
+    # radius of 0 went out as 5 m)
+    with no_requests(guard):
+        page.fill("#opt-radius", "0")
+        page.click("#hold")
+        expect(page.locator("#toasts")).to_contain_text("station radius is 1 to 500 m")
+        page.fill("#opt-speed", "25")
+        page.click('[data-tool="go_to"]')
+        page.mouse.click(*screen_point(page, *station))
+        expect(page.locator("#toasts")).to_contain_text("speed is 0.1 to 20 m/s")
+        page.keyboard.press("Escape")  # the tool put away
+        expect(page.locator("#tool-hint")).to_be_hidden()
+        page.fill("#opt-speed", "")
+        next_frames(page)
+    page.fill("#opt-radius", "3")
     page.click("#hold")
     for vehicle_id in ("demo-usv-1", "demo-usv-2"):
 
@@ -521,6 +536,7 @@ def test_replay_puts_each_marker_where_the_store_has_it(
     # export the window: one file, both vehicles, every stored point
     with page.expect_download() as got:
         page.click('#replay-export button[data-format="gpx"]')
+    assert re.fullmatch(r"fleet-replay-\d{4}-\d\d-\d\dT\d{6}Z\.gpx", got.value.suggested_filename)
     gpx = ET.parse(got.value.path())
     ns = {"g": "http://www.topografix.com/GPX/1/1"}
     tracks = gpx.getroot().findall("g:trk", ns)
@@ -699,4 +715,3 @@ def test_people_are_told_when_control_changes(
     world.as_user("mia", "POST", "/client/revoke_control", json={"instance_id": instance})
     expect(toasts).to_contain_text("your control of H2OmniX Bravo was revoked by mia")
     shots(operator, "operator-told")
-

@@ -306,7 +306,10 @@ class Console {
     for (const b of document.querySelectorAll("[data-tool]")) {
       b.addEventListener("click", () => this.setTool(this.tool === b.dataset.tool ? null : b.dataset.tool));
     }
-    $("hold").addEventListener("click", () => this.send("keep_station", { radius_m: this.radius() }));
+    $("hold").addEventListener("click", () => {
+      const radius = this.radius();
+      if (radius != null) this.send("keep_station", { radius_m: radius });
+    });
     $("stop-selected").addEventListener("click", () => this.stopSelected());
     $("stop-all").addEventListener("click", () => this.stopAll());
     $("path-undo").addEventListener("click", () => {
@@ -356,12 +359,16 @@ class Console {
   mapClicked(latlng) {
     const point = { lat: +latlng.lat.toFixed(7), lon: +latlng.lng.toFixed(7) };
     if (this.tool === "go_to") {
+      const speed = this.speedArg();
+      if (speed == null) return; // said why; the tool stays for another click
       this.map.flash(latlng);
-      this.send("go_to", { ...point, ...this.speedArg() });
+      this.send("go_to", { ...point, ...speed });
       this.setTool(null);
     } else if (this.tool === "station") {
+      const radius = this.radius();
+      if (radius == null) return;
       this.map.flash(latlng);
-      this.send("keep_station", { ...point, radius_m: this.radius() });
+      this.send("keep_station", { ...point, radius_m: radius });
       this.setTool(null);
     } else if (this.tool === "path") {
       this.draftPath.push(point);
@@ -369,19 +376,37 @@ class Console {
     }
   }
 
+  /** The speed option: {} when left empty (the vehicle's own), ``{speed_mps}``, or null
+   * (said in a toast) when it is out of the field's range: nothing is sent then. */
   speedArg() {
-    const speed = parseFloat($("opt-speed").value);
-    return Number.isFinite(speed) && speed > 0 ? { speed_mps: speed } : {};
+    const field = $("opt-speed");
+    if (field.value.trim() === "") return {};
+    const speed = parseFloat(field.value);
+    if (!Number.isFinite(speed) || speed < +field.min || speed > +field.max) {
+      toast(`speed is ${field.min} to ${field.max} m/s, or empty for the vehicle's own`, "error");
+      field.focus();
+      return null;
+    }
+    return { speed_mps: speed };
   }
 
+  /** The station radius in metres, or null (said in a toast) when out of its range. */
   radius() {
-    const r = parseFloat($("opt-radius").value);
-    return Number.isFinite(r) && r > 0 ? r : 5;
+    const field = $("opt-radius");
+    const r = parseFloat(field.value);
+    if (!Number.isFinite(r) || r < +field.min || r > +field.max) {
+      toast(`station radius is ${field.min} to ${field.max} m`, "error");
+      field.focus();
+      return null;
+    }
+    return r;
   }
 
   async sendPath() {
     if (!this.draftPath.length) return toast("click the map to add waypoints first", "error");
-    const args = { waypoints: this.draftPath, ...this.speedArg() };
+    const speed = this.speedArg();
+    if (speed == null) return undefined;
+    const args = { waypoints: this.draftPath, ...speed };
     if ($("path-plan").checked) args.plan = true;
     if (await this.send("follow_path", args)) this.setTool(null);
     return undefined;

@@ -277,6 +277,16 @@ export class MapView {
     this.missions.set(v.id, group);
   }
 
+  /** Pan to a vehicle that is off the map's view (its latest position), at the zoom it
+   * has; one in view is left where it is. */
+  bringIntoView(id) {
+    const v = this.fleet.vehicles.get(id);
+    const p = v && v.view.position;
+    if (!p || p.lat == null || p.lon == null) return;
+    const at = L.latLng(p.lat, p.lon);
+    if (!this.map.getBounds().pad(-0.1).contains(at)) this.map.panTo(at, { animate: false });
+  }
+
   setSelected(ids) {
     this.selected = new Set(ids);
     for (const [id, m] of this.markers) {

@@ -109,6 +109,7 @@ export class FleetTable {
             onclick: (e) => {
               if (e.target.type === "checkbox") return;
               this.ctx.pick(v.id, e.shiftKey || e.ctrlKey || e.metaKey);
+              this.ctx.map.bringIntoView(v.id); // picked from the list: shown on the map
             },
           },
           h("td", {}, h("input", {

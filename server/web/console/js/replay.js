@@ -341,7 +341,7 @@ export class Replay {
         body = mergeGpx(texts);
         type = "application/gpx+xml";
       }
-      const stamp = from.slice(0, 19).replace(/:/g, ""); // 2026-11-25T004351
+      const stamp = `${from.slice(0, 19).replace(/:/g, "")}Z`; // 2026-11-25T004351Z: UTC, said
       const a = h("a", {
         href: URL.createObjectURL(new Blob([body], { type })),
         download: `fleet-replay-${stamp}.${format}`,
