@@ -225,7 +225,7 @@ export class VehiclePanel {
       this.commandList(v),
       h("h3", {}, "Recent events"),
       h("ol.events", {}, ...[...v.events].reverse().slice(0, 20).map((e) => h("li", {},
-        h("time", {}, clock(e.at)), " ", h("b", {}, e.kind), " ", describeEvent(e)))),
+        h("time", {}, clock(e.at)), " ", h("b", {}, kindName(e.kind)), " ", describeEvent(e)))),
     ].filter(Boolean));
   }
 
@@ -302,7 +302,20 @@ export function describeEvent(e) {
       `${d.type === "stop" ? "stopped" : "keeps station where it is"}`;
   }
   if (e.kind === "presence") return d.presence || "";
+  if (e.kind === "instance") return d.action || "";
+  if (e.kind === "failsafe_acked") return d.version != null ? `version ${d.version}` : "";
   return describeData(d);
+}
+
+// An event's kind as a person reads it ("failsafe applied", not failsafe_acked).
+const KIND_NAMES = {
+  failsafe_acked: "failsafe applied by the vehicle", failsafe_changed: "failsafe set",
+  control_request: "control requested", control_deny: "control request declined",
+  hold_station: "holds station", instance: "instance",
+};
+
+export function kindName(kind) {
+  return KIND_NAMES[kind] || kind.replace(/_/g, " ");
 }
 
 /** A link-loss policy as a field manager reads it: "keep station where it is after 30 s

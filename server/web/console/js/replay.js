@@ -3,7 +3,7 @@
 // cursor passes it); the window exports as GPX or GeoJSON.
 
 import { L, colourOf } from "./map.js";
-import { describeEvent } from "./panels.js";
+import { describeEvent, kindName } from "./panels.js";
 import { clock, dateTime, h, toast } from "./ui.js";
 
 const MAX_EVENTS_PER_VEHICLE = 100000;
@@ -231,7 +231,7 @@ export class Replay {
     const span = this.end - this.start;
     this.ticks.replaceChildren(...this.events.map((e, i) => h(`span.tick.k-${e.kind.split("_")[0]}`, {
       style: `left:${((e.t - this.start) / span) * 100}%`,
-      title: `${clock(e.t)} ${this.nameOf(e.vehicle)} ${e.kind.replace(/_/g, " ")} ${describeEvent(e)}`,
+      title: `${clock(e.t)} ${this.nameOf(e.vehicle)} ${kindName(e.kind)} ${describeEvent(e)}`,
       dataset: { index: i },
     })));
     this.list.replaceChildren(...this.events.map((e, i) => h("li", {
@@ -239,7 +239,7 @@ export class Replay {
       onclick: () => this.seek(e.t),
     },
     h("time", {}, clock(e.t)), " ", h("b", {}, this.nameOf(e.vehicle)), " ",
-    e.kind.replace(/_/g, " "), " ", describeEvent(e))));
+    kindName(e.kind), " ", describeEvent(e))));
   }
 
   /** Move the cursor to ``t``: every chosen vehicle where its track puts it then. */
