@@ -6,6 +6,7 @@ same set at once; there are few (``FLEET_MAX_OBSTACLES``), each small.
 
 from __future__ import annotations
 
+import itertools
 import secrets
 from typing import Any
 
@@ -25,6 +26,15 @@ def check_polygon(polygon: PolygonGeometry) -> None:
     """A polygon the planner can work with: valid as a whole (no self-intersection,
     holes inside the outer ring), not only ring by ring as the wire model checks."""
     shell, *holes = polygon.coordinates
+    for r, ring in enumerate(polygon.coordinates):
+        for i, (a, b) in enumerate(itertools.pairwise(ring)):
+            if abs(b[0] - a[0]) > 180:  # GeoJSON draws it the long way round the globe
+                where = f"polygon.coordinates.{r}.{i + 1}"
+                raise Invalid(
+                    "an edge spans more than 180 degrees of longitude: a polygon across "
+                    "the antimeridian is drawn as two, split at 180 (RFC 7946)",
+                    details=[{"field": where, "message": "more than 180 degrees from the last"}],
+                )
     try:
         reason = explain_validity(shapely.Polygon(shell, holes))
     except (ValueError, shapely.errors.GEOSException) as exc:

@@ -145,6 +145,17 @@ async def test_only_admins_draw_and_bad_zones_are_422(w: World) -> None:
         assert r.status_code == 422, (body, r.text)
         fields = [d["field"] for d in r.json()["error"]["details"]]
         assert any(f.startswith(field) for f in fields), (field, r.text)
+    # a ring across the antimeridian (179 to -179): GeoJSON draws it 358 degrees wide
+    across = [[[179.0, 0.0], [-179.0, 0.0], [-179.0, 1.0], [179.0, 1.0], [179.0, 0.0]]]
+    body = {**no_go(), "polygon": {"type": "Polygon", "coordinates": across}}
+    r = await w.http.post("/api/zones", headers=ADMIN, json=body)
+    assert r.status_code == 422, r.text
+    assert "antimeridian" in r.json()["error"]["message"]
+    assert r.json()["error"]["details"][0]["field"] == "polygon.coordinates.0.1"
+    r = await w.http.post("/api/obstacles", headers=ADMIN, json={
+        "name": "x", "polygon": {"type": "Polygon", "coordinates": across},
+    })  # fmt: skip
+    assert r.status_code == 422 and "antimeridian" in r.text, r.text
     raw = json.dumps(no_go()).replace('"name"', '"clearance_m": NaN, "name"')
     r = await w.http.post(
         "/api/zones", headers={**ADMIN, "content-type": "application/json"}, content=raw
