@@ -715,3 +715,40 @@ def test_people_are_told_when_control_changes(
     world.as_user("mia", "POST", "/client/revoke_control", json={"instance_id": instance})
     expect(toasts).to_contain_text("your control of H2OmniX Bravo was revoked by mia")
     shots(operator, "operator-told")
+
+
+def test_a_go_to_cancelled_in_the_console_stops_the_boat(
+    world: World, open_console: Any, shots: Shots
+) -> None:
+    """ana cancels her go_to under way from the vehicle panel: it ends cancelled and the
+    boat gives it up at once (its agent reports idle), though a go_to sends no ack on its
+    way. Someone who may not cancel it is not offered the button."""
+    vehicle, instance = "demo-usv-1", world.instances["demo-usv-1"]
+    body = {"instance_id": instance, "user": "ana", "duration_s": 600}
+    world.fleet.call("POST", "/client/grant_control", json=body)
+    here = position(world, vehicle)
+    far = LocalFrame(here["lat"], here["lon"]).to_latlon(2000.0, 0.0)
+    page, _ = open_console()
+    log_in(page, "ana")
+    marker(page, vehicle).click()
+    page.click('[data-tool="go_to"]')
+    page.evaluate("([lat, lon]) => fleetConsole.map.map.panTo([lat, lon], {animate: false})", far)
+    page.mouse.click(*screen_point(page, *far))
+    sent = wait_until(lambda: newest_command(world, vehicle, "go_to"), "the go_to")
+    item = command_item(page, sent["command_id"])
+    expect(item).to_have_attribute("data-stage", "executing", timeout=30_000)
+    watcher, _ = open_console()
+    log_in(watcher, "ben")  # neither its issuer nor the holder: no cancel offered
+    marker(watcher, vehicle).click()
+    expect(command_item(watcher, sent["command_id"])).to_be_visible()
+    expect(command_item(watcher, sent["command_id"]).locator("button")).to_have_count(0)
+    item.locator("button", has_text="cancel").click()
+    expect(item).to_have_attribute("data-stage", "cancelled")
+
+    def mode() -> str:
+        body = {"instance_id": instance}
+        answer = world.fleet.call("POST", "/client/connect_instance", json=body)
+        return str(answer["instance"]["control_mode"])
+
+    wait_until(lambda: mode() == "idle" or None, "the boat to give up the go_to", 15)
+    shots(page, "cancelled-under-way")

@@ -249,10 +249,19 @@ export class VehiclePanel {
       h("br"),
       h("small", {}, `${clock(c.issued_at)}${c.issued_by ? ` by ${c.issued_by}` : ""}`,
         c.detail ? ` · ${readableDetail(c.detail)}` : ""),
-      !isFinal(c.status) && this.ctx.me.role !== "viewer"
+      !isFinal(c.status) && this.mayCancel(v, c)
         ? h("button.quiet", { onclick: () => this.ctx.cancelCommand(c.command_id) }, "cancel")
         : null,
     )));
+  }
+
+  /** Who the server lets cancel (docs/commands.md): the issuer, the control holder, a
+   * manager of the vehicle or an admin. Offered to them only, not refused after a click. */
+  mayCancel(v, c) {
+    const me = this.ctx.me;
+    if (me.role === "admin" || (me.role === "manager" && me.vehicles.includes(v.id))) return true;
+    if (me.role === "viewer") return false;
+    return c.issued_by === me.username || (v.control && v.control.holder === me.username);
   }
 }
 
