@@ -74,6 +74,7 @@ __all__ = [
     "RoutesPush",
     "StartInstanceOp",
     "SubscribeOp",
+    "UnregisterOp",
     "UnsubscribeOp",
     "UpdateFbMessageOp",
     "UpdateParamOp",
@@ -143,6 +144,14 @@ class RegisterOp(_UnitOp):
     topics: TopicList
 
 
+class UnregisterOp(_UnitOp):
+    """Topics this unit no longer produces (**extension**: a gateway says so for a local
+    unit that left)."""
+
+    op: Literal["unregister"] = "unregister"
+    topics: TopicList
+
+
 class SubscribeOp(_UnitOp):
     op: Literal["subscribe"] = "subscribe"
     topics: TopicList
@@ -158,8 +167,9 @@ class UnsubscribeOp(_UnitOp):
 class PublishOp(_UnitOp):
     op: Literal["publish"] = "publish"
     topic: Topic
-    #: Any JSON value the store and JSON can hold (``fleet_protocol.values``).
-    data: JsonValue = None
+    #: Any JSON value the store and JSON can hold (``fleet_protocol.values``); required
+    #: (``null`` is a value: say it).
+    data: JsonValue
 
 
 class AuthOp(_Op):
@@ -178,6 +188,7 @@ _SingleVehicleOp = Annotated[
     | UpdateFbMessageOp
     | HeartbeatOp
     | RegisterOp
+    | UnregisterOp
     | SubscribeOp
     | UnsubscribeOp
     | PublishOp,
@@ -194,7 +205,8 @@ class BatchOp(_Op):
 
 VehicleOp = Annotated[_SingleVehicleOp | BatchOp, Field(discriminator="op")]
 ClientOp = Annotated[
-    RegisterOp | SubscribeOp | UnsubscribeOp | PublishOp, Field(discriminator="op")
+    RegisterOp | UnregisterOp | SubscribeOp | UnsubscribeOp | PublishOp,
+    Field(discriminator="op"),
 ]
 
 # -- pushes -------------------------------------------------------------------

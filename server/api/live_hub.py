@@ -238,6 +238,10 @@ class LiveHub:
         self._add_unit(conn, unit)
         self._push_routes(self.routing.register(unit.id, topics))
 
+    def unregister(self, conn: Connection, unit: UnitRef, topics: list[str]) -> None:
+        self._add_unit(conn, unit)
+        self._push_routes(self.routing.unregister(unit.id, topics))
+
     def publish(
         self, conn: Connection, unit: UnitRef, topic: str, data: Any
     ) -> Awaitable[None] | None:

@@ -22,6 +22,7 @@ from fleet_protocol.ws import (
     RegisterOp,
     StartInstanceOp,
     SubscribeOp,
+    UnregisterOp,
     UnsubscribeOp,
     UpdateFbMessageOp,
     UpdateParamOp,
@@ -264,6 +265,10 @@ class OpRunner:
         self.hub.register(self.conn, self._unit(op.vehicle_id), op.topics)
         return {"topics": op.topics}
 
+    async def _unregister(self, op: UnregisterOp) -> dict[str, Any]:
+        self.hub.unregister(self.conn, self._unit(op.vehicle_id), op.topics)
+        return {"topics": op.topics}
+
     async def _subscribe(self, op: SubscribeOp) -> dict[str, Any]:
         principal = self.conn.principal
         named = gateways_named(op.topics)
@@ -299,6 +304,8 @@ class OpRunner:
             self._writer, self._writable = principal, set()
         if op.topic not in self._writable:
             check_write(principal, op.topic)
+            if is_media_topic(op.topic):
+                raise Invalid(f"{op.topic} is a media topic: send binary frames on it")
             self._writable.add(op.topic)
         return self.hub.publish(self.conn, unit, op.topic, op.data)
 
@@ -311,6 +318,7 @@ _HANDLERS: dict[type, Callable[[OpRunner, Any], Awaitable[Any]]] = {
     UpdateParamOp: OpRunner._update_param,
     UpdateFbMessageOp: OpRunner._update_fb,
     RegisterOp: OpRunner._register,
+    UnregisterOp: OpRunner._unregister,
     SubscribeOp: OpRunner._subscribe,
     UnsubscribeOp: OpRunner._unsubscribe,
     PublishOp: OpRunner._publish,

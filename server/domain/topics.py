@@ -101,6 +101,8 @@ def read_refusal(actor: Actor, topic: str, gateways: Gateways | None = None) -> 
     segments = split_topic(topic)
     namespace = segments[0]
     if namespace == "fleet":
+        if len(segments) > 1:
+            return "there are no topics under 'fleet/': 'fleet' is one topic"
         return None if actor.kind == "user" else "'fleet' is for users"
     if namespace not in ("vehicle", "user", "gateway"):
         return f"there are no topics under '{namespace}/'"

@@ -272,7 +272,7 @@ def test_valid_values_come_through_unchanged_in_both_modes() -> None:
         assert parsed.samples[0].data == data and parsed.params == {"p": data}
     op = parse_client_op(json.dumps({"op": "publish", "topic": "user/u/x", "data": data}))
     assert isinstance(op, PublishOp) and op.data == data
-    assert parse_client_op('{"op": "publish", "topic": "user/u/x"}').data is None
+    assert parse_client_op('{"op": "publish", "topic": "user/u/x", "data": null}').data is None
 
 
 # -- every str field is checked ------------------------------------------------

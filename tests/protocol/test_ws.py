@@ -81,7 +81,7 @@ def test_batch_holds_ops_each_with_its_own_id():
             id="b",
             ops=[
                 {"op": "heartbeat", "id": "h1", "instance_id": "i-1"},
-                {"op": "publish", "topic": "vehicle/usv-2/depth", "vehicle_id": "usv-2"},
+                {"op": "publish", "topic": "vehicle/usv-2/depth", "vehicle_id": "usv-2", "data": 3},
             ],
         )
     )

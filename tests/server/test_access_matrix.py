@@ -467,7 +467,7 @@ VEHICLE_ROWS: dict[str, tuple[Callable[[World], dict[str, Any]], dict[str, str]]
         {"vehicle": "ok", "gateway": "ok", "foreign": "not_found"},
     ),
     "register": (
-        lambda w: {"topics": [f"vehicle/{w.vid}/sonar"], "vehicle_id": w.vid},
+        lambda w: {"topics": [f"vehicle/{w.vid}/depth"], "vehicle_id": w.vid},
         {"vehicle": "ok", "gateway": "ok", "foreign": "forbidden"},
     ),
     "subscribe": (
@@ -478,8 +478,12 @@ VEHICLE_ROWS: dict[str, tuple[Callable[[World], dict[str, Any]], dict[str, str]]
         lambda w: {"topics": [f"vehicle/{w.vid}/telemetry"]},
         {"vehicle": "ok", "gateway": "ok", "foreign": "ok"},  # nothing to leave: harmless
     ),
+    "unregister": (  # its own registrations only: another vehicle's unit is not its own
+        lambda w: {"topics": [f"vehicle/{w.vid}/depth"], "vehicle_id": w.vid},
+        {"vehicle": "ok", "gateway": "ok", "foreign": "forbidden"},
+    ),
     "publish": (
-        lambda w: {"topic": f"vehicle/{w.vid}/sonar", "data": 1},
+        lambda w: {"topic": f"vehicle/{w.vid}/depth", "data": 1},
         {"vehicle": "ok", "gateway": "ok", "foreign": "forbidden"},
     ),
     "batch": (
@@ -499,6 +503,10 @@ CLIENT_ROWS: dict[str, tuple[Callable[[World], dict[str, Any]], dict[str, str]]]
     "register": (
         lambda w: {"topics": [f"user/viewer-{w.n}/notes"]},
         {"viewer": "ok", "operator": "forbidden", "manager": "forbidden", "admin": "forbidden"},
+    ),
+    "unregister": (  # what the caller itself registered: nothing of anyone else's
+        lambda w: {"topics": [f"user/viewer-{w.n}/notes"]},
+        {"viewer": "ok", "operator": "ok", "manager": "ok", "admin": "ok"},
     ),
     "publish": (
         lambda w: {"topic": f"user/viewer-{w.n}/notes", "data": {"n": 1}},

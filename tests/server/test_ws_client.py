@@ -255,3 +255,27 @@ async def test_media_frames_are_binary_and_latest_wins(base: str, api: httpx.Asy
         await car.send(encode_media_frame(wrong, b"hi"))
         err = await recv_until(car, lambda f: f["op"] == "error")
         assert err["error"]["code"] == "invalid"
+
+
+async def test_a_publish_says_its_data_and_sends_json_only_where_json_goes(
+    base: str, api: httpx.AsyncClient
+) -> None:
+    """``data`` is required (``null`` said, not left out); a media topic takes binary
+    frames only; ``fleet`` is one topic, nothing under it."""
+    vid, vh, _ = await _vehicle_with_instance(api)
+    _, uh = await make_user(api, "viewer", [vid])
+    async with (
+        await connect(base, "/ws/vehicle", tok(vh)) as car,
+        await connect(base, "/ws/client", tok(uh)) as user,
+    ):
+        topic = f"vehicle/{vid}/sonar_summary"
+        missing = await call(car, "publish", "p1", topic=topic)
+        assert missing["ok"] is False
+        assert [d["field"] for d in missing["error"]["details"]] == ["data"]
+        said = await call(car, "publish", "p2", topic=topic, data=None)
+        assert said["ok"] is True
+        camera = await call(car, "publish", "p3", topic=f"vehicle/{vid}/camera/front", data=1)
+        assert camera["ok"] is False and "binary frames" in camera["error"]["message"]
+        under = await call(user, "subscribe", "s", topics=["fleet/x"])
+        assert under["ok"] is False and "no topics under 'fleet/'" in under["error"]["message"]
+        assert (await call(user, "subscribe", "s2", topics=["fleet"]))["ok"] is True

@@ -94,7 +94,7 @@ async def test_a_vehicles_samples_and_publishes_keep_their_order(
                             "samples": [sample(seq)]})
             )  # fmt: skip
             await ws.send(
-                json.dumps({"op": "publish", "id": f"p{seq}", "topic": f"vehicle/{vid}/sonar",
+                json.dumps({"op": "publish", "id": f"p{seq}", "topic": f"vehicle/{vid}/depth",
                             "data": {"seq": seq}})
             )  # fmt: skip
         got = await acks(ws, 40)
@@ -118,7 +118,8 @@ async def test_messages_sent_while_the_token_is_checked_are_all_handled(
     monkeypatch.setattr(AuthService, "authenticate", held)
     async with await connect(base, "/ws/client", tok(user)) as ws:
         for n in range(3):  # the socket is open, its token not checked yet
-            await ws.send(json.dumps({"op": "publish", "id": str(n), "topic": f"user/{name}/x"}))
+            frame = {"op": "publish", "id": str(n), "topic": f"user/{name}/x", "data": n}
+            await ws.send(json.dumps(frame))
         await asyncio.sleep(0)  # not a wait for the server: the gate holds it
         gate.set()
         assert await acks(ws, 3) == [("0", True), ("1", True), ("2", True)]
@@ -140,9 +141,9 @@ async def test_a_fault_closes_that_socket_alone_with_1011(
         await connect(base, "/ws/client", tok(user)) as ws,
         await connect(base, "/ws/client", tok(user)) as bystander,
     ):
-        await ws.send(json.dumps({"op": "publish", "topic": f"user/{name}/boom"}))
+        await ws.send(json.dumps({"op": "publish", "topic": f"user/{name}/boom", "data": 0}))
         with pytest.raises(websockets.ConnectionClosed) as closed:
             await recv_json(ws)
         assert closed.value.rcvd is not None and closed.value.rcvd.code == 1011
-        ack = await call(bystander, "publish", "b", topic=f"user/{name}/fine")
+        ack = await call(bystander, "publish", "b", topic=f"user/{name}/fine", data=1)
         assert ack["ok"] is True

@@ -18,14 +18,18 @@ uplink can be read off the gateway.
 
 Registrations and subscriptions are repeated upstream on the units' behalf
 (ops with ``vehicle_id``), so the server's table holds them, and again after
-every reconnection (:meth:`TopicRouter.replay`).
+every reconnection (:meth:`TopicRouter.replay`); a unit that leaves has both
+taken back upstream. A publish on a topic the unit did not register goes up
+(the table above has no demand for it to read).
 """
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 
 from fleet_protocol.topics import SERVER_ONLY_VEHICLE_TOPICS, topic_owner
+from fleet_protocol.ws import MAX_TOPICS_PER_OP
 
 
 @dataclass
@@ -62,6 +66,9 @@ class TopicRouter:
     def register(self, vehicle_id: str, topics: list[str]) -> None:
         self.units[vehicle_id].produces.update(topics)
 
+    def unregister(self, vehicle_id: str, topics: list[str]) -> None:
+        self.units[vehicle_id].produces.difference_update(topics)
+
     def subscribe(self, vehicle_id: str, topics: list[str]) -> None:
         self.units[vehicle_id].consumes.update(topics)
 
@@ -72,8 +79,13 @@ class TopicRouter:
         return sorted(v for v, u in self.units.items() if topic in u.consumes and v != but)
 
     def publish(self, vehicle_id: str, topic: str, *, media: bool = False) -> Delivery:
-        """A local unit published on ``topic``: to whom (the caller checked the right)."""
-        up = topic in self.forward_up
+        """A local unit published on ``topic``: to whom (the caller checked the right).
+
+        A topic the unit registered goes up on demand (``forward_up``); one it did not
+        register is unknown to the routing table above, whose demand cannot be known
+        here: it goes up, as a publish straight to the server reaches its subscribers."""
+        unit = self.units.get(vehicle_id)
+        up = topic in self.forward_up or unit is None or topic not in unit.produces
         if media and up:
             self.media_up += 1
         elif media:
@@ -106,14 +118,19 @@ class TopicRouter:
         return vehicle_id if kind == "vehicle" and vehicle_id in self.units else None
 
     def replay(self) -> list[tuple[str, str, list[str]]]:
-        """``(vehicle_id, "register" | "subscribe", topics)`` to send after a reconnection."""
+        """``(vehicle_id, "register" | "subscribe", topics)`` to send after a reconnection,
+        at most an op's worth of topics each."""
         ops: list[tuple[str, str, list[str]]] = []
         for vehicle_id, unit in sorted(self.units.items()):
-            if unit.produces:
-                ops.append((vehicle_id, "register", sorted(unit.produces)))
-            if unit.consumes:
-                ops.append((vehicle_id, "subscribe", sorted(unit.consumes)))
+            ops += [(vehicle_id, "register", chunk) for chunk in in_ops(unit.produces)]
+            ops += [(vehicle_id, "subscribe", chunk) for chunk in in_ops(unit.consumes)]
         return ops
+
+
+def in_ops(topics: Iterable[str]) -> list[list[str]]:
+    """``topics``, sorted, in lists of at most ``MAX_TOPICS_PER_OP`` (what one op takes)."""
+    ordered = sorted(topics)
+    return [ordered[i : i + MAX_TOPICS_PER_OP] for i in range(0, len(ordered), MAX_TOPICS_PER_OP)]
 
 
 def write_refusal(vehicle_id: str, topic: str) -> str | None:

@@ -43,11 +43,12 @@ from fleet_protocol.ws import (
     RegisterOp,
     RoutesPush,
     SubscribeOp,
+    UnregisterOp,
     UnsubscribeOp,
 )
 from fleet_protocol.ws_frames import FrameError, parse_client_op
 from vehicle_client.errors import AgentError, FatalError
-from vehicle_client.gateway.forwarding import TopicRouter, write_refusal
+from vehicle_client.gateway.forwarding import TopicRouter, in_ops, write_refusal
 from vehicle_client.gateway.unit_queue import DEFAULT_UNIT_QUEUE, UnitQueue
 from vehicle_client.gateway.uplink import DEFAULT_MEDIA_UP_PER_S, MediaUplink
 from vehicle_client.transport.ws import WsLink
@@ -148,11 +149,16 @@ class UnitServer:
                 await self._gone(vehicle_id)
 
     async def _gone(self, vehicle_id: str) -> None:
+        """A unit left: what it subscribed to and registered is taken back upstream too
+        (else its registrations stay in the table above and count against its bound)."""
         unit = self.router.drop(vehicle_id)
-        if unit is not None and unit.consumes and self.link.connected:
-            with contextlib.suppress(AgentError):
-                op = {"op": "unsubscribe", "vehicle_id": vehicle_id}
-                await self.link.send({**op, "topics": sorted(unit.consumes)})
+        if unit is None or not self.link.connected:
+            return  # after a reconnection the replay leaves it out anyway
+        for kind, topics in (("unsubscribe", unit.consumes), ("unregister", unit.produces)):
+            for chunk in in_ops(topics):
+                with contextlib.suppress(AgentError):
+                    op = {"op": kind, "vehicle_id": vehicle_id, "topics": chunk}
+                    await self.link.send(op)
 
     async def _op(self, vehicle_id: str, queue: UnitQueue, frame: str) -> None:
         if len(frame) > MAX_TEXT_FRAME_BYTES:
@@ -172,17 +178,21 @@ class UnitServer:
             if refusal is not None:
                 _answer(queue, op.id, ErrorBody(code="forbidden", message=refusal))
                 return
+        if isinstance(op, PublishOp) and is_media_topic(op.topic):
+            message = f"{op.topic} is a media topic: send binary frames on it"
+            _answer(queue, op.id, ErrorBody(code="invalid", message=message))
+            return
         if isinstance(op, PublishOp):
             await self._publish(vehicle_id, op)
             if op.id:
                 queue.put(AckPush.success(op.id).frame())
             return
-        if isinstance(op, RegisterOp):
-            self.router.register(vehicle_id, op.topics)
-        elif isinstance(op, SubscribeOp):
-            self.router.subscribe(vehicle_id, op.topics)
-        elif isinstance(op, UnsubscribeOp):
+        # Taken back here at once; taken on only once the server has: a refused op
+        # (forbidden, or the cloud link down) leaves nothing behind to replay later.
+        if isinstance(op, UnsubscribeOp):
             self.router.unsubscribe(vehicle_id, op.topics)
+        elif isinstance(op, UnregisterOp):
+            self.router.unregister(vehicle_id, op.topics)
         upstream = op.model_dump(mode="json", exclude={"id"}, exclude_none=True)
         try:
             ack = await self.link.call({**upstream, "vehicle_id": vehicle_id}, check=False)
@@ -190,6 +200,11 @@ class UnitServer:
             error = ErrorBody(code="unavailable", message=f"the cloud link is down: {exc}")
             _answer(queue, op.id, error)
             return
+        if ack.ok and vehicle_id in self.router.units:
+            if isinstance(op, RegisterOp):
+                self.router.register(vehicle_id, op.topics)
+            elif isinstance(op, SubscribeOp):
+                self.router.subscribe(vehicle_id, op.topics)
         if op.id:
             queue.put(ack.model_copy(update={"id": op.id}).frame())
 
