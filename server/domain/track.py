@@ -2,7 +2,9 @@
 
 Downsampling is Visvalingam-Whyatt: repeatedly drop the point whose triangle
 with its two neighbours has the smallest area (the one that changes the
-shape least) until ``max_points`` remain. The first and last points are
+shape least) until ``max_points`` remain; of equal areas, the point whose
+neighbours are nearest in the track, so that a straight run keeps points
+spread along it. The first and last points are
 always kept. Areas are computed in a local equirectangular frame (degrees of
 longitude scaled by the cosine of the mean latitude; longitudes unwrapped
 across the antimeridian), which is plenty to rank points of one track.
@@ -57,15 +59,18 @@ def simplify(lat: Sequence[float], lon: Sequence[float], max_points: int) -> lis
     areas = [math.inf] * n
     for i in range(1, n - 1):
         areas[i] = area(i - 1, i, i + 1)
-    heap = [(areas[i], i) for i in range(1, n - 1)]
+    # Of points that change the shape as little (a straight run, a vehicle at rest: all
+    # zero), the one whose neighbours are nearest in the track goes first: what is kept
+    # stays spread along it, not piled at its end (the index broke ties before).
+    heap = [(areas[i], 2, i) for i in range(1, n - 1)]
     heapq.heapify(heap)
     removed = [False] * n
     remaining = n
     target = max(max_points, 2)
     while remaining > target:
-        value, i = heapq.heappop(heap)
-        if removed[i] or value != areas[i]:
-            continue  # a stale entry: the point's area changed since
+        value, span, i = heapq.heappop(heap)
+        if removed[i] or value != areas[i] or span != nxt[i] - prev[i]:
+            continue  # a stale entry: the point's area or neighbours changed since
         removed[i] = True
         remaining -= 1
         p, q = prev[i], nxt[i]
@@ -74,7 +79,7 @@ def simplify(lat: Sequence[float], lon: Sequence[float], max_points: int) -> lis
             if 0 < j < n - 1:
                 # Never below the area just removed: keeps the elimination order monotone.
                 areas[j] = max(area(prev[j], j, nxt[j]), value)
-                heapq.heappush(heap, (areas[j], j))
+                heapq.heappush(heap, (areas[j], nxt[j] - prev[j], j))
     return [i for i in range(n) if not removed[i]]
 
 

@@ -52,6 +52,27 @@ def test_square_reduces_to_its_corners() -> None:
     assert corners == {(60.0, 10.0), (60.0, 10.01), (60.01, 10.01), (60.01, 10.0)}
 
 
+@pytest.mark.parametrize("moving", [True, False])
+def test_a_straight_run_or_a_vehicle_at_rest_keeps_points_spread_along_it(moving: bool) -> None:
+    """All areas zero: what is kept is spread over the whole track (it piled up at its end:
+    of 4 hours, 96 of 100 points in the last 96 s)."""
+    n, keep = 15_000, 100
+    lat = [60 + (1e-6 * i if moving else 0.0) for i in range(n)]
+    lon = [10.0] * n
+    kept = simplify(lat, lon, keep)
+    assert len(kept) == keep and kept[0] == 0 and kept[-1] == n - 1
+    gaps = [b - a for a, b in itertools.pairwise(kept)]
+    assert max(gaps) <= 2 * n / (keep - 1), max(gaps)
+
+
+def test_a_square_keeps_its_corners_and_points_between_them() -> None:
+    lat, lon = square_track(1000)
+    kept = simplify(lat, lon, 40)
+    for corner in (0, 1000, 2000, 3000, 4000):
+        assert corner in kept
+    assert max(b - a for a, b in itertools.pairwise(kept)) <= 250
+
+
 def test_a_sharp_spike_survives_while_noise_goes() -> None:
     n = 500
     lat = [60.0 + (1e-7 if i % 2 else 0.0) for i in range(n)]
