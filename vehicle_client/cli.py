@@ -130,6 +130,7 @@ def gateway(
                 unit_options={
                     "max_media_bytes": settings.max_media_bytes,
                     "media_up_per_s": settings.media_up_per_s,
+                    "publish_up_per_s": settings.publish_up_per_s,
                 },
             )
         )

@@ -23,7 +23,7 @@ from pydantic_settings import (
 from fleet_protocol.common import ID_PATTERN
 from fleet_protocol.links import MAX_BINARY_FRAME_BYTES
 from vehicle_client.errors import FatalError
-from vehicle_client.gateway.uplink import DEFAULT_MEDIA_UP_PER_S
+from vehicle_client.gateway.uplink import DEFAULT_MEDIA_UP_PER_S, DEFAULT_PUBLISH_UP_PER_S
 from vehicle_client.outbox import DEFAULT_MAX_SAMPLES
 from vehicle_client.sim.dynamics import Current
 
@@ -109,6 +109,9 @@ class GatewaySettings(LinkOptions):
     max_media_bytes: int = Field(default=MAX_BINARY_FRAME_BYTES, ge=1024, le=64 * 2**20)
     #: Media frames per second sent up to the server, all topics together (latest wins).
     media_up_per_s: float = Field(default=DEFAULT_MEDIA_UP_PER_S, gt=0, le=1000)
+    #: JSON publishes per second the local units send up, all together (over it: refused
+    #: to the unit, rate_limited; the vehicles' own ops keep their share of the link).
+    publish_up_per_s: float = Field(default=DEFAULT_PUBLISH_UP_PER_S, gt=0, le=1000)
     vehicles: list[VehicleOptions] = Field(min_length=1, max_length=1000)
 
 

@@ -57,3 +57,27 @@ async def test_json_on_a_media_topic_and_a_refused_subscribe_leave_nothing_behin
             answer = await ack(ua, "subscribe", "s", topics=[secret])
             assert answer["ok"] is False
             assert secret not in w.units.router.units[w.a].consumes
+
+
+async def test_a_unit_in_a_publish_loop_is_told_when_over_its_share_of_the_uplink(
+    make_settings: Callable[..., Settings],
+) -> None:
+    """Over the units' publishes a second, a publish is refused to its unit (rate_limited),
+    not acked ok and then refused above, and the vehicles' ops keep the socket."""
+    async with gateway(make_settings, publish_up_per_s=20) as w:
+        depth = f"vehicle/{w.a}/sensor/depth"
+        async with await w.operator_ws() as op, w.unit(w.a) as ua:
+            assert (await ack(op, "subscribe", "s", topics=[depth]))["ok"] is True
+            assert (await ack(ua, "register", "r", topics=[depth]))["ok"] is True
+            # (the routes that send it up came before that ack)
+            answers = [await ack(ua, "publish", f"p{n}", topic=depth, data=n) for n in range(60)]
+            refused = [a for a in answers if not a["ok"]]
+            assert refused and all(a["error"]["code"] == "rate_limited" for a in refused)
+            assert len(refused) < 60 - 15  # about a second's worth went first
+            assert w.units.publish_budget.refused == len(refused)
+            # what was acked ok reaches the subscriber above: nothing said ok was dropped
+            sent = [n for n, a in enumerate(answers) if a["ok"]]
+            got = []
+            while len(got) < len(sent):
+                got.append((await next_json(op, event_on(depth)))["data"])
+            assert got == sent

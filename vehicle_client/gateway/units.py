@@ -22,6 +22,7 @@ that; past it, it closes with 1009). What goes to a unit waits in its own
 
 from __future__ import annotations
 
+import asyncio
 import contextlib
 import logging
 import re
@@ -50,7 +51,12 @@ from fleet_protocol.ws_frames import FrameError, parse_client_op
 from vehicle_client.errors import AgentError, FatalError
 from vehicle_client.gateway.forwarding import TopicRouter, in_ops, write_refusal
 from vehicle_client.gateway.unit_queue import DEFAULT_UNIT_QUEUE, UnitQueue
-from vehicle_client.gateway.uplink import DEFAULT_MEDIA_UP_PER_S, MediaUplink
+from vehicle_client.gateway.uplink import (
+    DEFAULT_MEDIA_UP_PER_S,
+    DEFAULT_PUBLISH_UP_PER_S,
+    MediaUplink,
+    PublishBudget,
+)
 from vehicle_client.transport.ws import WsLink
 
 log = logging.getLogger(__name__)
@@ -74,9 +80,11 @@ class UnitServer:
         *,
         max_media_bytes: int = MAX_BINARY_FRAME_BYTES,
         media_up_per_s: float = DEFAULT_MEDIA_UP_PER_S,
+        publish_up_per_s: float = DEFAULT_PUBLISH_UP_PER_S,
         queue_size: int = DEFAULT_UNIT_QUEUE,
     ) -> None:
         self.link = link
+        self.publish_budget = PublishBudget(publish_up_per_s)
         self.host, self.port = _listen_address(listen)
         self.max_media_bytes = max_media_bytes
         self.queue_size = queue_size
@@ -116,7 +124,8 @@ class UnitServer:
         return (
             f"{len(self._queues)} connected; publishes {r.sent_up} up, {r.kept_local} kept local;"
             f" media {r.media_up} up ({up.sent} sent, {up.replaced} replaced by newer,"
-            f" {up.dropped} dropped), {r.media_kept} kept local"
+            f" {up.dropped} dropped), {r.media_kept} kept local;"
+            f" {self.publish_budget.refused} publishes refused (over the units' share)"
         )
 
     # -- one unit -------------------------------------------------------------
@@ -183,7 +192,13 @@ class UnitServer:
             _answer(queue, op.id, ErrorBody(code="invalid", message=message))
             return
         if isinstance(op, PublishOp):
-            await self._publish(vehicle_id, op)
+            if not await self._publish(vehicle_id, op):
+                message = (
+                    f"the gateway sends up at most {self.publish_budget.per_s:g} publishes a "
+                    "second for its units, the vehicles' own ops first; send fewer"
+                )
+                _answer(queue, op.id, ErrorBody(code="rate_limited", message=message))
+                return
             if op.id:
                 queue.put(AckPush.success(op.id).frame())
             return
@@ -208,16 +223,22 @@ class UnitServer:
         if op.id:
             queue.put(ack.model_copy(update={"id": op.id}).frame())
 
-    async def _publish(self, vehicle_id: str, op: PublishOp) -> None:
+    async def _publish(self, vehicle_id: str, op: PublishOp) -> bool:
+        """To the local units subscribed, and up when it goes up; False when it should have
+        gone up but the units' share of the uplink is spent (the local units have it)."""
         delivery = self.router.publish(vehicle_id, op.topic)
         frame = EventPush(topic=op.topic, data=op.data).model_dump_json()
         for other in delivery.local:
             self._put(other, frame)
-        if delivery.up and self.link.connected:
-            with contextlib.suppress(AgentError):
-                await self.link.send(
-                    {"op": "publish", "vehicle_id": vehicle_id, "topic": op.topic, "data": op.data}
-                )
+        if not (delivery.up and self.link.connected):
+            return True
+        if not self.publish_budget.take(asyncio.get_running_loop().time()):
+            return False
+        with contextlib.suppress(AgentError):
+            await self.link.send(
+                {"op": "publish", "vehicle_id": vehicle_id, "topic": op.topic, "data": op.data}
+            )
+        return True
 
     def _media(self, vehicle_id: str, queue: UnitQueue, frame: bytes) -> None:
         """A unit's media frame: checked like a publish, then to local units and up on demand."""

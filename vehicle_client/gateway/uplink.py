@@ -27,10 +27,39 @@ import asyncio
 from vehicle_client.errors import AgentError
 from vehicle_client.transport.ws import WsLink
 
-__all__ = ["DEFAULT_MEDIA_UP_PER_S", "MediaUplink"]
+__all__ = ["DEFAULT_MEDIA_UP_PER_S", "DEFAULT_PUBLISH_UP_PER_S", "MediaUplink", "PublishBudget"]
 
 #: Media frames per second a gateway sends up (all topics together).
 DEFAULT_MEDIA_UP_PER_S = 100.0
+#: JSON publishes per second a gateway's units send up, all together: with the media
+#: frames, well under the server's ops per second on one socket (``FLEET_WS_OPS_PER_S``,
+#: 500), so that the vehicles' own ops (telemetry, acks) are never the ones refused.
+DEFAULT_PUBLISH_UP_PER_S = 200.0
+
+
+class PublishBudget:
+    """A token bucket of the units' JSON publishes sent up: ``per_s`` a second, a burst
+    of a second's worth. A publish over it is refused to its unit (``rate_limited``),
+    never sent to be refused above while the unit is told ok."""
+
+    def __init__(self, per_s: float = DEFAULT_PUBLISH_UP_PER_S) -> None:
+        if per_s <= 0:
+            raise ValueError("per_s must be above 0")
+        self.per_s = per_s
+        self._tokens = per_s
+        self._at: float | None = None
+        self.refused = 0
+
+    def take(self, now: float) -> bool:
+        """Whether one more may go up at ``now`` (a monotonic time in seconds)."""
+        if self._at is not None:
+            self._tokens = min(self.per_s, self._tokens + (now - self._at) * self.per_s)
+        self._at = now
+        if self._tokens >= 1:
+            self._tokens -= 1
+            return True
+        self.refused += 1
+        return False
 
 
 class MediaUplink:
