@@ -702,7 +702,10 @@ def test_people_are_told_when_control_changes(
     log_in(manager, "mia")
     tab = manager.locator('.tabs [data-tab="control"]')
     expect(tab).to_have_text("Control")
-    world.as_user("ben", "POST", "/client/request_control", json={"instance_id": instance})
+    marker(operator, "demo-usv-2").click()  # ben asks from the vehicle panel
+    panel = operator.locator("#vehicle-pane")
+    panel.locator("button", has_text="Request control").click()
+    expect(panel.locator("button", has_text="Requested…")).to_be_disabled()  # not twice
     expect(manager.locator("#toasts")).to_contain_text("ben asks for control of H2OmniX Bravo")
     expect(tab).to_have_text("Control (1)")
     shots(manager, "manager-told-of-request")
@@ -711,6 +714,7 @@ def test_people_are_told_when_control_changes(
     world.as_user("mia", "POST", "/client/grant_control", json=body)
     toasts = operator.locator("#toasts")
     expect(toasts).to_contain_text("you now hold control of H2OmniX Bravo (granted by mia)")
+    expect(panel.locator("button", has_text="Release")).to_be_visible()
     expect(tab).to_have_text("Control")  # the request was answered by the grant
     world.as_user("mia", "POST", "/client/revoke_control", json={"instance_id": instance})
     expect(toasts).to_contain_text("your control of H2OmniX Bravo was revoked by mia")
@@ -752,3 +756,34 @@ def test_a_go_to_cancelled_in_the_console_stops_the_boat(
 
     wait_until(lambda: mode() == "idle" or None, "the boat to give up the go_to", 15)
     shots(page, "cancelled-under-way")
+
+
+def test_the_vehicle_panel_says_how_old_its_readings_are_and_where_it_moves(
+    world: World, open_console: Any
+) -> None:
+    """Course over ground from the trail beside the heading; the readings of a vehicle
+    no longer online are greyed and dated."""
+    page, _ = open_console()
+    log_in(page, "mia")
+    course = page.evaluate(
+        """async () => {
+            const { courseText } = await import("./js/panels.js");
+            const t = Date.now();  // 10 m north and 10 m east in 5 s: 45 degrees
+            const east = 10 / (111320 * Math.cos(60 * Math.PI / 180));
+            const there = { t: t + 5000, lat: 60 + 10 / 111320, lon: 10 + east };
+            return [
+                courseText([{ t, lat: 60, lon: 10 }, there]),
+                courseText([{ t, lat: 60, lon: 10 }, { t: t + 5000, lat: 60, lon: 10 }]),
+            ];
+        }"""
+    )
+    assert course == ["45 °", "\u2013"]  # at rest: no course (an en dash)
+    marker(page, "demo-usv-3").click()
+    panel = page.locator("#vehicle-pane")
+    expect(panel.locator("dt", has_text="course")).to_be_visible()
+    expect(panel.locator("dl.readings")).not_to_have_class(re.compile("stale"))
+    page.evaluate(
+        "fleetConsole.fleet.applyFleet({vehicles: [{vehicle_id: 'demo-usv-3', presence: 'stale'}]})"
+    )
+    expect(panel.locator("dl.readings")).to_have_class(re.compile(r"\bstale\b"))
+    expect(panel.locator(".stale-note")).to_contain_text("the vehicle is stale")

@@ -497,6 +497,8 @@ class Console {
     const v = this.fleet.vehicles.get(id);
     try {
       await this.api.post("/client/request_control", { instance_id: v.view.instance_id });
+      v.requested = Date.now(); // the button says so until an answer (or two minutes)
+      this.fleet.changed(id, "control");
       toast(`control of ${v.view.name || id} requested: the field manager decides`, "ok");
     } catch (e) {
       toast(`request refused: ${e.explain()}`, "error");

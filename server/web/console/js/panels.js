@@ -52,6 +52,23 @@ function millis(x) {
   return `${x < 10 ? x.toFixed(1) : x.toFixed(0)} ms`;
 }
 
+/** How long "Requested…" stands on a request not yet answered (a manager may not be on). */
+const REQUEST_SHOWN_MS = 120000;
+
+/** The course over ground from the trail: the bearing from where the vehicle was about
+ * 5 s before its last position to that position; "–" when it moved under a metre. */
+export function courseText(trail) {
+  if (!trail || trail.length < 2) return "–";
+  const last = trail[trail.length - 1];
+  let from = trail[trail.length - 2];
+  for (let i = trail.length - 2; i >= 0 && last.t - trail[i].t <= 5000; i -= 1) from = trail[i];
+  const rad = Math.PI / 180;
+  const north = (last.lat - from.lat) * 111320;
+  const east = (last.lon - from.lon) * 111320 * Math.cos(last.lat * rad);
+  if (Math.hypot(north, east) < 1) return "–";
+  return `${Math.round((Math.atan2(east, north) / rad + 360) % 360) % 360} °`;
+}
+
 /** The vehicle's link as the server measures it (docs/live.md, "Latency per hop"). */
 /** A command's detail as people read it ("superseded_by go_to c-1": "superseded by go_to
  * c-1"; "superseded_by_stop": "superseded by a stop"). */
@@ -197,7 +214,10 @@ export class VehiclePanel {
           control.granted_by ? h("small", {}, ` granted by ${control.granted_by}`) : null]
         : "nobody holds control",
       me.role !== "viewer" && !mine && view.instance_id
-        ? h("button", { onclick: () => this.ctx.requestControl(v.id) }, "Request control") : null,
+        ? (v.requested && Date.now() - v.requested < REQUEST_SHOWN_MS
+          ? h("button", { disabled: true, title: "the field manager decides" }, "Requested…")
+          : h("button", { onclick: () => this.ctx.requestControl(v.id) }, "Request control"))
+        : null,
       mine ? h("button", { onclick: () => this.ctx.releaseControl(v.id) }, "Release") : null,
     );
     const failsafe = view.failsafe
@@ -211,10 +231,15 @@ export class VehiclePanel {
         ` (${clock(contact)})`),
       failsafe,
       controlRow,
-      h("dl.readings", {},
+      view.presence && view.presence !== "online"
+        ? h("p.stale-note", {}, `readings as of ${clock(p.ts)}: the vehicle is ${view.presence}`)
+        : null,
+      h(`dl.readings${view.presence && view.presence !== "online" ? ".stale" : ""}`, {},
         h("dt", {}, "position"), h("dd", {}, p.lat != null ? `${p.lat.toFixed(6)}, ${p.lon.toFixed(6)}` : "–"),
-        h("dt", {}, "heading"), h("dd", {}, p.heading_deg == null ? "–"
+        h("dt", { title: "where the bow points" }, "heading"), h("dd", {}, p.heading_deg == null ? "–"
           : `${Math.round(p.heading_deg) % 360} °`), // 359.6 reads 0, not 360
+        h("dt", { title: "where it moves, from its last positions" }, "course"),
+        h("dd", {}, courseText(v.trail)),
         h("dt", {}, "speed"), h("dd", {}, num(p.speed_mps, "m/s")),
         h("dt", {}, "battery"), h("dd", {}, num(p.battery_pct, "%", 0)),
         h("dt", {}, "link"), h("dd.link-delay", {}, linkText(view) || "–"),
@@ -397,6 +422,11 @@ export class ControlPanel {
     const d = event.data || {};
     const by = (event.actor || "").replace(/^user:/, "");
     const name = this.nameOf(id);
+    const v = this.ctx.fleet.vehicles.get(id);
+    if (v && ["control_grant", "control_deny"].includes(event.kind)
+      && (d.holder === me || d.user === me)) {
+      v.requested = null; // answered
+    }
     if (event.kind === "control_request" && this.managed(id) && by !== me) {
       toast(`${by} asks for control of ${name}: see Control`, "info");
     } else if (event.kind === "control_grant" && d.holder === me && by !== me) {
