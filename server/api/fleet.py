@@ -63,8 +63,7 @@ async def list_events(
 ) -> EventList:
     if vehicle_id is not None:
         await s.views.visible_vehicle(user, vehicle_id)
-    docs, cursor, full = await s.events.query(
+    page = await s.events.query(
         user, vehicle_id=vehicle_id, kind=kind, start=start, end=end, limit=limit, after=after
     )
-    page = {"events": docs, "next_after": cursor if full else None, "cursor": cursor}
     return EventList.model_validate(page)

@@ -9,21 +9,14 @@ for a command already final is recorded and leaves the status alone.
 from __future__ import annotations
 
 import copy
-from collections.abc import Collection, Iterable
 from dataclasses import dataclass, field
 from datetime import datetime, timedelta
 from enum import Enum
 from typing import Any
 
-from fleet_protocol import FINAL_STATUSES, MOTION_TYPES
+from fleet_protocol import FINAL_STATUSES
 from server.domain.geo import haversine_m
-from server.errors import (
-    CapabilityMissing,
-    ControlNotHeld,
-    FleetError,
-    Forbidden,
-    ZoneViolation,
-)
+from server.errors import CapabilityMissing, FleetError, ZoneViolation
 
 #: Position of each status along the life cycle; every final status ranks last.
 RANK = {"queued": 0, "delivered": 1, "accepted": 2, "executing": 3}
@@ -342,68 +335,6 @@ def handout(
     return out, ended
 
 
-def supersede(cmds: list[Command], stop: Command, now: datetime) -> list[Command]:
-    """A ``stop`` cancels the motion commands queued before it (not yet acknowledged)."""
-    gone = []
-    for cmd in cmds:
-        if (
-            cmd.type in MOTION_TYPES
-            and cmd.status in UNACKNOWLEDGED
-            and (cmd.issued_at, cmd.seq) <= (stop.issued_at, stop.seq)
-        ):
-            cmd.move("cancelled", now, "superseded_by_stop")
-            gone.append(cmd)
-    return gone
-
-
-def check_cancel(cmd: Command, who: str, *, holds: bool, manages: bool) -> None:
-    """Whether ``who`` may cancel ``cmd``: a manager of the vehicle or an admin
-    (``manages``) always; else its issuer or the control holder (``holds``), except a
-    stop a manager or an admin sent: nobody of lesser standing undoes it (403)."""
-    if manages:
-        return
-    if cmd.is_stop and cmd.by_manager:
-        raise Forbidden(
-            "a stop sent by a manager or an admin is cancelled only by a manager of the "
-            "vehicle or an admin"
-        )
-    if not (cmd.issued_by == who or holds):
-        raise ControlNotHeld("only its issuer, the control holder or a manager cancels it")
-
-
-def cancel(cmd: Command, now: datetime, detail: str) -> bool:
-    if cmd.final:
-        return False
-    cmd.move("cancelled", now, detail)
-    return True
-
-
-#: The detail of a command a resuming vehicle no longer carries out.
-DROPPED = "dropped: the vehicle resumed without it (its agent restarted or lost it)"
-
-
-def ended_by_server(cmd: Command) -> bool:
-    """Whether ``cmd`` ended on the server's word, not the vehicle's (``expired``,
-    ``cancelled``, or ``failed`` as :data:`DROPPED`): a vehicle still carrying it out
-    must drop it (``abort``)."""
-    if cmd.status in ABORT_STATUSES:
-        return True
-    return cmd.status == "failed" and any(
-        h.get("status") == "failed" and h.get("detail") == DROPPED for h in cmd.history
-    )
-
-
-def dropped(cmds: Iterable[Command], active: Collection[str]) -> list[Command]:
-    """The commands the vehicle acknowledged (``accepted``, ``executing``) that, resuming,
-    it does not name among those it carries out or has an ack to send for: nothing on the
-    vehicle will finish them."""
-    return [
-        c
-        for c in cmds
-        if not c.final and rank(c.status) >= RANK["accepted"] and c.command_id not in active
-    ]
-
-
 # ---- submit: all or nothing ---------------------------------------------------
 
 
@@ -429,14 +360,3 @@ def refused(refusals: list[tuple[int, str, FleetError]], asked: int) -> FleetErr
     error = copy.copy(first)  # same class, status and Retry-After
     error.message, error.details, error.args = message, details, (message,)
     return error
-
-
-def lost_with_lease(cmds: list[Command], holder: str) -> list[Command]:
-    """The former holder's commands not yet acknowledged when a lease ends.
-
-    They are cancelled so that one operator's orders never reach the vehicle
-    under the next one's control; a ``stop`` is never among them.
-    """
-    return [
-        c for c in cmds if c.issued_by == holder and not c.is_stop and c.status in UNACKNOWLEDGED
-    ]

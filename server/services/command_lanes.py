@@ -15,6 +15,7 @@ from collections import Counter
 from collections.abc import KeysView
 from typing import Any
 
+from server.domain import command_ends as ends
 from server.domain import commands as life
 from server.domain.access import Principal
 from server.domain.clock import Clock
@@ -81,10 +82,10 @@ class CommandLanes:
         that the server has ended or does not know: the vehicle aborts them."""
         lane = await self._sync(state.instance_id)
         named = set(active)
-        dropped = life.dropped(list(lane.active.values()), named)
+        dropped = ends.dropped(list(lane.active.values()), named)
         now = self.clock()
         for cmd in dropped:
-            life.apply_ack(cmd, "failed", now, detail=life.DROPPED)
+            life.apply_ack(cmd, "failed", now, detail=ends.DROPPED)
             await self._finished(cmd)
         abort = []
         for command_id in dict.fromkeys(active):

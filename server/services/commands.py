@@ -20,6 +20,7 @@ from typing import Any
 
 from fleet_protocol import SubmitControl
 from server.domain import arbitration
+from server.domain import command_ends as ends
 from server.domain import commands as life
 from server.domain.access import Principal
 from server.domain.clock import Clock
@@ -152,7 +153,7 @@ class CommandService(CommandLanes):
             lane.add(cmd)
             if cmd.is_stop:
                 others = [c for c in lane.active.values() if c is not cmd]
-                superseded += life.supersede(others, cmd, now)
+                superseded += ends.supersede(others, cmd, now)
         if made:
             await self.repo.insert_active([cmd.to_doc() for cmd in made])
         for cmd in made:
@@ -173,13 +174,13 @@ class CommandService(CommandLanes):
         if cmd.final:
             return cmd
         lease = await self.control.current(cmd.instance_id)
-        life.check_cancel(
+        ends.check_cancel(
             cmd,
             principal.name,
             holds=arbitration.holds(lease, principal.name, self.clock()),
             manages=arbitration.may_grant(principal, cmd.vehicle_id),
         )
-        if life.cancel(cmd, self.clock(), f"by {principal.name}"):
+        if ends.cancel(cmd, self.clock(), f"by {principal.name}"):
             await self._finished(cmd, actor=principal)
         return cmd
 
@@ -284,7 +285,7 @@ class CommandService(CommandLanes):
             violation = zone_refusal(zones, state, cmd.type, cmd.args)
             if violation is None:
                 cmd.zones_version = zones.version  # written with its handout
-            elif life.cancel(cmd, self.clock(), f"zones_changed: {violation.message}"):
+            elif ends.cancel(cmd, self.clock(), f"zones_changed: {violation.message}"):
                 await self._finished(cmd)
 
     async def acknowledge(
@@ -329,7 +330,7 @@ class CommandService(CommandLanes):
                 self._acked_first(cmd, now)
             if outcome is AckOutcome.LATE:
                 await self.repo.note_history(cmd.command_id, cmd.history)
-                if life.ended_by_server(cmd):
+                if ends.ended_by_server(cmd):
                     abort.append(cmd.command_id)
             elif cmd.final:
                 await self._finished(cmd)
@@ -339,7 +340,7 @@ class CommandService(CommandLanes):
                 if cmd.final:  # so the ack came late: noted there, as any late ack
                     life.apply_ack(cmd, status, now, progress=ack.progress, detail=detail)
                     await self.repo.note_history(cmd.command_id, cmd.history)
-                    if life.ended_by_server(cmd):
+                    if ends.ended_by_server(cmd):
                         abort.append(cmd.command_id)
             elif cmd.status != was:
                 self._moved(cmd)
@@ -396,8 +397,8 @@ class CommandService(CommandLanes):
         lane = await self._sync(lease.instance_id)
         now = self.clock()
         detail = "instance_finished" if event.reason == "instance_finished" else "lease_ended"
-        for cmd in life.lost_with_lease(list(lane.active.values()), lease.holder):
-            life.cancel(cmd, now, detail)
+        for cmd in ends.lost_with_lease(list(lane.active.values()), lease.holder):
+            ends.cancel(cmd, now, detail)
             await self._finished(cmd)
         if event.reason == "instance_finished":
             return
@@ -452,7 +453,7 @@ class CommandService(CommandLanes):
         lane = self._lane(state.instance_id)
         lane.add(cmd)
         superseded = (
-            life.supersede([c for c in lane.active.values() if c is not cmd], cmd, now)
+            ends.supersede([c for c in lane.active.values() if c is not cmd], cmd, now)
             if cmd.is_stop
             else []
         )
@@ -468,7 +469,7 @@ class CommandService(CommandLanes):
         lane = await self._sync(event.instance_id)
         now = self.clock()
         for cmd in list(lane.active.values()):
-            life.cancel(cmd, now, "instance_finished")
+            ends.cancel(cmd, now, "instance_finished")
             await self._finished(cmd)
         lane.wake()
         self._lanes.pop(event.instance_id, None)

@@ -59,10 +59,11 @@ class EventService:
         end: datetime | None,
         limit: int,
         after: str | None = None,
-    ) -> tuple[list[dict[str, Any]], str | None, bool]:
-        """The events, oldest first; the cursor of the last one (None: none); whether the
-        page is full (there may be more). ``after``: a cursor of a page before; without
-        ``from`` the window then starts at its event, not a day back."""
+    ) -> dict[str, Any]:
+        """A page of the log: ``events`` oldest first, ``cursor`` the last one's (None:
+        no event), ``next_after`` that cursor when the page is full (there may be more),
+        else None. ``after``: a cursor of a page before; without ``from`` the window then
+        starts at its event, not a day back."""
         ordered(start, end)
         past = after_cursor(after) if after is not None else None
         # A ``from`` still to come, with no ``to``, finds nothing (a client following
@@ -76,7 +77,7 @@ class EventService:
         else:
             vehicle_ids = sorted(principal.vehicles)
         if vehicle_ids == []:
-            return [], None, False
+            return {"events": [], "cursor": None, "next_after": None}
         limit = min(limit, MAX_EVENTS_PER_QUERY)
         docs = await self.repo.query(
             vehicle_ids=vehicle_ids, kind=kind, start=start, end=end, limit=limit, after=past
@@ -84,7 +85,11 @@ class EventService:
         cursor = page_cursor(docs[-1]["at"], str(docs[-1]["_id"])) if docs else None
         for doc in docs:
             del doc["_id"]
-        return docs, cursor, len(docs) == limit
+        return {
+            "events": docs,
+            "cursor": cursor,
+            "next_after": cursor if len(docs) == limit else None,
+        }
 
     async def latest(self, vehicle_id: str, count: int) -> list[dict[str, Any]]:
         """The vehicle's last ``count`` events of the last day, oldest first (the caller

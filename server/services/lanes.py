@@ -9,7 +9,8 @@ from __future__ import annotations
 
 import asyncio
 
-from server.domain.commands import Command, ended_by_server
+from server.domain.command_ends import ended_by_server
+from server.domain.commands import Command
 
 
 class Lane:

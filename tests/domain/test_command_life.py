@@ -8,6 +8,7 @@ from typing import Any
 
 import pytest
 
+from server.domain import command_ends as ends
 from server.domain import commands as life
 from server.domain.commands import AckOutcome, Command
 from server.errors import CapabilityMissing
@@ -89,7 +90,7 @@ def test_a_backward_ack_is_recorded_and_ignored() -> None:
 
 def test_an_ack_for_a_final_command_is_recorded_and_leaves_the_status() -> None:
     cmd = make_command()
-    assert life.cancel(cmd, later(1), "by alice")
+    assert ends.cancel(cmd, later(1), "by alice")
     assert life.apply_ack(cmd, "accepted", later(2)) is AckOutcome.LATE
     assert cmd.status == "cancelled"
     assert cmd.history[-1]["status"] == "ack:accepted"
@@ -160,7 +161,7 @@ def test_stop_cancels_the_motion_queued_before_it_only() -> None:
     life.apply_ack(accepted, "accepted", later(0))
     stop = make_command("stop", at=later(1))
     after = make_command("go_to", at=later(2))
-    gone = life.supersede([before, accepted, after], stop, later(2))
+    gone = ends.supersede([before, accepted, after], stop, later(2))
     assert gone == [before]
     assert before.status == "cancelled"
     assert before.history[-1]["detail"] == "superseded_by_stop"
