@@ -34,6 +34,7 @@ __all__ = [
     "UpdateFbMessageResult",
     "UpdateParam",
     "UpdateParamResult",
+    "WhoAmIResult",
 ]
 
 ControlMode = Literal["idle", "remote", "local", "failsafe"]
@@ -220,3 +221,14 @@ class Heartbeat(InstanceRef):
 class HeartbeatResult(WireModel):
     ok: bool = True
     server_time: Timestamp
+
+
+class WhoAmIResult(WireModel):
+    """``GET /upper/whoami`` and the ``whoami`` op (**extension**): whom a vehicle's or a
+    gateway's token acts for. A gateway asks it to refuse, at once, a local unit of a
+    vehicle its token does not list."""
+
+    kind: Literal["vehicle", "gateway"]
+    vehicle_id: Identifier | None = Field(default=None, description="a vehicle's token")
+    gateway_id: Identifier | None = Field(default=None, description="a gateway's token")
+    vehicles: list[Identifier] = Field(description="the vehicles it acts for, sorted")

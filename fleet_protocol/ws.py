@@ -6,10 +6,10 @@ mirrors an ``/upper/*`` call is that call's body model plus ``op`` and ``id``
 fields are defined once. Ops in:
 
 - ``/ws/vehicle`` (:data:`VehicleOp`): start_instance, finish_instance,
-  update_param, update_fbmessage, heartbeat, register, subscribe,
-  unsubscribe, publish, batch;
-- ``/ws/client`` (:data:`ClientOp`): register, subscribe, unsubscribe,
-  publish.
+  update_param, update_fbmessage, heartbeat, register, unregister, subscribe,
+  unsubscribe, publish, whoami, batch;
+- ``/ws/client`` (:data:`ClientOp`): register, unregister, subscribe,
+  unsubscribe, publish.
 
 Pushes out: ``ack``, ``error``, ``command``, ``control``, ``event``,
 ``routes``, ``lagging``. A text frame is read into these by
@@ -79,6 +79,7 @@ __all__ = [
     "UpdateFbMessageOp",
     "UpdateParamOp",
     "VehicleOp",
+    "WhoAmIOp",
 ]
 
 MAX_OP_ID_CHARS = 64
@@ -172,6 +173,12 @@ class PublishOp(_UnitOp):
     data: JsonValue
 
 
+class WhoAmIOp(_Op):
+    """Whom this socket's token acts for (**extension**; ``GET /upper/whoami``)."""
+
+    op: Literal["whoami"] = "whoami"
+
+
 class AuthOp(_Op):
     """The first frame of a socket opened with no token in a header or in the URL (a
     browser cannot set headers, and a URL ends up in logs and histories): the token,
@@ -191,7 +198,8 @@ _SingleVehicleOp = Annotated[
     | UnregisterOp
     | SubscribeOp
     | UnsubscribeOp
-    | PublishOp,
+    | PublishOp
+    | WhoAmIOp,
     Field(discriminator="op"),
 ]
 

@@ -13,6 +13,7 @@ from fleet_protocol import (
     StartInstanceResult,
     UpdateParam,
     UpdateParamResult,
+    WhoAmIResult,
 )
 from server.api.deps import ServicesDep, VehicleCaller
 from server.api.lean import LeanRoute
@@ -47,3 +48,10 @@ async def finish_instance(
 @router.post("/heartbeat")
 async def heartbeat(body: Heartbeat, caller: VehicleCaller, s: ServicesDep) -> HeartbeatResult:
     return await s.link.heartbeat(caller, body.instance_id)
+
+
+@router.get("/whoami")
+async def whoami(caller: VehicleCaller, s: ServicesDep) -> WhoAmIResult:
+    """Whom the token acts for (**extension**): a vehicle and itself, or a gateway and the
+    vehicles it lists. The ``whoami`` op on ``/ws/vehicle`` answers the same."""
+    return s.link.whoami(caller)

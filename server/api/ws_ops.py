@@ -26,6 +26,7 @@ from fleet_protocol.ws import (
     UnsubscribeOp,
     UpdateFbMessageOp,
     UpdateParamOp,
+    WhoAmIOp,
 )
 from fleet_protocol.ws_frames import FrameError, PartialBatch, parse_client_op, parse_vehicle_op
 from server.api.live_hub import Connection, LiveHub
@@ -283,6 +284,9 @@ class OpRunner:
         await self.hub.unsubscribe(self.conn, unit, op.topics)
         return {"topics": op.topics}
 
+    async def _whoami(self, op: WhoAmIOp) -> BaseModel:
+        return self.s.link.whoami(self.conn.principal)
+
     def _unit(self, vehicle_id: str | None) -> UnitRef:
         """The unit an op acts as (``unit_for``); the connection's own one kept."""
         if vehicle_id is not None:
@@ -322,4 +326,5 @@ _HANDLERS: dict[type, Callable[[OpRunner, Any], Awaitable[Any]]] = {
     SubscribeOp: OpRunner._subscribe,
     UnsubscribeOp: OpRunner._unsubscribe,
     PublishOp: OpRunner._publish,
+    WhoAmIOp: OpRunner._whoami,
 }

@@ -20,6 +20,7 @@ from fleet_protocol import (
     StartInstanceResult,
     UpdateFbMessage,
     UpdateParam,
+    WhoAmIResult,
     format_ts,
 )
 from server.domain.access import Principal
@@ -152,6 +153,17 @@ class VehicleLink:
     async def heartbeat(self, principal: Principal, instance_id: str) -> HeartbeatResult:
         await self.live(principal, instance_id)
         return HeartbeatResult(server_time=self.instances.clock())
+
+    @staticmethod
+    def whoami(principal: Principal) -> WhoAmIResult:
+        """Whom a vehicle's or a gateway's token acts for (a gateway refuses other units)."""
+        if principal.kind == "vehicle":
+            return WhoAmIResult(
+                kind="vehicle", vehicle_id=principal.name, vehicles=[principal.name]
+            )
+        return WhoAmIResult(
+            kind="gateway", gateway_id=principal.name, vehicles=sorted(principal.vehicles)
+        )
 
     async def update_param(
         self, principal: Principal, body: UpdateParam, transport: str = "http"

@@ -6,6 +6,10 @@ from __future__ import annotations
 import asyncio
 from collections.abc import Callable
 
+import pytest
+import websockets
+
+from fleet_protocol.links import CLOSE_FORBIDDEN
 from server.settings import Settings
 from tests.agent.test_gateway_media import ack, event_on, gateway, next_json
 
@@ -81,3 +85,25 @@ async def test_a_unit_in_a_publish_loop_is_told_when_over_its_share_of_the_uplin
             while len(got) < len(sent):
                 got.append((await next_json(op, event_on(depth)))["data"])
             assert got == sent
+
+
+async def test_a_unit_of_a_vehicle_the_token_does_not_list_is_closed(
+    make_settings: Callable[..., Settings],
+) -> None:
+    """Once the server said whom the gateway acts for: a unit connected before that is
+    closed when the link opens, one connecting after is closed at once (4403, why)."""
+    async with gateway(make_settings) as w:
+        async with w.unit("usv-not-ours") as stranger, w.unit(w.a) as ua:
+            # the unit's op opens the link; whoami comes first
+            assert (await ack(ua, "register", "r", topics=[f"vehicle/{w.a}/x"]))["ok"] is True
+            with pytest.raises(websockets.ConnectionClosed):
+                await next_json(stranger, lambda f: False)
+            assert stranger.close_code == CLOSE_FORBIDDEN
+            assert "does not act for usv-not-ours" in (stranger.close_reason or "")
+        assert w.units.acts_for == {w.a, w.b}
+        async with w.unit("usv-not-ours") as late:
+            with pytest.raises(websockets.ConnectionClosed):
+                await next_json(late, lambda f: False)
+            assert late.close_code == CLOSE_FORBIDDEN
+        async with w.unit(w.b) as ub:  # the listed ones are still taken
+            assert (await ack(ub, "register", "r", topics=[f"vehicle/{w.b}/x"]))["ok"] is True

@@ -357,6 +357,7 @@ ROWS: dict[tuple[str, str], tuple[Call, dict[str, int]]] = {
         post("/upper/finish_instance", lambda w: {"instance_id": w.iid}),
         upper(foreign=404),  # another vehicle's instance is not the foreign one's to see
     ),
+    ("GET", "/upper/whoami"): (get("/upper/whoami"), upper(foreign=200)),  # whom it acts for
     ("POST", "/upper/heartbeat"): (
         post("/upper/heartbeat", lambda w: {"instance_id": w.iid}),
         upper(foreign=404),
@@ -486,6 +487,7 @@ VEHICLE_ROWS: dict[str, tuple[Callable[[World], dict[str, Any]], dict[str, str]]
         lambda w: {"topic": f"vehicle/{w.vid}/depth", "data": 1},
         {"vehicle": "ok", "gateway": "ok", "foreign": "forbidden"},
     ),
+    "whoami": (lambda w: {}, {"vehicle": "ok", "gateway": "ok", "foreign": "ok"}),  # itself
     "batch": (
         lambda w: {"ops": [{"op": "heartbeat", "instance_id": w.iid}]},
         {"vehicle": "ok", "gateway": "ok", "foreign": "ok"},  # the inner op answers apart

@@ -116,3 +116,26 @@ async def test_unknown_gateway_or_vehicle_is_404_and_non_admins_are_403(
         assert r.status_code == 403 and r.json()["error"]["code"] == "forbidden", route
         assert (await api.post(route, headers=bearer(token))).status_code == 403
     assert await _start_http(api, token, vid) == 200  # nothing was revoked
+
+
+async def test_whoami_says_whom_a_vehicle_or_gateway_token_acts_for(
+    base: str, api: httpx.AsyncClient
+) -> None:
+    """Over HTTP and as an op on the socket; a user's token is not a vehicle's."""
+    vid, token = await _gateway(api, "gw-whoami")
+    r = await api.get("/upper/whoami", headers=bearer(token))
+    assert r.json() == {
+        "kind": "gateway", "vehicle_id": None, "gateway_id": "gw-whoami", "vehicles": [vid]
+    }  # fmt: skip
+    other, vehicle_headers = await make_vehicle(api)
+    r = await api.get("/upper/whoami", headers=vehicle_headers)
+    assert (r.json()["kind"], r.json()["vehicle_id"], r.json()["vehicles"]) == (
+        "vehicle", other, [other]
+    )  # fmt: skip
+    async with await connect(base, "/ws/vehicle", token) as ws:
+        ack = await call(ws, "whoami", "w1")
+        assert ack["ok"] is True and ack["gateway_id"] == "gw-whoami" and ack["vehicles"] == [vid]
+    _, user_headers = await make_user(api, "operator", [vid])
+    r = await api.get("/upper/whoami", headers=user_headers)
+    assert r.status_code == 403 and r.json()["error"]["code"] == "forbidden"
+    assert (await api.get("/upper/whoami")).status_code == 401

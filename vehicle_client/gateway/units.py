@@ -3,7 +3,9 @@
 A unit connects to ``ws://<listen>/?vehicle_id=<id>`` (a vehicle the
 gateway's token acts for) and speaks the topic ops of ``/ws/client``:
 ``register``, ``subscribe``, ``unsubscribe``, ``publish`` (``id`` for an
-ack). The gateway repeats ``register``/``subscribe``/``unsubscribe``
+ack). A unit of a vehicle the gateway's token does not list is closed with 4403
+once the server has said which it lists (``whoami``, at each connection). The
+gateway repeats ``register``/``subscribe``/``unsubscribe``
 upstream with ``vehicle_id`` and relays the server's ack; ``publish`` goes
 where ``TopicRouter`` says (local subscribers, up only on demand). Events
 from above and each unit's ``routes`` are passed down as they came. A second
@@ -33,7 +35,7 @@ from websockets.exceptions import ConnectionClosed
 
 from fleet_protocol import ErrorBody
 from fleet_protocol.common import ID_PATTERN
-from fleet_protocol.links import CLOSE_REPLACED, MAX_BINARY_FRAME_BYTES, MAX_TEXT_FRAME_BYTES
+from fleet_protocol.links import CLOSE_FORBIDDEN, CLOSE_REPLACED, MAX_BINARY_FRAME_BYTES, MAX_TEXT_FRAME_BYTES
 from fleet_protocol.media import decode_media_frame
 from fleet_protocol.topics import is_media_topic
 from fleet_protocol.ws import (
@@ -91,6 +93,8 @@ class UnitServer:
         self.router = TopicRouter()
         self.uplink = MediaUplink(link, media_up_per_s)
         self._queues: dict[str, UnitQueue] = {}
+        #: The vehicles the gateway's token acts for, as the server last said (None: not yet).
+        self.acts_for: frozenset[str] | None = None
         self._server: Server | None = None
         link.on_event = self._from_above
         link.on_media = self._media_from_above
@@ -134,6 +138,10 @@ class UnitServer:
         vehicle_id = (query.get("vehicle_id") or [""])[0]
         if not re.fullmatch(ID_PATTERN, vehicle_id):
             await conn.close(CLOSE_BAD_REQUEST, "connect with ?vehicle_id=<the unit's vehicle>")
+            return
+        if self.acts_for is not None and vehicle_id not in self.acts_for:
+            log.warning("local unit %s refused: %s", vehicle_id, _not_listed(vehicle_id))
+            await conn.close(CLOSE_FORBIDDEN, _not_listed(vehicle_id))
             return
         queue = UnitQueue(conn, self.queue_size)
         former = self._queues.get(vehicle_id)
@@ -287,10 +295,28 @@ class UnitServer:
             self._put(vehicle_id, push.frame())
 
     async def _replay(self) -> None:
-        """After a (re)connection: the units' registrations and subscriptions again."""
+        """After a (re)connection: which vehicles the token acts for, then the units'
+        registrations and subscriptions again."""
+        await self._learn_vehicles()
         for vehicle_id, kind, topics in self.router.replay():
             with contextlib.suppress(AgentError):
                 await self.link.send({"op": kind, "vehicle_id": vehicle_id, "topics": topics})
+
+    async def _learn_vehicles(self) -> None:
+        """Ask the server whom the token acts for; close the units of other vehicles (their
+        ops would be refused above). A server without the op leaves every unit in."""
+        try:
+            ack = await self.link.call({"op": "whoami"}, check=False)
+        except AgentError:
+            return
+        vehicles = (ack.model_extra or {}).get("vehicles")
+        if not ack.ok or not isinstance(vehicles, list):
+            return
+        self.acts_for = frozenset(v for v in vehicles if isinstance(v, str))
+        for vehicle_id, queue in list(self._queues.items()):
+            if vehicle_id not in self.acts_for:
+                log.warning("local unit %s: %s", vehicle_id, _not_listed(vehicle_id))
+                await queue.conn.close(CLOSE_FORBIDDEN, _not_listed(vehicle_id))
 
     def _put(self, vehicle_id: str, frame: str) -> None:
         queue = self._queues.get(vehicle_id)
@@ -301,6 +327,10 @@ class UnitServer:
         queue = self._queues.get(vehicle_id)
         if queue is not None:
             queue.put_media(topic, frame)
+
+
+def _not_listed(vehicle_id: str) -> str:
+    return f"this gateway's token does not act for {vehicle_id}"
 
 
 def _answer(queue: UnitQueue, op_id: str | None, error: ErrorBody) -> None:
