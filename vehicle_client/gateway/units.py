@@ -35,7 +35,12 @@ from websockets.exceptions import ConnectionClosed
 
 from fleet_protocol import ErrorBody
 from fleet_protocol.common import ID_PATTERN
-from fleet_protocol.links import CLOSE_FORBIDDEN, CLOSE_REPLACED, MAX_BINARY_FRAME_BYTES, MAX_TEXT_FRAME_BYTES
+from fleet_protocol.links import (
+    CLOSE_FORBIDDEN,
+    CLOSE_REPLACED,
+    MAX_BINARY_FRAME_BYTES,
+    MAX_TEXT_FRAME_BYTES,
+)
 from fleet_protocol.media import decode_media_frame
 from fleet_protocol.topics import is_media_topic
 from fleet_protocol.ws import (
