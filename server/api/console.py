@@ -6,6 +6,12 @@ Nothing here reaches outside the server: Leaflet and swagger-ui-dist are install
 ``/docs`` work on a laptop with no internet. These routes need no token (the files hold
 no data; every call the console makes for data carries the user's token) and are left
 out of the OpenAPI document.
+
+Every page and file here says it may not be framed by another site (a click on Stop or
+Grant in a hidden frame) nor sniffed as another type; the console's pages also carry a
+Content-Security-Policy that runs only the server's own scripts and talks only to the
+server, so a name a vehicle chose can never run as script even if a label forgot to
+escape it. ``/docs`` keeps Swagger UI's inline start-up script: framing is all it forbids.
 """
 
 from __future__ import annotations
@@ -19,7 +25,7 @@ from fastapi.openapi.docs import get_swagger_ui_html
 from fastapi.responses import HTMLResponse
 from fastapi.staticfiles import StaticFiles
 from starlette.routing import BaseRoute, Match, Mount
-from starlette.types import ASGIApp, Scope
+from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from server.settings import Settings
 
@@ -29,6 +35,23 @@ WEB_DIR = Path(__file__).resolve().parent.parent / "web"
 CONSOLE_DIR = WEB_DIR / "console"
 #: URL prefix -> the folder of an npm package it serves (under node_modules).
 VENDOR = {"/vendor/leaflet": "leaflet/dist", "/vendor/swagger-ui": "swagger-ui-dist"}
+
+#: On every file and page served here (with a policy of frames, below).
+_FRAMING: list[tuple[bytes, bytes]] = [
+    (b"x-frame-options", b"DENY"),
+    (b"x-content-type-options", b"nosniff"),
+    (b"referrer-policy", b"no-referrer"),
+]
+#: The console's own scripts only; styles inline too (Leaflet's, the labels'); map tiles
+#: from wherever ``FLEET_MAP_TILE_URL`` points; calls and sockets to this server alone.
+CONSOLE_POLICY = (
+    "default-src 'self'; script-src 'self'; style-src 'self' 'unsafe-inline'; "
+    "img-src * data: blob:; connect-src 'self'; object-src 'none'; base-uri 'none'; "
+    "form-action 'self'; frame-ancestors 'none'"
+)
+_CONSOLE_HEADERS = [*_FRAMING, (b"content-security-policy", CONSOLE_POLICY.encode())]
+#: ``/docs`` and the npm assets: never framed, Swagger UI's inline script left to run.
+_DOCS_HEADERS = [*_FRAMING, (b"content-security-policy", b"frame-ancestors 'none'")]
 
 
 def vendor_dir(settings: Settings) -> Path:
@@ -48,13 +71,15 @@ def router(settings: Settings, openapi_url: str) -> APIRouter:
 
     @routes.get("/docs")
     async def swagger_ui() -> HTMLResponse:
-        return get_swagger_ui_html(
+        page = get_swagger_ui_html(
             openapi_url=openapi_url,
             title="fleet-cloud API",
             swagger_js_url="/vendor/swagger-ui/swagger-ui-bundle.js",
             swagger_css_url="/vendor/swagger-ui/swagger-ui.css",
             swagger_favicon_url="/vendor/swagger-ui/favicon-32x32.png",
         )
+        page.raw_headers.extend(_DOCS_HEADERS)
+        return page
 
     @routes.get("/console/config.json")
     async def config() -> dict[str, str | None]:
@@ -78,10 +103,26 @@ def install(app: FastAPI, settings: Settings) -> None:
         )
     for prefix, package in VENDOR.items():
         if (modules / package).is_dir():
-            app.mount(prefix, StaticFiles(directory=modules / package))
+            app.mount(prefix, _Headed(StaticFiles(directory=modules / package), _DOCS_HEADERS))
     if CONSOLE_DIR.is_dir():
         files = StaticFiles(directory=CONSOLE_DIR, html=True)
-        app.router.routes.append(_Console(app.router.routes, files))
+        app.router.routes.append(_Console(app.router.routes, _Headed(files, _CONSOLE_HEADERS)))
+
+
+class _Headed:
+    """Static files with ``headers`` added to each answer."""
+
+    def __init__(self, app: ASGIApp, headers: list[tuple[bytes, bytes]]) -> None:
+        self.app = app
+        self.headers = headers
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        async def send_headed(message: Message) -> None:
+            if message["type"] == "http.response.start":
+                message = {**message, "headers": [*message.get("headers", ()), *self.headers]}
+            await send(message)
+
+        await self.app(scope, receive, send_headed)
 
 
 class _Console(Mount):

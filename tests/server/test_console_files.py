@@ -60,3 +60,16 @@ async def test_nothing_else_of_the_web_folder(web: httpx.AsyncClient) -> None:
         "/vendor/leaflet/../package.json",
     ):
         assert (await web.get(path)).status_code == 404, path
+
+
+async def test_no_page_here_may_be_framed_and_the_console_runs_only_its_own_scripts(
+    web: httpx.AsyncClient,
+) -> None:
+    for path in ("/", "/js/main.js", "/vendor/leaflet/leaflet.css", "/docs"):
+        r = await web.get(path)
+        assert r.headers["x-frame-options"] == "DENY", path
+        assert r.headers["x-content-type-options"] == "nosniff", path
+        assert "frame-ancestors 'none'" in r.headers["content-security-policy"], path
+    policy = (await web.get("/")).headers["content-security-policy"]
+    assert "script-src 'self';" in policy and "connect-src 'self'" in policy
+    assert "script-src" not in (await web.get("/docs")).headers["content-security-policy"]

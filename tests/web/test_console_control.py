@@ -240,3 +240,33 @@ def test_the_vehicle_panel_says_how_old_its_readings_are_and_where_it_moves(
     )
     expect(panel.locator("dl.readings")).to_have_class(re.compile(r"\bstale\b"))
     expect(panel.locator(".stale-note")).to_contain_text("the vehicle is stale")
+
+
+def test_a_name_with_markup_is_shown_as_text_and_no_inline_script_runs(
+    world: World, open_console: Any
+) -> None:
+    """A vehicle chooses its display name: markup in it is text in every label, and the
+    page's policy would refuse an inline handler even if one slipped through."""
+    page, guard = open_console()
+    log_in(page, "mia")
+    name = '<img src=x onerror="window.__pwned=1">'
+    page.evaluate(
+        "n => fleetConsole.fleet.applyFleet({vehicles: [{vehicle_id: 'demo-usv-3', name: n}]})",
+        name,
+    )
+    expect(marker(page, "demo-usv-3").locator(".vlabel b")).to_have_text(name)
+    blocked = "Content Security Policy"
+    with page.expect_console_message(lambda m: blocked in m.text):
+        fired = page.evaluate(  # what an unescaped label would do
+            """n => new Promise(done => {
+                const d = document.createElement("div");
+                d.innerHTML = n;  // its inline handler, set before this listener, runs first
+                d.querySelector("img").addEventListener("error", () => done(true));
+                document.body.append(d);
+            })""",
+            name,
+        )
+    assert fired is True and page.evaluate("window.__pwned") is None
+    refused = [e for e in guard.errors if blocked in e]
+    assert len(refused) == 1 and "script-src" in refused[0]
+    guard.errors.remove(refused[0])  # the refusal this test caused: not a fault of the page

@@ -17,7 +17,8 @@ export function colourOf(index) {
   return TRAIL_COLOURS[index % TRAIL_COLOURS.length];
 }
 
-function escapeHtml(text) {
+/** Text made safe to put in HTML (names come from vehicles and users: never markup). */
+export function escapeHtml(text) {
   return String(text).replace(/[&<>"']/g, (c) => `&#${c.charCodeAt(0)};`);
 }
 
@@ -211,7 +212,7 @@ export class MapView {
       ? `<span class="chip stage-${cmd.stage}">${escapeHtml(cmd.type)} · ${escapeHtml(cmd.stage)}</span>`
       : "";
     const failsafe = view.control_mode === "failsafe" || view.control_mode === "local"
-      ? `<span class="chip stage-failed">${view.control_mode}</span>` : "";
+      ? `<span class="chip stage-failed">${escapeHtml(view.control_mode)}</span>` : "";
     const html = `<b>${escapeHtml(view.name || v.id)}</b>${chip}${failsafe}`;
     const label = el.querySelector(".vlabel");
     if (label.innerHTML !== html) {
@@ -250,7 +251,7 @@ export class MapView {
         L.polyline(pts, {
           color: colour, weight: 2, dashArray: "6 6", className: `planned path-of-${v.id}`,
         })
-          .bindTooltip(`${v.view.name || v.id}: ${a.path ? "planned path" : "path"}`)
+          .bindTooltip(`${escapeHtml(v.view.name || v.id)}: ${a.path ? "planned path" : "path"}`)
           .addTo(group);
         for (const w of a.waypoints || []) {
           L.circleMarker([w.lat, w.lon], { radius: 4, color: colour, fillOpacity: 1 })
@@ -263,7 +264,7 @@ export class MapView {
           }).addTo(group);
         }
         L.circleMarker([a.lat, a.lon], { radius: 6, color: colour, fill: false, weight: 2 })
-          .bindTooltip(`${v.view.name || v.id}: go to`)
+          .bindTooltip(`${escapeHtml(v.view.name || v.id)}: go to`)
           .addTo(group);
       } else if (cmd.type === "keep_station") {
         const at = a.lat != null ? [a.lat, a.lon] : here ? [here.lat, here.lon] : null;

@@ -2,7 +2,7 @@
 // timeline that also holds their commands, grants and events (each lights up as the
 // cursor passes it); the window exports as GPX or GeoJSON.
 
-import { L, colourOf } from "./map.js";
+import { L, colourOf, escapeHtml } from "./map.js";
 import { describeEvent, kindName } from "./panels.js";
 import { clock, dateTime, h, toast } from "./ui.js";
 
@@ -195,7 +195,7 @@ export class Replay {
           className: "vicon replay",
           html: `<svg class="arrow" viewBox="-13 -13 26 26"><circle class="halo" r="12"></circle>
             <path d="M0,-10 L7,8 L0,4 L-7,8 Z"></path></svg>
-            <div class="vlabel" style="left:28px;top:4px"><b>${(v && v.view.name) || id}</b></div>`,
+            <div class="vlabel" style="left:28px;top:4px"><b>${escapeHtml((v && v.view.name) || id)}</b></div>`,
           iconSize: [26, 26],
           iconAnchor: [13, 13],
         }),
