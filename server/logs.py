@@ -2,12 +2,13 @@
 
 :class:`RedactSecrets` sits on every handler the server sets up, its own and
 uvicorn's: a token in a URL's query (``token=...``), the value of an
-``Authorization: Bearer`` header, or anything shaped like one of the server's
-tokens (``fct_...``) is replaced by ``[redacted]`` in a record's message and
-arguments before the line is written. uvicorn logs every WebSocket it accepts
-with its path and query string, so a client that put its token in the URL
-(``?token=``) would otherwise have it written in clear. A record's exception
-and stack text are redacted too.
+``Authorization: Bearer`` header, a JSON ``token`` field, or anything shaped like
+one of the server's tokens (``fct_...``) is replaced by ``[redacted]`` in a
+record's message and arguments before the line is written (an argument that is an
+object, such as the WebSocket frame the protocol libraries log at debug level, as
+its text). uvicorn logs every WebSocket it accepts with its path and query string,
+so a client that put its token in the URL (``?token=``) would otherwise have it
+written in clear. A record's exception and stack text are redacted too.
 
 ``FLEET_LOG_FORMAT=json`` writes one JSON object per line instead (python-json-logger):
 ``time`` (ISO 8601, UTC), ``level``, ``logger``, ``message``, and ``exception`` or
@@ -30,6 +31,9 @@ __all__ = ["REDACTED", "JsonLines", "RedactSecrets", "log_config", "redact"]
 
 REDACTED = "[redacted]"
 _SECRETS = (
+    # a JSON field (a socket's ``auth`` frame, a login's answer), even when the logger
+    # shortened the frame in the middle of its value
+    re.compile(r"(?i)(\"(?:access_)?token\"\s*:\s*\")[^\"]*"),
     re.compile(r"(?i)(\btoken=)[^&\s\"'#]+"),
     re.compile(r"(?i)(\bbearer\s+)[^\s\"',;]+"),
     re.compile(r"()\bfct_[A-Za-z0-9_-]{6,}"),
@@ -48,11 +52,9 @@ class RedactSecrets(logging.Filter):
         if isinstance(record.msg, str):
             record.msg = redact(record.msg)
         if isinstance(record.args, tuple):
-            record.args = tuple(redact(a) if isinstance(a, str) else a for a in record.args)
+            record.args = tuple(_redact_arg(a) for a in record.args)
         elif isinstance(record.args, dict):
-            record.args = {
-                k: redact(v) if isinstance(v, str) else v for k, v in record.args.items()
-            }
+            record.args = {k: _redact_arg(v) for k, v in record.args.items()}
         if record.exc_info and not record.exc_text:
             # Formatters write exc_text when it is set (the text one), or format exc_info
             # again (the JSON one, which redacts what it writes).
@@ -65,6 +67,16 @@ class RedactSecrets(logging.Filter):
 
 
 _EXCEPTIONS = logging.Formatter()
+
+
+def _redact_arg(value: Any) -> Any:
+    """A string redacted; a number as it is (a formatter may want one: ``%d``); anything
+    else as its text, redacted (its ``str`` is what ``%s`` would have written)."""
+    if isinstance(value, str):
+        return redact(value)
+    if value is None or isinstance(value, int | float):
+        return value
+    return redact(str(value))
 
 
 def _redact_all(value: Any) -> Any:

@@ -1,5 +1,6 @@
-"""No token reaches a log: a real fleet-server at log level info, a socket opened with
-``?token=`` (uvicorn logs every accepted WebSocket with its path and query)."""
+"""No token reaches a log: a real fleet-server at log level debug, a socket opened with
+``?token=`` (uvicorn logs every accepted WebSocket with its path and query) and one that
+sends its token in an ``auth`` frame (the protocol library logs every frame at debug)."""
 
 from __future__ import annotations
 
@@ -20,16 +21,25 @@ def test_redact_finds_tokens_in_urls_headers_and_text() -> None:
     assert redact("Authorization: Bearer abc.def-ghi") == "Authorization: Bearer [redacted]"
     assert redact("minted fct_Zx9-_aaaaaaa for ana") == "minted [redacted] for ana"
     assert redact("a plain line") == "a plain line"
+    shortened = """< TEXT '{"op":"auth","token":"fct_hyDJxiuE3n...Eg0Hhbt5KzEh"}' [71 bytes]"""
+    assert redact(shortened) == """< TEXT '{"op":"auth","token":"[redacted]"}' [71 bytes]"""
 
 
 @pytest.mark.slow
-async def test_a_token_in_a_socket_url_is_not_written_to_the_log(tmp_path: Path) -> None:
+async def test_a_token_in_a_socket_url_or_frame_is_not_written_to_the_log(
+    tmp_path: Path,
+) -> None:
     server = ServerProcess(tmp_path)
-    server.env["FLEET_LOG_LEVEL"] = "info"
+    server.env["FLEET_LOG_LEVEL"] = "debug"
     await asyncio.to_thread(server.start)
     try:
         url = server.url.replace("http://", "ws://") + f"/ws/client?token={ADMIN_TOKEN}"
         async with websockets.connect(url) as ws:
+            await ws.send(json.dumps({"op": "subscribe", "id": "s", "topics": ["fleet"]}))
+            assert (await recv_until(ws, lambda f: f.get("id") == "s"))["ok"] is True
+        bare = url.partition("?")[0]
+        async with websockets.connect(bare) as ws:
+            await ws.send(json.dumps({"op": "auth", "token": ADMIN_TOKEN}))
             await ws.send(json.dumps({"op": "subscribe", "id": "s", "topics": ["fleet"]}))
             assert (await recv_until(ws, lambda f: f.get("id") == "s"))["ok"] is True
         async with websockets.connect(url.replace(ADMIN_TOKEN, "fct_wrong-token-xyz")) as ws:
@@ -39,5 +49,7 @@ async def test_a_token_in_a_socket_url_is_not_written_to_the_log(tmp_path: Path)
         await asyncio.to_thread(server.stop)
     log = (tmp_path / "server.log").read_text()
     assert "WebSocket /ws/client?token=[redacted]" in log  # uvicorn's line, redacted
-    assert ADMIN_TOKEN not in log
+    assert '"op": "auth"' in log  # the frame was logged...
+    for start in range(0, len(ADMIN_TOKEN) - 8):  # ...and no piece of the token with it
+        assert ADMIN_TOKEN[start : start + 8] not in log, ADMIN_TOKEN[start : start + 8]
     assert "fct_wrong-token-xyz" not in log
