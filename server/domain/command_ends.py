@@ -14,13 +14,23 @@ from server.errors import ControlNotHeld, Forbidden
 
 
 def supersede(cmds: list[Command], stop: Command, now: datetime) -> list[Command]:
-    """A ``stop`` cancels the motion commands queued before it (not yet acknowledged)."""
+    """A ``stop`` cancels the motion commands queued before it (not yet acknowledged), and
+    the stops queued before it (never handed out) that it stands for: ones that would not
+    outlast it, sent by nobody of more standing (a manager's stop, which an operator may
+    not cancel, is not replaced by an operator's, which it may). Stops sent again and
+    again to a vehicle out of reach so wait as one, not as a growing queue."""
     gone = []
     for cmd in cmds:
-        if (
-            cmd.type in MOTION_TYPES
-            and cmd.status in UNACKNOWLEDGED
-            and (cmd.issued_at, cmd.seq) <= (stop.issued_at, stop.seq)
+        if (cmd.issued_at, cmd.seq) > (stop.issued_at, stop.seq):
+            continue
+        if cmd.type in MOTION_TYPES and cmd.status in UNACKNOWLEDGED:
+            cmd.move("cancelled", now, "superseded_by_stop")
+            gone.append(cmd)
+        elif (
+            cmd.is_stop
+            and cmd.status == "queued"
+            and cmd.expires_at <= stop.expires_at
+            and (stop.by_manager or not cmd.by_manager)
         ):
             cmd.move("cancelled", now, "superseded_by_stop")
             gone.append(cmd)

@@ -169,6 +169,23 @@ def test_stop_cancels_the_motion_queued_before_it_only() -> None:
     assert after.status == "queued"
 
 
+def test_stops_sent_again_while_none_is_handed_out_wait_as_one() -> None:
+    """The latest stop stands for the queued ones it outlasts; never for one handed out
+    (its ack may be on its way), one that would outlast it, or a manager's for another's."""
+    first = make_command("stop", at=later(0), ttl_s=30)
+    longer = make_command("stop", at=later(1), ttl_s=3600)
+    handed = make_command("stop", at=later(1))
+    hand_out([handed], later(1))
+    managers = make_command("stop", at=later(1))
+    managers.by_manager = True
+    stop = make_command("stop", at=later(2), ttl_s=60)
+    gone = ends.supersede([first, longer, handed, managers], stop, later(2))
+    assert gone == [first] and first.history[-1]["detail"] == "superseded_by_stop"
+    assert (longer.status, handed.status, managers.status) == ("queued", "delivered", "queued")
+    stop.by_manager = True  # a manager's stop stands for a manager's
+    assert ends.supersede([managers], stop, later(2)) == [managers]
+
+
 def test_a_mission_the_vehicle_ended_for_a_newer_command_is_superseded_not_failed() -> None:
     running = make_command("go_to", at=later(0))
     life.apply_ack(running, "executing", later(1))

@@ -230,3 +230,23 @@ async def test_every_submit_is_audited(w: World) -> None:
     mine = [e for e in r.json()["events"] if e["data"].get("command_id") == command_id]
     assert mine and mine[0]["actor"] == op.username
     assert mine[0]["data"]["status"] == "queued"
+
+
+async def test_stops_sent_again_to_a_vehicle_out_of_reach_wait_as_one(w: World) -> None:
+    """Each stop stands for the queued ones it outlasts: the vehicle, when it is back,
+    is handed one stop, not every one an operator sent meanwhile."""
+    v = await w.vehicle()
+    op = await w.person("operator", v)
+    ids = []
+    for _ in range(30):
+        r = await w.submit(op, [v], STOP, ttl_s=60)
+        assert r.status_code == 202, r.text
+        ids.append(r.json()["commands"][0]["command_id"])
+    [handed] = await w.poll(v)
+    assert handed["command_id"] == ids[-1] and handed["type"] == "stop"
+    first = await w.command(ids[0])
+    assert first["status"] == "cancelled"
+    assert first["history"][-1]["detail"] == "superseded_by_stop"
+    longer = (await w.submit(op, [v], STOP, ttl_s=600)).json()["commands"][0]["command_id"]
+    await w.submit(op, [v], STOP, ttl_s=5)  # would not outlast it: both wait
+    assert (await w.command(longer))["status"] == "queued"
