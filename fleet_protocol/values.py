@@ -53,6 +53,7 @@ __all__ = [
     "MAX_JSON_DEPTH",
     "MAX_KEY_CHARS",
     "MAX_PARAMS",
+    "MAX_PARAMS_BYTES",
     "MAX_SAMPLE_DATA_BYTES",
     "MAX_TIMESTAMP",
     "MIN_INT",
@@ -83,8 +84,11 @@ MAX_INT = 2**63 - 1
 MAX_JSON_DEPTH = 32
 #: A free-form object's keys: at most this many characters.
 MAX_KEY_CHARS = 128
-#: Entries in a ``params`` object (``start_instance``, ``update_param``).
+#: Entries in a ``params`` object (``start_instance``, ``update_param``), and in the
+#: parameters a vehicle's instance holds once merged.
 MAX_PARAMS = 512
+#: Bytes of compact UTF-8 JSON of a ``params`` object, and of the merged parameters.
+MAX_PARAMS_BYTES = 65536
 #: A sample's ``data``: at most this many bytes of compact UTF-8 JSON.
 MAX_SAMPLE_DATA_BYTES = 8192
 #: Timestamps, both ends included. A vehicle without a GPS fix may send the
@@ -294,12 +298,17 @@ _OBJECT_SCHEMA = WithJsonSchema(
 JsonValue = Annotated[Any, PlainValidator(_checker()), _ANY_SCHEMA]
 #: A free-form JSON object that JSON and the store can hold.
 JsonObject = Annotated[dict[str, Any], PlainValidator(_checker(kind=dict)), _OBJECT_SCHEMA]
-#: ``params`` of ``start_instance`` / ``update_param``: at most :data:`MAX_PARAMS` entries.
+#: ``params`` of ``start_instance`` / ``update_param``: at most :data:`MAX_PARAMS` entries
+#: and :data:`MAX_PARAMS_BYTES` of JSON.
 Params = Annotated[
     dict[str, Any],
-    PlainValidator(_checker(kind=dict, max_keys=MAX_PARAMS)),
+    PlainValidator(_checker(kind=dict, max_keys=MAX_PARAMS, max_bytes=MAX_PARAMS_BYTES)),
     WithJsonSchema(
-        {"type": "object", "maxProperties": MAX_PARAMS, "description": "free-form parameters"}
+        {
+            "type": "object",
+            "maxProperties": MAX_PARAMS,
+            "description": f"free-form parameters, at most {MAX_PARAMS_BYTES} bytes of JSON",
+        }
     ),
 ]
 #: A sample's ``data``: an object of at most :data:`MAX_SAMPLE_DATA_BYTES`, or null.

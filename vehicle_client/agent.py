@@ -41,7 +41,7 @@ from vehicle_client.adapters.base import Adapter
 from vehicle_client.backoff import Backoff
 from vehicle_client.clock import ServerClock
 from vehicle_client.decisions import Effect, Execute, Halt, LinkMonitor, Pilot
-from vehicle_client.errors import FatalError, RetryableError, SessionLost
+from vehicle_client.errors import FatalError, Refused, RetryableError, SessionLost
 from vehicle_client.outbox import Outbox
 from vehicle_client.sim.simulator import TaskReport
 from vehicle_client.transport.base import Transport
@@ -283,9 +283,13 @@ class VehicleAgent:
                         **self._timing(sent),
                     )
                 except ValidationError as exc:
-                    await self._refused(exc, batch)
+                    await self._refused(field_errors_of(exc), batch, exc)
                     continue
-                res = await self.transport.update_param(body)
+                try:
+                    res = await self.transport.update_param(body)
+                except Refused as exc:  # a rule the server has and this agent lacks
+                    await self._refused(exc.fields, batch, exc)
+                    continue
                 if res.server_time is not None:
                     self.clock.observe(res.server_time, sent, utcnow())
                 self._contact()
@@ -314,15 +318,18 @@ class VehicleAgent:
             "rtt_s": rtt if rtt is not None and rtt <= MAX_REPORTED_RTT_S else None,
         }
 
-    async def _refused(self, exc: ValidationError, batch: list[dict[str, Any]]) -> None:
-        """What the wire model refuses is never sent, so it cannot block the queue for good:
-        samples stored before a rule existed leave the outbox, bad parameters are dropped."""
-        errors = field_errors(exc)
-        reason = "; ".join(f"{e.field}: {e.message}" for e in errors[:5])
-        bad = sorted({int(e.field.split(".")[1]) for e in errors if e.field.startswith("samples.")})
+    async def _refused(
+        self, errors: list[tuple[str, str]], batch: list[dict[str, Any]], exc: Exception
+    ) -> None:
+        """What the wire model or the server refuses cannot block the queue for good:
+        samples stored before a rule existed leave the outbox, bad parameters are dropped.
+        ``errors``: ``(field, message)``; anything else refused is raised (``exc``)."""
+        reason = "; ".join(f"{field}: {message}" for field, message in errors[:5])
+        at = (_sample_index(f) for f, _ in errors)
+        bad = sorted({i for i in at if i is not None and i < len(batch)})
         if bad:
             await asyncio.to_thread(self.outbox.refuse, [batch[i]["seq"] for i in bad], reason)
-        if any(e.field.split(".")[0] == "params" for e in errors):
+        if any(f.split(".")[0] == "params" for f, _ in errors):
             log.error("%s: parameters not sent: %s", self.config.vehicle_id, reason)
             self._params.clear()
         elif not bad:
@@ -463,3 +470,16 @@ class VehicleAgent:
         except TimeoutError:
             pass
         event.clear()
+
+
+def field_errors_of(exc: ValidationError) -> list[tuple[str, str]]:
+    """``(field, message)`` of each error the wire model found."""
+    return [(e.field, e.message) for e in field_errors(exc)]
+
+
+def _sample_index(field: str) -> int | None:
+    """``3`` of ``samples.3.lat``; None for any other field."""
+    parts = field.split(".")
+    if len(parts) > 1 and parts[0] == "samples" and parts[1].isdigit():
+        return int(parts[1])
+    return None

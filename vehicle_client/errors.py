@@ -24,3 +24,21 @@ class SessionLost(RetryableError):
 
     The agent starts (or resumes) an instance again.
     """
+
+
+class Refused(RetryableError):
+    """The server refused the data as invalid (422, or an op's ``invalid``): ``fields``
+    names what, with why (``params``, ``samples.3.lat``), as the error's details say."""
+
+    def __init__(self, message: str, fields: list[tuple[str, str]]) -> None:
+        super().__init__(message)
+        self.fields = fields
+
+
+def refused_fields(details: object) -> list[tuple[str, str]]:
+    """``(field, message)`` of an error's ``details`` (a list of ``{field, message}``)."""
+    if not isinstance(details, list):
+        return []
+    return [
+        (str(d.get("field", "")), str(d.get("message", ""))) for d in details if isinstance(d, dict)
+    ]

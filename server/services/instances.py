@@ -24,6 +24,7 @@ from fleet_protocol import Sample, StartInstance
 from server.domain.access import Principal
 from server.domain.clock import Clock
 from server.domain.events import InstanceFinished, PresenceChanged, StateWritten
+from server.domain.params import params_after
 from server.domain.presence import Presence, is_online, online_since, presence_of
 from server.errors import Conflict, Forbidden, NotFound, Unavailable
 from server.errors import InstanceFinished as Finished
@@ -209,7 +210,7 @@ class InstanceService:
             if body.vehicle_type:
                 state.vehicle_type = body.vehicle_type
             state.capabilities = list(body.capabilities)
-            self.merge_params(state, body.params)
+            self.merge_params(state, body.params, starting=True)
             await self._write(state, time.monotonic(), whole=True)
         await self.events.record(
             "instance",
@@ -262,16 +263,23 @@ class InstanceService:
         state.moved = True
 
     def merge_params(
-        self, state: InstanceState, params: dict[str, Any], now: datetime | None = None
+        self,
+        state: InstanceState,
+        params: dict[str, Any],
+        now: datetime | None = None,
+        *,
+        starting: bool = False,
     ) -> None:
-        """Shallow merge; ``null`` deletes a key. ``now``: the call's time (else the clock's)."""
+        """Shallow merge; ``null`` deletes a key. ``now``: the call's time (else the clock's).
+
+        The merged parameters keep to one call's bounds (``params_after``): past them,
+        422 naming ``params`` and nothing changed; a vehicle resuming its instance
+        (``starting``) whose parameters would pass them starts from those it sends."""
         if not params:
             return
-        for key, value in params.items():
-            if value is None:
-                state.params.pop(key, None)
-            else:
-                state.params[key] = value
+        merged = params_after(state.params, params, starting=starting)
+        if merged is not None:
+            state.params = merged
         state.params_updated_at = self.clock() if now is None else now
         state.dirty = True
 

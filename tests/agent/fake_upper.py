@@ -28,6 +28,10 @@ class FakeUpper:
     durable_lag: int = 0
     failsafe_after_s: float = 30.0
     down: bool = False
+    #: Refuse any update_param that carries params (422 naming ``params``), as a server
+    #: whose bound on a vehicle's parameters they would pass; counted.
+    refuse_params: bool = False
+    refused_params: int = 0
     stored: list[dict[str, Any]] = field(default_factory=list)
     duplicates: int = 0
     params: dict[str, Any] = field(default_factory=dict)
@@ -79,6 +83,10 @@ class FakeUpper:
         if path == "/upper/heartbeat":
             return httpx.Response(200, json={"ok": True, "server_time": format_ts(utcnow())})
         if path == "/upper/update_param":
+            if self.refuse_params and body.get("params"):
+                self.refused_params += 1
+                details = [{"field": "params", "message": "at most 512 parameters"}]
+                return _error(422, "invalid", "params: too many", details)
             return httpx.Response(200, json=self._ingest(body))
         if path == "/upper/update_fbmessage":
             self.modes.append(body.get("control_mode"))
@@ -140,5 +148,6 @@ class FakeUpper:
                 return []
 
 
-def _error(status: int, code: str, message: str) -> httpx.Response:
-    return httpx.Response(status, json={"error": {"code": code, "message": message}})
+def _error(status: int, code: str, message: str, details: Any = None) -> httpx.Response:
+    body = {"code": code, "message": message, "details": details}
+    return httpx.Response(status, json={"error": body})

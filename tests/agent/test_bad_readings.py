@@ -100,3 +100,24 @@ async def test_a_bad_row_stored_by_an_older_agent_is_taken_out_not_resent_foreve
         await wait_for(lambda: agent.outbox.refused == 2, "the bad rows taken out")
         await wait_for(lambda: agent.outbox.pending == 0, "the outbox drained")
     assert 2 not in fake.stored_seqs() and 3 not in fake.stored_seqs()
+
+
+async def test_parameters_the_server_refuses_are_dropped_and_the_samples_go_on(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """A server with a rule this agent lacks (the bound on a vehicle's parameters once
+    merged) refuses them, 422 naming ``params``: the agent logs it, drops them, and sends
+    its samples without them, rather than the same refused call for ever."""
+    fake = FakeUpper(failsafe_after_s=0.5, refuse_params=True)
+    agent = make_agent(fake, tmp_path / "o.db", time_scale=1.0)
+    caplog.set_level(logging.ERROR, logger="vehicle_client.agent")
+    async with running(agent):
+        await wait_for(lambda: len(fake.stored) >= 3, "samples sent")
+        fake.down = True  # the link lost: the failsafe engages and goes into params
+        await wait_for(lambda: agent.pilot.control_mode == "failsafe", "failsafe engaged")
+        fake.down = False
+        await wait_for(lambda: fake.refused_params >= 1, "the params refused")
+        sent = len(fake.stored)
+        await wait_for(lambda: len(fake.stored) >= sent + 5, "samples after the refusal")
+    assert fake.refused_params == 1 and "failsafe" not in fake.params
+    assert any("parameters not sent" in r.getMessage() for r in caplog.records)

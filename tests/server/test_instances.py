@@ -131,6 +131,42 @@ async def test_params_merge_and_position(client: httpx.AsyncClient) -> None:
     assert some["params"] == {"mode": "survey"}
 
 
+async def test_a_vehicles_parameters_keep_their_bounds_across_calls(
+    client: httpx.AsyncClient,
+) -> None:
+    """512 entries and 64 KiB of JSON, for one call's params and for what they add up to:
+    past it, 422 naming ``params`` and nothing changed (its samples not taken either); a
+    vehicle that starts again past it starts from the parameters it sends."""
+    vid, vh = await make_vehicle(client)
+    iid = (await start_instance(client, vid, vh, params={"mode": "survey"}))["instance_id"]
+
+    async def update(params: dict[str, object], seq: int) -> httpx.Response:
+        body = {"instance_id": iid, "params": params, "samples": [sample(seq)]}
+        return await client.post("/upper/update_param", headers=vh, json=body)
+
+    async def held() -> dict[str, object]:
+        got = await client.get("/client/get_param", headers=ADMIN, params={"instance_id": iid})
+        params: dict[str, object] = got.json()["params"]
+        return params
+
+    assert (await update({f"a{k}": k for k in range(500)}, 1)).status_code == 200
+    r = await update({f"b{k}": k for k in range(20)}, 2)  # 521 in all
+    assert r.status_code == 422 and r.json()["error"]["details"][0]["field"] == "params"
+    assert "521 parameters" in r.json()["error"]["details"][0]["message"]
+    assert len(await held()) == 501
+    assert (await update({"a0": None, "a1": None}, 2)).status_code == 200  # nulls make room
+    r = await update({"big": "x" * 70_000}, 3)  # one call's own bound
+    assert r.status_code == 422 and "65536" in r.text
+    halves = [{f"h{n}": "x" * 40_000} for n in range(2)]
+    assert (await update(halves[0], 3)).status_code == 200
+    r = await update(halves[1], 4)
+    assert r.status_code == 422 and "bytes of JSON" in r.json()["error"]["details"][0]["message"]
+    assert "h1" not in await held()
+    again = await start_instance(client, vid, vh, params={**halves[1], "mode": "transit"})
+    assert again["resumed"] is True
+    assert sorted(await held()) == ["h1", "mode"]
+
+
 async def test_viewer_sees_only_assigned_vehicles(client: httpx.AsyncClient) -> None:
     v1, _h1 = await make_vehicle(client)
     v2, h2 = await make_vehicle(client)

@@ -19,7 +19,13 @@ from fleet_protocol import (
     UpdateParam,
     UpdateParamResult,
 )
-from vehicle_client.errors import FatalError, RetryableError, SessionLost
+from vehicle_client.errors import (
+    FatalError,
+    Refused,
+    RetryableError,
+    SessionLost,
+    refused_fields,
+)
 
 log = logging.getLogger(__name__)
 M = TypeVar("M", bound=BaseModel)
@@ -34,6 +40,13 @@ def _error_text(response: httpx.Response) -> tuple[str, str]:
         return str(body.get("code", "")), str(body.get("message", ""))
     except (ValueError, KeyError, TypeError, AttributeError):
         return "", response.text[:200]
+
+
+def _error_details(response: httpx.Response) -> object:
+    try:
+        return response.json()["error"].get("details")
+    except (ValueError, KeyError, TypeError, AttributeError):
+        return None
 
 
 def _retry_after(response: httpx.Response) -> float | None:
@@ -111,6 +124,8 @@ class HttpTransport:
             raise SessionLost(text)
         if status in (413, 422):
             log.error("the server refused a request as invalid: %s", text)
+        if status == 422:
+            raise Refused(text, refused_fields(_error_details(response)))
         raise RetryableError(text, _retry_after(response))
 
     async def start_instance(self, body: StartInstance) -> StartInstanceResult:

@@ -19,7 +19,7 @@ from fleet_protocol.links import (
     websocket_url,
 )
 from fleet_protocol.ws import MAX_BATCH_OPS, AckPush, Push
-from vehicle_client.errors import FatalError, RetryableError, SessionLost
+from vehicle_client.errors import FatalError, Refused, RetryableError, SessionLost, refused_fields
 
 __all__ = [
     "AnyPush",
@@ -115,4 +115,6 @@ def ack_error(ack: AckPush, what: str) -> RetryableError | FatalError:
         return FatalError(f"the token may not act for this vehicle ({text})")
     if code in ("not_found", "instance_finished"):
         return SessionLost(text)
+    if code == "invalid":
+        return Refused(text, refused_fields(error.details if error is not None else None))
     return RetryableError(text)
