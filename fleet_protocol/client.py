@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Annotated, Literal
 
 from pydantic import Field, StrictInt, ValidationInfo, field_validator, model_validator
 
@@ -70,17 +70,20 @@ class GetParamResult(WireModel):
 
 
 class SubmitControl(WireModel):
-    instance_ids: list[Text] = Field(min_length=1, max_length=1000)
+    #: An instance named twice is taken once (a stop sent to a vehicle by its id and its
+    #: name is one stop, never refused for the repeat).
+    instance_ids: list[Annotated[Text, Field(min_length=1, max_length=128)]] = Field(
+        min_length=1, max_length=1000
+    )
     command: CommandSpec
     ttl_s: StrictInt = Field(default=30, ge=1, le=3600)
 
     @field_validator("instance_ids")
     @classmethod
-    def _wildcard_alone_no_repeats(cls, ids: list[str]) -> list[str]:
+    def _wildcard_alone_each_once(cls, ids: list[str]) -> list[str]:
+        ids = list(dict.fromkeys(ids))
         if "*" in ids and ids != ["*"]:
             raise ValueError('"*" stands alone in instance_ids')
-        if len(set(ids)) != len(ids):
-            raise ValueError("instance_ids repeats an instance")
         return ids
 
     @field_validator("command")

@@ -248,8 +248,13 @@ class FleetClient(AdminCalls):
         return answer
 
     async def stop(self, instance_ids: Sequence[str] | None = None) -> Body:
-        """Stop these instances, or every vehicle the caller can see (no lease needed)."""
-        return await self.submit(instance_ids or ["*"], {"type": "stop", "args": {}})
+        """Stop these instances, or, given None, every vehicle the caller can see (no lease
+        needed). An empty list is a ``ValueError``: a filter that matched nothing never
+        stops the whole fleet."""
+        if instance_ids is not None and not instance_ids:
+            raise ValueError("stop: no instance given (None stops every vehicle you can see)")
+        ids = ["*"] if instance_ids is None else list(instance_ids)
+        return await self.submit(ids, {"type": "stop", "args": {}})
 
     async def go_to(
         self,

@@ -73,6 +73,10 @@ async def test_missions_and_control_through_the_sdk(client: httpx.AsyncClient) -
     assert after.value.code == "control_not_held"
     stopped = await ines.stop()  # stop needs no lease; no instance: every vehicle
     assert [c["instance_id"] for c in stopped["commands"]] == [iid]
+    with pytest.raises(ValueError, match="no instance given"):
+        await ines.stop([])  # a filter that matched nothing stops nothing
+    twice = await ines.stop([iid, iid])  # by its id and by its name: one stop, not a 422
+    assert [c["instance_id"] for c in twice["commands"]] == [iid]
     with pytest.raises(FleetApiError) as not_manager:
         await ines.revoke_control(iid)
     assert not_manager.value.status == 403

@@ -130,6 +130,7 @@ async def test_every_vehicle_can_stop_whatever_its_capabilities(w: World) -> Non
         ({"command": GO_TO, "instance_ids": ["*"]}, "command"),
         ({"command": STOP, "instance_ids": ["*", "i-1"]}, "instance_ids"),
         ({"command": STOP, "instance_ids": []}, "instance_ids"),
+        ({"command": STOP, "instance_ids": ["i-" + "9" * 5000]}, "instance_ids.0"),
         (
             {"command": {"type": "go_to", "args": {"lat": 1, "lon": 1}, "max_drift_m": -1}},
             "command.max_drift_m",
