@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Annotated, Literal
 
-from pydantic import AfterValidator, Field, StrictBool
+from pydantic import AfterValidator, ConfigDict, Field, StrictBool
 
 from fleet_protocol.common import Identifier, Timestamp, WireModel
 from fleet_protocol.values import Label, Text
@@ -118,6 +118,11 @@ class UserList(WireModel):
 
 
 class PatchUser(WireModel):
+    """The fields to change. A field this body does not have is a 422 naming it: a
+    misspelt ``disabld`` must not pass as a change that was made."""
+
+    model_config = ConfigDict(extra="forbid")
+
     role: Role | None = None
     vehicles: VehicleIds | None = Field(default=None, max_length=10000)
     disabled: StrictBool | None = None

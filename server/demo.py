@@ -189,7 +189,8 @@ def _arguments(argv: list[str]) -> None:
 
 if __name__ == "__main__":
     _arguments(sys.argv[1:])
-    DATA.mkdir(exist_ok=True)
+    DATA.mkdir(mode=0o700, exist_ok=True)
+    DATA.chmod(0o700)  # the world's store, tokens' digests and outboxes: the owner's alone
     # uvicorn hands a SIGTERM back to the handler it found once it has shut down; the
     # default one would end the process before the simulated vehicles are stopped.
     signal.signal(signal.SIGTERM, _stop_as_on_ctrl_c)

@@ -13,6 +13,7 @@ import math
 import os
 import re
 import signal
+import stat
 import subprocess
 import sys
 from pathlib import Path
@@ -63,6 +64,10 @@ def test_demo_serves_three_simulated_vehicles_and_stops_them_on_sigterm(tmp_path
         assert online == ["demo-usv-1", "demo-usv-2", "demo-usv-3"]
         agents = psutil.Process(demo.pid).children(recursive=True)
         assert len(agents) == 3
+        data = tmp_path / "data"  # the agents' outboxes: readings, commands seen
+        assert stat.S_IMODE(data.stat().st_mode) == 0o700
+        outboxes = list(data.glob("*.outbox"))
+        assert outboxes and all(stat.S_IMODE(p.stat().st_mode) == 0o600 for p in outboxes)
 
         demo.send_signal(signal.SIGTERM)
         demo.wait(timeout=30)

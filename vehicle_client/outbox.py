@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import json
 import logging
+import os
 import sqlite3
 import threading
 import time
@@ -62,6 +63,17 @@ CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
 """
 
 
+def _private_file(path: Path) -> None:
+    """The outbox's folder (made if missing, owner-only) and file, owner-only whatever
+    mode an older version left; SQLite gives its journal files the file's own mode."""
+    path.parent.mkdir(mode=0o700, parents=True, exist_ok=True)
+    fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o600)
+    try:
+        os.fchmod(fd, 0o600)
+    finally:
+        os.close(fd)
+
+
 class Outbox:
     def __init__(
         self,
@@ -73,7 +85,7 @@ class Outbox:
             raise ValueError("max_samples and max_seen must be at least 1")
         self.path = Path(path)
         if str(path) != ":memory:":
-            self.path.parent.mkdir(parents=True, exist_ok=True)
+            _private_file(self.path)
         self.max_samples = max_samples
         self.max_seen = max_seen
         self._lock = threading.Lock()

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+import stat
 from pathlib import Path
 
 import pytest
@@ -92,3 +94,23 @@ def test_default_bound_holds_a_day_at_one_hertz(tmp_path: Path) -> None:
 def test_bad_bounds_are_refused(tmp_path: Path) -> None:
     with pytest.raises(ValueError):
         Outbox(tmp_path / "o.db", max_samples=0)
+
+
+def test_the_outbox_is_its_owners_alone_whatever_the_umask(tmp_path: Path) -> None:
+    """It holds the vehicle's readings and the commands it has seen: 0600 in a 0700 folder
+    it makes, and a file an older version left readable is made the owner's alone."""
+    former = os.umask(0o022)
+    try:
+        made = Outbox(tmp_path / "new" / "o.db")
+        made.append({"ts": "2026-11-22T10:00:00.000Z", "lat": 1.0, "lon": 2.0})
+        made.close()
+        old = tmp_path / "old.db"
+        old.touch(mode=0o644)
+        Outbox(old).close()
+    finally:
+        os.umask(former)
+    assert stat.S_IMODE((tmp_path / "new").stat().st_mode) == 0o700
+    for path in (tmp_path / "new" / "o.db", old):
+        assert stat.S_IMODE(path.stat().st_mode) == 0o600, path
+    for journal in (tmp_path / "new").glob("o.db-*"):
+        assert stat.S_IMODE(journal.stat().st_mode) & 0o077 == 0, journal

@@ -244,3 +244,16 @@ async def test_a_password_set_has_at_least_8_characters(client: httpx.AsyncClien
     name, _ = await make_user(client, "viewer", password="eight-ch")
     r = await client.patch(f"/api/users/{name}", headers=ADMIN, json={"password": "short"})
     assert r.status_code == 422 and r.json()["error"]["details"][0]["field"] == "password"
+
+
+async def test_a_misspelt_field_of_a_user_patch_is_422_naming_it(
+    client: httpx.AsyncClient,
+) -> None:
+    """Not a 200 that changed nothing: an admin who meant to disable someone must know."""
+    name, _ = await make_user(client, "operator")
+    r = await client.patch(f"/api/users/{name}", headers=ADMIN, json={"disabld": True})
+    assert r.status_code == 422, r.text
+    assert [d["field"] for d in r.json()["error"]["details"]] == ["disabld"]
+    r = await client.patch(f"/api/users/{name}", headers=ADMIN, json={"role": "admin", "x": 1})
+    assert r.status_code == 422
+    assert (await client.get(f"/api/users/{name}", headers=ADMIN)).json()["role"] == "operator"
