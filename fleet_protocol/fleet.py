@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Any, Literal
 
 from pydantic import Field
 
@@ -19,6 +19,8 @@ __all__ = [
     "Track",
     "VehicleList",
     "VehicleView",
+    "track_coordinates",
+    "track_geometry",
 ]
 
 
@@ -102,3 +104,22 @@ class EventList(WireModel):
     #: The cursor of this page's last event, full or not (null: no event): ``after`` it,
     #: the events recorded since (a client following the log keeps the latest).
     cursor: Text | None = None
+
+
+def track_geometry(coordinates: list[list[float]]) -> dict[str, Any] | None:
+    """A track's GeoJSON geometry (``[lon, lat]`` positions): a LineString, which has two
+    positions at least (RFC 7946); one position is a Point, none a null geometry."""
+    if len(coordinates) >= 2:
+        return {"type": "LineString", "coordinates": coordinates}
+    if coordinates:
+        return {"type": "Point", "coordinates": coordinates[0]}
+    return None
+
+
+def track_coordinates(geometry: dict[str, Any] | None) -> list[list[float]]:
+    """The positions of a geometry :func:`track_geometry` made."""
+    if geometry is None:
+        return []
+    if geometry["type"] == "Point":
+        return [geometry["coordinates"]]
+    return list(geometry["coordinates"])

@@ -11,6 +11,8 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from fleet_protocol import track_coordinates, track_geometry
+
 __all__ = ["FORMATS", "TrackJoiner", "plot_png"]
 
 #: ``--format`` values, each also the file name ending that chooses it; the first on stdout.
@@ -52,11 +54,12 @@ class TrackJoiner:
         return len(page["points"])
 
     def _add_geojson(self, page: dict[str, Any]) -> int:
-        coords = page["geometry"]["coordinates"]
+        coords = track_coordinates(page["geometry"])
         if self._json is None:
             self._json = page
         else:
-            self._json["geometry"]["coordinates"].extend(coords)
+            joined = track_coordinates(self._json["geometry"]) + coords
+            self._json["geometry"] = track_geometry(joined)
             for key in ("times", "seqs"):
                 self._json["properties"][key].extend(page["properties"][key])
         return len(coords)

@@ -170,6 +170,16 @@ def test_track_pages_join_into_one_document_of_their_format() -> None:
     assert feature["properties"]["seqs"] == [1, 2, 3, 4, 5]
     assert feature["properties"]["truncated"] is False
 
+    lone = TrackJoiner("geojson")  # pages the server wrote with one point each: Points
+    for points in (_points(1, 1), _points(2, 1)):
+        lone.add(json.dumps({
+            "type": "Feature",
+            "geometry": {"type": "Point", "coordinates": [points[0]["lon"], points[0]["lat"]]},
+            "properties": {"times": [points[0]["ts"]], "seqs": [points[0]["seq"]]},
+        }))  # fmt: skip
+    geometry = json.loads(lone.text())["geometry"]
+    assert geometry["type"] == "LineString" and len(geometry["coordinates"]) == 2
+
     table = TrackJoiner("csv")
     for points in pages:
         table.add("ts,seq\n" + "".join(f"{p['ts']},{p['seq']}\n" for p in points))

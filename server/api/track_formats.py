@@ -7,7 +7,7 @@ import io
 from typing import Any
 from xml.sax.saxutils import escape, quoteattr
 
-from fleet_protocol import format_ts
+from fleet_protocol import format_ts, track_geometry
 from server.services.telemetry_views import TRACK_FIELDS, TrackResult
 
 CSV_COLUMNS = ("ts", *TRACK_FIELDS)
@@ -23,13 +23,12 @@ def json_points(track: TrackResult) -> list[dict[str, Any]]:
 
 
 def geojson(track: TrackResult) -> dict[str, Any]:
-    """One Feature with a LineString (``[lon, lat]``); times and paging in its properties."""
+    """One Feature with a LineString (``[lon, lat]``); times and paging in its properties.
+    A LineString has two positions at least (RFC 7946): one point is a Point, none a null
+    geometry, so every answer is valid GeoJSON."""
     return {
         "type": "Feature",
-        "geometry": {
-            "type": "LineString",
-            "coordinates": [[p["lon"], p["lat"]] for p in track.points],
-        },
+        "geometry": track_geometry([[p["lon"], p["lat"]] for p in track.points]),
         "properties": {
             "vehicle_id": track.vehicle_id,
             "times": [format_ts(p["ts"]) for p in track.points],

@@ -92,6 +92,19 @@ async def test_track_geojson(client: httpx.AsyncClient) -> None:
     assert len(feature["properties"]["times"]) == 3
 
 
+async def test_a_track_of_one_point_or_none_is_still_valid_geojson(
+    client: httpx.AsyncClient,
+) -> None:
+    """A LineString has two positions at least (RFC 7946): one is a Point, none null."""
+    vid, _, _ = await vehicle_with_samples(client, range(1, 2))
+    params = {**WINDOW, "format": "geojson"}
+    one = (await client.get(f"/api/vehicles/{vid}/track", headers=ADMIN, params=params)).json()
+    assert one["geometry"] == {"type": "Point", "coordinates": [15.44, 43.94]}
+    empty_id, _ = await make_vehicle(client)
+    r = await client.get(f"/api/vehicles/{empty_id}/track", headers=ADMIN, params=params)
+    assert r.json()["type"] == "Feature" and r.json()["geometry"] is None
+
+
 async def test_track_gpx(client: httpx.AsyncClient) -> None:
     vid, _, _ = await vehicle_with_samples(client, range(1, 4), depth_m=2.5)
     r = await client.get(
