@@ -28,6 +28,7 @@ __all__ = [
     "OperatorHeartbeatResult",
     "Presence",
     "QueuedCommand",
+    "RevokeResult",
     "SubmitControl",
     "SubmitControlResult",
 ]
@@ -152,3 +153,10 @@ class OperatorHeartbeatResult(WireModel):
 
 class OkResult(WireModel):
     ok: bool = True
+
+
+class RevokeResult(OkResult):
+    """``revoke_control``'s answer: ``revoked`` (**extension**) says whether a lease was
+    live to end; revoking where nobody holds control is no error, and records nothing."""
+
+    revoked: bool

@@ -301,7 +301,8 @@ def revoke(
         return instance_id, await fleet.revoke_control(instance_id)
 
     instance_id, data = run(server, token, act)
-    say(data, as_json, f"control of {instance_id} revoked")
+    done = f"control of {instance_id} revoked"
+    say(data, as_json, done if data.get("revoked", True) else f"nobody held {instance_id}")
 
 
 @app.command()

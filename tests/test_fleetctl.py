@@ -117,7 +117,9 @@ async def test_missions_requests_and_the_lease_from_the_command_line(
         assert after.exit_code == 1 and "control_not_held" in after.stderr
         assert (await _fleetctl(base, ADMIN_TOKEN, "grant", iid, "piet")).exit_code == 0
         revoked = await _fleetctl(base, ADMIN_TOKEN, "revoke", iid, "--json")
-        assert revoked.exit_code == 0 and json.loads(revoked.stdout) == {"ok": True}
+        assert revoked.exit_code == 0 and json.loads(revoked.stdout)["revoked"] is True
+        nobody = await _fleetctl(base, ADMIN_TOKEN, "revoke", iid)
+        assert nobody.exit_code == 0 and f"nobody held {iid}" in nobody.stdout
         not_a_manager = await _fleetctl(base, op_token, "revoke", iid)
         assert not_a_manager.exit_code == 1 and "403" in not_a_manager.stderr
 

@@ -16,6 +16,7 @@ from fleet_protocol import (
     OkResult,
     OperatorHeartbeat,
     OperatorHeartbeatResult,
+    RevokeResult,
 )
 from server.api.deps import Manager, Operator, ServicesDep, Viewer
 
@@ -55,9 +56,8 @@ async def deny_control(body: DenyControl, user: Manager, s: ServicesDep) -> OkRe
 
 
 @router.post("/revoke_control")
-async def revoke_control(body: InstanceRef, user: Manager, s: ServicesDep) -> OkResult:
-    await s.control.revoke(user, body.instance_id)
-    return OkResult()
+async def revoke_control(body: InstanceRef, user: Manager, s: ServicesDep) -> RevokeResult:
+    return RevokeResult(revoked=await s.control.revoke(user, body.instance_id))
 
 
 @router.post("/release_control")

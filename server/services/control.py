@@ -122,6 +122,13 @@ class ControlService:
     # ---- operators and managers ------------------------------------------
     async def request(self, principal: Principal, instance_id: str) -> dict[str, Any]:
         state = await self._live_for(principal, instance_id)
+        lease = await self.current(state.instance_id)
+        if lease is not None and lease.holder == principal.name and lease.live(self.clock()):
+            raise Conflict(
+                f"you hold control of {state.name} until {format_ts(lease.expires_at)}: "
+                "nothing to ask (a manager extends a lease by granting it again)",
+                code="control_held",
+            )
         fresh = ControlRequest(
             "r-" + secrets.token_hex(8),
             principal.name,
@@ -203,21 +210,18 @@ class ControlService:
         self.messages.emit_now(StateWritten(state.instance_id, "lease"))
         await self._audit("control_deny", state, principal, {"user": username, "reason": reason})
 
-    async def revoke(self, principal: Principal, instance_id: str) -> None:
+    async def revoke(self, principal: Principal, instance_id: str) -> bool:
+        """End the live lease; whether there was one (none: nothing recorded)."""
         state = await self.instances.for_viewer(principal, instance_id)
         rules.check_granter(principal, state.vehicle_id)
         lease = await self.current(state.instance_id)
         live = lease if lease is not None and lease.live(self.clock()) else None
-        await self._audit(
-            "control_revoke",
-            state,
-            principal,
-            {"holder": live.holder if live is not None else None},
-        )
         if live is not None:
+            await self._audit("control_revoke", state, principal, {"holder": live.holder})
             await self._end(live, "revoked")
         elif lease is not None:
             await self._expire(lease)
+        return live is not None
 
     async def operator_heartbeat(self, principal: Principal, instance_ids: list[str]) -> list[str]:
         """The holder's client is alive: the leases it holds on these instances count it

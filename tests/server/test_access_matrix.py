@@ -323,7 +323,7 @@ ROWS: dict[tuple[str, str], tuple[Call, dict[str, int]]] = {
     ),
     ("POST", "/client/request_control"): (
         post("/client/request_control", lambda w: {"instance_id": w.iid}),
-        users(viewer=403),
+        users(viewer=403, operator=409),  # the operator holds it: nothing to ask
     ),
     ("GET", "/client/control_requests"): (get("/client/control_requests"), users()),
     ("POST", "/client/grant_control"): (

@@ -114,6 +114,12 @@ async def test_request_control_refusals(w: World) -> None:
     for headers, body, status in cases:
         r = await w.http.post("/client/request_control", headers=headers, json=body)
         assert r.status_code == status, (body, r.text)
+    holder = await w.operator_in_control(v)
+    r = await post(w, "request_control", holder.headers, instance_id=v.instance_id)
+    assert r.status_code == 409 and r.json()["error"]["code"] == "control_held"
+    assert "you hold control" in r.json()["error"]["message"]
+    r = await w.http.get("/client/control_requests", headers=ADMIN)
+    assert r.json()["requests"] == []  # nothing for a manager to answer
 
 
 async def test_grant_refusals(w: World) -> None:
@@ -178,7 +184,7 @@ async def test_revoke_ends_the_lease_cancels_motion_and_keeps_stops(w: World) ->
     later_go = await w.queued(op, v, GO_TO)
     r = await post(w, "revoke_control", boss.headers, instance_id=v.instance_id)
     assert r.status_code == 200, r.text
-    assert r.json() == {"ok": True}
+    assert r.json() == {"ok": True, "revoked": True}
     assert (await w.command(later_go))["history"][-1]["detail"] == "lease_ended"
     assert (await w.command(stop))["status"] == "queued"
     assert (await w.command(go))["history"][-1]["detail"] == "superseded_by_stop"
@@ -260,6 +266,8 @@ async def test_grants_revokes_and_releases_are_audited(w: World) -> None:
     await post(w, "release_control", op.headers, instance_id=v.instance_id)
     await w.grant(v, op.username)
     await post(w, "revoke_control", ADMIN, instance_id=v.instance_id)
+    again = await post(w, "revoke_control", ADMIN, instance_id=v.instance_id)  # nobody holds it
+    assert again.json() == {"ok": True, "revoked": False}  # no error, and nothing recorded
     r = await w.http.get("/api/events", headers=ADMIN, params={"vehicle_id": v.vehicle_id})
     kinds = [e["kind"] for e in r.json()["events"] if e["kind"].startswith("control_")]
     assert kinds == ["control_grant", "control_release", "control_grant", "control_revoke"]
