@@ -196,7 +196,7 @@ def _check_waypoints(
     deadline: Deadline,
 ) -> None:
     """:class:`NoPath` naming the first waypoint within a disc or an area (a disc first,
-    then an area, each in the order given)."""
+    then an area, each in the order given), counted from 1 as the console numbers them."""
     in_disc = np.zeros((len(xy), len(centres)), dtype=bool)
     if centres:
         c, r = np.array(centres), np.array(radii)
@@ -212,11 +212,11 @@ def _check_waypoints(
     if in_disc[index].any():
         k = int(np.argmax(in_disc[index]))
         raise NoPath(
-            f"waypoint {index} is within {radii[k]:g} m of {obstacles[k].name or 'an obstacle'}"
+            f"waypoint {index + 1} is within {radii[k]:g} m of {obstacles[k].name or 'an obstacle'}"
         )
     area = areas[int(np.argmax(in_area[index]))]
     within = f" or within its clearance of {area.clearance:g} m" if area.clearance else ""
-    raise NoPath(f"waypoint {index} is inside {area.label}{within}")
+    raise NoPath(f"waypoint {index + 1} is inside {area.label}{within}")
 
 
 def _leg(

@@ -168,8 +168,8 @@ class Admission:
                 if plan and self.separation_m > 0 and len(targets) > 1:
                     name = (
                         f"the {self.separation_m:g} m about the path planned for "
-                        f"{state.vehicle_id} (vehicles sent together keep FLEET_SEPARATION_M "
-                        "apart: give each its own waypoints)"
+                        f"{state.vehicle_id} (vehicles sent together keep that far apart: "
+                        "give each its own waypoints, or send them one at a time)"
                     )
                     way = [start, *route] if start is not None else route
                     planned.append(corridor(way, self.separation_m, name))

@@ -88,7 +88,7 @@ def test_a_vehicle_starting_inside_a_radius_may_leave_it() -> None:
 
 
 def test_a_waypoint_within_the_radius_of_a_vehicle_cannot_be_planned() -> None:
-    with pytest.raises(NoPath, match="waypoint 0"):
+    with pytest.raises(NoPath, match="waypoint 1"):
         plan_path(ORIGIN, [at(100, 0)], [Obstacle(*at(102, 0), 5, "usv-9")])
 
 

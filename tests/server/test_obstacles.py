@@ -210,4 +210,4 @@ async def test_a_waypoint_inside_a_created_obstacle_is_422(w: World) -> None:
     error = r.json()["error"]
     assert error["code"] == "invalid"
     assert "pier 3" in error["message"]
-    assert "waypoint 0" in error["message"]
+    assert "waypoint 1" in error["message"]
