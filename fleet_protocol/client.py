@@ -103,6 +103,9 @@ class QueuedCommand(WireModel):
 
 class SubmitControlResult(WireModel):
     commands: list[QueuedCommand]
+    #: (**extension**) What the submit does that its sender may not have meant, in words:
+    #: several vehicles sent to one point, or along one path not planned, meet there.
+    warnings: list[Text] = Field(default_factory=list)
 
 
 class GetFbMessageResult(WireModel):

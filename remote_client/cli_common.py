@@ -180,3 +180,5 @@ def print_queued(data: dict[str, Any], as_json: bool) -> None:
         return
     for c in data["commands"]:
         console.print(f"{c['instance_id']}: {c['command_id']} {c['status']}", highlight=False)
+    for warning in data.get("warnings") or []:
+        errors.print(f"warning: {warning}", style="yellow", markup=False, highlight=False)

@@ -24,7 +24,7 @@ InstanceId = Annotated[str, Query(min_length=1, max_length=64)]
 async def submit_control(
     body: SubmitControl, user: Operator, s: ServicesDep
 ) -> SubmitControlResult:
-    return SubmitControlResult.model_validate({"commands": await s.commands.submit(user, body)})
+    return SubmitControlResult.model_validate(await s.commands.submit(user, body))
 
 
 @router.get("/client/get_fbmessage")

@@ -110,7 +110,9 @@ class CommandService(CommandLanes):
             self._seq = max(self._seq, cmd.seq)
 
     # ---- operators ------------------------------------------------------------
-    async def submit(self, principal: Principal, body: SubmitControl) -> list[dict[str, Any]]:
+    async def submit(self, principal: Principal, body: SubmitControl) -> dict[str, Any]:
+        """The commands queued, one per target, all or nothing; ``warnings``: what the
+        operator may not have meant (several vehicles sent to meet at one point)."""
         now = self.clock()
         admission = self.admission
         targets, refusals = await admission.targets(principal, body.instance_ids)
@@ -162,10 +164,19 @@ class CommandService(CommandLanes):
             await self._audit(cmd, principal, args=cmd.args)
         for gone in superseded:
             await self._finished(gone)
-        return [
+        queued = [
             {"instance_id": c.instance_id, "command_id": c.command_id, "status": "queued"}
             for c in made
         ]
+        spec = body.command
+        meet = life.shared_target(spec.type, spec.args, len(made), self.settings.separation_m)
+        warnings = [meet] if meet else []
+        expires = made[0].expires_at if made else now
+        for _, state in targets:
+            presence = self.instances.presence(state)
+            if presence not in ("online", "finished"):
+                warnings.append(life.out_of_reach(state.name, presence, state.last_seen, expires))
+        return {"commands": queued, "warnings": warnings}
 
     async def cancel(self, principal: Principal, command_id: str) -> Command:
         cmd = await self._find(command_id)

@@ -208,6 +208,16 @@ async def test_many_instances_each_get_their_own_command(w: World) -> None:
     assert len(set(ids.values())) == 2
     for v in (a, b):
         assert [c["command_id"] for c in await w.poll(v)] == [ids[v.instance_id]]
+    # queued, as asked, and said: two boats sent to one point meet there
+    [meet] = r.json()["warnings"]
+    assert meet.startswith("2 vehicles sent to one point") and "10 m of each other" in meet
+    alone = await w.submit(op, [a], GO_TO)
+    assert alone.json()["warnings"] == []
+    w.clock.advance(30)  # neither heard from since: offline
+    late = (await w.submit(op, [a], GO_TO)).json()
+    assert late["commands"][0]["status"] == "queued"
+    [waits] = late["warnings"]
+    assert "is offline" in waits and "expires if it is not back" in waits
 
 
 async def test_stop_to_star_reaches_every_vehicle_the_caller_sees(w: World) -> None:
