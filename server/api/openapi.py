@@ -26,6 +26,14 @@ ERROR_STATUSES = {
     "503": "The store or the server is not ready; see Retry-After",
 }
 _REF = {"$ref": "#/components/schemas/ErrorEnvelope"}
+#: The operations any caller may make without a token (API.md, "Auth").
+OPEN_PATHS = frozenset({"/healthz", "/readyz", "/metrics", "/auth/token"})
+_BEARER = {
+    "type": "http",
+    "scheme": "bearer",
+    "description": "an API token (fct_...: printed by a fresh server, or made by an admin) "
+    "or a session's access_token from POST /auth/token",
+}
 
 
 def document_errors(schema: dict[str, Any]) -> dict[str, Any]:
@@ -36,10 +44,12 @@ def document_errors(schema: dict[str, Any]) -> dict[str, Any]:
     )
     for name, sub in components["ErrorEnvelope"].pop("$defs", {}).items():
         components.setdefault(name, sub)
-    for item in schema.get("paths", {}).values():
+    schema["components"].setdefault("securitySchemes", {})["bearer"] = _BEARER
+    for path, item in schema.get("paths", {}).items():
         for operation in item.values():
             if not isinstance(operation, dict) or "responses" not in operation:
                 continue
+            operation["security"] = [] if path in OPEN_PATHS else [{"bearer": []}]
             responses = operation["responses"]
             for status, description in ERROR_STATUSES.items():
                 responses[status] = {

@@ -73,3 +73,15 @@ async def test_no_page_here_may_be_framed_and_the_console_runs_only_its_own_scri
     policy = (await web.get("/")).headers["content-security-policy"]
     assert "script-src 'self';" in policy and "connect-src 'self'" in policy
     assert "script-src" not in (await web.get("/docs")).headers["content-security-policy"]
+
+
+async def test_the_document_says_every_call_but_the_open_ones_takes_a_bearer_token(
+    web: httpx.AsyncClient,
+) -> None:
+    """So Swagger UI offers Authorize and its Try it out sends the token."""
+    doc = (await web.get("/openapi.json")).json()
+    assert doc["components"]["securitySchemes"]["bearer"]["scheme"] == "bearer"
+    assert doc["paths"]["/api/vehicles"]["get"]["security"] == [{"bearer": []}]
+    assert doc["paths"]["/upper/update_param"]["post"]["security"] == [{"bearer": []}]
+    assert doc["paths"]["/healthz"]["get"]["security"] == []
+    assert doc["paths"]["/auth/token"]["post"]["security"] == []
