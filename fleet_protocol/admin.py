@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from typing import Annotated, Literal
 
 from pydantic import AfterValidator, ConfigDict, Field, StrictBool
@@ -41,8 +42,17 @@ Role = Literal["viewer", "operator", "manager", "admin"]
 ROLE_RANK = {"viewer": 0, "operator": 1, "manager": 2, "admin": 3}
 
 
+def _not_a_server_id(vehicle_id: str) -> str:
+    if re.fullmatch(r"[icr]-[0-9a-f]{16}", vehicle_id):
+        raise ValueError(
+            "shaped like an id the server gives (i-: an instance, c-: a command, r-: a "
+            "request), which it would hide wherever either may be named: choose another"
+        )
+    return vehicle_id
+
+
 class CreateVehicle(WireModel):
-    vehicle_id: Identifier
+    vehicle_id: Annotated[Identifier, AfterValidator(_not_a_server_id)]
     name: Label = Field(default="", max_length=128)
     vehicle_type: Label = Field(default="usv", min_length=1, max_length=32)
 

@@ -257,3 +257,16 @@ async def test_a_misspelt_field_of_a_user_patch_is_422_naming_it(
     r = await client.patch(f"/api/users/{name}", headers=ADMIN, json={"role": "admin", "x": 1})
     assert r.status_code == 422
     assert (await client.get(f"/api/users/{name}", headers=ADMIN)).json()["role"] == "operator"
+
+
+async def test_a_vehicle_id_shaped_like_an_instance_id_is_refused(
+    client: httpx.AsyncClient,
+) -> None:
+    """It would hide the instance wherever a vehicle or an instance may be named."""
+    for vehicle_id in ("i-b84740e66ecaca9c", "c-0123456789abcdef"):
+        body = {"vehicle_id": vehicle_id, "name": "x", "vehicle_type": "usv"}
+        r = await client.post("/api/vehicles", headers=ADMIN, json=body)
+        assert r.status_code == 422, r.text
+        assert r.json()["error"]["details"][0]["field"] == "vehicle_id"
+    body = {"vehicle_id": "i-boat", "name": "x", "vehicle_type": "usv"}  # not the shape
+    assert (await client.post("/api/vehicles", headers=ADMIN, json=body)).status_code == 201
