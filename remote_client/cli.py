@@ -22,6 +22,7 @@ from remote_client.cli_common import (
     JsonOpt,
     ServerOpt,
     TokenOpt,
+    between,
     dump,
     fail,
     finite,
@@ -58,8 +59,8 @@ VehicleArg = typer.Argument(..., help="vehicle id or name (its current instance)
 VehiclesArg = typer.Argument(..., help="vehicle ids or names, or instance ids")
 #: Negative coordinates (-33.9) are arguments, not unknown options.
 COORDINATES = {"ignore_unknown_options": True}
-TtlOpt = typer.Option(30, help="seconds the order stays valid")
-SpeedOpt = typer.Option(None, callback=finite, help="m/s")
+TtlOpt = typer.Option(30, callback=between(1, 3600), help="seconds the order stays valid (1-3600)")
+SpeedOpt = typer.Option(None, callback=between(0, 50, above=True), help="m/s (above 0, at most 50)")
 
 
 @app.command()
@@ -108,7 +109,7 @@ def station(
         None, callback=longitude, help="degrees; none: where the vehicle is"
     ),
     radius: float | None = typer.Option(
-        None, callback=finite, help="metres (the server's default: 2)"
+        None, callback=between(0, 10_000, above=True), help="metres (the server's default: 2)"
     ),
     ttl: int = TtlOpt,
     server: str = ServerOpt,

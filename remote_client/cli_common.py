@@ -107,6 +107,26 @@ def finite(param: typer.CallbackParam, value: float | None) -> float | None:
     return value
 
 
+def between(
+    low: float, high: float, *, above: bool = False
+) -> Callable[[typer.CallbackParam, float | None], float | None]:
+    """The callback of a number from ``low`` (or above it, ``above``) to ``high``, as the
+    server takes it: refused here, exit 2, before anything is sent."""
+
+    def check(param: typer.CallbackParam, value: float | None) -> float | None:
+        finite(param, value)
+        if value is None:
+            return None
+        name = _shown_name(param)
+        if value <= low if above else value < low:
+            fail(f"{name} is {'above' if above else 'at least'} {low:g}, not {value:g}")
+        if value > high:
+            fail(f"{name} is at most {high:g}, not {value:g}")
+        return value
+
+    return check
+
+
 def latitude(param: typer.CallbackParam, value: float | None) -> float | None:
     """A latitude argument: from -90 to 90 (refused here, before anything is sent)."""
     finite(param, value)
@@ -160,9 +180,14 @@ def window(
     """``--since`` / ``--until`` as the wire's times (one ``now`` for both)."""
     now = now or datetime.now(UTC)
     try:
-        return when_text(since, now), when_text(until, now)
+        start, end = when_text(since, now), when_text(until, now)
     except BadTime as exc:
         fail(str(exc))
+    if start is not None and end is not None and start >= end:  # one format: text order
+        fail(
+            f"the window is empty: --since {since} ({start}) is not before --until {until} ({end})"
+        )
+    return start, end
 
 
 def say(data: Any, as_json: bool, text: str) -> None:

@@ -65,6 +65,12 @@ def test_a_float_that_is_not_finite_is_refused_before_anything_is_sent(
         (("path", "Alpha", "43.94,15", "95,15"), "'95,15'"),
         (("failsafe", "set", "Alpha", "return_home", "--home", "43.94,200"), "--home"),
         (("events", "--kind", "bogus"), "--kind is one of instance, presence, command"),
+        (("goto", "Alpha", "43.94", "15", "--speed", "0"), "--speed is above 0"),
+        (("goto", "Alpha", "43.94", "15", "--speed", "51"), "--speed is at most 50"),
+        (("goto", "Alpha", "43.94", "15", "--ttl", "0"), "--ttl is at least 1"),
+        (("goto", "Alpha", "1", "2", "--ttl", "99999"), "--ttl is at most 3600"),
+        (("station", "Alpha", "--radius", "-1"), "--radius is above 0"),
+        (("export", "Alpha", "--since", "10m", "--until", "20m"), "the window is empty"),
     ],
 )
 def test_a_position_out_of_range_or_an_unknown_kind_is_refused_before_anything_is_sent(
