@@ -337,7 +337,10 @@ class ControlService:
         if not await self.repo.drop_lease(lease.instance_id, lease.rev):
             await self.current(lease.instance_id)
             return False
-        if self._leases.get(lease.instance_id) == lease:
+        held = self._leases.get(lease.instance_id)
+        if held is not None and (held.rev, held.holder) == (lease.rev, lease.holder):
+            # this version's copy, whatever it differs in (when its client was last heard,
+            # a time read back from the store): the fleet views read this replica's copy
             del self._leases[lease.instance_id]
         self.messages.emit_now(StateWritten(lease.instance_id, "lease"))
         self._changed(lease.instance_id, lease.vehicle_id, None)
