@@ -34,7 +34,7 @@ from remote_client.cli_common import (
     say,
 )
 from remote_client.cli_safety import alive, audit_app, failsafe_app, zones_app
-from remote_client.output import console
+from remote_client.output import console, errors
 from remote_client.sdk import FleetClient, UnknownVehicle, pick_vehicle, shown_status
 
 app = typer.Typer(
@@ -360,8 +360,16 @@ async def _vehicle_topics(fleet: FleetClient, topics: list[str]) -> list[str]:
     for topic in topics:
         if _names_a_vehicle(topic):
             head, ref, rest = topic.split("/", 2)
-            with contextlib.suppress(UnknownVehicle):
+            try:
                 ref = pick_vehicle(ref, fleet_now)["vehicle_id"]
+            except UnknownVehicle:
+                errors.print(  # an admin's watch would otherwise wait in silence
+                    f"warning: no vehicle {ref!r} among those you can see: {topic} has "
+                    "nothing to show until one registers under that id",
+                    style="yellow",
+                    markup=False,
+                    highlight=False,
+                )
             topic = f"{head}/{ref}/{rest}"
         out.append(topic)
     return out

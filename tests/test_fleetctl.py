@@ -395,3 +395,7 @@ async def test_watch_prints_a_readable_line_per_event_and_takes_names(
         assert re.fullmatch(line.format("current", vid), first), first  # the latest sample
         assert re.fullmatch(line.format(r"\d\d:\d\d:\d\dZ", vid), second), second
         assert "{" not in result.stdout  # lines for people, not JSON
+        # a vehicle nobody registered: said at once, not a silent wait
+        nothing = await _fleetctl(base, ADMIN_TOKEN, "watch", "vehicle/nosuch/telemetry",
+                                  "--seconds", "0.5")  # fmt: skip
+        assert nothing.exit_code == 0 and "no vehicle 'nosuch'" in nothing.stderr
