@@ -153,6 +153,21 @@ def corridor(route: Sequence[LatLon], width_m: float, name: str) -> Zone:
     )
 
 
+def crossed(route: Sequence[LatLon], obstacles: Sequence[Zone]) -> list[str]:
+    """The names of the obstacles the straight legs of ``route`` run into (their outline,
+    clearance aside): what a vehicle sent that way, unplanned, would meet."""
+    if not route or not obstacles:
+        return []
+    positions = [(lon, lat) for lat, lon in route]
+    line = shapely.LineString(positions) if len(positions) > 1 else shapely.Point(positions[0])
+    hit = []
+    for zone in obstacles:
+        shell, *holes = ([(lon, lat) for lat, lon in ring] for ring in zone.rings)
+        if shapely.make_valid(shapely.Polygon(shell, holes)).intersects(line):
+            hit.append(zone.name or "a fixed obstacle")
+    return hit
+
+
 def plan_path(
     start: LatLon | None,
     waypoints: Sequence[LatLon],

@@ -24,8 +24,8 @@ from server.domain import arbitration
 from server.domain import commands as life
 from server.domain.access import Principal
 from server.domain.clock import Clock
-from server.domain.planning import Zone, corridor
-from server.domain.zones import ZoneSet, command_violation, keep_out
+from server.domain.planning import Zone, corridor, crossed
+from server.domain.zones import ZoneSet, command_targets, command_violation, keep_out
 from server.errors import FleetError, InstanceFinished, NotFound, RateLimited, ZoneViolation
 from server.services.control import ControlService
 from server.services.instances import InstanceService, InstanceState
@@ -131,6 +131,29 @@ class Admission:
         lane = self.lanes.get(state.instance_id)
         if spec.type != "stop" and lane is not None and len(lane.active) >= MAX_ACTIVE_PER_INSTANCE:
             raise RateLimited(f"{MAX_ACTIVE_PER_INSTANCE} commands already wait on this instance")
+
+    async def obstacles_met(
+        self, targets: list[Target], spec: CommandSpec, args: dict[str, dict[str, Any]]
+    ) -> list[str]:
+        """For a ``go_to`` or a path not planned: each vehicle whose straight way runs into
+        a known fixed obstacle, said (the zones refuse such a way; an obstacle is the
+        planner's to go round, and a vehicle's own sensors may see it too)."""
+        if spec.type not in ("go_to", "follow_path") or spec.args.get("plan"):
+            return []
+        fixed = await self.obstacles()
+        if not fixed:
+            return []
+        out = []
+        for _, state in targets:
+            start = position_of(state)
+            way = command_targets(spec.type, args[state.instance_id])
+            hit = crossed([start, *way] if start is not None else way, fixed)
+            if hit:
+                out.append(
+                    f"{state.name}'s straight way runs into {', '.join(hit)}: a known fixed "
+                    "obstacle (a path planned with plan: true goes round it)"
+                )
+        return out
 
     async def args_for(
         self, targets: list[Target], spec: CommandSpec

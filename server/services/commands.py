@@ -172,6 +172,7 @@ class CommandService(CommandLanes):
         meet = life.shared_target(spec.type, spec.args, len(made), self.settings.separation_m)
         warnings = [meet] if meet else []
         expires = made[0].expires_at if made else now
+        warnings += await self.admission.obstacles_met(targets, spec, args_by_instance)
         for _, state in targets:
             presence = self.instances.presence(state)
             if presence not in ("online", "finished"):

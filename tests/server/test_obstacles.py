@@ -193,7 +193,9 @@ async def test_a_planned_path_goes_round_a_created_obstacle(w: World) -> None:
     op = await w.operator_in_control(me)
     goal = at(100, 0)
     command = {"type": "follow_path", "args": {"waypoints": [goal], "plan": True}}
-    path = (await w.command(await w.queued(op, me, command)))["args"]["path"]
+    r = await w.submit(op, [me], command)
+    assert r.status_code == 202 and r.json()["warnings"] == []  # planned: nothing to say
+    path = (await w.command(r.json()["commands"][0]["command_id"]))["args"]["path"]
     assert path[-1] == pytest.approx(goal)
     assert len(path) > 1  # the straight line crosses the pier: a detour
     route = shapely.LineString([(ORIGIN[1], ORIGIN[0])] + [(p["lon"], p["lat"]) for p in path])
@@ -211,3 +213,22 @@ async def test_a_waypoint_inside_a_created_obstacle_is_422(w: World) -> None:
     assert error["code"] == "invalid"
     assert "pier 3" in error["message"]
     assert "waypoint 1" in error["message"]
+
+
+async def test_a_straight_way_into_a_known_obstacle_is_queued_and_said(w: World) -> None:
+    """A go_to, or a path not planned, is the operator's to draw: queued as asked, and the
+    obstacle its straight way runs into named in the answer's warnings."""
+    await create(w.http, {"name": "pier 3", "polygon": polygon(PIER)})
+    me = await w.vehicle()
+    await w.move_to(me, 1, *ORIGIN)
+    op = await w.operator_in_control(me)
+    for command in (
+        {"type": "go_to", "args": at(100, 0)},
+        {"type": "follow_path", "args": {"waypoints": [at(100, 0)]}},
+    ):
+        r = await w.submit(op, [me], command)
+        assert r.status_code == 202, r.text
+        [warning] = r.json()["warnings"]
+        assert "runs into pier 3" in warning and "plan: true" in warning
+    clear = await w.submit(op, [me], {"type": "go_to", "args": at(0, 100)})  # north: clear
+    assert clear.json()["warnings"] == []
