@@ -10,11 +10,13 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import os
+from datetime import UTC, datetime, timedelta
 from typing import Any
 
 import typer
 from rich.table import Table
 
+from fleet_protocol import parse_ts
 from remote_client import cli_data, streams
 from remote_client.cli_admin import gateways_app, users_app, vehicles_app
 from remote_client.cli_common import (
@@ -245,7 +247,7 @@ def requests(
 def grant(
     vehicle: str = VehicleArg,
     user: str = typer.Argument(..., help="the operator to hand control to"),
-    duration: int = typer.Option(3600, help="seconds"),
+    duration: int = typer.Option(3600, callback=between(1, 86400), help="seconds (1-86400)"),
     operator_timeout: int | None = typer.Option(
         None,
         min=2,
@@ -259,6 +261,8 @@ def grant(
 ) -> None:
     """(manager) Grant remote control of a vehicle to an operator."""
 
+    asked = datetime.now(UTC) + timedelta(seconds=duration)
+
     async def act(fleet: FleetClient) -> tuple[str, dict[str, Any]]:
         instance_id = await fleet.instance_id_of(vehicle)
         return instance_id, await fleet.grant_control(
@@ -266,7 +270,10 @@ def grant(
         )
 
     instance_id, data = run(server, token, act)
-    say(data, as_json, f"{data['holder']} holds {instance_id} until {data['expires_at']}")
+    text = f"{data['holder']} holds {instance_id} until {data['expires_at']}"
+    if parse_ts(data["expires_at"]) > asked + timedelta(seconds=5):  # the lease ran longer
+        text += " (held already: a grant never shortens a lease; revoke it to end it sooner)"
+    say(data, as_json, text)
 
 
 @app.command()

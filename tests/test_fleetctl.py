@@ -88,6 +88,8 @@ async def test_missions_requests_and_the_lease_from_the_command_line(
         pending = await _fleetctl(base, ADMIN_TOKEN, "requests", iid)
         assert pending.exit_code == 0 and "piet" in pending.stdout
         assert (await _fleetctl(base, ADMIN_TOKEN, "grant", iid, "piet")).exit_code == 0
+        shorter = await _fleetctl(base, ADMIN_TOKEN, "grant", iid, "piet", "--duration", "60")
+        assert shorter.exit_code == 0 and "a grant never shortens a lease" in shorter.stdout
 
         held = await _fleetctl(base, op_token, "station", iid, "--radius", "5", "--json")
         assert held.exit_code == 0, held.output
