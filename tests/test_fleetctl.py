@@ -60,7 +60,9 @@ async def test_an_operator_lists_is_refused_then_granted_and_commands(
         assert local.exit_code == 2 and "LAT is a latitude" in local.stderr  # nothing sent
         bad = await _fleetctl(base, op_token, "goto", iid, "43.9", "15.45", "--speed", "60")
         assert bad.exit_code == 2 and "--speed is at most 50" in bad.stderr  # nor this
-        assert "command.args.speed_mps" in bad.stderr  # each detail on its own line
+        long = await _fleetctl(base, op_token, "path", iid, *["43.9,15.45"] * 1001)
+        assert long.exit_code == 1 and "422 invalid" in long.stderr  # the server's refusal
+        assert "command.args.waypoints" in long.stderr  # each detail on its own line
 
         everyone = await _fleetctl(base, ADMIN_TOKEN, "stop", "--json")
         assert everyone.exit_code == 0, everyone.output
