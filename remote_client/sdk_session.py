@@ -13,24 +13,41 @@ __all__ = ["Body", "FleetApiError", "Session", "given"]
 
 
 class FleetApiError(Exception):
-    """The server refused a call: its HTTP status and the contract's error envelope."""
+    """The server refused a call: its HTTP status and the contract's error envelope, and
+    when to try again (``retry_after_s``: its ``Retry-After`` on a 429 or a 503)."""
 
     def __init__(
-        self, status: int, code: str, message: str, details: list[dict[str, Any]] | None = None
+        self,
+        status: int,
+        code: str,
+        message: str,
+        details: list[dict[str, Any]] | None = None,
+        retry_after_s: float | None = None,
     ) -> None:
         super().__init__(f"{status} {code}: {message}")
         self.status = status
         self.code = code
         self.message = message
         self.details = details or []
+        self.retry_after_s = retry_after_s
 
     @classmethod
     def of(cls, response: httpx.Response) -> FleetApiError:
         try:
+            retry_after_s: float | None = float(response.headers["retry-after"])
+        except (KeyError, ValueError):
+            retry_after_s = None
+        try:
             error = response.json()["error"]
-            return cls(response.status_code, error["code"], error["message"], error.get("details"))
+            return cls(
+                response.status_code,
+                error["code"],
+                error["message"],
+                error.get("details"),
+                retry_after_s,
+            )
         except (ValueError, KeyError, TypeError):
-            return cls(response.status_code, "http_error", response.text[:500])
+            return cls(response.status_code, "http_error", response.text[:500], None, retry_after_s)
 
 
 class Session:
@@ -62,8 +79,12 @@ class Session:
             await self._http.aclose()
 
     async def call(self, method: str, path: str, **kwargs: Any) -> Any:
-        """Any route of the contract: its JSON answer, or :class:`FleetApiError`."""
-        response = await self._http.request(method, path, headers=self._headers, **kwargs)
+        """Any route of the contract: its JSON answer, or :class:`FleetApiError`. A body
+        JSON cannot carry (NaN, an infinity) is refused here as the server would: 422."""
+        try:
+            response = await self._http.request(method, path, headers=self._headers, **kwargs)
+        except ValueError as exc:  # httpx's JSON encoder: "Out of range float values..."
+            raise FleetApiError(422, "invalid", f"not sent: {exc}") from None
         if response.status_code >= 400:
             raise FleetApiError.of(response)
         return response.json()

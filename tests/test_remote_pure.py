@@ -10,10 +10,18 @@ import xml.etree.ElementTree as ET
 from datetime import UTC, datetime, timedelta
 from typing import Any
 
+import httpx
 import pytest
 
 from remote_client.lines import event_lines
-from remote_client.sdk import AmbiguousName, UnknownVehicle, pick_vehicle, shown_status
+from remote_client.sdk import (
+    AmbiguousName,
+    FleetApiError,
+    FleetClient,
+    UnknownVehicle,
+    pick_vehicle,
+    shown_status,
+)
 from remote_client.times import BadTime, parse_when, when_text
 from remote_client.tracks import GPX_NS, TrackJoiner, plot_png
 
@@ -207,3 +215,19 @@ def test_a_plot_is_a_png() -> None:
     empty = io.BytesIO()
     plot_png([], "nothing", empty)  # an empty window still plots (and says so)
     assert empty.getvalue().startswith(b"\x89PNG")
+
+
+async def test_a_refusal_says_when_to_try_again() -> None:
+    """A 429 or a 503 carries Retry-After: the SDK's error keeps it for the caller."""
+
+    def busy(request: httpx.Request) -> httpx.Response:
+        body = {"error": {"code": "rate_limited", "message": "slow down", "details": None}}
+        return httpx.Response(429, json=body, headers={"Retry-After": "7"})
+
+    async with httpx.AsyncClient(
+        transport=httpx.MockTransport(busy), base_url="http://fleet.test"
+    ) as http:
+        with pytest.raises(FleetApiError) as refused:
+            await FleetClient("http://fleet.test", "fct_x", client=http).vehicles()
+    assert (refused.value.status, refused.value.retry_after_s) == (429, 7.0)
+    assert refused.value.details == []

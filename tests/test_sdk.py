@@ -57,6 +57,9 @@ async def test_missions_and_control_through_the_sdk(client: httpx.AsyncClient) -
     assert [r["request_id"] for r in pending] == [request["request_id"]]
     assert (await admin.grant_control(iid, "ines", 600))["holder"] == "ines"
 
+    with pytest.raises(FleetApiError) as not_a_number:  # JSON cannot carry it: not sent
+        await ines.go_to(iid, float("nan"), -15.4)
+    assert (not_a_number.value.status, not_a_number.value.code) == (422, "invalid")
     went = (await ines.go_to(iid, -33.9, -15.4, speed_mps=2.0))["commands"][0]
     held = (await ines.keep_station([iid], radius_m=4.0))["commands"][0]
     path = await ines.follow_path(iid, [(43.941, 15.441), (43.942, 15.442)], speed_mps=1.0)
