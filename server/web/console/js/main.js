@@ -6,7 +6,7 @@ import { Api, login, saveToken, savedToken } from "./api.js";
 import { Fleet, TRAIL_MINUTES, isFinal, topicsOf } from "./fleet.js";
 import { LiveLink } from "./live.js";
 import { ControlPanel, FleetTable, VehiclePanel } from "./panels.js";
-import { ago, clock, confirmAction, h, toast, until, zoneText } from "./ui.js";
+import { ago, clock, confirmAction, h, readNumber, toast, until, zoneText } from "./ui.js";
 
 const $ = (id) => document.getElementById(id);
 const PHONE = window.matchMedia("(max-width: 760px)");
@@ -377,29 +377,27 @@ class Console {
   }
 
   /** The speed option: {} when left empty (the vehicle's own), ``{speed_mps}``, or null
-   * (said in a toast) when it is out of the field's range: nothing is sent then. */
+   * (said in a toast) when it is not a plain number in the field's range: nothing is sent
+   * then. */
   speedArg() {
     const field = $("opt-speed");
-    if (field.value.trim() === "") return {};
-    const speed = parseFloat(field.value);
-    if (!Number.isFinite(speed) || speed < +field.min || speed > +field.max) {
-      toast(`speed is ${field.min} to ${field.max} m/s, or empty for the vehicle's own`, "error");
-      field.focus();
-      return null;
-    }
-    return { speed_mps: speed };
+    const got = readNumber(field, { what: "speed", unit: "m/s", optional: "the vehicle's own" });
+    if (got.error) return this.badNumber(field, got.error);
+    return got.value === undefined ? {} : { speed_mps: got.value };
   }
 
-  /** The station radius in metres, or null (said in a toast) when out of its range. */
+  /** The station radius in metres, or null (said in a toast) when it is not a plain
+   * number in its range. */
   radius() {
     const field = $("opt-radius");
-    const r = parseFloat(field.value);
-    if (!Number.isFinite(r) || r < +field.min || r > +field.max) {
-      toast(`station radius is ${field.min} to ${field.max} m`, "error");
-      field.focus();
-      return null;
-    }
-    return r;
+    const got = readNumber(field, { what: "station radius", unit: "m" });
+    return got.error ? this.badNumber(field, got.error) : got.value;
+  }
+
+  badNumber(field, error) {
+    toast(error, "error");
+    field.focus();
+    return null;
   }
 
   async sendPath() {

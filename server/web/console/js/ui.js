@@ -74,6 +74,38 @@ export function toast(message, kind = "info", action = null) {
   return item;
 }
 
+/**
+ * A number as a person types it: digits with at most one decimal point, or a decimal
+ * comma read as one ("0,3" is 0.3, whatever the browser's language). Anything else (an
+ * exponent, a second separator, a unit, "Infinity") is not a number here: null.
+ */
+export function parseDecimal(text) {
+  const s = String(text ?? "").trim();
+  if (!/^[+-]?(\d+([.,]\d*)?|[.,]\d+)$/.test(s)) return null;
+  const x = Number(s.replace(",", "."));
+  return Number.isFinite(x) ? x : null;
+}
+
+/**
+ * A numeric field read for a command (``type="text" inputmode="decimal"``, its range in
+ * ``data-min`` and ``data-max``): ``{ value }`` (``value`` undefined when it is empty and
+ * ``optional``), or ``{ error }`` saying what it takes, and nothing may be sent then.
+ * ``what`` names it, ``unit`` its unit, ``optional`` what an empty field means.
+ */
+export function readNumber(field, { what, unit, optional = null }) {
+  const min = +field.dataset.min;
+  const max = +field.dataset.max;
+  const typed = field.value.trim();
+  if (typed === "" && optional) return { value: undefined };
+  const takes = `${what} is ${min} to ${max} ${unit}${optional ? `, or empty for ${optional}` : ""}`;
+  const value = parseDecimal(typed);
+  if (value === null) {
+    return { error: `${takes}: "${typed}" is not a plain number (a decimal point or comma); nothing sent` };
+  }
+  if (value < min || value > max) return { error: `${takes} (not ${value}); nothing sent` };
+  return { value };
+}
+
 const ARM_MS = 800;
 
 /**

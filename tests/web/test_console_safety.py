@@ -1,0 +1,77 @@
+"""The console's safeguards, in a real browser (as test_console): what is typed in a number
+field is read as the person meant it or refused, a double click does not act twice nor on
+a button that appeared under the pointer, control changes hands only when asked twice and
+its former holder is told, a vehicle out of reach does not look busy, and a phone's header
+says who is logged in. A world of its own (the module's), in file order: ana holds every
+vehicle at the start."""
+
+from __future__ import annotations
+
+import re
+from typing import Any
+
+import pytest
+from playwright.sync_api import expect
+
+from tests.agent.procs import wait_until
+from tests.web.conftest import Shots, World, no_requests
+from tests.web.test_console import (
+    centre_on,
+    log_in,
+    marker,
+    newest_command,
+    position,
+    screen_point,
+)
+from vehicle_client.geo import LocalFrame, distance_m
+
+pytestmark = [pytest.mark.slow, pytest.mark.browser]
+
+
+def test_a_decimal_comma_is_a_point_and_anything_else_is_refused(
+    world: World, open_console: Any, shots: Shots
+) -> None:
+    """Chromium in English dropped the comma of "0,3" in a number field: the go_to went at
+    3 m/s. "1e400" became an empty field, sent as the vehicle's own speed."""
+    page, guard = open_console()
+    log_in(page, "ana")
+    vehicle = "demo-usv-2"
+    start = position(world, vehicle)
+    centre_on(page, start["lat"], start["lon"], 19)
+    marker(page, vehicle).click()
+    target = LocalFrame(start["lat"], start["lon"]).to_latlon(4.0, 6.0)
+    speed, radius = page.locator("#opt-speed"), page.locator("#opt-radius")
+    toasts = page.locator("#toasts")
+    page.click('[data-tool="go_to"]')
+    with no_requests(guard):
+        for typed in ("1e400", "0x3", "1,5.2", "2 m/s", "Infinity"):
+            speed.fill("")
+            speed.press_sequentially(typed)  # as a person types it
+            page.mouse.click(*screen_point(page, *target))
+            expect(toasts).to_contain_text(f'"{typed}" is not a plain number')
+        expect(page.locator("#tool-hint")).to_be_visible()  # the tool waits for a good one
+        speed.fill("")
+        speed.press_sequentially("25")
+        page.mouse.click(*screen_point(page, *target))
+        expect(toasts).to_contain_text("speed is 0.1 to 20 m/s, or empty for the vehicle's own")
+        radius.fill("")
+        radius.press_sequentially("-5")
+        page.click("#hold")
+        expect(toasts).to_contain_text("station radius is 1 to 500 m (not -5)")
+    shots(page, "refused")
+    speed.fill("")
+    speed.press_sequentially("0,3")
+    page.mouse.click(*screen_point(page, *target))
+    sent = wait_until(lambda: newest_command(world, vehicle, "go_to"), "the go_to")
+    assert sent["args"]["speed_mps"] == 0.3, sent["args"]
+    assert distance_m(sent["args"]["lat"], sent["args"]["lon"], *target) < 0.5
+    radius.fill("")
+    radius.press_sequentially("2,5")
+    page.click("#hold")
+
+    def hold() -> dict[str, Any] | None:
+        c = newest_command(world, vehicle, "keep_station")
+        return c if c and "lat" not in c["args"] else None
+
+    assert wait_until(hold, "Hold here")["args"] == {"radius_m": 2.5}
+    shots(page, "sent")
