@@ -20,6 +20,7 @@ from tests.web.test_console import (
     log_in,
     marker,
     newest_command,
+    next_frames,
     position,
     screen_point,
 )
@@ -75,3 +76,58 @@ def test_a_decimal_comma_is_a_point_and_anything_else_is_refused(
 
     assert wait_until(hold, "Hold here")["args"] == {"radius_m": 2.5}
     shots(page, "sent")
+
+
+def test_a_double_click_on_a_fleet_row_does_not_release_control(
+    world: World, open_console: Any, shots: Shots
+) -> None:
+    """The row's first click opened the Vehicle tab, whose Release button came up under the
+    pointer, and the second click released control. Now the rest of that double click is
+    dropped, and Release asks first anyway (as Revoke)."""
+    page, guard = open_console()
+    log_in(page, "ana")
+    release = page.locator("#vehicle-pane button", has_text="Release")
+    marker(page, "demo-usv-3").click()  # where its Vehicle tab has Release
+    box = box_of(release)
+    x, y = box["x"] + box["width"] / 2, box["y"] + box["height"] / 2
+    page.click('[data-tab="fleet"]')
+    vehicle = page.evaluate(
+        "([x, y]) => document.elementFromPoint(x, y).closest('tr[data-vehicle]').dataset.vehicle",
+        [x, y],
+    )  # the fleet row at that point (a vehicle ana holds, as every one)
+    instance = world.instances[vehicle]
+    page.mouse.click(x, y)  # the double click's first click: the row's Vehicle tab opens
+    expect(page.locator('.tabs [data-tab="vehicle"]')).to_have_attribute("aria-selected", "true")
+    now = box_of(release)
+    assert now["x"] < x < now["x"] + now["width"] and now["y"] < y < now["y"] + now["height"]
+    page.mouse.down(click_count=2)  # its second, on the Release now under the pointer
+    page.mouse.up(click_count=2)
+    next_frames(page)
+    expect(page.locator("#confirm")).to_be_hidden()
+    assert not [r for r in guard.requests if "/client/release_control" in r]
+    shots(page, "after-double-click")
+    release.click()  # meant: it asks first
+    expect(page.locator("#confirm-title")).to_have_text(
+        re.compile(r"^Release your control of H2OmniX \w+\?$")
+    )
+    page.locator("#confirm-cancel").click()
+    expect(page.locator("#confirm")).to_be_hidden()
+    assert not [r for r in guard.requests if "/client/release_control" in r]
+    assert lease_of(world, instance)["holder"] == "ana"
+    release.click()
+    ok = page.locator("#confirm-ok")
+    expect(ok).to_be_enabled()
+    ok.click()
+    expect(page.locator("#vehicle-pane .control-line")).to_contain_text("nobody holds control")
+    assert lease_of(world, instance) is None
+
+
+def lease_of(world: World, instance: str) -> Any:
+    body = {"instance_id": instance}
+    return world.fleet.call("POST", "/client/connect_instance", json=body)["instance"]["control"]
+
+
+def box_of(locator: Any) -> dict[str, float]:
+    """Where it is on the page (a panel drawn again on every sample replaces its buttons:
+    one may be gone between finding and measuring it)."""
+    return wait_until(locator.bounding_box, "it to be shown", 15)

@@ -10,6 +10,7 @@ import { ago, clock, confirmAction, h, readNumber, toast, until, zoneText } from
 
 const $ = (id) => document.getElementById(id);
 const PHONE = window.matchMedia("(max-width: 760px)");
+const SETTLE_MS = 1000; // after a tab switch, how long the rest of its multiple click is dropped
 
 // ---- logging in ----------------------------------------------------------------------
 
@@ -281,11 +282,28 @@ class Console {
     for (const b of document.querySelectorAll("[data-tab]")) {
       b.addEventListener("click", () => this.showTab(b.dataset.tab));
     }
+    // A tab switch never acts on the click that caused it: a double click on a fleet row
+    // opened the Vehicle tab with its first click, and its second landed on the Release
+    // button that had just appeared under the pointer. The rest of a multiple click
+    // (detail 2, 3, ...) that lands in the pane a click has just shown is dropped.
+    window.addEventListener("click", (e) => {
+      const s = this.switched;
+      if (s && e.detail > 1 && e.timeStamp - s.at < SETTLE_MS && s.pane.contains(e.target)) {
+        e.stopPropagation();
+        e.preventDefault();
+      }
+      this.clicking = e; // a tab shown while this click is handled was shown by it
+    }, true);
+    window.addEventListener("click", () => { this.clicking = null; });
     this.showTab(PHONE.matches ? "map" : "fleet");
     PHONE.addEventListener("change", () => this.map.map.invalidateSize());
   }
 
   showTab(tab) {
+    if (this.clicking && this.app.dataset.tab !== tab) {
+      const pane = tab === "map" ? $("map-pane") : document.querySelector(`.side [data-pane="${tab}"]`);
+      if (pane) this.switched = { at: this.clicking.timeStamp, pane };
+    }
     this.app.dataset.tab = tab;
     for (const b of document.querySelectorAll("[data-tab]")) {
       b.setAttribute("aria-selected", String(b.dataset.tab === tab));
@@ -503,8 +521,18 @@ class Console {
     }
   }
 
+  /** Give up control, after a confirmation (as Revoke): the vehicle holds station, and
+   * commanding it again takes a new grant. */
   async releaseControl(id) {
     const v = this.fleet.vehicles.get(id);
+    const name = v.view.name || id;
+    const ok = await confirmAction({
+      title: `Release your control of ${name}?`,
+      text: `${name} holds station at once; the commands you queued and it has not begun are ` +
+        "cancelled. To command it again you ask for control.",
+      confirm: "Release",
+    });
+    if (!ok) return;
     try {
       await this.api.post("/client/release_control", { instance_id: v.view.instance_id });
       toast(`control of ${v.view.name || id} released`, "ok");
