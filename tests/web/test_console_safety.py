@@ -120,6 +120,53 @@ def test_a_double_click_on_a_fleet_row_does_not_release_control(
     ok.click()
     expect(page.locator("#vehicle-pane .control-line")).to_contain_text("nobody holds control")
     assert lease_of(world, instance) is None
+    world.fleet.grant(instance, "ana")  # as it was, for the tests that follow
+
+
+def test_control_given_over_its_holder_asks_first_and_the_holder_is_told(
+    world: World, open_console: Any, shots: Shots
+) -> None:
+    """A grant to someone while another holds the vehicle ends the holder's lease: the
+    manager is asked first (it happened silently), and the holder is told (nothing said)."""
+    instance = world.instances["demo-usv-1"]
+    holder, _ = open_console()
+    log_in(holder, "ana")
+    page, guard = open_console()
+    log_in(page, "mia")
+    world.as_user("ben", "POST", "/client/request_control", json={"instance_id": instance})
+    page.click('[data-tab="control"]')
+    card = page.locator('form.request[data-user="ben"][data-vehicle="demo-usv-1"]')
+    title, text = page.locator("#confirm-title"), page.locator("#confirm-text")
+    card.locator("button[type=submit]").click()
+    expect(title).to_have_text("Give control of H2OmniX Alpha to ben?")
+    asked = r"^ana holds H2OmniX Alpha until \d\d:\d\d:\d\d; give control to ben instead\? "
+    expect(text).to_have_text(re.compile(asked))
+    shots(page, "asked")
+    page.locator("#confirm-cancel").click()
+    expect(page.locator("#confirm")).to_be_hidden()
+    assert not [r for r in guard.requests if "/client/grant_control" in r]
+    assert lease_of(world, instance)["holder"] == "ana"
+    card.locator("button[type=submit]").click()
+    ok = page.locator("#confirm-ok")
+    expect(ok).to_be_enabled()
+    ok.click()
+    expect(page.locator('li.lease[data-vehicle="demo-usv-1"]')).to_contain_text("ben until")
+    assert lease_of(world, instance)["holder"] == "ben"
+    told = "control of H2OmniX Alpha passed to ben (granted by mia); it holds station"
+    expect(holder.locator("#toasts")).to_contain_text(told)
+    shots(holder, "holder-told")
+    # the form that grants to anyone asks as well
+    form = page.locator("details.grant")
+    form.locator("summary").click()
+    form.locator("select[name=vehicle]").select_option("demo-usv-2")
+    form.locator("input[name=user]").fill("ben")
+    form.locator("button[type=submit]").click()
+    expect(title).to_have_text("Give control of H2OmniX Bravo to ben?")
+    expect(text).to_have_text(re.compile(asked.replace("Alpha", "Bravo")))
+    page.locator("#confirm-cancel").click()
+    expect(page.locator("#confirm")).to_be_hidden()
+    assert lease_of(world, world.instances["demo-usv-2"])["holder"] == "ana"
+    world.fleet.grant(instance, "ana")
 
 
 def lease_of(world: World, instance: str) -> Any:

@@ -429,6 +429,8 @@ export class ControlPanel {
     }
     if (event.kind === "control_request" && this.managed(id) && by !== me) {
       toast(`${by} asks for control of ${name}: see Control`, "info");
+    } else if (event.kind === "control_grant" && d.replaces === me && d.holder !== me && by !== me) {
+      toast(`control of ${name} passed to ${d.holder} (granted by ${by}); it holds station`, "error");
     } else if (event.kind === "control_grant" && d.holder === me && by !== me) {
       toast(`you now hold control of ${name} (granted by ${by})`, "ok");
     } else if (event.kind === "control_deny" && d.user === me) {
@@ -643,6 +645,7 @@ export class ControlPanel {
   }
 
   async grant(instanceId, user, durationS, operatorTimeoutS = 0) {
+    if (!(await this.mayTakeOver(instanceId, user))) return;
     try {
       const body = { instance_id: instanceId, user, duration_s: durationS };
       if (operatorTimeoutS) body.operator_timeout_s = operatorTimeoutS;
@@ -654,6 +657,22 @@ export class ControlPanel {
       toast(`grant refused: ${e.explain ? e.explain() : e.message}`, "error");
     }
     this.loadRequests();
+  }
+
+  /** A grant to someone while another holds the vehicle ends that lease: asked first. */
+  async mayTakeOver(instanceId, user) {
+    const v = this.vehicleOf(instanceId);
+    const c = v && v.control;
+    if (!c || c.holder === user || !(Date.parse(c.expires_at) > Date.now())) return true;
+    const name = v.view.name || v.id;
+    const holder = holderText(c, this.ctx.me);
+    return confirmAction({
+      title: `Give control of ${name} to ${user}?`,
+      text: `${holder} ${holder === "you" ? "hold" : "holds"} ${name} until ${clock(c.expires_at)}; ` +
+        `give control to ${user} instead? ${holder === "you" ? "Your" : `${c.holder}'s`} commands ` +
+        `it has not begun are cancelled and ${name} holds station.`,
+      confirm: `Give it to ${user}`,
+    });
   }
 
   async deny(instanceId, user, name) {
