@@ -178,3 +178,31 @@ def box_of(locator: Any) -> dict[str, float]:
     """Where it is on the page (a panel drawn again on every sample replaces its buttons:
     one may be gone between finding and measuring it)."""
     return wait_until(locator.bounding_box, "it to be shown", 15)
+
+
+def test_a_double_click_sends_once(world: World, open_console: Any, shots: Shots) -> None:
+    """A double click on Request control asked twice, and one on a request card's Grant
+    granted twice: a button that sends a call is disabled while the call is in flight."""
+    vehicle, instance = "demo-usv-3", world.instances["demo-usv-3"]
+    world.fleet.call("POST", "/client/revoke_control", json={"instance_id": instance})
+    operator, asked = open_console()
+    log_in(operator, "ben")
+    marker(operator, vehicle).click()
+    panel = operator.locator("#vehicle-pane")
+    panel.locator("button", has_text="Request control").dblclick()
+    expect(panel.locator("button", has_text="Requested…")).to_be_disabled()
+    assert calls(asked, "/client/request_control") == 1
+    manager, granted = open_console()
+    log_in(manager, "mia")
+    manager.click('[data-tab="control"]')
+    card = manager.locator(f'form.request[data-user="ben"][data-vehicle="{vehicle}"]')
+    card.locator("button[type=submit]").dblclick()
+    expect(card).to_have_count(0)
+    expect(manager.locator(f'li.lease[data-vehicle="{vehicle}"]')).to_contain_text("ben until")
+    assert calls(granted, "/client/grant_control") == 1
+    shots(manager, "granted-once")
+
+
+def calls(guard: Any, path: str) -> int:
+    """How many times the page called ``path``."""
+    return len([r for r in guard.requests if r.startswith("POST ") and r.endswith(path)])

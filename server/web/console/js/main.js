@@ -6,7 +6,9 @@ import { Api, login, saveToken, savedToken } from "./api.js";
 import { Fleet, TRAIL_MINUTES, isFinal, topicsOf } from "./fleet.js";
 import { LiveLink } from "./live.js";
 import { ControlPanel, FleetTable, VehiclePanel } from "./panels.js";
-import { ago, clock, confirmAction, h, readNumber, toast, until, zoneText } from "./ui.js";
+import {
+  ago, clock, confirmAction, h, readNumber, sending, toast, until, zoneText,
+} from "./ui.js";
 
 const $ = (id) => document.getElementById(id);
 const PHONE = window.matchMedia("(max-width: 760px)");
@@ -60,24 +62,26 @@ async function start(token, refused = REFUSED.saved) {
   return new Console(api, me, config, MapView);
 }
 
-$("login-form").addEventListener("submit", async (e) => {
+$("login-form").addEventListener("submit", (e) => {
   e.preventDefault();
-  try {
-    const token = await login($("login-user").value.trim(), $("login-password").value);
-    saveToken(token);
-    $("login-password").value = "";
-    await start(token);
-  } catch (err) {
-    $("login-error").textContent = err.message;
-  }
+  sending("login", async () => {
+    try {
+      const token = await login($("login-user").value.trim(), $("login-password").value);
+      saveToken(token);
+      $("login-password").value = "";
+      await start(token);
+    } catch (err) {
+      $("login-error").textContent = err.message;
+    }
+  });
 });
 
-$("login-token-go").addEventListener("click", async () => {
+$("login-token-go").addEventListener("click", () => {
   const token = $("login-token").value.trim();
   if (!token) return;
   saveToken(token);
   $("login-token").value = "";
-  await start(token, REFUSED.pasted);
+  sending("login", () => start(token, REFUSED.pasted));
 });
 
 // ---- the console ----------------------------------------------------------------------
@@ -324,18 +328,19 @@ class Console {
     for (const b of document.querySelectorAll("[data-tool]")) {
       b.addEventListener("click", () => this.setTool(this.tool === b.dataset.tool ? null : b.dataset.tool));
     }
-    $("hold").addEventListener("click", () => {
+    // each button that sends is disabled while its call is in flight (ui.js, sending)
+    $("hold").addEventListener("click", () => sending("hold", async () => {
       const radius = this.radius();
-      if (radius != null) this.send("keep_station", { radius_m: radius });
-    });
-    $("stop-selected").addEventListener("click", () => this.stopSelected());
-    $("stop-all").addEventListener("click", () => this.stopAll());
+      if (radius != null) await this.send("keep_station", { radius_m: radius });
+    }));
+    $("stop-selected").addEventListener("click", () => sending("stop", () => this.stopSelected()));
+    $("stop-all").addEventListener("click", () => sending("stop-all", () => this.stopAll()));
     $("path-undo").addEventListener("click", () => {
       this.draftPath.pop();
       this.drawDraft();
     });
     $("path-cancel").addEventListener("click", () => this.setTool(null));
-    $("path-send").addEventListener("click", () => this.sendPath());
+    $("path-send").addEventListener("click", () => sending("path", () => this.sendPath()));
     $("logout").addEventListener("click", () => {
       this.live.stop();
       saveToken(null);
@@ -466,6 +471,7 @@ class Console {
       toast(`${type} refused: you do not hold control of ${v.view.name || v.id}`, "error", {
         label: "Request control",
         run: () => this.requestControl(v.id),
+        sends: `request/${v.id}`,
       });
     } else {
       toast(notSent(type, e), "error");
@@ -509,21 +515,27 @@ class Console {
     }
   }
 
-  async requestControl(id) {
-    const v = this.fleet.vehicles.get(id);
-    try {
-      await this.api.post("/client/request_control", { instance_id: v.view.instance_id });
-      v.requested = Date.now(); // the button says so until an answer (or two minutes)
-      this.fleet.changed(id, "control");
-      toast(`control of ${v.view.name || id} requested: the field manager decides`, "ok");
-    } catch (e) {
-      toast(`request refused: ${e.explain()}`, "error");
-    }
+  requestControl(id) {
+    return sending(`request/${id}`, async () => {
+      const v = this.fleet.vehicles.get(id);
+      try {
+        await this.api.post("/client/request_control", { instance_id: v.view.instance_id });
+        v.requested = Date.now(); // the button says so until an answer (or two minutes)
+        this.fleet.changed(id, "control");
+        toast(`control of ${v.view.name || id} requested: the field manager decides`, "ok");
+      } catch (e) {
+        toast(`request refused: ${e.explain()}`, "error");
+      }
+    });
   }
 
   /** Give up control, after a confirmation (as Revoke): the vehicle holds station, and
    * commanding it again takes a new grant. */
-  async releaseControl(id) {
+  releaseControl(id) {
+    return sending(`release/${id}`, () => this.release(id));
+  }
+
+  async release(id) {
     const v = this.fleet.vehicles.get(id);
     const name = v.view.name || id;
     const ok = await confirmAction({
@@ -541,12 +553,14 @@ class Console {
     }
   }
 
-  async cancelCommand(commandId) {
-    try {
-      await this.api.post("/client/cancel_command", { command_id: commandId });
-    } catch (e) {
-      toast(`cancel refused: ${e.explain()}`, "error");
-    }
+  cancelCommand(commandId) {
+    return sending(`cancel/${commandId}`, async () => {
+      try {
+        await this.api.post("/client/cancel_command", { command_id: commandId });
+      } catch (e) {
+        toast(`cancel refused: ${e.explain()}`, "error");
+      }
+    });
   }
 }
 

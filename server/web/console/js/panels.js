@@ -3,7 +3,7 @@
 // and leases; an operator's own). Each redraws from the Fleet state when it changes.
 
 import { isFinal, stageOf } from "./fleet.js";
-import { ago, clock, confirmAction, dateTime, h, toast, until } from "./ui.js";
+import { ago, clock, confirmAction, dateTime, h, sending, sends, toast, until } from "./ui.js";
 
 const DURATIONS = [
   [300, "5 min"], [900, "15 min"], [1800, "30 min"], [3600, "1 h"], [7200, "2 h"],
@@ -216,9 +216,13 @@ export class VehiclePanel {
       me.role !== "viewer" && !mine && view.instance_id
         ? (v.requested && Date.now() - v.requested < REQUEST_SHOWN_MS
           ? h("button", { disabled: true, title: "the field manager decides" }, "Requested…")
-          : h("button", { onclick: () => this.ctx.requestControl(v.id) }, "Request control"))
+          : h("button", {
+            ...sends(`request/${v.id}`), onclick: () => this.ctx.requestControl(v.id),
+          }, "Request control"))
         : null,
-      mine ? h("button", { onclick: () => this.ctx.releaseControl(v.id) }, "Release") : null,
+      mine ? h("button", {
+        ...sends(`release/${v.id}`), onclick: () => this.ctx.releaseControl(v.id),
+      }, "Release") : null,
     );
     const failsafe = view.failsafe
       ? h("p.failsafe", {}, h("b", {}, "If the link is lost: "), describeFailsafe(view.failsafe),
@@ -244,7 +248,9 @@ export class VehiclePanel {
         h("dt", {}, "battery"), h("dd", {}, num(p.battery_pct, "%", 0)),
         h("dt", {}, "link"), h("dd.link-delay", {}, linkText(view) || "–"),
         p.depth_m != null ? [h("dt", {}, "depth"), h("dd", {}, num(p.depth_m, "m"))] : null),
-      h("h3", {}, "Parameters ", h("button.quiet", { onclick: () => this.loadParams() }, "refresh")),
+      h("h3", {}, "Parameters ", h("button.quiet", {
+        ...sends(`params/${v.id}`), onclick: () => sending(`params/${v.id}`, () => this.loadParams()),
+      }, "refresh")),
       this.paramsTable(),
       h("h3", {}, "Recent commands"),
       this.commandList(v),
@@ -275,7 +281,9 @@ export class VehiclePanel {
       h("small", {}, `${clock(c.issued_at)}${c.issued_by ? ` by ${c.issued_by}` : ""}`,
         c.detail ? ` · ${readableDetail(c.detail)}` : ""),
       !isFinal(c.status) && this.mayCancel(v, c)
-        ? h("button.quiet", { onclick: () => this.ctx.cancelCommand(c.command_id) }, "cancel")
+        ? h("button.quiet", {
+          ...sends(`cancel/${c.command_id}`), onclick: () => this.ctx.cancelCommand(c.command_id),
+        }, "cancel")
         : null,
     )));
   }
@@ -557,9 +565,11 @@ export class ControlPanel {
       h("div", {}, h("b", {}, r.username), " asks for ", h("b", {}, name),
         h("br"), h("small", {}, `since ${clock(r.requested_at)}`)),
       h("div.row", {}, this.durationSelect("duration"), this.livenessSelect("liveness"),
-        h("button.primary", { type: "submit" }, "Grant"),
+        h("button.primary", { type: "submit", ...sends(`grant/${r.instance_id}`) }, "Grant"),
         h("button.quiet.deny", {
-          type: "button", onclick: () => this.deny(r.instance_id, r.username, name),
+          type: "button",
+          ...sends(`deny/${r.instance_id}/${r.username}`),
+          onclick: () => this.deny(r.instance_id, r.username, name),
         }, "Decline")));
       return h("li", {}, form);
     });
@@ -580,7 +590,9 @@ export class ControlPanel {
           e.preventDefault();
           const f = e.target;
           const v = this.ctx.fleet.vehicles.get(f.vehicle.value);
-          this.grant(v.view.instance_id, f.user.value.trim(), +f.duration.value, +f.liveness.value);
+          sending("grant/form", () => this.grant(
+            v.view.instance_id, f.user.value.trim(), +f.duration.value, +f.liveness.value,
+          ));
         },
       },
       h("label", {}, "vehicle ", h("select", { name: "vehicle" },
@@ -588,7 +600,7 @@ export class ControlPanel {
       h("label", {}, "user ", h("input", { name: "user", required: true, autocomplete: "off" })),
       h("label", {}, "for ", this.durationSelect("duration")),
       h("label", {}, "lapse when their client is ", this.livenessSelect("liveness")),
-      h("button.primary", { type: "submit" }, "Grant")));
+      h("button.primary", { type: "submit", ...sends("grant/form") }, "Grant")));
   }
 
   leaseSection() {
@@ -618,10 +630,15 @@ export class ControlPanel {
             : h("div.hint", {}, "nobody holds control"),
           h("div.row", {},
             c && this.managed(v.id)
-              ? h("button", { onclick: () => this.revoke(v) }, "Revoke") : null,
-            mine ? h("button", { onclick: () => this.ctx.releaseControl(v.id) }, "Release") : null,
+              ? h("button", { ...sends(`revoke/${v.id}`), onclick: () => this.revoke(v) }, "Revoke")
+              : null,
+            mine ? h("button", {
+              ...sends(`release/${v.id}`), onclick: () => this.ctx.releaseControl(v.id),
+            }, "Release") : null,
             !mine && me.role !== "viewer" && v.view.instance_id
-              ? h("button.quiet", { onclick: () => this.ctx.requestControl(v.id) }, "Request")
+              ? h("button.quiet", {
+                ...sends(`request/${v.id}`), onclick: () => this.ctx.requestControl(v.id),
+              }, "Request")
               : null));
       });
     return h("section", {}, h("h3", {}, "Leases"), h("ul.cards", {}, ...rows));
@@ -644,7 +661,11 @@ export class ControlPanel {
       rows.length ? h("ol.events", {}, ...rows) : h("p.hint", {}, "nothing yet"));
   }
 
-  async grant(instanceId, user, durationS, operatorTimeoutS = 0) {
+  grant(instanceId, user, durationS, operatorTimeoutS = 0) {
+    return sending(`grant/${instanceId}`, () => this.grantNow(instanceId, user, durationS, operatorTimeoutS));
+  }
+
+  async grantNow(instanceId, user, durationS, operatorTimeoutS) {
     if (!(await this.mayTakeOver(instanceId, user))) return;
     try {
       const body = { instance_id: instanceId, user, duration_s: durationS };
@@ -675,17 +696,23 @@ export class ControlPanel {
     });
   }
 
-  async deny(instanceId, user, name) {
-    try {
-      await this.ctx.api.post("/client/deny_control", { instance_id: instanceId, user });
-      toast(`${user}'s request for ${name} declined`, "ok");
-    } catch (e) {
-      toast(`decline refused: ${e.explain ? e.explain() : e.message}`, "error");
-    }
-    this.loadRequests();
+  deny(instanceId, user, name) {
+    return sending(`deny/${instanceId}/${user}`, async () => {
+      try {
+        await this.ctx.api.post("/client/deny_control", { instance_id: instanceId, user });
+        toast(`${user}'s request for ${name} declined`, "ok");
+      } catch (e) {
+        toast(`decline refused: ${e.explain ? e.explain() : e.message}`, "error");
+      }
+      this.loadRequests();
+    });
   }
 
-  async revoke(v) {
+  revoke(v) {
+    return sending(`revoke/${v.id}`, () => this.revokeNow(v));
+  }
+
+  async revokeNow(v) {
     const name = v.view.name || v.id;
     const holder = v.control ? v.control.holder : "its holder";
     const ok = await confirmAction({

@@ -4,7 +4,7 @@
 
 import { L, colourOf, escapeHtml } from "./map.js";
 import { describeEvent, kindName } from "./panels.js";
-import { clock, dateTime, h, toast } from "./ui.js";
+import { clock, dateTime, h, sending, toast } from "./ui.js";
 
 const MAX_EVENTS_PER_VEHICLE = 100000;
 const MAX_POINTS_PER_VEHICLE = 50000; // five pages of the track route
@@ -84,13 +84,13 @@ export class Replay {
     }
     this.form.addEventListener("submit", (e) => {
       e.preventDefault();
-      this.load();
+      sending("replay", () => this.load());
     });
     this.slider.addEventListener("input", () => this.seek(this.start + +this.slider.value));
     this.playButton.addEventListener("click", () => (this.playing ? this.pause() : this.play()));
     document.getElementById("replay-exit").addEventListener("click", () => this.exit());
     for (const b of this.exportBox.querySelectorAll("[data-format]")) {
-      b.addEventListener("click", () => this.export(b.dataset.format));
+      b.addEventListener("click", () => sending(`export/${b.dataset.format}`, () => this.export(b.dataset.format)));
     }
   }
 

@@ -63,11 +63,47 @@ export function until(ts, now = Date.now()) {
   return `in ${Math.floor(m / 60)} h ${String(m % 60).padStart(2, "0")} min`;
 }
 
+// Calls to the server in flight, by what they do ("grant/<instance>", "stop", ...).
+const inFlight = new Set();
+
+/**
+ * Run ``call`` (a call to the server, with whatever it asks first) unless one for the same
+ * ``key`` is already in flight: a double click or a second tap sends nothing twice.
+ * Meanwhile every button marked for that key (``sends(key)``, or ``data-sends`` in the
+ * page) is disabled, and so is one drawn then (the panels are drawn again on every change).
+ */
+export async function sending(key, call) {
+  if (inFlight.has(key)) return undefined;
+  inFlight.add(key);
+  markSending(key, true);
+  try {
+    return await call();
+  } finally {
+    inFlight.delete(key);
+    markSending(key, false);
+  }
+}
+
+/** The props of a button whose click makes ``key``'s call (``h("button", {...sends(key)})``). */
+export function sends(key) {
+  return { dataset: { sends: key }, disabled: inFlight.has(key) };
+}
+
+function markSending(key, busy) {
+  for (const b of document.querySelectorAll("[data-sends]")) {
+    if (b.dataset.sends === key) b.disabled = busy;
+  }
+}
+
+/** A toast; ``action`` ({label, run, sends}) adds a button to it. */
 export function toast(message, kind = "info", action = null) {
   const box = document.getElementById("toasts");
   const item = h(`div.toast.${kind}`, { role: kind === "error" ? "alert" : "status" },
     h("span.msg", {}, message));
-  if (action) item.append(h("button", { onclick: action.run }, action.label));
+  if (action) {
+    item.append(h("button", { ...(action.sends ? sends(action.sends) : {}), onclick: action.run },
+      action.label));
+  }
   item.append(h("button.quiet.close", { onclick: () => item.remove(), "aria-label": "close" }, "×"));
   box.append(item);
   setTimeout(() => item.remove(), kind === "error" ? 12000 : 5000);
