@@ -13,6 +13,7 @@ from typing import Any
 import pytest
 from playwright.sync_api import expect
 
+from server.demo import VEHICLES
 from tests.agent.procs import wait_until
 from tests.web.conftest import Shots, World, no_requests
 from tests.web.test_console import (
@@ -206,3 +207,36 @@ def test_a_double_click_sends_once(world: World, open_console: Any, shots: Shots
 def calls(guard: Any, path: str) -> int:
     """How many times the page called ``path``."""
     return len([r for r in guard.requests if r.startswith("POST ") and r.endswith(path)])
+
+
+def test_a_vehicle_gone_offline_shows_its_stage_as_last_known(
+    world: World, open_console: Any, shots: Shots
+) -> None:
+    """A boat offline for 45 s still read "follow_path · executing" in orange on the map and
+    in the table, its battery as live as the others'. (Last: its agent stays stopped.)"""
+    vehicle, instance = "demo-usv-2", world.instances["demo-usv-2"]
+    world.fleet.grant(instance, "ana")
+    here = position(world, vehicle)
+    far = LocalFrame(here["lat"], here["lon"]).to_latlon(0.0, 2000.0)
+    world.fleet.submit(
+        world.tokens["ana"], instance, "go_to", {"lat": far[0], "lon": far[1]}
+    )  # fmt: skip
+    page, _ = open_console()
+    log_in(page, "mia")
+    label = marker(page, vehicle).locator(".chip")
+    expect(label).to_have_text("go_to · executing", timeout=30_000)
+    row = page.locator(f'#fleet-table tr[data-vehicle="{vehicle}"]')
+    marker(page, vehicle).click()
+    page.click('[data-tab="fleet"]')
+    world.agents[[v[0] for v in VEHICLES].index(vehicle)].stop()  # out of reach
+    expect(marker(page, vehicle)).to_have_attribute("data-presence", "offline", timeout=30_000)
+    expect(label).to_have_text("go_to · executing (last known)")
+    expect(label).to_have_class(re.compile(r"\blast-known\b"))
+    expect(row.locator(".chip")).to_have_text("go_to · executing (last known)")
+    expect(row.locator("td").nth(3)).to_have_class(re.compile(r"\bstale\b"))  # its battery
+    shots(page, "offline-table")
+    page.click('[data-tab="vehicle"]')
+    item = page.locator("#vehicle-pane li[data-command]").first
+    expect(item).to_have_class(re.compile(r"\blast-known\b"))
+    expect(item.locator(".steps")).to_contain_text("executing (last known)")
+    shots(page, "offline-panel")

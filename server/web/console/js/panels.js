@@ -2,7 +2,7 @@
 // recent commands and events) and the control panel (a field manager's requests, grants
 // and leases; an operator's own). Each redraws from the Fleet state when it changes.
 
-import { isFinal, stageOf } from "./fleet.js";
+import { isFinal, lastKnown, stageLabel, stageOf } from "./fleet.js";
 import { ago, clock, confirmAction, dateTime, h, sending, sends, toast, until } from "./ui.js";
 
 const DURATIONS = [
@@ -42,9 +42,11 @@ function presenceBadge(presence) {
   return h(`span.presence.p-${presence || "offline"}`, {}, presence || "unknown");
 }
 
-function chip(cmd) {
+/** A command's stage as a chip: greyed, "(last known)", when the vehicle is not online. */
+function chip(cmd, presence) {
   if (!cmd) return "–";
-  return h(`span.chip.stage-${cmd.stage}`, {}, `${cmd.type} · ${cmd.stage}`);
+  return h(`span.chip.stage-${cmd.stage}${lastKnown(cmd, presence) ? ".last-known" : ""}`, {},
+    stageLabel(cmd, presence));
 }
 
 /** A delay in ms as the console shows it (tenths below 10 ms). */
@@ -143,9 +145,13 @@ export class FleetTable {
               ? [h("br"), h("small.link-delay", { title: "one-way delay to the server" },
                 `link ${millis(v.view.link_delay_ms)}`)]
               : null),
-          h("td", {}, p && p.battery_pct != null ? `${p.battery_pct.toFixed(0)} %` : "–"),
+          // a reading of a vehicle not online is greyed and dated, as in its panel
+          v.view.presence === "online"
+            ? h("td", {}, p && p.battery_pct != null ? `${p.battery_pct.toFixed(0)} %` : "–")
+            : h("td.stale", { title: p ? `as of ${clock(p.ts)}` : null },
+              p && p.battery_pct != null ? `${p.battery_pct.toFixed(0)} %` : "–"),
           h("td", {}, holderText(v.control, me)),
-          h("td", {}, chip(fleet.latestCommand(v.id))),
+          h("td", {}, chip(fleet.latestCommand(v.id), v.view.presence)),
         );
         return row;
       }),
@@ -273,9 +279,10 @@ export class VehiclePanel {
     const cmds = this.ctx.fleet.recentCommands(v.id).slice(0, 12);
     if (!cmds.length) return h("p.hint", {}, "none");
     return h("ol.commands", {}, ...cmds.map((c) => h(
-      "li",
+      lastKnown(c, v.view.presence) ? "li.last-known" : "li",
       { dataset: { command: c.command_id, stage: c.stage } },
-      h("b", {}, c.type), " ", h("span.steps", {}, c.stages.join(" → ")),
+      h("b", {}, c.type), " ", h("span.steps", {}, c.stages.join(" → "),
+        lastKnown(c, v.view.presence) ? " (last known)" : ""),
       c.progress != null && !isFinal(c.status) ? ` ${Math.round(c.progress * 100)} %` : "",
       h("br"),
       h("small", {}, `${clock(c.issued_at)}${c.issued_by ? ` by ${c.issued_by}` : ""}`,
