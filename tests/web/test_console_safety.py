@@ -209,6 +209,40 @@ def calls(guard: Any, path: str) -> int:
     return len([r for r in guard.requests if r.startswith("POST ") and r.endswith(path)])
 
 
+def test_a_grant_says_which_boat_and_what_the_server_did(
+    world: World, open_console: Any, shots: Shots
+) -> None:
+    """The toast said "control granted to ben until ..." (which boat?); a user mistyped
+    read "no such user: no such user"; a grant for less than the holder has left, which the
+    server ignores (a grant never shortens a lease), read as a plain success."""
+    world.fleet.grant(world.instances["demo-usv-3"], "ben")  # for 1 h
+    world.fleet.call(
+        "POST", "/client/revoke_control", json={"instance_id": world.instances["demo-usv-1"]}
+    )
+    page, _ = open_console()
+    log_in(page, "mia")
+    page.click('[data-tab="control"]')
+    form = page.locator("details.grant")
+    form.locator("summary").click()
+    toasts = page.locator("#toasts")
+
+    def grant(vehicle: str, user: str, duration_s: int) -> None:
+        form.locator("select[name=vehicle]").select_option(vehicle)
+        form.locator("input[name=user]").fill(user)
+        form.locator("select[name=duration]").select_option(str(duration_s))
+        form.locator("button[type=submit]").click()
+
+    grant("demo-usv-1", "bne", 3600)
+    expect(toasts).to_contain_text("grant refused: cannot grant control to bne: no such user")
+    assert "no such user: no such user" not in toasts.inner_text()
+    grant("demo-usv-3", "ben", 300)
+    kept = r"ben already holds H2OmniX Charlie until \d\d:\d\d:\d\d; a grant never shortens a lease"
+    expect(toasts).to_contain_text(re.compile(kept))
+    shots(page, "not-shortened")
+    grant("demo-usv-3", "ben", 86400)
+    expect(toasts).to_contain_text(re.compile(r"control of H2OmniX Charlie granted to ben until "))
+
+
 def test_a_vehicle_gone_offline_shows_its_stage_as_last_known(
     world: World, open_console: Any, shots: Shots
 ) -> None:

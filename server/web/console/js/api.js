@@ -21,10 +21,11 @@ export class ApiError extends Error {
     this.details = details;
   }
 
-  /** The message, with the first detail's when it names an instance or a field. */
+  /** The message, with the first detail's when it names an instance or a field and the
+   * message does not already say it ("no such user: no such user"). */
   explain() {
     const first = Array.isArray(this.details) ? this.details[0] : null;
-    if (first && first.message && first.message !== this.message) {
+    if (first && first.message && !this.message.includes(first.message)) {
       return `${this.message}: ${first.message}`;
     }
     return this.message;

@@ -674,12 +674,21 @@ export class ControlPanel {
 
   async grantNow(instanceId, user, durationS, operatorTimeoutS) {
     if (!(await this.mayTakeOver(instanceId, user))) return;
+    const v = this.vehicleOf(instanceId);
+    const name = v ? v.view.name || v.id : instanceId;
+    const before = v && v.control;
     try {
       const body = { instance_id: instanceId, user, duration_s: durationS };
       if (operatorTimeoutS) body.operator_timeout_s = operatorTimeoutS;
       const lease = await this.ctx.api.post("/client/grant_control", body);
-      toast(`control granted to ${lease.holder} until ${clock(lease.expires_at)}`, "ok");
-      const v = this.vehicleOf(instanceId);
+      if (before && before.holder === lease.holder
+        && Date.parse(lease.expires_at) <= Date.parse(before.expires_at)) {
+        // granted again for less than is left: the server keeps the lease as it was
+        toast(`${lease.holder} already holds ${name} until ${clock(lease.expires_at)}; ` +
+          "a grant never shortens a lease", "info");
+      } else {
+        toast(`control of ${name} granted to ${lease.holder} until ${clock(lease.expires_at)}`, "ok");
+      }
       if (v) this.ctx.fleet.applyControl(v.id, { control: lease });
     } catch (e) {
       toast(`grant refused: ${e.explain ? e.explain() : e.message}`, "error");
