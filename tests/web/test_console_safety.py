@@ -17,6 +17,7 @@ from server.demo import VEHICLES
 from tests.agent.procs import wait_until
 from tests.web.conftest import Shots, World, no_requests
 from tests.web.test_console import (
+    boxes_overlap,
     centre_on,
     log_in,
     marker,
@@ -274,3 +275,50 @@ def test_a_vehicle_gone_offline_shows_its_stage_as_last_known(
     expect(item).to_have_class(re.compile(r"\blast-known\b"))
     expect(item.locator(".steps")).to_contain_text("executing (last known)")
     shots(page, "offline-panel")
+
+
+def test_a_phone_says_who_is_logged_in_and_what_a_finger_does(
+    world: World, open_console: Any, shots: Shots
+) -> None:
+    """On a 390 px phone the header hid who was logged in and took two rows while the link
+    was lost, toasts covered the panels' headings, and the hints spoke of ctrl-click and
+    Esc. (Last: the server is stopped and started again.)"""
+    page, _ = open_console(viewport=(390, 844), is_mobile=True, has_touch=True)
+    log_in(page, "mia")
+    bar, who = page.locator("header.bar"), page.locator("#who")
+    expect(who).to_be_visible()
+    expect(who).to_have_text("mia · manager")
+    one_row = box_of(bar)["height"]
+    assert one_row < 56, one_row
+    marker(page, "demo-usv-1").tap()
+    page.locator('#actions [data-tool="go_to"]').tap()
+    hint = page.locator("#tool-hint")
+    expect(hint).to_have_text(
+        "Tap the map where the selected vehicles should go (tap Go to again: cancel)."
+    )
+    page.locator('#actions [data-tool="go_to"]').tap()
+    expect(hint).to_be_hidden()
+    page.locator('[data-tab="fleet"]').tap()
+    fleet_hint = page.locator('[data-pane="fleet"] p.hint')
+    expect(fleet_hint.locator(".touch-only")).to_be_visible()
+    expect(fleet_hint.locator(".touch-only")).to_have_text(
+        "Tap a vehicle on the map or here; tick the boxes to select several."
+    )
+    expect(fleet_hint.locator(".mouse-only")).to_be_hidden()  # ctrl- or shift-click
+    page.locator('[data-tab="control"]').tap()
+    instance = world.instances["demo-usv-1"]
+    world.as_user("ana", "POST", "/client/request_control", json={"instance_id": instance})
+    toast = page.locator("#toasts .toast", has_text="ana asks for control")
+    expect(toast).to_be_visible()
+    for heading in page.locator("#control-pane h2, #control-pane .requests h3").all():
+        assert not boxes_overlap(box_of(toast), box_of(heading)), heading.inner_text()
+    shots(page, "toast-clear-of-headings")
+    world.server.stop(grace_s=5.0)
+    expect(page.locator("#link")).to_have_attribute("data-state", "lost")
+    expect(page.locator("#link")).to_contain_text("link lost")
+    assert box_of(bar)["height"] == one_row, page.locator("#link").inner_text()
+    assert page.evaluate("document.documentElement.scrollWidth") <= 390
+    shots(page, "link-lost")
+    world.server.start()
+    expect(page.locator("#link")).to_have_attribute("data-state", "live", timeout=30_000)
+    assert box_of(bar)["height"] == one_row

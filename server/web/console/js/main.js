@@ -12,6 +12,7 @@ import {
 
 const $ = (id) => document.getElementById(id);
 const PHONE = window.matchMedia("(max-width: 760px)");
+const TOUCH = window.matchMedia("(pointer: coarse)"); // a finger: no Esc, no ctrl-click
 const SETTLE_MS = 1000; // after a tab switch, how long the rest of its multiple click is dropped
 
 // ---- logging in ----------------------------------------------------------------------
@@ -169,14 +170,17 @@ class Console {
       this.wasLost = false;
     } else if (state === "lost") {
       this.wasLost = true;
-      link.textContent = `link lost · reconnecting in ${Math.ceil(info.retryInMs / 1000)} s`;
+      const s = Math.ceil(info.retryInMs / 1000);
+      // on a phone short enough for the header's one row
+      link.textContent = PHONE.matches ? `link lost · ${s} s` : `link lost · reconnecting in ${s} s`;
     } else if (state === "refused") {
       link.textContent = "refused: log in again";
       saveToken(null);
       sessionStorage.setItem(ENDED, "1");
       setTimeout(() => location.reload(), 1500);
     } else {
-      link.textContent = this.wasLost ? "link lost · reconnecting…" : "connecting…";
+      link.textContent = !this.wasLost ? "connecting…"
+        : PHONE.matches ? "link lost · retrying" : "link lost · reconnecting…";
     }
   }
 
@@ -357,11 +361,18 @@ class Console {
       b.classList.toggle("active", b.dataset.tool === tool);
       b.setAttribute("aria-pressed", String(b.dataset.tool === tool));
     }
-    const hints = {
-      go_to: "Click the map where the selected vehicles should go (Esc: cancel).",
-      station: "Click the map where the selected vehicles should keep station (Esc: cancel).",
-      path: "Click the map to add waypoints, then Send path (Esc: cancel).",
-    };
+    const hints = TOUCH.matches
+      ? {
+        go_to: "Tap the map where the selected vehicles should go (tap Go to again: cancel).",
+        station: "Tap the map where the selected vehicles should keep station " +
+          "(tap Keep station again: cancel).",
+        path: "Tap the map to add waypoints, then Send path (or Cancel).",
+      }
+      : {
+        go_to: "Click the map where the selected vehicles should go (Esc: cancel).",
+        station: "Click the map where the selected vehicles should keep station (Esc: cancel).",
+        path: "Click the map to add waypoints, then Send path (Esc: cancel).",
+      };
     $("tool-hint").hidden = !tool;
     $("tool-hint").textContent = hints[tool] || "";
     $("path-bar").hidden = tool !== "path";
