@@ -244,6 +244,36 @@ def test_a_grant_says_which_boat_and_what_the_server_did(
     expect(toasts).to_contain_text(re.compile(r"control of H2OmniX Charlie granted to ben until "))
 
 
+def test_a_pasted_token_that_ends_asks_for_the_new_one(
+    world: World, open_console: Any, shots: Shots
+) -> None:
+    """A demo server prints a new admin token at every start: an admin who had pasted the
+    old one was told to sign in again, with the token's section closed."""
+    ids = [v[0] for v in VEHICLES]
+    body = {"username": "eve", "role": "operator", "vehicles": ids}
+    old = world.fleet.call("POST", "/api/users", json=body)["token"]
+    page, _ = open_console()
+    page.goto("/")
+    page.click("#login details summary")
+    page.fill("#login-token", old)
+    page.click("#login-token-go")
+    expect(page.locator("#link")).to_have_attribute("data-state", "live")
+    new = world.fleet.call("POST", "/api/users/eve/rotate_token")["token"]  # the old one ends
+    page.evaluate("fleetConsole.live.reconnectNow()")  # as after a restart: refused (4401)
+    expect(page.locator("#login-error")).to_have_text(
+        "the token you pasted is no longer accepted (revoked, or a new one was made, as a demo "
+        "server does each time it starts): paste the new token the server printed",
+        timeout=15_000,
+    )
+    expect(page.locator("#login details")).to_have_attribute("open", "")
+    expect(page.locator("#login-token")).to_be_focused()
+    shots(page, "paste-the-new-one")
+    page.keyboard.type(new)
+    page.click("#login-token-go")
+    expect(page.locator("#link")).to_have_attribute("data-state", "live")
+    expect(page.locator("#who")).to_have_text("eve · operator")
+
+
 def test_a_vehicle_gone_offline_shows_its_stage_as_last_known(
     world: World, open_console: Any, shots: Shots
 ) -> None:

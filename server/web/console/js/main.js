@@ -2,7 +2,7 @@
 // together. `window.fleetConsole` holds the pieces (for a look from the browser's
 // developer tools, and for the browser tests).
 
-import { Api, login, saveToken, savedToken } from "./api.js";
+import { Api, forgetToken, login, saveToken, savedToken, tokenWasPasted } from "./api.js";
 import { Fleet, TRAIL_MINUTES, isFinal, topicsOf } from "./fleet.js";
 import { LiveLink } from "./live.js";
 import { ControlPanel, FleetTable, VehiclePanel } from "./panels.js";
@@ -17,23 +17,35 @@ const SETTLE_MS = 1000; // after a tab switch, how long the rest of its multiple
 
 // ---- logging in ----------------------------------------------------------------------
 
-function showLogin(message = "") {
+/** The login page, saying ``message``; ``token``: with the token field open and focused. */
+function showLogin(message = "", { token = false } = {}) {
   $("app").hidden = true;
   $("login").hidden = false;
   $("login-error").textContent = message;
-  $("login-user").focus();
+  if (token) $("login-token").closest("details").open = true;
+  (token ? $("login-token") : $("login-user")).focus();
 }
 
-// What the login page says when a token is refused (401) at start.
+// What the login page says when a token is refused (401).
 const REFUSED = {
   pasted: "this token was refused: it is wrong, revoked or expired",
   saved: "your session has ended (expired or revoked): sign in again",
+  pastedEnded: "the token you pasted is no longer accepted (revoked, or a new one was made, " +
+    "as a demo server does each time it starts): paste the new token the server printed",
 };
+
+/** The login page once a session has ended: one that began with a pasted token (the admin
+ * token a demo prints, new at every start) asks for the new token, its field open. */
+function showEnded() {
+  if (tokenWasPasted()) showLogin(REFUSED.pastedEnded, { token: true });
+  else showLogin(REFUSED.saved);
+}
 
 // Set before the page reloads on a refused token, read once by the page that follows.
 const ENDED = "fleet-session-ended";
 
-async function start(token, refused = REFUSED.saved) {
+/** Open the console with ``token``; ``fresh``: a token just pasted (its refusal says so). */
+async function start(token, fresh = false) {
   let me;
   let started = false;
   const api = new Api(token, () => {
@@ -47,7 +59,8 @@ async function start(token, refused = REFUSED.saved) {
     started = true;
   } catch (e) {
     saveToken(null);
-    return showLogin(e.status === 401 ? refused : e.message);
+    if (e.status !== 401) return showLogin(e.message);
+    return fresh ? showLogin(REFUSED.pasted, { token: true }) : showEnded();
   }
   const config = await fetch("/console/config.json").then((r) => r.json()).catch(() => ({}));
   let MapView;
@@ -80,9 +93,9 @@ $("login-form").addEventListener("submit", (e) => {
 $("login-token-go").addEventListener("click", () => {
   const token = $("login-token").value.trim();
   if (!token) return;
-  saveToken(token);
+  saveToken(token, { pasted: true });
   $("login-token").value = "";
-  sending("login", () => start(token, REFUSED.pasted));
+  sending("login", () => start(token, true));
 });
 
 // ---- the console ----------------------------------------------------------------------
@@ -347,7 +360,7 @@ class Console {
     $("path-send").addEventListener("click", () => sending("path", () => this.sendPath()));
     $("logout").addEventListener("click", () => {
       this.live.stop();
-      saveToken(null);
+      forgetToken();
       location.reload();
     });
     document.addEventListener("keydown", (e) => {
@@ -590,5 +603,5 @@ const token = savedToken();
 if (token) start(token);
 else if (sessionStorage.getItem(ENDED)) {
   sessionStorage.removeItem(ENDED);
-  showLogin(REFUSED.saved);
+  showEnded();
 } else showLogin();
