@@ -274,6 +274,67 @@ def test_a_pasted_token_that_ends_asks_for_the_new_one(
     expect(page.locator("#who")).to_have_text("eve · operator")
 
 
+def test_what_is_said_is_said_once_and_an_empty_window_says_so(
+    world: World, open_console: Any, shots: Shots
+) -> None:
+    """A path refused to two boats read "...; nothing queued: <the same reason>"; a release
+    read "control released by ana (by ana)"; the replay of a window with nothing in it
+    said "0 stored positions, 0 events"."""
+    for vehicle in ("demo-usv-1", "demo-usv-2"):
+        world.fleet.grant(world.instances[vehicle], "ana")
+    here = position(world, "demo-usv-1")
+    frame = LocalFrame(here["lat"], here["lon"])
+    corners = [frame.to_latlon(e, n) for e, n in ((-15, 45), (15, 45), (15, 75), (-15, 75))]
+    ring = [[o, a] for a, o in [*corners, corners[0]]]
+    body = {"name": "reef", "kind": "no_go", "polygon": {"type": "Polygon", "coordinates": [ring]}}
+    world.fleet.call("POST", "/api/zones", json=body)
+    page, _ = open_console()
+    log_in(page, "ana")
+    expect(page.locator("path.zone-no_go")).to_have_count(1)
+    centre_on(page, *frame.to_latlon(0, 0), 17)
+    marker(page, "demo-usv-1").click()
+    marker(page, "demo-usv-2").click(modifiers=["Shift"])
+    expect(page.locator("#selection")).to_have_text("2 selected: H2OmniX Alpha, H2OmniX Bravo")
+    page.click('#actions [data-tool="path"]')
+    page.locator("#path-plan").uncheck()
+    page.mouse.click(*screen_point(page, *frame.to_latlon(0, 60)))  # in the reef
+    page.click("#path-send")
+    refused = page.locator("#toasts .toast.error", has_text="follow_path refused")
+    expect(refused).to_contain_text(
+        re.compile(r"2 of 2 instances refused \(.*reef.*\); nothing queued")
+    )
+    said = refused.locator(".msg").inner_text()
+    assert said.endswith("; nothing queued"), said  # not followed by the reason again
+    shots(page, "refused-once")
+    page.keyboard.press("Escape")
+    world.as_user(
+        "ana",
+        "POST",
+        "/client/release_control",
+        json={"instance_id": world.instances["demo-usv-1"]},
+    )
+    page.click('[data-tab="control"]')
+    line = page.locator('section.safety-log li[data-kind="control_release"]').first
+    expect(line).to_contain_text("control released by ana")
+    expect(line).not_to_contain_text("(by ana)")
+    page.click('[data-tab="replay"]')
+    page.evaluate(
+        """() => {  // an hour that ended an hour before this server started
+            const local = (t) => new Date(t - new Date(t).getTimezoneOffset() * 60000)
+                .toISOString().slice(0, 19);
+            document.getElementById("replay-from").value = local(Date.now() - 3 * 3600000);
+            document.getElementById("replay-to").value = local(Date.now() - 2 * 3600000);
+        }"""
+    )
+    page.click("#replay-load")
+    expect(page.locator("#replay-info")).to_contain_text(
+        re.compile(r"^Nothing was recorded for these vehicles from .+ to .+: no position, no event")
+    )
+    expect(page.locator("#replay-info")).to_contain_text("Try a wider window")
+    expect(page.locator("#replay-bar")).to_be_hidden()  # the map stays live
+    shots(page, "empty-window")
+
+
 def test_a_vehicle_gone_offline_shows_its_stage_as_last_known(
     world: World, open_console: Any, shots: Shots
 ) -> None:

@@ -338,12 +338,14 @@ export function describeEvent(e) {
   }
   if (e.kind.startsWith("control_")) {
     const who = d.holder || d.user || d.username || "";
+    const by = e.actor ? e.actor.replace(/^user:/, "") : "";
     const terms = e.kind === "control_grant" && d.expires_at
       ? ` until ${clock(d.expires_at)}` +
         (d.operator_timeout_s ? `, lapses after ${d.operator_timeout_s} s of silence` : "")
       : "";
+    // "released by ben", not "released by ben (by ben)"
     return `${who}${terms}${d.reason ? `: ${String(d.reason).replace(/_/g, " ")}` : ""}` +
-      `${e.actor ? ` (by ${e.actor.replace(/^user:/, "")})` : ""}`;
+      `${by && by !== who ? ` (by ${by})` : ""}`;
   }
   if (e.kind === "hold_station") {
     const why = String(d.reason || "ended").replace(/_/g, " ");

@@ -135,18 +135,25 @@ export class Replay {
     if (!(start < end)) return toast("the window must start before it ends", "error");
     this.pause();
     this.info.textContent = "loading…";
+    let got;
     try {
-      const got = await Promise.all(ids.map((id) => this.fetchVehicle(id, start, end)));
-      this.start = start;
-      this.end = end;
-      this.ids = ids;
-      this.tracks = new Map(got.map((g) => [g.id, g.points]));
-      this.events = got.flatMap((g) => g.events).sort((a, b) => a.t - b.t);
+      got = await Promise.all(ids.map((id) => this.fetchVehicle(id, start, end)));
     } catch (e) {
       this.info.textContent = "";
       return toast(`replay: ${e.message}`, "error");
     }
-    const total = [...this.tracks.values()].reduce((n, p) => n + p.length, 0);
+    const total = got.reduce((n, g) => n + g.points.length, 0);
+    if (!total && !got.some((g) => g.events.length)) { // nothing to play: said; the map stays
+      this.info.textContent = `Nothing was recorded for ${ids.length === 1 ? "this vehicle" : "these vehicles"} ` +
+        `from ${dateTime(start)} to ${dateTime(end)}: no position, no event. ` +
+        "Try a wider window (1 h, 6 h, or an earlier start).";
+      return undefined;
+    }
+    this.start = start;
+    this.end = end;
+    this.ids = ids;
+    this.tracks = new Map(got.map((g) => [g.id, g.points]));
+    this.events = got.flatMap((g) => g.events).sort((a, b) => a.t - b.t);
     this.info.textContent = `${ids.length} vehicle(s), ${total} stored positions, ` +
       `${this.events.length} events, ${dateTime(start)} to ${dateTime(end)}`;
     this.enter();
