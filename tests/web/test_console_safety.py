@@ -344,9 +344,7 @@ def test_a_vehicle_gone_offline_shows_its_stage_as_last_known(
     world.fleet.grant(instance, "ana")
     here = position(world, vehicle)
     far = LocalFrame(here["lat"], here["lon"]).to_latlon(0.0, 2000.0)
-    world.fleet.submit(
-        world.tokens["ana"], instance, "go_to", {"lat": far[0], "lon": far[1]}
-    )  # fmt: skip
+    world.fleet.submit(world.tokens["ana"], instance, "go_to", {"lat": far[0], "lon": far[1]})
     page, _ = open_console()
     log_in(page, "mia")
     label = marker(page, vehicle).locator(".chip")
