@@ -54,6 +54,11 @@ def test_field_manager_grants_control_on_a_phone(
     expect(page.locator('form.request[data-user="ben"][data-vehicle="demo-usv-1"]')).to_be_visible()
     expect(request.locator("select[name=duration]")).to_have_value("900")
     request.locator("button[type=submit]").tap()
+    # ana holds it (since the world's start): the grant would end her lease, so it asks
+    expect(page.locator("#confirm-title")).to_have_text("Give control of H2OmniX Charlie to ben?")
+    ok = page.locator("#confirm-ok")
+    expect(ok).to_be_enabled()
+    ok.tap()
     lease = page.locator('li.lease[data-vehicle="demo-usv-3"]')
     expect(lease).to_contain_text("ben until")
     expect(lease.locator(".allows")).to_contain_text("allows ben to send")

@@ -2,14 +2,33 @@
 // token itself, kept in sessionStorage (gone when the tab closes).
 
 const TOKEN_KEY = "fleet-token";
+const PASTED_KEY = "fleet-token-pasted";
 
 export function savedToken() {
   return sessionStorage.getItem(TOKEN_KEY);
 }
 
-export function saveToken(token) {
-  if (token) sessionStorage.setItem(TOKEN_KEY, token);
-  else sessionStorage.removeItem(TOKEN_KEY);
+/** Keep the session's token, and whether it was pasted (an API token) rather than given
+ * for a password; ``null`` drops the token but not that mark, so that the login page
+ * that follows knows what to ask for. */
+export function saveToken(token, { pasted = false } = {}) {
+  if (token) {
+    sessionStorage.setItem(TOKEN_KEY, token);
+    if (pasted) sessionStorage.setItem(PASTED_KEY, "1");
+    else sessionStorage.removeItem(PASTED_KEY);
+  } else {
+    sessionStorage.removeItem(TOKEN_KEY);
+  }
+}
+
+/** Drop the token and its mark (logging out). */
+export function forgetToken() {
+  sessionStorage.removeItem(TOKEN_KEY);
+  sessionStorage.removeItem(PASTED_KEY);
+}
+
+export function tokenWasPasted() {
+  return sessionStorage.getItem(PASTED_KEY) === "1";
 }
 
 /** A refusal or failure, with the contract's error code, message and details. */
@@ -21,10 +40,11 @@ export class ApiError extends Error {
     this.details = details;
   }
 
-  /** The message, with the first detail's when it names an instance or a field. */
+  /** The message, with the first detail's when it names an instance or a field and the
+   * message does not already say it ("no such user: no such user"). */
   explain() {
     const first = Array.isArray(this.details) ? this.details[0] : null;
-    if (first && first.message && first.message !== this.message) {
+    if (first && first.message && !this.message.includes(first.message)) {
       return `${this.message}: ${first.message}`;
     }
     return this.message;

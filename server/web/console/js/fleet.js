@@ -22,6 +22,21 @@ export function isFinal(status) {
   return FINAL.has(status);
 }
 
+// The stages that say what the vehicle itself does with a command (not the server's).
+const ON_THE_VEHICLE = new Set(["delivered", "acked", "executing"]);
+
+/** Whether a command's stage is only as last heard: the vehicle is not online (stale,
+ * offline) and the command was under way on it, so what it does now is unknown. */
+export function lastKnown(cmd, presence) {
+  return Boolean(cmd) && presence !== "online" && ON_THE_VEHICLE.has(cmd.stage);
+}
+
+/** A command as the console labels it: "go_to · executing", and "(last known)" after it
+ * when that is all it knows. */
+export function stageLabel(cmd, presence) {
+  return `${cmd.type} · ${cmd.stage}${lastKnown(cmd, presence) ? " (last known)" : ""}`;
+}
+
 /** The stages a command went through, from its history (each status once, in order). */
 function stagesFromHistory(history) {
   const stages = [];

@@ -2,34 +2,50 @@
 // together. `window.fleetConsole` holds the pieces (for a look from the browser's
 // developer tools, and for the browser tests).
 
-import { Api, login, saveToken, savedToken } from "./api.js";
+import { Api, forgetToken, login, saveToken, savedToken, tokenWasPasted } from "./api.js";
 import { Fleet, TRAIL_MINUTES, isFinal, topicsOf } from "./fleet.js";
 import { LiveLink } from "./live.js";
 import { ControlPanel, FleetTable, VehiclePanel } from "./panels.js";
-import { ago, clock, confirmAction, h, toast, until, zoneText } from "./ui.js";
+import {
+  ago, clock, confirmAction, h, readNumber, sending, toast, until, zoneText,
+} from "./ui.js";
 
 const $ = (id) => document.getElementById(id);
 const PHONE = window.matchMedia("(max-width: 760px)");
+const TOUCH = window.matchMedia("(pointer: coarse)"); // a finger: no Esc, no ctrl-click
+const SETTLE_MS = 1000; // after a tab switch, how long the rest of its multiple click is dropped
 
 // ---- logging in ----------------------------------------------------------------------
 
-function showLogin(message = "") {
+/** The login page, saying ``message``; ``token``: with the token field open and focused. */
+function showLogin(message = "", { token = false } = {}) {
   $("app").hidden = true;
   $("login").hidden = false;
   $("login-error").textContent = message;
-  $("login-user").focus();
+  if (token) $("login-token").closest("details").open = true;
+  (token ? $("login-token") : $("login-user")).focus();
 }
 
-// What the login page says when a token is refused (401) at start.
+// What the login page says when a token is refused (401).
 const REFUSED = {
   pasted: "this token was refused: it is wrong, revoked or expired",
   saved: "your session has ended (expired or revoked): sign in again",
+  pastedEnded: "the token you pasted is no longer accepted (revoked, or a new one was made, " +
+    "as a demo server does each time it starts): paste the new token the server printed",
 };
+
+/** The login page once a session has ended: one that began with a pasted token (the admin
+ * token a demo prints, new at every start) asks for the new token, its field open. */
+function showEnded() {
+  if (tokenWasPasted()) showLogin(REFUSED.pastedEnded, { token: true });
+  else showLogin(REFUSED.saved);
+}
 
 // Set before the page reloads on a refused token, read once by the page that follows.
 const ENDED = "fleet-session-ended";
 
-async function start(token, refused = REFUSED.saved) {
+/** Open the console with ``token``; ``fresh``: a token just pasted (its refusal says so). */
+async function start(token, fresh = false) {
   let me;
   let started = false;
   const api = new Api(token, () => {
@@ -43,7 +59,8 @@ async function start(token, refused = REFUSED.saved) {
     started = true;
   } catch (e) {
     saveToken(null);
-    return showLogin(e.status === 401 ? refused : e.message);
+    if (e.status !== 401) return showLogin(e.message);
+    return fresh ? showLogin(REFUSED.pasted, { token: true }) : showEnded();
   }
   const config = await fetch("/console/config.json").then((r) => r.json()).catch(() => ({}));
   let MapView;
@@ -59,24 +76,26 @@ async function start(token, refused = REFUSED.saved) {
   return new Console(api, me, config, MapView);
 }
 
-$("login-form").addEventListener("submit", async (e) => {
+$("login-form").addEventListener("submit", (e) => {
   e.preventDefault();
-  try {
-    const token = await login($("login-user").value.trim(), $("login-password").value);
-    saveToken(token);
-    $("login-password").value = "";
-    await start(token);
-  } catch (err) {
-    $("login-error").textContent = err.message;
-  }
+  sending("login", async () => {
+    try {
+      const token = await login($("login-user").value.trim(), $("login-password").value);
+      saveToken(token);
+      $("login-password").value = "";
+      await start(token);
+    } catch (err) {
+      $("login-error").textContent = err.message;
+    }
+  });
 });
 
-$("login-token-go").addEventListener("click", async () => {
+$("login-token-go").addEventListener("click", () => {
   const token = $("login-token").value.trim();
   if (!token) return;
-  saveToken(token);
+  saveToken(token, { pasted: true });
   $("login-token").value = "";
-  await start(token, REFUSED.pasted);
+  sending("login", () => start(token, true));
 });
 
 // ---- the console ----------------------------------------------------------------------
@@ -164,14 +183,17 @@ class Console {
       this.wasLost = false;
     } else if (state === "lost") {
       this.wasLost = true;
-      link.textContent = `link lost · reconnecting in ${Math.ceil(info.retryInMs / 1000)} s`;
+      const s = Math.ceil(info.retryInMs / 1000);
+      // on a phone short enough for the header's one row
+      link.textContent = PHONE.matches ? `link lost · ${s} s` : `link lost · reconnecting in ${s} s`;
     } else if (state === "refused") {
       link.textContent = "refused: log in again";
       saveToken(null);
       sessionStorage.setItem(ENDED, "1");
       setTimeout(() => location.reload(), 1500);
     } else {
-      link.textContent = this.wasLost ? "link lost · reconnecting…" : "connecting…";
+      link.textContent = !this.wasLost ? "connecting…"
+        : PHONE.matches ? "link lost · retrying" : "link lost · reconnecting…";
     }
   }
 
@@ -281,11 +303,28 @@ class Console {
     for (const b of document.querySelectorAll("[data-tab]")) {
       b.addEventListener("click", () => this.showTab(b.dataset.tab));
     }
+    // A tab switch never acts on the click that caused it: a double click on a fleet row
+    // opened the Vehicle tab with its first click, and its second landed on the Release
+    // button that had just appeared under the pointer. The rest of a multiple click
+    // (detail 2, 3, ...) that lands in the pane a click has just shown is dropped.
+    window.addEventListener("click", (e) => {
+      const s = this.switched;
+      if (s && e.detail > 1 && e.timeStamp - s.at < SETTLE_MS && s.pane.contains(e.target)) {
+        e.stopPropagation();
+        e.preventDefault();
+      }
+      this.clicking = e; // a tab shown while this click is handled was shown by it
+    }, true);
+    window.addEventListener("click", () => { this.clicking = null; });
     this.showTab(PHONE.matches ? "map" : "fleet");
     PHONE.addEventListener("change", () => this.map.map.invalidateSize());
   }
 
   showTab(tab) {
+    if (this.clicking && this.app.dataset.tab !== tab) {
+      const pane = tab === "map" ? $("map-pane") : document.querySelector(`.side [data-pane="${tab}"]`);
+      if (pane) this.switched = { at: this.clicking.timeStamp, pane };
+    }
     this.app.dataset.tab = tab;
     for (const b of document.querySelectorAll("[data-tab]")) {
       b.setAttribute("aria-selected", String(b.dataset.tab === tab));
@@ -306,21 +345,22 @@ class Console {
     for (const b of document.querySelectorAll("[data-tool]")) {
       b.addEventListener("click", () => this.setTool(this.tool === b.dataset.tool ? null : b.dataset.tool));
     }
-    $("hold").addEventListener("click", () => {
+    // each button that sends is disabled while its call is in flight (ui.js, sending)
+    $("hold").addEventListener("click", () => sending("hold", async () => {
       const radius = this.radius();
-      if (radius != null) this.send("keep_station", { radius_m: radius });
-    });
-    $("stop-selected").addEventListener("click", () => this.stopSelected());
-    $("stop-all").addEventListener("click", () => this.stopAll());
+      if (radius != null) await this.send("keep_station", { radius_m: radius });
+    }));
+    $("stop-selected").addEventListener("click", () => sending("stop", () => this.stopSelected()));
+    $("stop-all").addEventListener("click", () => sending("stop-all", () => this.stopAll()));
     $("path-undo").addEventListener("click", () => {
       this.draftPath.pop();
       this.drawDraft();
     });
     $("path-cancel").addEventListener("click", () => this.setTool(null));
-    $("path-send").addEventListener("click", () => this.sendPath());
+    $("path-send").addEventListener("click", () => sending("path", () => this.sendPath()));
     $("logout").addEventListener("click", () => {
       this.live.stop();
-      saveToken(null);
+      forgetToken();
       location.reload();
     });
     document.addEventListener("keydown", (e) => {
@@ -334,11 +374,18 @@ class Console {
       b.classList.toggle("active", b.dataset.tool === tool);
       b.setAttribute("aria-pressed", String(b.dataset.tool === tool));
     }
-    const hints = {
-      go_to: "Click the map where the selected vehicles should go (Esc: cancel).",
-      station: "Click the map where the selected vehicles should keep station (Esc: cancel).",
-      path: "Click the map to add waypoints, then Send path (Esc: cancel).",
-    };
+    const hints = TOUCH.matches
+      ? {
+        go_to: "Tap the map where the selected vehicles should go (tap Go to again: cancel).",
+        station: "Tap the map where the selected vehicles should keep station " +
+          "(tap Keep station again: cancel).",
+        path: "Tap the map to add waypoints, then Send path (or Cancel).",
+      }
+      : {
+        go_to: "Click the map where the selected vehicles should go (Esc: cancel).",
+        station: "Click the map where the selected vehicles should keep station (Esc: cancel).",
+        path: "Click the map to add waypoints, then Send path (Esc: cancel).",
+      };
     $("tool-hint").hidden = !tool;
     $("tool-hint").textContent = hints[tool] || "";
     $("path-bar").hidden = tool !== "path";
@@ -377,29 +424,27 @@ class Console {
   }
 
   /** The speed option: {} when left empty (the vehicle's own), ``{speed_mps}``, or null
-   * (said in a toast) when it is out of the field's range: nothing is sent then. */
+   * (said in a toast) when it is not a plain number in the field's range: nothing is sent
+   * then. */
   speedArg() {
     const field = $("opt-speed");
-    if (field.value.trim() === "") return {};
-    const speed = parseFloat(field.value);
-    if (!Number.isFinite(speed) || speed < +field.min || speed > +field.max) {
-      toast(`speed is ${field.min} to ${field.max} m/s, or empty for the vehicle's own`, "error");
-      field.focus();
-      return null;
-    }
-    return { speed_mps: speed };
+    const got = readNumber(field, { what: "speed", unit: "m/s", optional: "the vehicle's own" });
+    if (got.error) return this.badNumber(field, got.error);
+    return got.value === undefined ? {} : { speed_mps: got.value };
   }
 
-  /** The station radius in metres, or null (said in a toast) when out of its range. */
+  /** The station radius in metres, or null (said in a toast) when it is not a plain
+   * number in its range. */
   radius() {
     const field = $("opt-radius");
-    const r = parseFloat(field.value);
-    if (!Number.isFinite(r) || r < +field.min || r > +field.max) {
-      toast(`station radius is ${field.min} to ${field.max} m`, "error");
-      field.focus();
-      return null;
-    }
-    return r;
+    const got = readNumber(field, { what: "station radius", unit: "m" });
+    return got.error ? this.badNumber(field, got.error) : got.value;
+  }
+
+  badNumber(field, error) {
+    toast(error, "error");
+    field.focus();
+    return null;
   }
 
   async sendPath() {
@@ -450,6 +495,7 @@ class Console {
       toast(`${type} refused: you do not hold control of ${v.view.name || v.id}`, "error", {
         label: "Request control",
         run: () => this.requestControl(v.id),
+        sends: `request/${v.id}`,
       });
     } else {
       toast(notSent(type, e), "error");
@@ -493,20 +539,36 @@ class Console {
     }
   }
 
-  async requestControl(id) {
-    const v = this.fleet.vehicles.get(id);
-    try {
-      await this.api.post("/client/request_control", { instance_id: v.view.instance_id });
-      v.requested = Date.now(); // the button says so until an answer (or two minutes)
-      this.fleet.changed(id, "control");
-      toast(`control of ${v.view.name || id} requested: the field manager decides`, "ok");
-    } catch (e) {
-      toast(`request refused: ${e.explain()}`, "error");
-    }
+  requestControl(id) {
+    return sending(`request/${id}`, async () => {
+      const v = this.fleet.vehicles.get(id);
+      try {
+        await this.api.post("/client/request_control", { instance_id: v.view.instance_id });
+        v.requested = Date.now(); // the button says so until an answer (or two minutes)
+        this.fleet.changed(id, "control");
+        toast(`control of ${v.view.name || id} requested: the field manager decides`, "ok");
+      } catch (e) {
+        toast(`request refused: ${e.explain()}`, "error");
+      }
+    });
   }
 
-  async releaseControl(id) {
+  /** Give up control, after a confirmation (as Revoke): the vehicle holds station, and
+   * commanding it again takes a new grant. */
+  releaseControl(id) {
+    return sending(`release/${id}`, () => this.release(id));
+  }
+
+  async release(id) {
     const v = this.fleet.vehicles.get(id);
+    const name = v.view.name || id;
+    const ok = await confirmAction({
+      title: `Release your control of ${name}?`,
+      text: `${name} holds station at once; the commands you queued and it has not begun are ` +
+        "cancelled. To command it again you ask for control.",
+      confirm: "Release",
+    });
+    if (!ok) return;
     try {
       await this.api.post("/client/release_control", { instance_id: v.view.instance_id });
       toast(`control of ${v.view.name || id} released`, "ok");
@@ -515,12 +577,14 @@ class Console {
     }
   }
 
-  async cancelCommand(commandId) {
-    try {
-      await this.api.post("/client/cancel_command", { command_id: commandId });
-    } catch (e) {
-      toast(`cancel refused: ${e.explain()}`, "error");
-    }
+  cancelCommand(commandId) {
+    return sending(`cancel/${commandId}`, async () => {
+      try {
+        await this.api.post("/client/cancel_command", { command_id: commandId });
+      } catch (e) {
+        toast(`cancel refused: ${e.explain()}`, "error");
+      }
+    });
   }
 }
 
@@ -539,5 +603,5 @@ const token = savedToken();
 if (token) start(token);
 else if (sessionStorage.getItem(ENDED)) {
   sessionStorage.removeItem(ENDED);
-  showLogin(REFUSED.saved);
+  showEnded();
 } else showLogin();

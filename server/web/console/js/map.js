@@ -4,7 +4,7 @@
 // label placed clear of its neighbours and a trail of the last minutes.
 
 import * as L from "/vendor/leaflet/leaflet-src.esm.js";
-import { isFinal } from "./fleet.js";
+import { isFinal, lastKnown, stageLabel } from "./fleet.js";
 import { placeLabels } from "./labels.js";
 
 export { L };
@@ -208,8 +208,9 @@ export class MapView {
     el.querySelector("path").setAttribute("transform", `rotate(${heading})`);
     el.style.setProperty("--trail", colourOf(v.index));
     const cmd = this.fleet.latestCommand(v.id);
+    const stale = lastKnown(cmd, view.presence) ? " last-known" : "";
     const chip = cmd
-      ? `<span class="chip stage-${cmd.stage}">${escapeHtml(cmd.type)} · ${escapeHtml(cmd.stage)}</span>`
+      ? `<span class="chip stage-${cmd.stage}${stale}">${escapeHtml(stageLabel(cmd, view.presence))}</span>`
       : "";
     const failsafe = view.control_mode === "failsafe" || view.control_mode === "local"
       ? `<span class="chip stage-failed">${escapeHtml(view.control_mode)}</span>` : "";

@@ -2,8 +2,8 @@
 // recent commands and events) and the control panel (a field manager's requests, grants
 // and leases; an operator's own). Each redraws from the Fleet state when it changes.
 
-import { isFinal, stageOf } from "./fleet.js";
-import { ago, clock, confirmAction, dateTime, h, toast, until } from "./ui.js";
+import { isFinal, lastKnown, stageLabel, stageOf } from "./fleet.js";
+import { ago, clock, confirmAction, dateTime, h, sending, sends, toast, until } from "./ui.js";
 
 const DURATIONS = [
   [300, "5 min"], [900, "15 min"], [1800, "30 min"], [3600, "1 h"], [7200, "2 h"],
@@ -42,9 +42,11 @@ function presenceBadge(presence) {
   return h(`span.presence.p-${presence || "offline"}`, {}, presence || "unknown");
 }
 
-function chip(cmd) {
+/** A command's stage as a chip: greyed, "(last known)", when the vehicle is not online. */
+function chip(cmd, presence) {
   if (!cmd) return "–";
-  return h(`span.chip.stage-${cmd.stage}`, {}, `${cmd.type} · ${cmd.stage}`);
+  return h(`span.chip.stage-${cmd.stage}${lastKnown(cmd, presence) ? ".last-known" : ""}`, {},
+    stageLabel(cmd, presence));
 }
 
 /** A delay in ms as the console shows it (tenths below 10 ms). */
@@ -143,9 +145,13 @@ export class FleetTable {
               ? [h("br"), h("small.link-delay", { title: "one-way delay to the server" },
                 `link ${millis(v.view.link_delay_ms)}`)]
               : null),
-          h("td", {}, p && p.battery_pct != null ? `${p.battery_pct.toFixed(0)} %` : "–"),
+          // a reading of a vehicle not online is greyed and dated, as in its panel
+          v.view.presence === "online"
+            ? h("td", {}, p && p.battery_pct != null ? `${p.battery_pct.toFixed(0)} %` : "–")
+            : h("td.stale", { title: p ? `as of ${clock(p.ts)}` : null },
+              p && p.battery_pct != null ? `${p.battery_pct.toFixed(0)} %` : "–"),
           h("td", {}, holderText(v.control, me)),
-          h("td", {}, chip(fleet.latestCommand(v.id))),
+          h("td", {}, chip(fleet.latestCommand(v.id), v.view.presence)),
         );
         return row;
       }),
@@ -216,9 +222,13 @@ export class VehiclePanel {
       me.role !== "viewer" && !mine && view.instance_id
         ? (v.requested && Date.now() - v.requested < REQUEST_SHOWN_MS
           ? h("button", { disabled: true, title: "the field manager decides" }, "Requested…")
-          : h("button", { onclick: () => this.ctx.requestControl(v.id) }, "Request control"))
+          : h("button", {
+            ...sends(`request/${v.id}`), onclick: () => this.ctx.requestControl(v.id),
+          }, "Request control"))
         : null,
-      mine ? h("button", { onclick: () => this.ctx.releaseControl(v.id) }, "Release") : null,
+      mine ? h("button", {
+        ...sends(`release/${v.id}`), onclick: () => this.ctx.releaseControl(v.id),
+      }, "Release") : null,
     );
     const failsafe = view.failsafe
       ? h("p.failsafe", {}, h("b", {}, "If the link is lost: "), describeFailsafe(view.failsafe),
@@ -244,7 +254,9 @@ export class VehiclePanel {
         h("dt", {}, "battery"), h("dd", {}, num(p.battery_pct, "%", 0)),
         h("dt", {}, "link"), h("dd.link-delay", {}, linkText(view) || "–"),
         p.depth_m != null ? [h("dt", {}, "depth"), h("dd", {}, num(p.depth_m, "m"))] : null),
-      h("h3", {}, "Parameters ", h("button.quiet", { onclick: () => this.loadParams() }, "refresh")),
+      h("h3", {}, "Parameters ", h("button.quiet", {
+        ...sends(`params/${v.id}`), onclick: () => sending(`params/${v.id}`, () => this.loadParams()),
+      }, "refresh")),
       this.paramsTable(),
       h("h3", {}, "Recent commands"),
       this.commandList(v),
@@ -267,15 +279,18 @@ export class VehiclePanel {
     const cmds = this.ctx.fleet.recentCommands(v.id).slice(0, 12);
     if (!cmds.length) return h("p.hint", {}, "none");
     return h("ol.commands", {}, ...cmds.map((c) => h(
-      "li",
+      lastKnown(c, v.view.presence) ? "li.last-known" : "li",
       { dataset: { command: c.command_id, stage: c.stage } },
-      h("b", {}, c.type), " ", h("span.steps", {}, c.stages.join(" → ")),
+      h("b", {}, c.type), " ", h("span.steps", {}, c.stages.join(" → "),
+        lastKnown(c, v.view.presence) ? " (last known)" : ""),
       c.progress != null && !isFinal(c.status) ? ` ${Math.round(c.progress * 100)} %` : "",
       h("br"),
       h("small", {}, `${clock(c.issued_at)}${c.issued_by ? ` by ${c.issued_by}` : ""}`,
         c.detail ? ` · ${readableDetail(c.detail)}` : ""),
       !isFinal(c.status) && this.mayCancel(v, c)
-        ? h("button.quiet", { onclick: () => this.ctx.cancelCommand(c.command_id) }, "cancel")
+        ? h("button.quiet", {
+          ...sends(`cancel/${c.command_id}`), onclick: () => this.ctx.cancelCommand(c.command_id),
+        }, "cancel")
         : null,
     )));
   }
@@ -323,12 +338,14 @@ export function describeEvent(e) {
   }
   if (e.kind.startsWith("control_")) {
     const who = d.holder || d.user || d.username || "";
+    const by = e.actor ? e.actor.replace(/^user:/, "") : "";
     const terms = e.kind === "control_grant" && d.expires_at
       ? ` until ${clock(d.expires_at)}` +
         (d.operator_timeout_s ? `, lapses after ${d.operator_timeout_s} s of silence` : "")
       : "";
+    // "released by ben", not "released by ben (by ben)"
     return `${who}${terms}${d.reason ? `: ${String(d.reason).replace(/_/g, " ")}` : ""}` +
-      `${e.actor ? ` (by ${e.actor.replace(/^user:/, "")})` : ""}`;
+      `${by && by !== who ? ` (by ${by})` : ""}`;
   }
   if (e.kind === "hold_station") {
     const why = String(d.reason || "ended").replace(/_/g, " ");
@@ -429,6 +446,8 @@ export class ControlPanel {
     }
     if (event.kind === "control_request" && this.managed(id) && by !== me) {
       toast(`${by} asks for control of ${name}: see Control`, "info");
+    } else if (event.kind === "control_grant" && d.replaces === me && d.holder !== me && by !== me) {
+      toast(`control of ${name} passed to ${d.holder} (granted by ${by}); it holds station`, "error");
     } else if (event.kind === "control_grant" && d.holder === me && by !== me) {
       toast(`you now hold control of ${name} (granted by ${by})`, "ok");
     } else if (event.kind === "control_deny" && d.user === me) {
@@ -555,9 +574,11 @@ export class ControlPanel {
       h("div", {}, h("b", {}, r.username), " asks for ", h("b", {}, name),
         h("br"), h("small", {}, `since ${clock(r.requested_at)}`)),
       h("div.row", {}, this.durationSelect("duration"), this.livenessSelect("liveness"),
-        h("button.primary", { type: "submit" }, "Grant"),
+        h("button.primary", { type: "submit", ...sends(`grant/${r.instance_id}`) }, "Grant"),
         h("button.quiet.deny", {
-          type: "button", onclick: () => this.deny(r.instance_id, r.username, name),
+          type: "button",
+          ...sends(`deny/${r.instance_id}/${r.username}`),
+          onclick: () => this.deny(r.instance_id, r.username, name),
         }, "Decline")));
       return h("li", {}, form);
     });
@@ -578,7 +599,9 @@ export class ControlPanel {
           e.preventDefault();
           const f = e.target;
           const v = this.ctx.fleet.vehicles.get(f.vehicle.value);
-          this.grant(v.view.instance_id, f.user.value.trim(), +f.duration.value, +f.liveness.value);
+          sending("grant/form", () => this.grant(
+            v.view.instance_id, f.user.value.trim(), +f.duration.value, +f.liveness.value,
+          ));
         },
       },
       h("label", {}, "vehicle ", h("select", { name: "vehicle" },
@@ -586,7 +609,7 @@ export class ControlPanel {
       h("label", {}, "user ", h("input", { name: "user", required: true, autocomplete: "off" })),
       h("label", {}, "for ", this.durationSelect("duration")),
       h("label", {}, "lapse when their client is ", this.livenessSelect("liveness")),
-      h("button.primary", { type: "submit" }, "Grant")));
+      h("button.primary", { type: "submit", ...sends("grant/form") }, "Grant")));
   }
 
   leaseSection() {
@@ -616,10 +639,15 @@ export class ControlPanel {
             : h("div.hint", {}, "nobody holds control"),
           h("div.row", {},
             c && this.managed(v.id)
-              ? h("button", { onclick: () => this.revoke(v) }, "Revoke") : null,
-            mine ? h("button", { onclick: () => this.ctx.releaseControl(v.id) }, "Release") : null,
+              ? h("button", { ...sends(`revoke/${v.id}`), onclick: () => this.revoke(v) }, "Revoke")
+              : null,
+            mine ? h("button", {
+              ...sends(`release/${v.id}`), onclick: () => this.ctx.releaseControl(v.id),
+            }, "Release") : null,
             !mine && me.role !== "viewer" && v.view.instance_id
-              ? h("button.quiet", { onclick: () => this.ctx.requestControl(v.id) }, "Request")
+              ? h("button.quiet", {
+                ...sends(`request/${v.id}`), onclick: () => this.ctx.requestControl(v.id),
+              }, "Request")
               : null));
       });
     return h("section", {}, h("h3", {}, "Leases"), h("ul.cards", {}, ...rows));
@@ -642,13 +670,27 @@ export class ControlPanel {
       rows.length ? h("ol.events", {}, ...rows) : h("p.hint", {}, "nothing yet"));
   }
 
-  async grant(instanceId, user, durationS, operatorTimeoutS = 0) {
+  grant(instanceId, user, durationS, operatorTimeoutS = 0) {
+    return sending(`grant/${instanceId}`, () => this.grantNow(instanceId, user, durationS, operatorTimeoutS));
+  }
+
+  async grantNow(instanceId, user, durationS, operatorTimeoutS) {
+    if (!(await this.mayTakeOver(instanceId, user))) return;
+    const v = this.vehicleOf(instanceId);
+    const name = v ? v.view.name || v.id : instanceId;
+    const before = v && v.control;
     try {
       const body = { instance_id: instanceId, user, duration_s: durationS };
       if (operatorTimeoutS) body.operator_timeout_s = operatorTimeoutS;
       const lease = await this.ctx.api.post("/client/grant_control", body);
-      toast(`control granted to ${lease.holder} until ${clock(lease.expires_at)}`, "ok");
-      const v = this.vehicleOf(instanceId);
+      if (before && before.holder === lease.holder
+        && Date.parse(lease.expires_at) <= Date.parse(before.expires_at)) {
+        // granted again for less than is left: the server keeps the lease as it was
+        toast(`${lease.holder} already holds ${name} until ${clock(lease.expires_at)}; ` +
+          "a grant never shortens a lease", "info");
+      } else {
+        toast(`control of ${name} granted to ${lease.holder} until ${clock(lease.expires_at)}`, "ok");
+      }
       if (v) this.ctx.fleet.applyControl(v.id, { control: lease });
     } catch (e) {
       toast(`grant refused: ${e.explain ? e.explain() : e.message}`, "error");
@@ -656,17 +698,39 @@ export class ControlPanel {
     this.loadRequests();
   }
 
-  async deny(instanceId, user, name) {
-    try {
-      await this.ctx.api.post("/client/deny_control", { instance_id: instanceId, user });
-      toast(`${user}'s request for ${name} declined`, "ok");
-    } catch (e) {
-      toast(`decline refused: ${e.explain ? e.explain() : e.message}`, "error");
-    }
-    this.loadRequests();
+  /** A grant to someone while another holds the vehicle ends that lease: asked first. */
+  async mayTakeOver(instanceId, user) {
+    const v = this.vehicleOf(instanceId);
+    const c = v && v.control;
+    if (!c || c.holder === user || !(Date.parse(c.expires_at) > Date.now())) return true;
+    const name = v.view.name || v.id;
+    const holder = holderText(c, this.ctx.me);
+    return confirmAction({
+      title: `Give control of ${name} to ${user}?`,
+      text: `${holder} ${holder === "you" ? "hold" : "holds"} ${name} until ${clock(c.expires_at)}; ` +
+        `give control to ${user} instead? ${holder === "you" ? "Your" : `${c.holder}'s`} commands ` +
+        `it has not begun are cancelled and ${name} holds station.`,
+      confirm: `Give it to ${user}`,
+    });
   }
 
-  async revoke(v) {
+  deny(instanceId, user, name) {
+    return sending(`deny/${instanceId}/${user}`, async () => {
+      try {
+        await this.ctx.api.post("/client/deny_control", { instance_id: instanceId, user });
+        toast(`${user}'s request for ${name} declined`, "ok");
+      } catch (e) {
+        toast(`decline refused: ${e.explain ? e.explain() : e.message}`, "error");
+      }
+      this.loadRequests();
+    });
+  }
+
+  revoke(v) {
+    return sending(`revoke/${v.id}`, () => this.revokeNow(v));
+  }
+
+  async revokeNow(v) {
     const name = v.view.name || v.id;
     const holder = v.control ? v.control.holder : "its holder";
     const ok = await confirmAction({

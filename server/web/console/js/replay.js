@@ -4,7 +4,7 @@
 
 import { L, colourOf, escapeHtml } from "./map.js";
 import { describeEvent, kindName } from "./panels.js";
-import { clock, dateTime, h, toast } from "./ui.js";
+import { clock, dateTime, h, sending, toast } from "./ui.js";
 
 const MAX_EVENTS_PER_VEHICLE = 100000;
 const MAX_POINTS_PER_VEHICLE = 50000; // five pages of the track route
@@ -84,13 +84,13 @@ export class Replay {
     }
     this.form.addEventListener("submit", (e) => {
       e.preventDefault();
-      this.load();
+      sending("replay", () => this.load());
     });
     this.slider.addEventListener("input", () => this.seek(this.start + +this.slider.value));
     this.playButton.addEventListener("click", () => (this.playing ? this.pause() : this.play()));
     document.getElementById("replay-exit").addEventListener("click", () => this.exit());
     for (const b of this.exportBox.querySelectorAll("[data-format]")) {
-      b.addEventListener("click", () => this.export(b.dataset.format));
+      b.addEventListener("click", () => sending(`export/${b.dataset.format}`, () => this.export(b.dataset.format)));
     }
   }
 
@@ -135,18 +135,25 @@ export class Replay {
     if (!(start < end)) return toast("the window must start before it ends", "error");
     this.pause();
     this.info.textContent = "loading…";
+    let got;
     try {
-      const got = await Promise.all(ids.map((id) => this.fetchVehicle(id, start, end)));
-      this.start = start;
-      this.end = end;
-      this.ids = ids;
-      this.tracks = new Map(got.map((g) => [g.id, g.points]));
-      this.events = got.flatMap((g) => g.events).sort((a, b) => a.t - b.t);
+      got = await Promise.all(ids.map((id) => this.fetchVehicle(id, start, end)));
     } catch (e) {
       this.info.textContent = "";
       return toast(`replay: ${e.message}`, "error");
     }
-    const total = [...this.tracks.values()].reduce((n, p) => n + p.length, 0);
+    const total = got.reduce((n, g) => n + g.points.length, 0);
+    if (!total && !got.some((g) => g.events.length)) { // nothing to play: said; the map stays
+      this.info.textContent = `Nothing was recorded for ${ids.length === 1 ? "this vehicle" : "these vehicles"} ` +
+        `from ${dateTime(start)} to ${dateTime(end)}: no position, no event. ` +
+        "Try a wider window (1 h, 6 h, or an earlier start).";
+      return undefined;
+    }
+    this.start = start;
+    this.end = end;
+    this.ids = ids;
+    this.tracks = new Map(got.map((g) => [g.id, g.points]));
+    this.events = got.flatMap((g) => g.events).sort((a, b) => a.t - b.t);
     this.info.textContent = `${ids.length} vehicle(s), ${total} stored positions, ` +
       `${this.events.length} events, ${dateTime(start)} to ${dateTime(end)}`;
     this.enter();

@@ -63,15 +63,83 @@ export function until(ts, now = Date.now()) {
   return `in ${Math.floor(m / 60)} h ${String(m % 60).padStart(2, "0")} min`;
 }
 
+// Calls to the server in flight, by what they do ("grant/<instance>", "stop", ...).
+const inFlight = new Set();
+
+/**
+ * Run ``call`` (a call to the server, with whatever it asks first) unless one for the same
+ * ``key`` is already in flight: a double click or a second tap sends nothing twice.
+ * Meanwhile every button marked for that key (``sends(key)``, or ``data-sends`` in the
+ * page) is disabled, and so is one drawn then (the panels are drawn again on every change).
+ */
+export async function sending(key, call) {
+  if (inFlight.has(key)) return undefined;
+  inFlight.add(key);
+  markSending(key, true);
+  try {
+    return await call();
+  } finally {
+    inFlight.delete(key);
+    markSending(key, false);
+  }
+}
+
+/** The props of a button whose click makes ``key``'s call (``h("button", {...sends(key)})``). */
+export function sends(key) {
+  return { dataset: { sends: key }, disabled: inFlight.has(key) };
+}
+
+function markSending(key, busy) {
+  for (const b of document.querySelectorAll("[data-sends]")) {
+    if (b.dataset.sends === key) b.disabled = busy;
+  }
+}
+
+/** A toast; ``action`` ({label, run, sends}) adds a button to it. */
 export function toast(message, kind = "info", action = null) {
   const box = document.getElementById("toasts");
   const item = h(`div.toast.${kind}`, { role: kind === "error" ? "alert" : "status" },
     h("span.msg", {}, message));
-  if (action) item.append(h("button", { onclick: action.run }, action.label));
+  if (action) {
+    item.append(h("button", { ...(action.sends ? sends(action.sends) : {}), onclick: action.run },
+      action.label));
+  }
   item.append(h("button.quiet.close", { onclick: () => item.remove(), "aria-label": "close" }, "×"));
   box.append(item);
   setTimeout(() => item.remove(), kind === "error" ? 12000 : 5000);
   return item;
+}
+
+/**
+ * A number as a person types it: digits with at most one decimal point, or a decimal
+ * comma read as one ("0,3" is 0.3, whatever the browser's language). Anything else (an
+ * exponent, a second separator, a unit, "Infinity") is not a number here: null.
+ */
+export function parseDecimal(text) {
+  const s = String(text ?? "").trim();
+  if (!/^[+-]?(\d+([.,]\d*)?|[.,]\d+)$/.test(s)) return null;
+  const x = Number(s.replace(",", "."));
+  return Number.isFinite(x) ? x : null;
+}
+
+/**
+ * A numeric field read for a command (``type="text" inputmode="decimal"``, its range in
+ * ``data-min`` and ``data-max``): ``{ value }`` (``value`` undefined when it is empty and
+ * ``optional``), or ``{ error }`` saying what it takes, and nothing may be sent then.
+ * ``what`` names it, ``unit`` its unit, ``optional`` what an empty field means.
+ */
+export function readNumber(field, { what, unit, optional = null }) {
+  const min = +field.dataset.min;
+  const max = +field.dataset.max;
+  const typed = field.value.trim();
+  if (typed === "" && optional) return { value: undefined };
+  const takes = `${what} is ${min} to ${max} ${unit}${optional ? `, or empty for ${optional}` : ""}`;
+  const value = parseDecimal(typed);
+  if (value === null) {
+    return { error: `${takes}: "${typed}" is not a plain number (a decimal point or comma); nothing sent` };
+  }
+  if (value < min || value > max) return { error: `${takes} (not ${value}); nothing sent` };
+  return { value };
 }
 
 const ARM_MS = 800;
