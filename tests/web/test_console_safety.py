@@ -277,7 +277,8 @@ def test_a_pasted_token_that_ends_asks_for_the_new_one(
 def test_what_is_said_is_said_once_and_an_empty_window_says_so(
     world: World, open_console: Any, shots: Shots
 ) -> None:
-    """A path refused to two boats read "...; nothing queued: <the same reason>"; a release
+    """A path refused to two boats read "...; nothing queued: <the same reason>"; two sent
+    to one point are told they meet there (the server's warning); a release
     read "control released by ana (by ana)"; the replay of a window with nothing in it
     said "0 stored positions, 0 events"."""
     for vehicle in ("demo-usv-1", "demo-usv-2"):
@@ -307,6 +308,11 @@ def test_what_is_said_is_said_once_and_an_empty_window_says_so(
     assert said.endswith("; nothing queued"), said  # not followed by the reason again
     shots(page, "refused-once")
     page.keyboard.press("Escape")
+    page.click('#actions [data-tool="go_to"]')  # both to one point: queued, and said
+    page.mouse.click(*screen_point(page, *frame.to_latlon(-40, -20)))  # clear of the boats
+    warned = page.locator("#toasts .toast.warn")
+    expect(warned).to_contain_text("note: 2 vehicles sent to one point")
+    shots(page, "meeting-warned")
     world.as_user(
         "ana",
         "POST",

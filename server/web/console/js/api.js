@@ -105,9 +105,10 @@ export class Api {
     return this.request("POST", path, { body });
   }
 
-  /** POST /client/submit_control; the commands queued (one per instance). */
+  /** POST /client/submit_control: {commands (one per instance), warnings (sentences)}. */
   async submit(instanceIds, type, args, ttlS = 120) {
     const body = { instance_ids: instanceIds, command: { type, args }, ttl_s: ttlS };
-    return (await this.post("/client/submit_control", body)).commands;
+    const answer = await this.post("/client/submit_control", body);
+    return { commands: answer.commands, warnings: answer.warnings || [] };
   }
 }

@@ -474,12 +474,14 @@ class Console {
       return false;
     }
     try {
-      const made = await this.api.submit(vehicles.map((v) => v.view.instance_id), type, args);
+      const ids = vehicles.map((v) => v.view.instance_id);
+      const { commands: made, warnings } = await this.api.submit(ids, type, args);
       for (const c of made) {
         const v = vehicles.find((x) => x.view.instance_id === c.instance_id);
         if (v) this.fleet.noteSubmitted(v.id, c.command_id, type, args, this.me.username);
       }
       toast(`${type} queued for ${vehicles.map((v) => v.view.name || v.id).join(", ")}`, "ok");
+      for (const warning of warnings) toast(`note: ${warning}`, "warn");
       return true;
     } catch (e) {
       this.refused(type, e, vehicles);
@@ -528,7 +530,7 @@ class Console {
     if (!ok) return;
     this.setTool(null);
     try {
-      const made = await this.api.submit(["*"], "stop", {});
+      const { commands: made } = await this.api.submit(["*"], "stop", {});
       for (const c of made) {
         const v = running.find((x) => x.view.instance_id === c.instance_id);
         if (v) this.fleet.noteSubmitted(v.id, c.command_id, "stop", {}, this.me.username);

@@ -106,7 +106,7 @@ export function toast(message, kind = "info", action = null) {
   }
   item.append(h("button.quiet.close", { onclick: () => item.remove(), "aria-label": "close" }, "×"));
   box.append(item);
-  setTimeout(() => item.remove(), kind === "error" ? 12000 : 5000);
+  setTimeout(() => item.remove(), kind === "error" || kind === "warn" ? 12000 : 5000);
   return item;
 }
 
