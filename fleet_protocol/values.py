@@ -49,6 +49,7 @@ from pydantic_core import (
 )
 
 __all__ = [
+    "BIDI_CONTROLS",
     "MAX_INT",
     "MAX_JSON_DEPTH",
     "MAX_KEY_CHARS",
@@ -352,10 +353,21 @@ Text = Annotated[str, BeforeValidator(check_text)]
 _CONTROL = re.compile("[\x00-\x1f\x7f-\x9f]")
 
 
+#: Characters that reorder the text around them on a screen (bidirectional embeddings,
+#: overrides and isolates): a name holding one can read as another.
+BIDI_CONTROLS = re.compile("[\u202a-\u202e\u2066-\u2069]")
+
+
 def check_label(value: object) -> object:
     if isinstance(value, str) and _CONTROL.search(value) is not None:
         raise PydanticCustomError(
             "string_control", "a name is shown on screens: no control characters"
+        )
+    if isinstance(value, str) and BIDI_CONTROLS.search(value) is not None:
+        raise PydanticCustomError(
+            "string_bidi",
+            "a name is shown on screens: no characters that reorder the text "
+            "(U+202A to U+202E, U+2066 to U+2069)",
         )
     return value
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 from typing import Any
 
+from fleet_protocol import BIDI_CONTROLS
 from remote_client.sdk import shown_status
 
 __all__ = ["event_lines", "position_text"]
@@ -131,7 +132,10 @@ def event_text(event: dict[str, Any]) -> str:
 
 
 def _compact(data: Any) -> str:
+    """Free-form data on one line: JSON (control characters escaped by it), and the
+    characters that would reorder a terminal's line escaped too (``\\u202e``)."""
     text = json.dumps(data, separators=(",", ":"), ensure_ascii=False)
+    text = BIDI_CONTROLS.sub(lambda m: f"\\u{ord(m.group()):04x}", text)
     return text if len(text) <= MAX_DATA_CHARS else text[: MAX_DATA_CHARS - 1] + "…"
 
 

@@ -231,3 +231,11 @@ async def test_a_refusal_says_when_to_try_again() -> None:
             await FleetClient("http://fleet.test", "fct_x", client=http).vehicles()
     assert (refused.value.status, refused.value.retry_after_s) == (429, 7.0)
     assert refused.value.details == []
+
+
+def test_data_that_would_reorder_a_terminal_line_is_shown_escaped() -> None:
+    push = {"op": "event", "topic": "user/ana/notes", "ts": "2026-11-22T10:00:00.000Z",
+            "data": {"reason": "line1\nline2\u0000\u202e evil"}}  # fmt: skip
+    [line] = event_lines(push)
+    assert "\u202e" not in line and "\n" not in line and "\x00" not in line
+    assert "\\u202e evil" in line

@@ -238,7 +238,9 @@ async def test_a_start_without_a_type_keeps_the_registered_one(client: httpx.Asy
     assert r.status_code == 200 and await shown_type() == "rov"
 
 
-@pytest.mark.parametrize("name", ["\x1b[2J\x1b[31mHACKED", "a\x00b", "two\nlines", "c1\x9bx"])
+@pytest.mark.parametrize(
+    "name", ["\x1b[2J\x1b[31mHACKED", "a\x00b", "two\nlines", "c1\x9bx", "Alpha\u202eahplA"]
+)
 async def test_a_name_with_control_characters_is_422(client: httpx.AsyncClient, name: str) -> None:
     vid, vh = await make_vehicle(client)
     r = await client.post(
