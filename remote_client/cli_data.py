@@ -262,7 +262,7 @@ def sync(
         return
     for r in results:
         held = f"{r.total} in {db} (through seq {r.through_seq})"
-        print(f"{r.vehicle_id}: {r.added} new samples; {held}")
+        print(f"{r.vehicle_id}: {r.added} new sample{'' if r.added == 1 else 's'}; {held}")
 
 
 def _fraction(start: str, reached: str, end: str) -> float:
