@@ -275,3 +275,27 @@ def test_a_name_with_markup_is_shown_as_text_and_no_inline_script_runs(
     refused = [e for e in guard.errors if blocked in e]
     assert len(refused) == 1 and "script-src" in refused[0]
     guard.errors.remove(refused[0])  # the refusal this test caused: not a fault of the page
+
+
+def test_the_field_manager_revokes_from_the_vehicle_panel(world: World, open_console: Any) -> None:
+    """Where the manager looks at the boat, not only on the Control tab: Revoke, asked
+    first; an operator's panel offers no such button."""
+    world.fleet.grant(world.instances["demo-usv-2"], "ben")
+    page, _ = open_console()
+    log_in(page, "mia")
+    marker(page, "demo-usv-2").click()
+    panel = page.locator("#vehicle-pane")
+    expect(panel.locator(".control-line")).to_contain_text("ben holds control until")
+    panel.locator("button", has_text="Revoke").click()
+    expect(page.locator("#confirm-title")).to_have_text("Revoke ben's control of H2OmniX Bravo?")
+    ok = page.locator("#confirm-ok")
+    expect(ok).to_be_enabled()
+    ok.click()
+    expect(panel.locator(".control-line")).to_contain_text("nobody holds control")
+    world.fleet.grant(world.instances["demo-usv-2"], "ben")
+    other, _ = open_console()
+    log_in(other, "ana")
+    marker(other, "demo-usv-2").click()
+    line = other.locator("#vehicle-pane .control-line")
+    expect(line).to_contain_text("ben holds control")
+    expect(line.locator("button", has_text="Revoke")).to_have_count(0)

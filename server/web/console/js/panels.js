@@ -219,6 +219,11 @@ export class VehiclePanel {
           h("small.until", { dataset: { until: control.expires_at } }, `(${until(control.expires_at)})`),
           control.granted_by ? h("small", {}, ` granted by ${control.granted_by}`) : null]
         : "nobody holds control",
+      control && !mine && this.ctx.controlPanel.managed(v.id)
+        ? h("button", {
+          ...sends(`revoke/${v.id}`), onclick: () => this.ctx.controlPanel.revoke(v),
+        }, "Revoke")
+        : null,
       me.role !== "viewer" && !mine && view.instance_id
         ? (v.requested && Date.now() - v.requested < REQUEST_SHOWN_MS
           ? h("button", { disabled: true, title: "the field manager decides" }, "Requested…")
