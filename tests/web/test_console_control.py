@@ -80,12 +80,16 @@ def test_field_manager_grants_control_on_a_phone(
     shots(page, "phone-granted", full_page=True)
     # ben's other request (for the boat ana holds) is declined
     declined = page.locator('form.request[data-user="ben"][data-vehicle="demo-usv-1"]')
+    declined.locator("input.reason").fill("divers in the water")
+    declined.locator("input.reason").press("Enter")  # a reason's Enter grants nothing
+    expect(declined).to_have_count(1)
     declined.locator("button.deny").tap()
     expect(declined).to_have_count(0)
     said = page.locator(
         'section.safety-log li[data-kind="control_deny"][data-vehicle="demo-usv-1"]'
     )
     expect(said.first).to_contain_text("request declined for ben")
+    expect(said.first).to_contain_text("divers in the water")
     assert world.as_user("mia", "GET", "/client/control_requests")["requests"] == []
     page.click('[data-tab="map"]')  # back on the map: labels measured again, on the screen
     next_frames(page)

@@ -580,10 +580,17 @@ export class ControlPanel {
         h("br"), h("small", {}, `since ${clock(r.requested_at)}`)),
       h("div.row", {}, this.durationSelect("duration"), this.livenessSelect("liveness"),
         h("button.primary", { type: "submit", ...sends(`grant/${r.instance_id}`) }, "Grant"),
+        h("input.reason", {
+          name: "reason", maxLength: 200, placeholder: "reason (optional)",
+          "aria-label": `why ${r.username}'s request is declined (optional)`,
+          // Enter in the card's form would grant: a reason is for declining
+          onkeydown: (e) => { if (e.key === "Enter") e.preventDefault(); },
+        }),
         h("button.quiet.deny", {
           type: "button",
           ...sends(`deny/${r.instance_id}/${r.username}`),
-          onclick: () => this.deny(r.instance_id, r.username, name),
+          onclick: (e) => this.deny(r.instance_id, r.username, name,
+            e.target.form.reason.value.trim()),
         }, "Decline")));
       return h("li", {}, form);
     });
@@ -719,11 +726,12 @@ export class ControlPanel {
     });
   }
 
-  deny(instanceId, user, name) {
+  deny(instanceId, user, name, reason = "") {
     return sending(`deny/${instanceId}/${user}`, async () => {
       try {
-        await this.ctx.api.post("/client/deny_control", { instance_id: instanceId, user });
-        toast(`${user}'s request for ${name} declined`, "ok");
+        const body = { instance_id: instanceId, user, ...(reason ? { reason } : {}) };
+        await this.ctx.api.post("/client/deny_control", body);
+        toast(`${user}'s request for ${name} declined${reason ? `: ${reason}` : ""}`, "ok");
       } catch (e) {
         toast(`decline refused: ${e.explain ? e.explain() : e.message}`, "error");
       }
