@@ -78,6 +78,17 @@ def test_a_decimal_comma_is_a_point_and_anything_else_is_refused(
 
     assert wait_until(hold, "Hold here")["args"] == {"radius_m": 2.5}
     shots(page, "sent")
+    # a click that lands 20 km away (a zoomed-out map) asks first; cancelled: nothing sent
+    far = LocalFrame(start["lat"], start["lon"]).to_latlon(20_000.0, 0.0)
+    centre_on(page, far[0], far[1], 15)
+    page.click('[data-tool="go_to"]')
+    with no_requests(guard):
+        page.mouse.click(*screen_point(page, *far))
+        expect(page.locator("#confirm-title")).to_have_text(
+            re.compile(r"^Send H2OmniX Bravo 20 km away\?$")
+        )
+        page.locator("#confirm-cancel").click()
+        expect(page.locator("#confirm")).not_to_be_visible()
 
 
 def test_a_double_click_on_a_fleet_row_does_not_release_control(

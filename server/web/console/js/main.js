@@ -7,13 +7,34 @@ import { Fleet, TRAIL_MINUTES, isFinal, topicsOf } from "./fleet.js";
 import { LiveLink } from "./live.js";
 import { ControlPanel, FleetTable, VehiclePanel } from "./panels.js";
 import {
-  ago, clock, confirmAction, h, readNumber, sending, toast, until, zoneText,
+  ago, clock, confirmAction, h, metresBetween, readNumber, sending, toast, until, zoneText,
 } from "./ui.js";
 
 const $ = (id) => document.getElementById(id);
 const PHONE = window.matchMedia("(max-width: 760px)");
 const TOUCH = window.matchMedia("(pointer: coarse)"); // a finger: no Esc, no ctrl-click
 const SETTLE_MS = 1000; // after a tab switch, how long the rest of its multiple click is dropped
+const FAR_M = 5000; // a target farther than this from its vehicle is confirmed first
+
+/** The points a command sends its vehicles to (none for a stop or a hold where it is). */
+function targetPoints(type, args) {
+  if (type === "follow_path") return args.waypoints || [];
+  return args.lat != null ? [{ lat: args.lat, lon: args.lon }] : [];
+}
+
+/** The vehicle farthest from a point it is sent to, and how far: {name, m}, or null. */
+function farthest(vehicles, points) {
+  let out = null;
+  for (const v of vehicles) {
+    const here = v.view.position;
+    if (!here) continue;
+    for (const p of points) {
+      const m = metresBetween(here, p);
+      if (!out || m > out.m) out = { name: v.view.name || v.id, m };
+    }
+  }
+  return out;
+}
 
 // ---- logging in ----------------------------------------------------------------------
 
@@ -472,6 +493,17 @@ class Console {
     if (!vehicles.length) {
       toast("no selected vehicle is running", "error");
       return false;
+    }
+    const far = farthest(vehicles, targetPoints(type, args));
+    if (far && far.m > FAR_M) {
+      const km = (far.m / 1000).toLocaleString(undefined, { maximumFractionDigits: 1 });
+      const ok = await confirmAction({
+        title: `Send ${far.name} ${km} km away?`,
+        text: `The ${type === "follow_path" ? "path goes" : "target is"} ${km} km from where ` +
+          `${far.name} is now: check the point (a click on a zoomed-out map lands far).`,
+        confirm: `Send ${type}`,
+      });
+      if (!ok) return false;
     }
     try {
       const ids = vehicles.map((v) => v.view.instance_id);

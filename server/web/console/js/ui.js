@@ -178,3 +178,13 @@ export function confirmAction({ title, text, confirm }) {
     cancel.focus();
   });
 }
+
+/** Metres between two {lat, lon} points on the sphere (haversine; the mean radius). */
+export function metresBetween(a, b) {
+  const rad = Math.PI / 180;
+  const dLat = (b.lat - a.lat) * rad;
+  const dLon = (b.lon - a.lon) * rad;
+  const h = Math.sin(dLat / 2) ** 2
+    + Math.cos(a.lat * rad) * Math.cos(b.lat * rad) * Math.sin(dLon / 2) ** 2;
+  return 2 * 6371008.8 * Math.asin(Math.min(1, Math.sqrt(h)));
+}
