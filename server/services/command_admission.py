@@ -17,6 +17,7 @@ route (``path_hash``), which the vehicle acknowledges before it starts.
 from __future__ import annotations
 
 from collections.abc import Awaitable, Callable, Mapping, Sequence
+from datetime import datetime
 from typing import Any
 
 from fleet_protocol import CommandSpec, path_hash, route_of
@@ -132,7 +133,26 @@ class Admission:
         if spec.type != "stop" and lane is not None and len(lane.active) >= MAX_ACTIVE_PER_INSTANCE:
             raise RateLimited(f"{MAX_ACTIVE_PER_INSTANCE} commands already wait on this instance")
 
-    async def obstacles_met(
+    async def warnings(
+        self,
+        targets: list[Target],
+        spec: CommandSpec,
+        args: dict[str, dict[str, Any]],
+        expires: datetime,
+    ) -> list[str]:
+        """What a submit queued as asked does that its sender may not have meant: several
+        vehicles sent to meet, a straight way into a known obstacle, a vehicle not online
+        that the command waits for."""
+        meet = life.shared_target(spec.type, spec.args, len(targets), self.separation_m)
+        out = [meet] if meet else []
+        out += await self._obstacles_met(targets, spec, args)
+        for _, state in targets:
+            presence = self.instances.presence(state)
+            if presence not in ("online", "finished"):
+                out.append(life.out_of_reach(state.name, presence, state.last_seen, expires))
+        return out
+
+    async def _obstacles_met(
         self, targets: list[Target], spec: CommandSpec, args: dict[str, dict[str, Any]]
     ) -> list[str]:
         """For a ``go_to`` or a path not planned: each vehicle whose straight way runs into

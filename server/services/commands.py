@@ -168,15 +168,8 @@ class CommandService(CommandLanes):
             {"instance_id": c.instance_id, "command_id": c.command_id, "status": "queued"}
             for c in made
         ]
-        spec = body.command
-        meet = life.shared_target(spec.type, spec.args, len(made), self.settings.separation_m)
-        warnings = [meet] if meet else []
         expires = made[0].expires_at if made else now
-        warnings += await self.admission.obstacles_met(targets, spec, args_by_instance)
-        for _, state in targets:
-            presence = self.instances.presence(state)
-            if presence not in ("online", "finished"):
-                warnings.append(life.out_of_reach(state.name, presence, state.last_seen, expires))
+        warnings = await self.admission.warnings(targets, body.command, args_by_instance, expires)
         return {"commands": queued, "warnings": warnings}
 
     async def cancel(self, principal: Principal, command_id: str) -> Command:
