@@ -37,7 +37,7 @@ from remote_client.cli_common import (
 )
 from remote_client.cli_safety import alive, audit_app, failsafe_app, zones_app
 from remote_client.output import console, errors
-from remote_client.sdk import FleetClient, UnknownVehicle, pick_vehicle, shown_status
+from remote_client.sdk import STOP_TTL_S, FleetClient, UnknownVehicle, pick_vehicle, shown_status
 
 app = typer.Typer(
     cls=Commands,
@@ -68,15 +68,21 @@ SpeedOpt = typer.Option(None, callback=between(0, 50, above=True), help="m/s (ab
 @app.command()
 def stop(
     vehicles: list[str] = typer.Argument(None, help="vehicles to stop; none: every vehicle"),
+    ttl: int = typer.Option(
+        STOP_TTL_S,
+        callback=between(1, 3600),
+        help="seconds the stop waits for a vehicle out of reach (1-3600)",
+    ),
     server: str = ServerOpt,
     token: str = TokenOpt,
     as_json: bool = JsonOpt,
 ) -> None:
-    """Stop vehicles at once (needs no lease). With none named: every vehicle you can see."""
+    """Stop vehicles at once (needs no lease). With none named: every vehicle you can see.
+    A vehicle out of reach gets the stop when it is back, within --ttl."""
 
     async def act(fleet: FleetClient) -> dict[str, Any]:
         ids = await fleet.instance_ids_of(vehicles) if vehicles else None
-        return await fleet.stop(ids)
+        return await fleet.stop(ids, ttl)
 
     print_queued(run(server, token, act), as_json)
 

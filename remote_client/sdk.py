@@ -40,6 +40,9 @@ __all__ = [
 
 #: WebSocket close codes that refuse the token or the socket, as HTTP statuses.
 REFUSING_CLOSE_CODES = {CLOSE_UNAUTHORIZED: 401, CLOSE_FORBIDDEN: 403}
+#: How long a stop waits for a vehicle out of reach: the longest a command may (1 h). A
+#: stop that expired before the vehicle came back would never reach it.
+STOP_TTL_S = 3600
 #: The HTTP status an error code has on the HTTP routes (a refused op is acked with the code).
 STATUS_OF_CODE = {
     "unauthorized": 401, "forbidden": 403, "not_found": 404, "invalid": 422, "rate_limited": 429,
@@ -247,14 +250,17 @@ class FleetClient(AdminCalls):
         answer: Body = await self.call("POST", "/client/submit_control", json=body)
         return answer
 
-    async def stop(self, instance_ids: Sequence[str] | None = None) -> Body:
+    async def stop(
+        self, instance_ids: Sequence[str] | None = None, ttl_s: int = STOP_TTL_S
+    ) -> Body:
         """Stop these instances, or, given None, every vehicle the caller can see (no lease
         needed). An empty list is a ``ValueError``: a filter that matched nothing never
-        stops the whole fleet."""
+        stops the whole fleet. The stop waits for a vehicle out of reach an hour (the
+        longest a command may), not the contract's default 30 s."""
         if instance_ids is not None and not instance_ids:
             raise ValueError("stop: no instance given (None stops every vehicle you can see)")
         ids = ["*"] if instance_ids is None else list(instance_ids)
-        return await self.submit(ids, {"type": "stop", "args": {}})
+        return await self.submit(ids, {"type": "stop", "args": {}}, ttl_s)
 
     async def go_to(
         self,

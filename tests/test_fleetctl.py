@@ -14,8 +14,9 @@ from pathlib import Path
 import httpx
 import pytest
 
+from fleet_protocol import parse_ts
 from server.settings import Settings
-from tests.factories import ADMIN_TOKEN, make_user, make_vehicle, sample, start_instance
+from tests.factories import ADMIN, ADMIN_TOKEN, make_user, make_vehicle, sample, start_instance
 from tests.fleetctl_run import fleetctl as _fleetctl
 from tests.live import free_port, serve
 
@@ -66,7 +67,11 @@ async def test_an_operator_lists_is_refused_then_granted_and_commands(
 
         everyone = await _fleetctl(base, ADMIN_TOKEN, "stop", "--json")
         assert everyone.exit_code == 0, everyone.output
-        assert [s["instance_id"] for s in json.loads(everyone.stdout)["commands"]] == [iid]
+        [stop] = json.loads(everyone.stdout)["commands"]
+        assert stop["instance_id"] == iid
+        sent = (await c.get(f"/api/commands/{stop['command_id']}", headers=ADMIN)).json()
+        waits = parse_ts(sent["expires_at"]) - parse_ts(sent["issued_at"])
+        assert waits.total_seconds() == 3600  # a stop waits for a vehicle out of reach
 
 
 async def test_an_unreachable_server_is_exit_code_3(make_settings: Callable[..., Settings]) -> None:

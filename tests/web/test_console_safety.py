@@ -15,12 +15,13 @@ from playwright.sync_api import expect
 
 from server.demo import VEHICLES
 from tests.agent.procs import wait_until
-from tests.web.conftest import Shots, World, no_requests
+from tests.web.conftest import PASSWORD, Shots, World, no_requests
 from tests.web.test_console import (
     boxes_overlap,
     centre_on,
     log_in,
     marker,
+    ms,
     newest_command,
     next_frames,
     position,
@@ -350,6 +351,33 @@ def test_what_is_said_is_said_once_and_an_empty_window_says_so(
     expect(page.locator("#replay-info")).to_contain_text("Try a wider window")
     expect(page.locator("#replay-bar")).to_be_hidden()  # the map stays live
     shots(page, "empty-window")
+
+
+def test_a_viewer_is_offered_no_command_and_a_stop_waits_an_hour(
+    world: World, open_console: Any
+) -> None:
+    """A viewer reads: no Stop all, no tools over the map (each was offered, then refused).
+    An operator's stop waits for a vehicle out of reach the longest a command may: one
+    that expired after 30 s (the contract's default) never reached a boat back later."""
+    ids = [v[0] for v in VEHICLES]
+    body = {"username": "vic", "role": "viewer", "vehicles": ids, "password": PASSWORD}
+    world.fleet.call("POST", "/api/users", json=body)
+    page, _ = open_console()
+    log_in(page, "vic")
+    expect(page.locator("#stop-all")).to_be_hidden()
+    marker(page, "demo-usv-1").click()
+    expect(page.locator("#selection")).to_be_hidden()
+    expect(page.locator("#actions")).to_be_hidden()
+    page, _ = open_console()
+    log_in(page, "ben")
+    marker(page, "demo-usv-1").click()
+    page.click("#stop-selected")
+    ok = page.locator("#confirm-ok")
+    expect(ok).to_be_enabled()
+    ok.click()
+    stop = wait_until(lambda: newest_command(world, "demo-usv-1", "stop"), "the stop")
+    lasts = ms(stop["expires_at"]) - ms(stop["issued_at"])
+    assert lasts == 3_600_000, lasts
 
 
 def test_a_vehicle_gone_offline_shows_its_stage_as_last_known(

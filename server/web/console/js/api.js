@@ -106,7 +106,7 @@ export class Api {
   }
 
   /** POST /client/submit_control: {commands (one per instance), warnings (sentences)}. */
-  async submit(instanceIds, type, args, ttlS = 120) {
+  async submit(instanceIds, type, args, ttlS) {
     const body = { instance_ids: instanceIds, command: { type, args }, ttl_s: ttlS };
     const answer = await this.post("/client/submit_control", body);
     return { commands: answer.commands, warnings: answer.warnings || [] };

@@ -15,6 +15,8 @@ const PHONE = window.matchMedia("(max-width: 760px)");
 const TOUCH = window.matchMedia("(pointer: coarse)"); // a finger: no Esc, no ctrl-click
 const SETTLE_MS = 1000; // after a tab switch, how long the rest of its multiple click is dropped
 const FAR_M = 5000; // a target farther than this from its vehicle is confirmed first
+const TTL_S = 120; // how long a mission waits for its vehicle
+const STOP_TTL_S = 3600; // a stop waits for a vehicle out of reach the longest a command may
 
 /** The points a command sends its vehicles to (none for a stop or a hold where it is). */
 function targetPoints(type, args) {
@@ -126,6 +128,7 @@ class Console {
     this.api = api;
     this.me = me;
     this.app = $("app");
+    $("stop-all").hidden = me.role === "viewer"; // a viewer reads; every stop needs an operator
     this.fleet = new Fleet();
     this.selection = new Set();
     this.focused = null;
@@ -312,7 +315,9 @@ class Console {
     this.map.setSelected(this.selection);
     this.table.render();
     const n = this.selection.size;
-    $("actions").hidden = n === 0 || this.app.dataset.replay === "on";
+    // a viewer reads: no command tools (the server would refuse every one)
+    const reads = this.me.role === "viewer";
+    $("actions").hidden = n === 0 || this.app.dataset.replay === "on" || reads;
     const names = [...this.selection].map((id) => this.fleet.vehicles.get(id)?.view.name || id);
     $("selection").textContent = n ? `${n} selected: ${names.join(", ")}` : "";
     $("stop-selected").textContent = n > 1 ? `Stop ${n}` : "Stop";
@@ -507,7 +512,8 @@ class Console {
     }
     try {
       const ids = vehicles.map((v) => v.view.instance_id);
-      const { commands: made, warnings } = await this.api.submit(ids, type, args);
+      const ttl = type === "stop" ? STOP_TTL_S : TTL_S;
+      const { commands: made, warnings } = await this.api.submit(ids, type, args, ttl);
       for (const c of made) {
         const v = vehicles.find((x) => x.view.instance_id === c.instance_id);
         if (v) this.fleet.noteSubmitted(v.id, c.command_id, type, args, this.me.username);
@@ -553,21 +559,24 @@ class Console {
 
   async stopAll() {
     const running = this.targets(this.fleet.vehicles.keys());
+    const away = running.filter((v) => v.view.presence !== "online").length;
     const ok = await confirmAction({
       title: "Stop every vehicle?",
-      text: `Every vehicle you can see (${running.length} running) stops at once; ` +
-        "missions queued and not yet started are cancelled.",
+      text: `Every vehicle you can see (${running.length} running` +
+        (away ? `, ${away} of them not online: each gets it when back, within an hour` : "") +
+        "); missions queued and not yet started are cancelled.",
       confirm: "Stop all vehicles",
     });
     if (!ok) return;
     this.setTool(null);
     try {
-      const { commands: made } = await this.api.submit(["*"], "stop", {});
+      const { commands: made, warnings } = await this.api.submit(["*"], "stop", {}, STOP_TTL_S);
       for (const c of made) {
         const v = running.find((x) => x.view.instance_id === c.instance_id);
         if (v) this.fleet.noteSubmitted(v.id, c.command_id, "stop", {}, this.me.username);
       }
       toast(`stop sent to ${made.length} vehicle(s)`, "ok");
+      for (const warning of warnings) toast(`note: ${warning}`, "warn");
     } catch (e) {
       toast(notSent("stop", e), "error");
     }
