@@ -31,7 +31,7 @@ from server.domain.clock import Clock
 from server.domain.events import FailsafeChanged, SamplesStored
 from server.domain.watch import WatchState, change, next_state
 from server.domain.zones import route_violation
-from server.errors import Conflict, Forbidden, NotFound
+from server.errors import Conflict, Forbidden, NotFound, ZoneViolation
 from server.services.auth import AuthService
 from server.services.commands import CommandService
 from server.services.events import EventService
@@ -131,6 +131,8 @@ class SafetyService:
             raise Forbidden(
                 f"only a manager of vehicle {vehicle_id}, or an admin, sets its failsafe"
             )
+        if body.home is not None:
+            self._check_home(vehicle_id, (body.home.lat, body.home.lon))
         for _ in range(_CAS_TRIES):
             current = await self.repo.policy(vehicle_id)
             version = int(current["version"]) if current else 0
@@ -313,6 +315,20 @@ class SafetyService:
             kind, args = "stop", {}
         cmd = await self.commands.system_command(state, kind, args, why)
         return {"action": policy.action, "command_id": cmd.command_id, "command_type": kind}
+
+    def _check_home(self, vehicle_id: str, home: tuple[float, float]) -> None:
+        """A home the vehicle's zones refuse (in a no-go zone, out of its operating area)
+        is 422 naming ``home``: the vehicle drives there itself when its link is lost,
+        where no server checks its way."""
+        found = route_violation(self.zones.known(), vehicle_id, None, [home])
+        if found is None:
+            return
+        message = found.message.replace("the target is", "home is")
+        refused = ZoneViolation(
+            f"the failsafe's {message}", zone_id=found.zone_id, zone=found.name, kind=found.kind
+        )
+        refused.details = [{"field": "home", "message": message, **refused.zone}]
+        raise refused
 
     def _action(self, state: InstanceState, policy: FailsafePolicy) -> tuple[str, dict[str, Any]]:
         if policy.action == "stop":

@@ -7,6 +7,7 @@ import json
 from collections.abc import AsyncIterator, Callable
 from typing import Any
 
+import httpx
 import pytest
 import shapely
 from shapely.geometry import shape
@@ -184,6 +185,27 @@ async def test_a_go_to_into_a_no_go_zone_is_refused_naming_it(w: World) -> None:
     path = {"type": "follow_path", "args": {"waypoints": [at(0, 50), at(100, 0)]}}
     r = await w.submit(op, [me], path)
     assert r.status_code == 422 and "pier 3" in r.json()["error"]["message"]
+
+
+async def test_a_failsafe_home_the_zones_refuse_is_422_naming_home(w: World) -> None:
+    """The vehicle drives home by itself when its link is lost, where no server checks its
+    way: a home in a no-go zone, or out of its operating area, is refused when set."""
+    me = await w.vehicle()
+    await zone(w, no_go())
+    bay = {"name": "bay", "kind": "operating_area", "polygon": polygon(BAY)}
+    await zone(w, {**bay, "vehicles": [me.vehicle_id]})
+
+    async def set_home(x: float, y: float) -> httpx.Response:
+        body = {"action": "return_home", "home": at(x, y)}
+        return await w.http.put(f"/api/vehicles/{me.vehicle_id}/failsafe", headers=ADMIN, json=body)
+
+    for x, y, said in ((50, 0, "home is in no-go zone pier 3"), (500, 0, "home is outside")):
+        r = await set_home(x, y)
+        assert r.status_code == 422, r.text
+        error = r.json()["error"]
+        assert error["code"] == "zone_violation" and said in error["message"]
+        assert error["details"][0]["field"] == "home"
+    assert (await set_home(-50, 0)).status_code == 200
 
 
 async def test_a_zone_for_other_vehicles_does_not_hold_this_one(w: World) -> None:
