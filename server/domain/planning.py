@@ -231,6 +231,9 @@ def _check_waypoints(
         )
     area = areas[int(np.argmax(in_area[index]))]
     within = f" or within its clearance of {area.clearance:g} m" if area.clearance else ""
+    outside = "the outside of "  # the frame round an operating area (zones.keep_out)
+    if area.label.startswith(outside):
+        raise NoPath(f"waypoint {index + 1} is outside {area.label[len(outside) :]}{within}")
     raise NoPath(f"waypoint {index + 1} is inside {area.label}{within}")
 
 

@@ -297,6 +297,9 @@ async def test_no_way_inside_the_area_is_refused_with_the_reason(w: World) -> No
     r = await w.submit(op, [me], command)
     assert r.status_code == 422, r.text
     assert "no way round" in r.json()["error"]["message"]
+    out = {"type": "follow_path", "args": {"waypoints": [at(0, 80)], "plan": True}}
+    r = await w.submit(op, [me], out)  # a waypoint out of the area, said plainly
+    assert "waypoint 1 is outside the operating area channel" in r.json()["error"]["message"]
 
 
 async def test_a_queued_command_the_new_zones_refuse_is_cancelled_before_delivery(w: World) -> None:
