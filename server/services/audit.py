@@ -23,11 +23,13 @@ from server.services.dead_letters import DeadLetters
 from server.storage.audit import AuditRepo
 from server.storage.backends import Doc
 
-#: The event kinds the control log keeps: who was given control, who lost it and why,
+#: The event kinds the control log keeps: who asked for control and was refused or given
+#: it, who lost it and why,
 #: every command's life, the failsafe each vehicle was set to and when it acted.
 AUDITED = frozenset(
     {
         "control_request",
+        "control_deny",
         "control_grant",
         "control_revoke",
         "control_release",

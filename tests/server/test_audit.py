@@ -51,9 +51,17 @@ async def test_grants_commands_and_the_lease_end_make_one_chain(w: World) -> Non
     )
     assert r.status_code == 200
 
+    other = await w.person("operator", me)  # asks, and is refused: on the chain too
+    r = await w.http.post(
+        "/client/request_control", headers=other.headers, json={"instance_id": me.instance_id}
+    )
+    assert r.status_code == 200, r.text
+    body = {"instance_id": me.instance_id, "user": other.username, "reason": "divers down"}
+    assert (await w.http.post("/client/deny_control", headers=ADMIN, json=body)).is_success
+
     async def complete() -> bool:
         kinds = [e["kind"] for e in await chain(w, me.vehicle_id)]
-        return "hold_station" in kinds and "control_revoke" in kinds
+        return "hold_station" in kinds and "control_revoke" in kinds and "control_deny" in kinds
 
     await eventually(complete)
     entries = await chain(w, me.vehicle_id)
