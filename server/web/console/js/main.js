@@ -5,7 +5,8 @@
 import { Api, forgetToken, login, saveToken, savedToken, tokenWasPasted } from "./api.js";
 import { Fleet, TRAIL_MINUTES, isFinal, topicsOf } from "./fleet.js";
 import { LiveLink } from "./live.js";
-import { ControlPanel, FleetTable, VehiclePanel } from "./panels.js";
+import { ControlPanel } from "./control.js";
+import { FleetTable, VehiclePanel } from "./panels.js";
 import {
   ago, clock, confirmAction, h, metresBetween, readNumber, sending, toast, until, zoneText,
 } from "./ui.js";

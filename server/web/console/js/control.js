@@ -1,0 +1,389 @@
+// The control panel: a field manager's requests, grants and leases, and an operator's
+// own; "What happened" (the control and safety events). Redraws from the Fleet state.
+
+import { describeEvent, holderText, presenceBadge, throttled } from "./panels.js";
+import { clock, confirmAction, dateTime, h, sending, sends, toast, until } from "./ui.js";
+
+const DURATIONS = [
+  [300, "5 min"], [900, "15 min"], [1800, "30 min"], [3600, "1 h"], [7200, "2 h"],
+  [14400, "4 h"], [28800, "8 h"], [86400, "24 h"],
+];
+// Events the control panel's log shows beside control_*.
+// How "What happened" names an event's kind, so that a line reads as a sentence.
+const KIND_LABELS = {
+  control_request: "control requested", control_grant: "control granted to",
+  control_revoke: "control revoked from", control_release: "control released by",
+  control_expired: "control expired for", control_deny: "request declined for",
+  hold_station: "holds station:",
+  control_mode: "control mode",
+};
+const SAFETY_EVENTS = new Set([
+  "hold_station", "failsafe_entered", "failsafe_left", "failsafe_changed", "zone_breach",
+  "zone_cleared", "collision_risk", "low_battery",
+]);
+// How long the holder's client may be silent before the lease lapses (operator_timeout_s).
+const LIVENESS = [
+  [0, "never"], [10, "10 s"], [30, "30 s"], [60, "1 min"], [300, "5 min"],
+];
+
+/** Whether "What happened" lists the event: control and safety, not the routine mode
+ * changes of every mission (idle ⇄ remote); a crew taking the local controls, or a
+ * failsafe, is listed. */
+function isSafetyEvent(e) {
+  if (e.kind === "control_mode") {
+    const d = e.data || {};
+    return [d.control_mode, d.was].some((m) => m === "local" || m === "failsafe");
+  }
+  return e.kind.startsWith("control_") || SAFETY_EVENTS.has(e.kind);
+}
+
+export class ControlPanel {
+  constructor(ctx) {
+    this.ctx = ctx;
+    this.el = document.getElementById("control-pane");
+    this.requests = [];
+    this.caps = new Map();
+    this.render = throttled(() => this.draw());
+    ctx.fleet.addEventListener("change", (e) => {
+      const what = e.detail.what;
+      if (what === "control" || what === "view" || what === "events") this.render();
+    });
+    ctx.fleet.addEventListener("event", (e) => {
+      const { id, event } = e.detail;
+      if (event.kind.startsWith("control_")) this.loadRequests();
+      if (event.kind === "hold_station" && this.managed(id)) {
+        toast(`${this.nameOf(id)} holds station: ${describeEvent(event)}`, "info");
+      }
+      this.tellMine(id, event);
+    });
+  }
+
+  nameOf(id) {
+    const v = this.ctx.fleet.vehicles.get(id);
+    return v ? v.view.name || id : id;
+  }
+
+  /** What happens to this user's own control, and (for a manager) who asks for it, as a
+   * toast whatever tab is open: nobody learns of it by chance in a side panel. */
+  tellMine(id, event) {
+    const me = this.ctx.me.username;
+    const d = event.data || {};
+    const by = (event.actor || "").replace(/^user:/, "");
+    const name = this.nameOf(id);
+    const v = this.ctx.fleet.vehicles.get(id);
+    if (v && ["control_grant", "control_deny"].includes(event.kind)
+      && (d.holder === me || d.user === me)) {
+      v.requested = null; // answered
+    }
+    if (event.kind === "control_request" && this.managed(id) && by !== me) {
+      toast(`${by} asks for control of ${name}: see Control`, "info");
+    } else if (event.kind === "control_grant" && d.replaces === me && d.holder !== me && by !== me) {
+      toast(`control of ${name} passed to ${d.holder} (granted by ${by}); it holds station`, "error");
+    } else if (event.kind === "control_grant" && d.holder === me && by !== me) {
+      toast(`you now hold control of ${name} (granted by ${by})`, "ok");
+    } else if (event.kind === "control_deny" && d.user === me) {
+      toast(`${by} declined your request for ${name}${d.reason ? `: ${d.reason}` : ""}`, "error");
+    } else if (event.kind === "control_revoke" && d.holder === me && by !== me) {
+      toast(`your control of ${name} was revoked by ${by || "the server"}; it holds station`, "error");
+    } else if (event.kind === "control_expired" && d.holder === me) {
+      const why = d.reason === "operator_silent" ? "this console was silent too long" : "its time ran out";
+      toast(`your control of ${name} ended (${why}); it holds station`, "error");
+    }
+  }
+
+  get manages() {
+    return this.ctx.me.role === "manager" || this.ctx.me.role === "admin";
+  }
+
+  managed(id) {
+    const me = this.ctx.me;
+    return me.role === "admin" || (me.role === "manager" && me.vehicles.includes(id));
+  }
+
+  async loadRequests() {
+    if (!this.manages) return;
+    try {
+      this.requests = (await this.ctx.api.get("/client/control_requests")).requests || [];
+    } catch (e) {
+      toast(`control requests: ${e.message}`, "error");
+    }
+    this.render();
+  }
+
+  async capabilities(v) {
+    if (this.caps.has(v.id) || !v.view.instance_id) return;
+    this.caps.set(v.id, null);
+    try {
+      const got = await this.ctx.api.post("/client/connect_instance", { vehicle_id: v.id });
+      this.caps.set(v.id, got.instance.capabilities || []);
+      this.render();
+    } catch {
+      this.caps.delete(v.id);
+    }
+  }
+
+  vehicleOf(instanceId) {
+    return [...this.ctx.fleet.vehicles.values()].find((v) => v.view.instance_id === instanceId);
+  }
+
+  durationSelect(name) {
+    return h("select", { name, "aria-label": "duration" },
+      ...DURATIONS.map(([s, label]) => h("option", { value: s, selected: s === 3600 }, label)));
+  }
+
+  /** The lease lapses (and the vehicle holds station) when the holder's client is silent. */
+  livenessSelect(name) {
+    return h("select", {
+      name, "aria-label": "lapse when the operator's client is silent for",
+      title: "lapse when the operator's client is silent for",
+    }, ...LIVENESS.map(([s, label]) => h("option", { value: s }, s ? `silent ${label}` : `lapse: ${label}`)));
+  }
+
+  draw() {
+    const tab = document.querySelector('.tabs [data-tab="control"]');
+    if (tab) tab.textContent = this.manages && this.requests.length ? `Control (${this.requests.length})` : "Control";
+    const parts = [h("h2", {}, "Control")];
+    if (this.manages) parts.push(this.requestSection(), this.grantForm());
+    parts.push(this.leaseSection(), this.safetyLog());
+    // The panel is drawn again on every control, view or event change: what the manager
+    // has chosen or typed in its forms (a duration, a user, the grant form open) stays.
+    const kept = this.formState();
+    this.el.replaceChildren(...parts);
+    this.restoreFormState(kept);
+  }
+
+  formState() {
+    const fields = new Map();
+    for (const el of this.el.querySelectorAll("form[data-key] [name]")) {
+      fields.set(`${el.form.dataset.key}/${el.name}`, el.value);
+    }
+    const active = document.activeElement;
+    const focus = active && active.form && active.form.dataset.key && this.el.contains(active)
+      ? {
+        key: `${active.form.dataset.key}/${active.name}`,
+        caret: active.tagName === "INPUT" ? [active.selectionStart, active.selectionEnd] : null,
+      }
+      : null;
+    const grant = this.el.querySelector("details.grant");
+    return { fields, focus, grantOpen: Boolean(grant && grant.open) };
+  }
+
+  restoreFormState({ fields, focus, grantOpen }) {
+    const grant = this.el.querySelector("details.grant");
+    if (grant && grantOpen) grant.open = true; // first: a closed one's fields take no focus
+    for (const el of this.el.querySelectorAll("form[data-key] [name]")) {
+      const key = `${el.form.dataset.key}/${el.name}`;
+      if (fields.has(key)) {
+        const value = fields.get(key);
+        if (el.tagName !== "SELECT" || [...el.options].some((o) => o.value === value)) {
+          el.value = value;
+        }
+      }
+      if (focus && key === focus.key) {
+        el.focus();
+        if (focus.caret) el.setSelectionRange(...focus.caret);
+      }
+    }
+  }
+
+  requestSection() {
+    const items = this.requests.map((r) => {
+      const v = this.vehicleOf(r.instance_id);
+      const name = v ? v.view.name || v.id : r.instance_id;
+      const form = h("form.request", {
+        dataset: {
+          user: r.username,
+          vehicle: v ? v.id : "",
+          key: `request/${r.request_id || `${r.username}/${r.instance_id}`}`,
+        },
+        onsubmit: (e) => {
+          e.preventDefault();
+          const f = e.target;
+          this.grant(r.instance_id, r.username, +f.duration.value, +f.liveness.value);
+        },
+      },
+      h("div", {}, h("b", {}, r.username), " asks for ", h("b", {}, name),
+        h("br"), h("small", {}, `since ${clock(r.requested_at)}`)),
+      h("div.row", {}, this.durationSelect("duration"), this.livenessSelect("liveness"),
+        h("button.primary", { type: "submit", ...sends(`grant/${r.instance_id}`) }, "Grant"),
+        h("input.reason", {
+          name: "reason", maxLength: 200, placeholder: "reason (optional)",
+          "aria-label": `why ${r.username}'s request is declined (optional)`,
+          // Enter in the card's form would grant: a reason is for declining
+          onkeydown: (e) => { if (e.key === "Enter") e.preventDefault(); },
+        }),
+        h("button.quiet.deny", {
+          type: "button",
+          ...sends(`deny/${r.instance_id}/${r.username}`),
+          onclick: (e) => this.deny(r.instance_id, r.username, name,
+            e.target.form.reason.value.trim()),
+        }, "Decline")));
+      return h("li", {}, form);
+    });
+    return h("section.requests", {},
+      h("h3", {}, `Requests for control (${this.requests.length})`),
+      items.length ? h("ul.cards", {}, ...items) : h("p.hint", {}, "none pending"));
+  }
+
+  grantForm() {
+    const vehicles = [...this.ctx.fleet.vehicles.values()].filter(
+      (v) => this.managed(v.id) && v.view.instance_id && v.view.presence !== "finished",
+    );
+    return h("details.grant", {},
+      h("summary", {}, "Grant control to someone"),
+      h("form", {
+        dataset: { key: "grant" },
+        onsubmit: (e) => {
+          e.preventDefault();
+          const f = e.target;
+          const v = this.ctx.fleet.vehicles.get(f.vehicle.value);
+          sending("grant/form", () => this.grant(
+            v.view.instance_id, f.user.value.trim(), +f.duration.value, +f.liveness.value,
+          ));
+        },
+      },
+      h("label", {}, "vehicle ", h("select", { name: "vehicle" },
+        ...vehicles.map((v) => h("option", { value: v.id }, v.view.name || v.id)))),
+      h("label", {}, "user ", h("input", { name: "user", required: true, autocomplete: "off" })),
+      h("label", {}, "for ", this.durationSelect("duration")),
+      h("label", {}, "lapse when their client is ", this.livenessSelect("liveness")),
+      h("button.primary", { type: "submit", ...sends("grant/form") }, "Grant")));
+  }
+
+  leaseSection() {
+    const { fleet, me } = this.ctx;
+    const rows = [...fleet.vehicles.values()]
+      .filter((v) => v.view.presence !== "finished" || v.control)
+      .sort((a, b) => (a.id < b.id ? -1 : 1))
+      .map((v) => {
+        const c = v.control;
+        const mine = c && c.holder === me.username;
+        if (c) this.capabilities(v);
+        const caps = (this.caps.get(v.id) || []).filter((k) => k !== "stop");
+        return h("li.lease", { dataset: { vehicle: v.id } },
+          h("div", {}, h("b", {}, v.view.name || v.id), " ", presenceBadge(v.view.presence)),
+          c
+            ? h("div", {}, h("b", {}, holderText(c, me)), ` until ${clock(c.expires_at)} `,
+              h("small.until", { dataset: { until: c.expires_at } }, `(${until(c.expires_at)})`),
+              h("p.allows", {},
+                `allows ${holderText(c, me)} to send ${caps.length ? caps.join(", ") : "its missions"}` +
+                ` to ${v.view.name || v.id} until ${dateTime(c.expires_at)}; ` +
+                "anyone who sees the vehicle may still stop it." +
+                (c.operator_timeout_s
+                  ? ` It lapses (and the vehicle holds station) if ${mine ? "your" : "their"}` +
+                    ` client is silent for ${c.operator_timeout_s} s` +
+                    (mine ? ": this console keeps it alive while it is open." : ".")
+                  : "")))
+            : h("div.hint", {}, "nobody holds control"),
+          h("div.row", {},
+            c && this.managed(v.id)
+              ? h("button", { ...sends(`revoke/${v.id}`), onclick: () => this.revoke(v) }, "Revoke")
+              : null,
+            mine ? h("button", {
+              ...sends(`release/${v.id}`), onclick: () => this.ctx.releaseControl(v.id),
+            }, "Release") : null,
+            !mine && me.role !== "viewer" && v.view.instance_id
+              ? h("button.quiet", {
+                ...sends(`request/${v.id}`), onclick: () => this.ctx.requestControl(v.id),
+              }, "Request")
+              : null));
+      });
+    return h("section", {}, h("h3", {}, "Leases"), h("ul.cards", {}, ...rows));
+  }
+
+  /** What happened to control and safety across the fleet: leases ending, vehicles
+   * holding station, failsafes, zones, collision forecasts (newest first). */
+  safetyLog() {
+    const items = [];
+    for (const v of this.ctx.fleet.vehicles.values()) {
+      for (const e of v.events) {
+        if (isSafetyEvent(e)) items.push([v, e]);
+      }
+    }
+    items.sort((a, b) => (a[1].at < b[1].at ? 1 : -1));
+    const rows = items.slice(0, 15).map(([v, e]) => h("li", { dataset: { kind: e.kind, vehicle: v.id } },
+      h("time", {}, clock(e.at)), " ", h("b", {}, v.view.name || v.id), " ",
+      h("span.kind", {}, KIND_LABELS[e.kind] || e.kind.replace(/_/g, " ")), " ", describeEvent(e)));
+    return h("section.safety-log", {}, h("h3", {}, "What happened"),
+      rows.length ? h("ol.events", {}, ...rows) : h("p.hint", {}, "nothing yet"));
+  }
+
+  grant(instanceId, user, durationS, operatorTimeoutS = 0) {
+    return sending(`grant/${instanceId}`, () => this.grantNow(instanceId, user, durationS, operatorTimeoutS));
+  }
+
+  async grantNow(instanceId, user, durationS, operatorTimeoutS) {
+    if (!(await this.mayTakeOver(instanceId, user))) return;
+    const v = this.vehicleOf(instanceId);
+    const name = v ? v.view.name || v.id : instanceId;
+    const before = v && v.control;
+    try {
+      const body = { instance_id: instanceId, user, duration_s: durationS };
+      if (operatorTimeoutS) body.operator_timeout_s = operatorTimeoutS;
+      const lease = await this.ctx.api.post("/client/grant_control", body);
+      if (before && before.holder === lease.holder
+        && Date.parse(lease.expires_at) <= Date.parse(before.expires_at)) {
+        // granted again for less than is left: the server keeps the lease as it was
+        toast(`${lease.holder} already holds ${name} until ${clock(lease.expires_at)}; ` +
+          "a grant never shortens a lease", "info");
+      } else {
+        toast(`control of ${name} granted to ${lease.holder} until ${clock(lease.expires_at)}`, "ok");
+      }
+      if (v) this.ctx.fleet.applyControl(v.id, { control: lease });
+    } catch (e) {
+      toast(`grant refused: ${e.explain ? e.explain() : e.message}`, "error");
+    }
+    this.loadRequests();
+  }
+
+  /** A grant to someone while another holds the vehicle ends that lease: asked first. */
+  async mayTakeOver(instanceId, user) {
+    const v = this.vehicleOf(instanceId);
+    const c = v && v.control;
+    if (!c || c.holder === user || !(Date.parse(c.expires_at) > Date.now())) return true;
+    const name = v.view.name || v.id;
+    const holder = holderText(c, this.ctx.me);
+    return confirmAction({
+      title: `Give control of ${name} to ${user}?`,
+      text: `${holder} ${holder === "you" ? "hold" : "holds"} ${name} until ${clock(c.expires_at)}; ` +
+        `give control to ${user} instead? ${holder === "you" ? "Your" : `${c.holder}'s`} commands ` +
+        `it has not begun are cancelled and ${name} holds station.`,
+      confirm: `Give it to ${user}`,
+    });
+  }
+
+  deny(instanceId, user, name, reason = "") {
+    return sending(`deny/${instanceId}/${user}`, async () => {
+      try {
+        const body = { instance_id: instanceId, user, ...(reason ? { reason } : {}) };
+        await this.ctx.api.post("/client/deny_control", body);
+        toast(`${user}'s request for ${name} declined${reason ? `: ${reason}` : ""}`, "ok");
+      } catch (e) {
+        toast(`decline refused: ${e.explain ? e.explain() : e.message}`, "error");
+      }
+      this.loadRequests();
+    });
+  }
+
+  revoke(v) {
+    return sending(`revoke/${v.id}`, () => this.revokeNow(v));
+  }
+
+  async revokeNow(v) {
+    const name = v.view.name || v.id;
+    const holder = v.control ? v.control.holder : "its holder";
+    const ok = await confirmAction({
+      title: `Revoke ${holder}'s control of ${name}?`,
+      text: `${name} holds station at once; the commands ${holder} queued and it has not ` +
+        "begun are cancelled.",
+      confirm: "Revoke",
+    });
+    if (!ok) return;
+    try {
+      await this.ctx.api.post("/client/revoke_control", { instance_id: v.view.instance_id });
+      toast(`control of ${v.view.name || v.id} revoked`, "ok");
+    } catch (e) {
+      toast(`revoke refused: ${e.message}`, "error");
+    }
+  }
+}
