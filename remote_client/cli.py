@@ -34,6 +34,7 @@ from remote_client.cli_common import (
     print_queued,
     run,
     say,
+    with_names,
 )
 from remote_client.cli_safety import alive, audit_app, failsafe_app, zones_app
 from remote_client.output import console, errors
@@ -82,7 +83,7 @@ def stop(
 
     async def act(fleet: FleetClient) -> dict[str, Any]:
         ids = await fleet.instance_ids_of(vehicles) if vehicles else None
-        return await fleet.stop(ids, ttl)
+        return await with_names(fleet, await fleet.stop(ids, ttl))
 
     print_queued(run(server, token, act), as_json)
 
@@ -102,7 +103,8 @@ def goto(
 
     async def act(fleet: FleetClient) -> dict[str, Any]:
         instance_id = await fleet.instance_id_of(vehicle)
-        return await fleet.go_to(instance_id, lat, lon, speed_mps=speed, ttl_s=ttl)
+        sent = await fleet.go_to(instance_id, lat, lon, speed_mps=speed, ttl_s=ttl)
+        return await with_names(fleet, sent)
 
     print_queued(run(server, token, act), as_json)
 
@@ -130,7 +132,8 @@ def station(
 
     async def act(fleet: FleetClient) -> dict[str, Any]:
         ids = await fleet.instance_ids_of(vehicles)
-        return await fleet.keep_station(ids, lat=lat, lon=lon, radius_m=radius, ttl_s=ttl)
+        sent = await fleet.keep_station(ids, lat=lat, lon=lon, radius_m=radius, ttl_s=ttl)
+        return await with_names(fleet, sent)
 
     print_queued(run(server, token, act), as_json)
 
@@ -156,7 +159,8 @@ def path(
 
     async def act(fleet: FleetClient) -> dict[str, Any]:
         instance_id = await fleet.instance_id_of(vehicle)
-        return await fleet.follow_path(instance_id, points, speed_mps=speed, plan=plan, ttl_s=ttl)
+        sent = await fleet.follow_path(instance_id, points, speed_mps=speed, plan=plan, ttl_s=ttl)
+        return await with_names(fleet, sent)
 
     print_queued(run(server, token, act), as_json)
 

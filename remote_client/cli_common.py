@@ -199,11 +199,24 @@ def dump(data: Any) -> None:
     print(json.dumps(data, indent=2))
 
 
+async def with_names(fleet: FleetClient, data: dict[str, Any]) -> dict[str, Any]:
+    """A submit's answer and, for :func:`print_queued`, the name of each instance's boat
+    (``_names``: not part of the answer, never in ``--json``)."""
+    try:
+        names = await fleet.instance_names()
+    except FleetApiError:
+        names = {}  # the command went; its lines show the instance ids alone
+    return {**data, "_names": names}
+
+
 def print_queued(data: dict[str, Any], as_json: bool) -> None:
+    names: dict[str, str] = data.pop("_names", None) or {}
     if as_json:
         dump(data)
         return
     for c in data["commands"]:
-        console.print(f"{c['instance_id']}: {c['command_id']} {c['status']}", highlight=False)
+        iid = c["instance_id"]
+        boat = f"{names[iid]} ({iid})" if iid in names else iid
+        console.print(f"{boat}: {c['command_id']} {c['status']}", highlight=False, markup=False)
     for warning in data.get("warnings") or []:
         errors.print(f"warning: {warning}", style="yellow", markup=False, highlight=False)

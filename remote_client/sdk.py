@@ -96,6 +96,15 @@ class FleetClient(AdminCalls):
         body: Body = await self.call("GET", "/api/vehicles")
         return body
 
+    async def instance_names(self) -> dict[str, str]:
+        """Each current instance's vehicle name, for saying which boat a command went to."""
+        fleet = (await self.vehicles())["vehicles"]
+        return {
+            v["instance_id"]: v.get("name") or v["vehicle_id"]
+            for v in fleet
+            if v.get("instance_id")
+        }
+
     async def vehicle(self, vehicle_id: str) -> Body:
         """One vehicle's view (``GET /api/vehicles/{vehicle_id}``)."""
         body: Body = await self.call("GET", f"/api/vehicles/{vehicle_id}")

@@ -52,12 +52,17 @@ async def test_zones_and_a_failsafe_from_the_command_line(
         assert area.exit_code == 1 and "vehicles" in area.stderr  # an area needs a vehicle
 
         _, manager = await make_user(c, "manager", [vid])
+        in_reef = await fleetctl(
+            base, token_of(manager), "failsafe", "set", vid, "return_home",
+            "--home", "43.905,15.405",
+        )  # fmt: skip
+        assert in_reef.exit_code == 1 and "home is in no-go zone reef" in in_reef.stderr
         set_ = await fleetctl(
             base, token_of(manager), "failsafe", "set", vid, "return_home", "--after", "45",
-            "--home", "43.905,15.405", "--on-breach", "--low-battery", "20",
+            "--home", "43.915,15.405", "--on-breach", "--low-battery", "20",
         )  # fmt: skip
         assert set_.exit_code == 0, set_.output
-        assert "return_home to 43.905000,15.405000 after 45 s" in set_.stdout
+        assert "return_home to 43.915000,15.405000 after 45 s" in set_.stdout
         assert "also on a zone breach" in set_.stdout and "below 20 %" in set_.stdout
         shown = await fleetctl(base, ADMIN_TOKEN, "failsafe", "show", vid, "--json")
         policy = json.loads(shown.stdout)

@@ -80,7 +80,7 @@ def test_the_readme_walk_through_and_the_agent_path_work_as_written(demo_folder:
         vehicle_rows = [line for line in out.splitlines() if "demo-usv-" in line and "│" in line]
         assert all("online" in row for row in vehicle_rows[:3]), out
         assert re.search(r"admin holds i-\w+ until", out)
-        assert re.search(r"i-\w+: c-\w+ queued", out)  # the go_to, sent by name
+        assert re.search(r"H2OmniX Alpha \(i-\w+\): c-\w+ queued", out)  # the go_to, by name
         samples = re.findall(r"^(?:current|\d\d:\d\d:\d\dZ) demo-usv-1 telemetry #\d+ ", out, re.M)
         assert len(samples) == 3
         assert "go_to" in out and "command by admin go_to" in out  # commands and events
@@ -94,7 +94,8 @@ def test_the_readme_walk_through_and_the_agent_path_work_as_written(demo_folder:
         with sqlite3.connect(demo_folder / "fleet.sqlite") as copy:
             held = dict(copy.execute("SELECT vehicle_id, count(*) FROM samples GROUP BY 1"))
         assert set(held) == set(DEMO_VEHICLES)
-        assert len(re.findall(r"^i-\w+: c-\w+ queued", out, re.M)) >= 4  # goto, then 3 stops
+        queued = re.findall(r"^H2OmniX \w+ \(i-\w+\): c-\w+ queued", out, re.M)
+        assert len(queued) >= 4  # goto, then 3 stops
 
         # The agent's block: a vehicle registered, its agent run with the token printed,
         # then a new token (the agent's stops working) and every token revoked.
