@@ -199,10 +199,10 @@ def apply_ack(
     detail: str | None = None,
 ) -> AckOutcome:
     if cmd.final:
-        cmd.note(f"ack:{status}", now, _join("ignored, already " + cmd.status, detail))
+        _note_ignored(cmd, status, now, _join("ignored, already " + cmd.status, detail))
         return AckOutcome.LATE
     if rank(status) < rank(cmd.status):
-        cmd.note(f"ack:{status}", now, _join("ignored, backward from " + cmd.status, detail))
+        _note_ignored(cmd, status, now, _join("ignored, backward from " + cmd.status, detail))
         return AckOutcome.BACKWARD
     if progress is not None:
         cmd.progress = progress
@@ -210,6 +210,23 @@ def apply_ack(
         return AckOutcome.APPLIED  # a progress report: no new history entry
     cmd.move(status, now, detail)
     return AckOutcome.APPLIED
+
+
+#: Acks a command's history records as ignored, at most: a vehicle that repeats its last
+#: ack (or a token that floods them) cannot grow a command without bound.
+IGNORED_KEPT = 16
+
+
+def _note_ignored(cmd: Command, status: str, now: datetime, detail: str) -> None:
+    """Record an ignored ack, unless it repeats the entry before it or the command has
+    :data:`IGNORED_KEPT` of them already (the ack is still answered: ``abort``)."""
+    entry = f"ack:{status}"
+    last = cmd.history[-1] if cmd.history else None
+    if last is not None and (last["status"], last.get("detail")) == (entry, detail):
+        return
+    ignored = sum(1 for h in cmd.history if str(h.get("detail") or "").startswith("ignored"))
+    if ignored < IGNORED_KEPT:
+        cmd.note(entry, now, detail)
 
 
 #: How an agent ends the mission a newer command replaced: ``failed``, this detail and

@@ -330,11 +330,13 @@ class CommandService(CommandLanes):
             if status != ack.status:
                 abort.append(cmd.command_id)  # never to be carried out
             status, detail = life.superseded(status, detail)
+            noted = len(cmd.history)
             outcome = life.apply_ack(cmd, status, now, progress=ack.progress, detail=detail)
             if was == "delivered" and cmd.status != was and self.hops is not None:
                 self._acked_first(cmd, now)
             if outcome is AckOutcome.LATE:
-                await self.repo.note_history(cmd.command_id, cmd.history)
+                if len(cmd.history) != noted:  # a repeat, or one past the bound: not kept
+                    await self.repo.note_history(cmd.command_id, cmd.history)
                 if ends.ended_by_server(cmd):
                     abort.append(cmd.command_id)
             elif cmd.final:

@@ -88,6 +88,23 @@ def test_a_backward_ack_is_recorded_and_ignored() -> None:
     assert "backward" in cmd.history[-1]["detail"]
 
 
+def test_ignored_acks_cannot_grow_a_command_without_bound() -> None:
+    """A repeat of the entry before it is not kept, and a command keeps 16 ignored acks at
+    most: a vehicle re-sending its last 'done' every second (or a token flooding acks of
+    512 characters) grew one command to 11,825 entries and 7 MB."""
+    cmd = make_command()
+    for status in ("accepted", "executing", "done"):
+        life.apply_ack(cmd, status, later(1))
+    moved = len(cmd.history)
+    for n in range(3):
+        assert life.apply_ack(cmd, "done", later(2 + n)) is AckOutcome.LATE
+    assert len(cmd.history) == moved + 1  # the same late ack, kept once
+    for n in range(100):
+        life.apply_ack(cmd, "done", later(10 + n), detail=f"again {n}")
+    assert len(cmd.history) == moved + life.IGNORED_KEPT
+    assert cmd.status == "done"
+
+
 def test_an_ack_for_a_final_command_is_recorded_and_leaves_the_status() -> None:
     cmd = make_command()
     assert ends.cancel(cmd, later(1), "by alice")
