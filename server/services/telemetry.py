@@ -89,6 +89,11 @@ class _Vehicle:
     latest: Doc | None = None
 
 
+#: How far ahead of the server's clock a sample's ``ts`` may be and still become the
+#: vehicle's latest position (its clock a little fast). Past it (a GPS or clock glitch:
+#: 2099), the sample is stored as sent but would otherwise hold the position for years.
+_AHEAD = timedelta(minutes=5)
+
 #: BSON size of a sample's fixed fields (seq, ts, position, depth, heading, speed, battery).
 _SAMPLE_BYTES = 160
 
@@ -157,7 +162,7 @@ class TelemetryService(TelemetryViews):
         if state.loaded and not again:
             return
         high = await self.repo.max_seq(vehicle_id)
-        latest = await self.repo.latest_sample(vehicle_id)
+        latest = await self.repo.latest_sample(vehicle_id, before=self.clock() + _AHEAD)
         state.high = max(state.high, high)
         state.durable = max(state.durable, high)  # what was stored before is durable
         if latest is not None and (state.latest is None or latest["ts"] > state.latest["ts"]):
@@ -235,9 +240,12 @@ class TelemetryService(TelemetryViews):
             return result
         # The same instant in the samples' own tzinfo: two datetimes of one tzinfo are
         # compared without a call to either's utcoffset (one per sample saved).
-        stale_before = self.clock() - self._offline_after
+        now = self.clock()
+        stale_before = now - self._offline_after
+        ahead = now + _AHEAD  # a sample past it is stored, never the latest position
         if (tz := stored[0].ts.tzinfo) is not None:
             stale_before = stale_before.astimezone(tz)
+            ahead = ahead.astimezone(tz)
         pending, replayed = state.pending, result.replayed
         if not pending:
             self._open(vehicle_id, state)
@@ -249,7 +257,7 @@ class TelemetryService(TelemetryViews):
             added += _size(doc) if "data" in doc else _SAMPLE_BYTES
             ts = sample.ts
             replayed.append((latest_ts is not None and ts < latest_ts) or ts < stale_before)
-            if latest_ts is None or ts >= latest_ts:
+            if (latest_ts is None or ts >= latest_ts) and ts <= ahead:
                 latest, latest_ts = doc, ts
                 result.latest, result.latest_doc = sample, doc
         state.pending_bytes += added

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import heapq
 from collections.abc import Iterable, Iterator, Mapping
-from datetime import datetime
+from datetime import UTC, datetime
 from typing import Any
 
 import bson
@@ -130,17 +130,25 @@ class TelemetryRepo:
         )
         return int(doc[0]["max_seq"]) if doc else -1
 
-    async def latest_sample(self, vehicle_id: str) -> Doc | None:
+    async def latest_sample(self, vehicle_id: str, before: datetime | None = None) -> Doc | None:
         """The stored sample with the greatest ``ts`` (it is in the bucket ending last; of
-        two such buckets, copies of one sample, the one inserted first)."""
-        last = await self.coll.find(
-            {"vehicle_id": vehicle_id}, sort=[("end", -1)], limit=1, projection=_META
+        two such buckets, copies of one sample, the one inserted first). With ``before``:
+        the greatest ``ts`` not past it (a sample dated years ahead by a clock glitch is no
+        position), looked for in the four buckets ending last that begin before it."""
+        if before is None:
+            last = await self.coll.find(
+                {"vehicle_id": vehicle_id}, sort=[("end", -1)], limit=1, projection=_META
+            )
+            if not last:
+                return None
+            ending = await self.coll.find({"vehicle_id": vehicle_id, "end": last[0]["end"]})
+            first = min(ending, key=lambda b: str(b["_id"]))
+            return max(samples_of(first), key=lambda s: (s["ts"], s["seq"]))
+        near = await self.coll.find(
+            {"vehicle_id": vehicle_id, "start": {"$lte": before}}, sort=[("end", -1)], limit=4
         )
-        if not last:
-            return None
-        ending = await self.coll.find({"vehicle_id": vehicle_id, "end": last[0]["end"]})
-        first = min(ending, key=lambda b: str(b["_id"]))
-        return max(samples_of(first), key=lambda s: (s["ts"], s["seq"]))
+        held = [s for b in near for s in samples_of(b) if _aware(s["ts"]) <= before]
+        return max(held, key=lambda s: (s["ts"], s["seq"])) if held else None
 
     async def in_window(self, vehicle_id: str, start: datetime, end: datetime) -> list[Doc]:
         """Buckets that may hold samples with ``start <= ts < end``."""
@@ -166,3 +174,8 @@ class TelemetryRepo:
         if end is not None:
             flt["start"] = {"$lt": end}
         return await self.coll.find(flt, sort=[("max_seq", 1)], limit=limit)
+
+
+def _aware(ts: datetime) -> datetime:
+    """A stored time as UTC (a store's driver may hand back a naive one)."""
+    return ts if ts.tzinfo is not None else ts.replace(tzinfo=UTC)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from datetime import UTC, datetime
+
 import httpx
 import pytest
 
@@ -165,6 +167,25 @@ async def test_a_vehicles_parameters_keep_their_bounds_across_calls(
     again = await start_instance(client, vid, vh, params={**halves[1], "mode": "transit"})
     assert again["resumed"] is True
     assert sorted(await held()) == ["h1", "mode"]
+
+
+async def test_a_sample_dated_years_ahead_is_stored_but_never_the_position(
+    client: httpx.AsyncClient,
+) -> None:
+    """A GPS or clock glitch (2099) would otherwise hold the vehicle's position until then,
+    and every later sample would read as replayed; it is stored as sent."""
+    vid, vh = await make_vehicle(client)
+    iid = (await start_instance(client, vid, vh))["instance_id"]
+    now = datetime.now(UTC)
+    glitch = sample(1, ts=datetime(2099, 12, 31, tzinfo=UTC), lat=1.0, lon=1.0)
+    real = sample(2, ts=now, lat=43.95, lon=15.45)
+    for s in (glitch, real):
+        body = {"instance_id": iid, "samples": [s]}
+        assert (await client.post("/upper/update_param", headers=vh, json=body)).is_success
+    got = (await client.get(f"/api/vehicles/{vid}", headers=ADMIN)).json()
+    assert (got["position"]["seq"], got["position"]["lat"]) == (2, 43.95)
+    stored = await client.get(f"/api/vehicles/{vid}/telemetry", headers=ADMIN)
+    assert [s["seq"] for s in stored.json()["samples"]] == [1, 2]
 
 
 async def test_viewer_sees_only_assigned_vehicles(client: httpx.AsyncClient) -> None:
