@@ -269,6 +269,8 @@ class _DirectInbox:
     def attach(self) -> None:
         """From now on the server hands each message to :meth:`feed`; those that came
         before are handled first."""
+        if self.frames.vehicle:  # a vehicle's ping is contact, as every frame is (API.md)
+            self._direct["on_ping"](lambda: self.frames.live.touch(self.frames.conn))
         for early in self._direct["attach"](self.feed):
             self.feed(early)
 

@@ -67,6 +67,7 @@ class LiveWebSocketProtocol(WebSocketsSansIOProtocol):
     """:class:`WebSocketsSansIOProtocol` offering the :data:`DIRECT` extension."""
 
     _on_message: Callable[[Message, int], None] | None = None
+    _on_ping: Callable[[], None] | None = None  # a ping from the peer: contact (API.md)
     _rank = 0  # messages handed over from the current read
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
@@ -92,7 +93,16 @@ class LiveWebSocketProtocol(WebSocketsSansIOProtocol):
                 "resume": self._resume,
                 "send_nowait": self._send_nowait,
                 "abort": self._abort,
+                "on_ping": self._set_on_ping,
             }
+
+    def _set_on_ping(self, callback: Callable[[], None]) -> None:
+        self._on_ping = callback
+
+    def handle_ping(self) -> None:
+        super().handle_ping()  # the pong
+        if self._on_ping is not None:
+            self._on_ping()
 
     def _attach(self, on_message: Callable[[Message, int], None]) -> list[Message]:
         pending: list[Message] = []

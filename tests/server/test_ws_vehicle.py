@@ -2,14 +2,17 @@
 
 from __future__ import annotations
 
+import asyncio
 import json
+from collections.abc import Callable
 
 import httpx
 import pytest
 import websockets
 
+from server.settings import Settings
 from tests.factories import ADMIN, ADMIN_TOKEN, make_user, make_vehicle, sample
-from tests.live import call, connect, recv_until, ws_url
+from tests.live import call, connect, recv_until, serve, ws_url
 
 # Each test runs on the embedded store and on FerretDB (the real MongoDB driver).
 pytestmark = pytest.mark.usefixtures("store_backend")
@@ -351,3 +354,25 @@ async def test_garbage_frames_are_answered_and_the_socket_survives(
         reply = await recv_until(ws, lambda f: f["op"] == "error")
         assert reply["error"]["code"] == "invalid"
         assert await _start(ws, vid)  # still serving
+
+
+async def test_a_vehicles_pings_keep_it_online(
+    make_settings: Callable[..., Settings],
+) -> None:
+    """API.md: last_seen moves on every WebSocket frame, pings included. A vehicle whose
+    client keeps its socket alive by pings alone stays online (it went stale, then
+    offline)."""
+    async with serve(make_settings(stale_after_s=1, offline_after_s=2)) as base:
+        async with httpx.AsyncClient(base_url=base, timeout=10) as api:
+            vid, headers = await make_vehicle(api)
+            token = headers["Authorization"].removeprefix("Bearer ")
+            async with await connect(base, "/ws/vehicle", token) as ws:
+                ack = await call(ws, "start_instance", "s", vehicle_id=vid, capabilities=["stop"])
+                assert ack["ok"] is True, ack
+                loop = asyncio.get_running_loop()
+                until = loop.time() + 3.0  # past offline_after_s, by pings alone
+                while loop.time() < until:
+                    await (await ws.ping())  # the pong: the ping was read
+                    await asyncio.sleep(0.25)  # the client's ping interval, not a wait
+                    view = (await api.get(f"/api/vehicles/{vid}", headers=ADMIN)).json()
+                    assert view["presence"] == "online", view
