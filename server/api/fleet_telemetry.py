@@ -78,7 +78,7 @@ async def telemetry(
     s: ServicesDep,
     start: From = None,
     end: To = None,
-    after_seq: Annotated[int, Query(ge=0, le=2**62)] = 0,
+    after_seq: Annotated[int, Query(ge=-1, le=2**62)] = -1,
     limit: Annotated[int, Query(ge=1, le=MAX_PAGE)] = 1000,
 ) -> TelemetryPage:
     ordered(start, end)
