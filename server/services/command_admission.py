@@ -22,6 +22,7 @@ from typing import Any
 
 from fleet_protocol import CommandSpec, path_hash, route_of
 from server.domain import arbitration
+from server.domain import command_warnings as warn
 from server.domain import commands as life
 from server.domain.access import Principal
 from server.domain.clock import Clock
@@ -143,13 +144,13 @@ class Admission:
         """What a submit queued as asked does that its sender may not have meant: several
         vehicles sent to meet, a straight way into a known obstacle, a vehicle not online
         that the command waits for."""
-        meet = life.shared_target(spec.type, spec.args, len(targets), self.separation_m)
+        meet = warn.shared_target(spec.type, spec.args, len(targets), self.separation_m)
         out = [meet] if meet else []
         out += await self._obstacles_met(targets, spec, args)
         for _, state in targets:
             presence = self.instances.presence(state)
             if presence not in ("online", "finished"):
-                out.append(life.out_of_reach(state.name, presence, state.last_seen, expires))
+                out.append(warn.out_of_reach(state.name, presence, state.last_seen, expires))
         return out
 
     async def _obstacles_met(
