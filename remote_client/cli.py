@@ -31,9 +31,11 @@ from remote_client.cli_common import (
     lat_lon,
     latitude,
     longitude,
+    position,
     print_queued,
     run,
     say,
+    split_waypoints,
     with_names,
 )
 from remote_client.cli_safety import alive, audit_app, failsafe_app, zones_app
@@ -90,20 +92,25 @@ def stop(
 
 @app.command(context_settings=COORDINATES)
 def goto(
-    vehicle: str = VehicleArg,
-    lat: float = typer.Argument(..., callback=latitude, help="degrees, -90 to 90"),
-    lon: float = typer.Argument(..., callback=longitude, help="degrees, -180 to 180"),
+    targets: list[str] = typer.Argument(
+        ..., metavar="VEHICLE... LAT LON", help="one vehicle or more, then the position"
+    ),
     speed: float | None = SpeedOpt,
     ttl: int = TtlOpt,
     server: str = ServerOpt,
     token: str = TokenOpt,
     as_json: bool = JsonOpt,
 ) -> None:
-    """Send one vehicle to a position (needs a lease)."""
+    """Send vehicles to a position (needs a lease on each). Several sent to one point are
+    warned of: they would meet there."""
+    if len(targets) < 3:
+        fail("give a vehicle (or more), then LAT and LON")
+    *vehicles, lat_text, lon_text = targets
+    lat, lon = position(lat_text, lon_text)
 
     async def act(fleet: FleetClient) -> dict[str, Any]:
-        instance_id = await fleet.instance_id_of(vehicle)
-        sent = await fleet.go_to(instance_id, lat, lon, speed_mps=speed, ttl_s=ttl)
+        ids = await fleet.instance_ids_of(vehicles)
+        sent = await fleet.go_to(ids, lat, lon, speed_mps=speed, ttl_s=ttl)
         return await with_names(fleet, sent)
 
     print_queued(run(server, token, act), as_json)
@@ -140,8 +147,11 @@ def station(
 
 @app.command(context_settings=COORDINATES)
 def path(
-    vehicle: str = VehicleArg,
-    waypoints: list[str] = typer.Argument(..., help="LAT,LON pairs, in order"),
+    targets: list[str] = typer.Argument(
+        ...,
+        metavar="VEHICLE... LAT,LON...",
+        help="one vehicle or more, then the waypoints as LAT,LON pairs, in order",
+    ),
     speed: float | None = SpeedOpt,
     plan: bool = typer.Option(False, "--plan", help="let the server route around obstacles"),
     ttl: int = TtlOpt,
@@ -149,7 +159,9 @@ def path(
     token: str = TokenOpt,
     as_json: bool = JsonOpt,
 ) -> None:
-    """Follow a path of waypoints (needs a lease)."""
+    """Follow a path of waypoints (needs a lease on each vehicle). The vehicles are the
+    arguments before the first LAT,LON pair."""
+    vehicles, waypoints = split_waypoints(targets)
     points = []
     for text in waypoints:
         try:
@@ -158,8 +170,8 @@ def path(
             fail(f"not a LAT,LON pair (-90 to 90, -180 to 180): {text!r}")
 
     async def act(fleet: FleetClient) -> dict[str, Any]:
-        instance_id = await fleet.instance_id_of(vehicle)
-        sent = await fleet.follow_path(instance_id, points, speed_mps=speed, plan=plan, ttl_s=ttl)
+        ids = await fleet.instance_ids_of(vehicles)
+        sent = await fleet.follow_path(ids, points, speed_mps=speed, plan=plan, ttl_s=ttl)
         return await with_names(fleet, sent)
 
     print_queued(run(server, token, act), as_json)

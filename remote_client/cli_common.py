@@ -154,6 +154,45 @@ def lat_lon(text: str) -> tuple[float, float]:
     return lat, lon
 
 
+def position(lat_text: str, lon_text: str) -> tuple[float, float]:
+    """``LAT`` and ``LON`` given as the last two of a command's arguments: checked as
+    :func:`latitude` and :func:`longitude` check theirs (exit 2, nothing sent)."""
+    values = []
+    for name, text, high in (("LAT", lat_text, 90), ("LON", lon_text, 180)):
+        try:
+            value = float(text)
+        except ValueError:
+            fail(f"{name} is a number, not {text!r}")
+        if not math.isfinite(value):
+            fail(f"{name} is a finite number, not {value}")
+        if not -high <= value <= high:
+            what = "latitude" if high == 90 else "longitude"
+            fail(f"{name} is a {what}, from -{high} to {high}, not {value}")
+        values.append(value)
+    return values[0], values[1]
+
+
+def split_waypoints(targets: Sequence[str]) -> tuple[list[str], list[str]]:
+    """``VEHICLE... LAT,LON...``: the vehicles (the arguments before the first that reads
+    as a pair: a number, a comma) and the waypoints (that one and all after it)."""
+    for index, text in enumerate(targets):
+        if _numeric(text.split(",", 1)[0]):
+            if "," not in text:
+                fail(f"not a LAT,LON pair (-90 to 90, -180 to 180): {text!r}")
+            if index == 0:
+                fail("give a vehicle (or more) before the waypoints")
+            return list(targets[:index]), list(targets[index:])
+    fail("give a vehicle (or more), then the waypoints as LAT,LON pairs")
+
+
+def _numeric(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
 def _shown_name(param: typer.CallbackParam) -> str:
     """``--radius`` for an option, ``LAT`` for an argument."""
     return param.opts[0] if param.param_type_name == "option" else str(param.name).upper()

@@ -273,15 +273,18 @@ class FleetClient(AdminCalls):
 
     async def go_to(
         self,
-        instance_id: str,
+        instance_id: str | Sequence[str],
         lat: float,
         lon: float,
         *,
         speed_mps: float | None = None,
         ttl_s: int = 30,
     ) -> Body:
+        """One instance, or several (each sent to the point: the answer's ``warnings``
+        say they would meet there)."""
         args = given(lat=lat, lon=lon, speed_mps=speed_mps)
-        return await self.submit([instance_id], {"type": "go_to", "args": args}, ttl_s)
+        ids = _instances("go_to", instance_id)
+        return await self.submit(ids, {"type": "go_to", "args": args}, ttl_s)
 
     async def keep_station(
         self,
@@ -298,17 +301,19 @@ class FleetClient(AdminCalls):
 
     async def follow_path(
         self,
-        instance_id: str,
+        instance_id: str | Sequence[str],
         waypoints: Sequence[tuple[float, float]],
         *,
         speed_mps: float | None = None,
         plan: bool = False,
         ttl_s: int = 30,
     ) -> Body:
-        """Waypoints as ``(lat, lon)``; ``plan``: the server routes around obstacles."""
+        """Waypoints as ``(lat, lon)``; ``plan``: the server routes around obstacles. One
+        instance, or several (each given the path; planned, each its own route)."""
         points = [{"lat": lat, "lon": lon} for lat, lon in waypoints]
         args = given(waypoints=points, speed_mps=speed_mps, plan=plan or None)
-        return await self.submit([instance_id], {"type": "follow_path", "args": args}, ttl_s)
+        ids = _instances("follow_path", instance_id)
+        return await self.submit(ids, {"type": "follow_path", "args": args}, ttl_s)
 
     async def commands(self, instance_id: str) -> Body:
         """``get_fbmessage``: ``{"control_mode", "commands": [command object, ...]}``."""
@@ -471,3 +476,11 @@ def pick_vehicle(ref: str, fleet: Sequence[Body]) -> Body:
     if not named:
         raise UnknownVehicle(ref)
     return named[0]
+
+
+def _instances(kind: str, given_ids: str | Sequence[str]) -> list[str]:
+    """A command's instances: one id, or several; none is a ``ValueError`` (not sent)."""
+    ids = [given_ids] if isinstance(given_ids, str) else list(given_ids)
+    if not ids:
+        raise ValueError(f"{kind}: no instance given")
+    return ids

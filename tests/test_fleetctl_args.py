@@ -71,6 +71,11 @@ def test_a_float_that_is_not_finite_is_refused_before_anything_is_sent(
         (("goto", "Alpha", "1", "2", "--ttl", "99999"), "--ttl is at most 3600"),
         (("station", "Alpha", "--radius", "-1"), "--radius is above 0"),
         (("export", "Alpha", "--since", "10m", "--until", "20m"), "the window is empty"),
+        (("goto", "43.94", "15"), "give a vehicle (or more), then LAT and LON"),
+        (("goto", "Alpha", "Bravo", "43.94", "east"), "LON is a number, not 'east'"),
+        (("path", "43.94,15", "43.95,15"), "give a vehicle (or more) before the waypoints"),
+        (("path", "Alpha", "Bravo"), "then the waypoints as LAT,LON pairs"),
+        (("path", "Alpha", "43.94", "15"), "not a LAT,LON pair"),
     ],
 )
 def test_a_position_out_of_range_or_an_unknown_kind_is_refused_before_anything_is_sent(
