@@ -12,6 +12,8 @@ from fleet_protocol.upper import ControlInfo, FailsafePolicy
 from fleet_protocol.values import Text
 
 __all__ = [
+    "Alarm",
+    "AlarmKind",
     "Event",
     "EventKind",
     "EventList",
@@ -22,6 +24,21 @@ __all__ = [
     "track_coordinates",
     "track_geometry",
 ]
+
+
+#: What :class:`Alarm` names (``kind``).
+AlarmKind = Literal["failsafe", "no_go_zone", "outside_area", "low_battery"]
+
+
+class Alarm(WireModel):
+    """A condition a vehicle is in now that its crew should see (**extension**): in
+    failsafe, inside a no-go zone, outside its operating area, its battery low. The event
+    log says when each began (``failsafe_entered``, ``zone_breach``, ``low_battery``)."""
+
+    #: One of :data:`AlarmKind`.
+    kind: Text
+    message: Text
+    zone_id: Text | None = None
 
 
 class VehicleView(WireModel):
@@ -41,6 +58,9 @@ class VehicleView(WireModel):
     #: corrected by the offset it estimates) and round trip, in ms (None: not known).
     link_delay_ms: float | None = None
     link_rtt_ms: float | None = None
+    #: What is wrong with the vehicle now (**extension**), most urgent first; [] when
+    #: nothing is (or the vehicle is offline: nothing is known of it now).
+    alarms: list[Alarm] = Field(default_factory=list)
 
 
 class VehicleList(WireModel):

@@ -13,6 +13,7 @@ from typing import Any
 
 import typer
 from rich.table import Table
+from rich.text import Text
 
 from remote_client.cli_common import (
     GroupTokenOpt,
@@ -25,7 +26,7 @@ from remote_client.cli_common import (
     run,
     say,
 )
-from remote_client.lines import position_text
+from remote_client.lines import alarms_text, position_text
 from remote_client.output import console, errors
 from remote_client.sdk import FleetClient
 
@@ -92,6 +93,10 @@ def _list_vehicles(server: str, token: str, as_json: bool) -> None:
             ctl["holder"] if ctl else "-",
         )
     console.print(table)
+    for v in data["vehicles"]:  # what is wrong now, a line each, under the table
+        if v.get("alarms"):
+            said = f"ALARM {v['name']} ({v['vehicle_id']}): {alarms_text(v)}"
+            console.print(Text(said, style="bold red"), soft_wrap=True)
 
 
 @vehicles_app.command("add")

@@ -13,7 +13,7 @@ from typing import Any
 from fleet_protocol import BIDI_CONTROLS
 from remote_client.sdk import shown_status
 
-__all__ = ["event_lines", "position_text"]
+__all__ = ["alarms_text", "event_lines", "position_text"]
 
 #: Longest rendering of data the other lines do not know (a unit's own topics).
 MAX_DATA_CHARS = 160
@@ -43,6 +43,13 @@ def position_text(pos: dict[str, Any] | None) -> str:
     return f"{pos['lat']:.5f},{pos['lon']:.5f}"
 
 
+def alarms_text(view: dict[str, Any]) -> str:
+    """A vehicle's alarms (``VehicleView.alarms``) in a line: ``inside no-go zone pier 3;
+    battery low: 15 %``; empty when it has none."""
+    said = (str(a.get("message") or a.get("kind")) for a in view.get("alarms") or [])
+    return "; ".join(_unbidi(text) for text in said)
+
+
 def _clock(ts: Any) -> str:
     """``2026-11-22T10:00:01.123Z`` → ``10:00:01Z``."""
     if isinstance(ts, str) and len(ts) >= 19 and ts[10] == "T":
@@ -52,9 +59,10 @@ def _clock(ts: Any) -> str:
 
 def _vehicle(v: dict[str, Any]) -> str:
     holder = (v.get("control") or {}).get("holder", "-")
+    alarms = alarms_text(v)
     return (
         f"{v.get('vehicle_id')} {v.get('presence')} {position_text(v.get('position'))} "
-        f"control={holder}"
+        f"control={holder}" + (f" ALARM {alarms}" if alarms else "")
     )
 
 
@@ -134,9 +142,13 @@ def event_text(event: dict[str, Any]) -> str:
 def _compact(data: Any) -> str:
     """Free-form data on one line: JSON (control characters escaped by it), and the
     characters that would reorder a terminal's line escaped too (``\\u202e``)."""
-    text = json.dumps(data, separators=(",", ":"), ensure_ascii=False)
-    text = BIDI_CONTROLS.sub(lambda m: f"\\u{ord(m.group()):04x}", text)
+    text = _unbidi(json.dumps(data, separators=(",", ":"), ensure_ascii=False))
     return text if len(text) <= MAX_DATA_CHARS else text[: MAX_DATA_CHARS - 1] + "…"
+
+
+def _unbidi(text: str) -> str:
+    """The characters that would reorder a terminal's line, escaped (``\\u202e``)."""
+    return BIDI_CONTROLS.sub(lambda m: f"\\u{ord(m.group()):04x}", text)
 
 
 _KINDS = {

@@ -43,7 +43,7 @@ async def test_goto_and_path_send_one_mission_to_several_vehicles(
         printed = await fleetctl(base, op_token, "path", ia, ib, "43.941,15.441", "43.942,15.45")
         assert printed.exit_code == 0, printed.output
         assert ia in printed.stdout and ib in printed.stdout  # a line per vehicle
-        listed = (await c.get("/client/get_fbmessage", headers=op, params={"instance_id": ib}))
+        listed = await c.get("/client/get_fbmessage", headers=op, params={"instance_id": ib})
         paths = [cmd for cmd in listed.json()["commands"] if cmd["type"] == "follow_path"]
         assert [p["args"]["waypoints"] for p in paths] == [
             [{"lat": 43.941, "lon": 15.441}, {"lat": 43.942, "lon": 15.45}]

@@ -138,11 +138,16 @@ def test_events_read_as_one_line_each() -> None:
             {"vehicle_id": "usv-1", "presence": "online", "position": {"lat": 1.0, "lon": 2.0},
              "control": {"holder": "ana"}},
             {"vehicle_id": "usv-2", "presence": "offline", "position": None, "control": None},
+            {"vehicle_id": "usv-3", "presence": "stale", "position": None, "control": None,
+             "alarms": [{"kind": "failsafe", "message": "in failsafe: stop"},
+                        {"kind": "no_go_zone", "message": "inside no-go zone \u202eXY"}]},
         ]},
     }  # fmt: skip
     assert event_lines(fleet) == [
         "current fleet usv-1 online 1.00000,2.00000 control=ana",
         "current fleet usv-2 offline - control=-",
+        "current fleet usv-3 stale - control=- ALARM in failsafe: stop; "
+        "inside no-go zone \\u202eXY",
     ]
     own = {"op": "event", "topic": "user/w/seg/usv-1", "ts": "2026-11-22T10:00:03Z",
            "data": {"mask": [1, 2]}}  # fmt: skip

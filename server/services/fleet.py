@@ -6,6 +6,7 @@ from typing import Any
 
 from fleet_protocol import ConnectInstance, GetParamResult, InstanceView, Sample, VehicleView
 from server.domain.access import Principal
+from server.domain.watch import WatchState
 from server.errors import NotFound
 from server.services.auth import AuthService
 from server.services.instances import InstanceService, InstanceState
@@ -45,18 +46,24 @@ class FleetViews:
         return self._vehicle_view({"vehicle_id": state.vehicle_id}, state)
 
     async def vehicles(self, principal: Principal) -> list[VehicleView]:
-        out = []
+        found = []
         for meta in await self.auth.all_vehicle_meta():
             vid = meta["vehicle_id"]
-            if not principal.can_see(vid):
-                continue
-            state = await self.instances.current_or_latest(vid)
-            out.append(self._vehicle_view(meta, state))
-        return out
+            if principal.can_see(vid):
+                found.append((meta, await self.instances.current_or_latest(vid)))
+        watches = await self._watches([state for _, state in found])
+        return [self._vehicle_view(meta, state, watches) for meta, state in found]
 
     async def vehicle(self, principal: Principal, vehicle_id: str) -> VehicleView:
         meta = await self.visible_vehicle(principal, vehicle_id)
-        return self._vehicle_view(meta, await self.instances.current_or_latest(vehicle_id))
+        state = await self.instances.current_or_latest(vehicle_id)
+        return self._vehicle_view(meta, state, await self._watches([state]))
+
+    async def _watches(self, states: list[InstanceState | None]) -> dict[str, WatchState]:
+        """The stored watch state of each instance not finished (its alarms): another
+        replica may be the one that took its last positions."""
+        live = [s.instance_id for s in states if s is not None and not s.finished]
+        return await self.safety.watches(live) if live else {}
 
     async def visible_vehicle(self, principal: Principal, vehicle_id: str) -> dict[str, Any]:
         """The vehicle's record, if the caller may see it: if not, it is not found, as an
@@ -66,7 +73,13 @@ class FleetViews:
             raise NotFound(f"no vehicle {vehicle_id}")
         return meta
 
-    def _vehicle_view(self, meta: dict[str, Any], state: InstanceState | None) -> VehicleView:
+    def _vehicle_view(
+        self,
+        meta: dict[str, Any],
+        state: InstanceState | None,
+        watches: dict[str, WatchState] | None = None,
+    ) -> VehicleView:
+        """``watches``: the stored watch states (None: as this replica last saw them)."""
         if state is None:
             return VehicleView(
                 vehicle_id=meta["vehicle_id"],
@@ -79,6 +92,11 @@ class FleetViews:
                 failsafe=self.safety.known_policy(meta["vehicle_id"]),
             )
         delay_ms, rtt_ms = state.link.view() if not state.finished else (None, None)
+        if state.finished:
+            alarms = []
+        else:
+            watch = watches.get(state.instance_id, WatchState()) if watches is not None else None
+            alarms = self.safety.alarms(state, watch)
         return VehicleView(
             vehicle_id=state.vehicle_id,
             name=state.name,
@@ -93,6 +111,7 @@ class FleetViews:
             failsafe_acked=self.safety.acked(state),
             link_delay_ms=delay_ms,
             link_rtt_ms=rtt_ms,
+            alarms=alarms,
         )
 
     async def connect(self, principal: Principal, body: ConnectInstance) -> InstanceView:

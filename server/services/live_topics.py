@@ -31,6 +31,10 @@ from server.services.fleet import FleetViews
 from server.services.instances import InstanceService
 
 RECENT_EVENTS = 20
+#: Events after which a vehicle's alarms (``VehicleView.alarms``) are not what they were.
+_ALARM_EVENTS = frozenset(
+    {"zone_breach", "zone_cleared", "low_battery", "battery_recovered", "control_mode"}
+)
 
 
 class ServerTopics:
@@ -71,6 +75,7 @@ class ServerTopics:
                 "vehicle_id": event.vehicle_id,
                 "instance_id": event.instance_id,
                 "presence": event.presence,
+                "alarms": [],  # nothing is known of a vehicle without an instance here
             }
         else:
             view = self.views.live_view(state).model_dump(mode="json")
@@ -80,12 +85,7 @@ class ServerTopics:
     def on_link(self, event: LinkChanged) -> Awaitable[None] | None:
         """A vehicle's link delay moved: its view on ``fleet`` again (built only when
         someone may listen)."""
-        state = self.instances.current_by_id(event.instance_id)
-        if state is None:
-            return None
-        return self.emit(
-            "fleet", lambda: {"vehicles": [self.views.live_view(state).model_dump(mode="json")]}
-        )
+        return self._view_again(event.instance_id)
 
     def on_control(self, event: ControlChanged) -> Awaitable[None] | None:
         data = {"instance_id": event.instance_id, "control": _jsonable(event.control)}
@@ -98,10 +98,21 @@ class ServerTopics:
             return None
         entry = _jsonable(doc)
         first = self.emit(f"vehicle/{vehicle_id}/events", {"events": [entry]})
-        if doc["kind"] != "command":
+        if doc["kind"] == "command":
+            second = self.emit(f"vehicle/{vehicle_id}/commands", {"commands": [entry["data"]]})
+        elif doc["kind"] in _ALARM_EVENTS:  # the vehicle's alarms moved: its view again
+            second = self._view_again(doc.get("instance_id"))
+        else:
             return first
-        second = self.emit(f"vehicle/{vehicle_id}/commands", {"commands": [entry["data"]]})
         return None if first is None and second is None else _both(first, second)
+
+    def _view_again(self, instance_id: str | None) -> Awaitable[None] | None:
+        state = self.instances.current_by_id(instance_id) if instance_id else None
+        if state is None:
+            return None
+        return self.emit(
+            "fleet", lambda: {"vehicles": [self.views.live_view(state).model_dump(mode="json")]}
+        )
 
     def on_command_moved(self, event: CommandMoved) -> Awaitable[None] | None:
         """A step between a command's start and its end (those two come as events)."""

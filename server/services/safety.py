@@ -21,10 +21,11 @@ every ``tick`` (a second), the instance's watch state once when first needed.
 from __future__ import annotations
 
 import logging
+import math
 from collections.abc import Awaitable
 from typing import Any
 
-from fleet_protocol import EventKind, FailsafePolicy, SetFailsafe
+from fleet_protocol import Alarm, EventKind, FailsafePolicy, SetFailsafe
 from server.domain.access import Principal
 from server.domain.arbitration import may_grant
 from server.domain.clock import Clock
@@ -199,6 +200,44 @@ class SafetyService:
         if acked is None:
             return None
         return acked == self.known_policy(state.vehicle_id).version
+
+    # ---- what is wrong with a vehicle now ----------------------------------------------
+    def alarms(self, state: InstanceState, watch: WatchState | None = None) -> list[Alarm]:
+        """The instance's alarms, most urgent first: its failsafe (the mode it reports),
+        then ``watch``'s breaches and battery (as the store has them; None: as this
+        replica last saw them, nothing when it has not)."""
+        out = []
+        if state.control_mode == "failsafe":
+            action = self.known_policy(state.vehicle_id).action.replace("_", " ")
+            out.append(Alarm(kind="failsafe", message=f"in failsafe: {action}"))
+        watch = watch if watch is not None else self._watch.get(state.instance_id)
+        if watch is None:
+            return out
+        for zone_id in sorted(watch.breaches):
+            data = self._zone_data(state, zone_id, entered=True)
+            if data["zone_kind"] == "operating_area":
+                kind, message = "outside_area", f"outside its operating area {data['zone']}"
+            else:
+                kind, message = "no_go_zone", f"inside no-go zone {data['zone']}"
+            out.append(Alarm(kind=kind, message=message.rstrip(), zone_id=data["zone_id"]))
+        if watch.low_battery:
+            out.append(Alarm(kind="low_battery", message=self._battery_text(state)))
+        return out
+
+    def _battery_text(self, state: InstanceState) -> str:
+        pct = (state.position or {}).get("battery_pct")
+        threshold = self.known_policy(state.vehicle_id).low_battery_pct
+        # to a tenth, down: a reading below the threshold never reads as at it
+        reading = (
+            f": {math.floor(float(pct) * 10) / 10:g} %" if isinstance(pct, int | float) else ""
+        )
+        below = f" (alarm below {threshold:g} %)" if threshold is not None else ""
+        return f"battery low{reading}{below}"
+
+    async def watches(self, instance_ids: list[str]) -> dict[str, WatchState]:
+        """The watch state of each of these instances, as the store has it (one read)."""
+        docs = await self.repo.watches_of(instance_ids)
+        return {str(doc["_id"]): _state_of(doc) for doc in docs}
 
     # ---- background: read again what the hot path uses ---------------------------------
     async def tick(self) -> None:

@@ -45,6 +45,9 @@ class SafetyRepo:
     async def watch_of(self, instance_id: str) -> Doc | None:
         return await self.watch.get(instance_id)
 
+    async def watches_of(self, instance_ids: list[str]) -> list[Doc]:
+        return await self.watch.get_many(instance_ids)
+
     async def begin_watch(
         self, instance_id: str, vehicle_id: str, home: tuple[float, float]
     ) -> None:

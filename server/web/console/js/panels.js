@@ -9,6 +9,18 @@ export function presenceBadge(presence) {
   return h(`span.presence.p-${presence || "offline"}`, {}, presence || "unknown");
 }
 
+// How the fleet table names each alarm (VehicleView.alarms; the message is its title).
+const ALARM_LABELS = {
+  failsafe: "failsafe", no_go_zone: "no-go zone", outside_area: "outside area",
+  low_battery: "low battery",
+};
+
+/** A vehicle's alarms as red badges, each saying what is wrong in its title. */
+export function alarmBadges(view) {
+  return (view.alarms || []).map((a) => h(`span.alarm.a-${a.kind}`, { title: a.message },
+    ALARM_LABELS[a.kind] || a.kind));
+}
+
 /** A command's stage as a chip: greyed, "(last known)", when the vehicle is not online. */
 function chip(cmd, presence) {
   if (!cmd) return "–";
@@ -87,11 +99,12 @@ export class FleetTable {
       ...rows.map((v) => {
         const p = v.view.position;
         const selected = this.ctx.selection.has(v.id);
+        const alarmed = (v.view.alarms || []).length > 0;
         const row = h(
           "tr",
           {
             dataset: { vehicle: v.id },
-            class: selected ? "selected" : "",
+            class: [selected ? "selected" : "", alarmed ? "alarmed" : ""].join(" ").trim(),
             onclick: (e) => {
               if (e.target.type === "checkbox") return;
               this.ctx.pick(v.id, e.shiftKey || e.ctrlKey || e.metaKey);
@@ -104,7 +117,8 @@ export class FleetTable {
             "aria-label": `select ${v.id}`,
             onchange: () => this.ctx.pick(v.id, true),
           })),
-          h("td", {}, h("b", {}, v.view.name || v.id), h("br"), h("small", {}, v.id)),
+          h("td", {}, h("b", {}, v.view.name || v.id), h("br"), h("small", {}, v.id),
+            alarmed ? h("div.alarms", {}, ...alarmBadges(v.view)) : null),
           h("td", {}, presenceBadge(v.view.presence), h("br"),
             h("small.ago", { dataset: { since: fleet.lastContact(v.id) } },
               ago(fleet.lastContact(v.id))),
@@ -208,6 +222,10 @@ export class VehiclePanel {
       : null;
     this.el.replaceChildren(...[
       h("h2", {}, view.name || v.id, " ", presenceBadge(view.presence)),
+      (view.alarms || []).length
+        ? h("ul.alarm-list", { role: "alert" },
+          ...view.alarms.map((a) => h("li", {}, a.message)))
+        : null,
       h("p.sub", {}, `${v.id} · ${view.vehicle_type || "vehicle"} · mode ${view.control_mode || "–"}`),
       h("p", {}, "last contact ", h("b.ago", { dataset: { since: contact } }, ago(contact)),
         ` (${clock(contact)})`),

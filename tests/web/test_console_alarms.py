@@ -1,0 +1,52 @@
+"""What is wrong with a vehicle now, in a real browser (as test_console): its alarms
+(``VehicleView.alarms``) as red badges in the fleet table and a list at the top of its
+panel, there as soon as the server sees them and gone when they end."""
+
+from __future__ import annotations
+
+import re
+from typing import Any
+
+import pytest
+from playwright.sync_api import expect
+
+from tests.web.conftest import Shots, World
+from tests.web.test_console import log_in, marker
+
+pytestmark = [pytest.mark.slow, pytest.mark.browser]
+
+
+def test_a_low_battery_shows_in_the_table_and_the_panel_until_it_ends(
+    world: World, open_console: Any, shots: Shots
+) -> None:
+    vehicle = "demo-usv-3"
+    page, _ = open_console()
+    log_in(page, "mia")
+    page.click('[data-tab="fleet"]')
+    row = page.locator(f'#fleet-table tr[data-vehicle="{vehicle}"]')
+    expect(row.locator(".alarm")).to_have_count(0)
+
+    # The simulated boats run on 100 % or less: a threshold of 100 % is a low battery.
+    world.fleet.call("PUT", f"/api/vehicles/{vehicle}/failsafe", json={"low_battery_pct": 100.0})
+    badge = row.locator(".alarm.a-low_battery")
+    expect(badge).to_have_text("low battery", timeout=15_000)
+    expect(badge).to_have_attribute(
+        "title", re.compile(r"^battery low: \d+(\.\d)? % \(alarm below 100 %\)$")
+    )
+    expect(row).to_have_class(re.compile(r"\balarmed\b"))
+    for other in ("demo-usv-1", "demo-usv-2"):
+        expect(page.locator(f'#fleet-table tr[data-vehicle="{other}"] .alarm')).to_have_count(0)
+    shots(page, "alarm-table")
+
+    marker(page, vehicle).click()
+    page.click('[data-tab="vehicle"]')
+    expect(page.locator("#vehicle-pane .alarm-list li")).to_have_text(
+        re.compile(r"^battery low: \d+(\.\d)? %")
+    )
+    shots(page, "alarm-panel")
+
+    world.fleet.call("PUT", f"/api/vehicles/{vehicle}/failsafe", json={})  # no threshold
+    expect(page.locator("#vehicle-pane .alarm-list")).to_have_count(0, timeout=15_000)
+    page.click('[data-tab="fleet"]')
+    expect(row.locator(".alarm")).to_have_count(0)
+    expect(row).not_to_have_class(re.compile(r"\balarmed\b"))
