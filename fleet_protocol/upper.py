@@ -207,6 +207,10 @@ class UpdateFbMessage(InstanceRef):
     acks: list[FbAck] = Field(default_factory=list, max_length=MAX_ACKS_PER_CALL)
     #: The version of the failsafe policy the vehicle applies now.
     failsafe_version: StrictInt | None = Field(default=None, ge=0, le=2**62)
+    #: When the vehicle entered ``control_mode``, on the server's clock as it estimates it
+    #: (**extension**): a mode taken while the link was down is dated by it, not by the
+    #: call that says it once the link is back.
+    control_mode_since: Timestamp | None = None
 
 
 class UpdateFbMessageResult(WireModel):

@@ -140,6 +140,9 @@ class VehicleAgent:
         self._params: dict[str, Any] = {}
         self._sent_mode: str | None = None
         self._sent_failsafe: int | None = None
+        #: The control mode and when it began (the server's clock, as estimated).
+        self._mode = self.pilot.control_mode
+        self._mode_since: datetime | None = None
         self._cursor = 0
         self._heartbeat_s = 1.0
         self._uplink_wake = asyncio.Event()
@@ -367,6 +370,7 @@ class VehicleAgent:
                 control_mode=mode,
                 acks=acks,
                 failsafe_version=version,
+                control_mode_since=self._mode_since if mode == self._mode else None,
             )
             res = await self.transport.update_fbmessage(body)
             self._contact()
@@ -421,6 +425,7 @@ class VehicleAgent:
             local = self.adapter.local_control
             if local != self.pilot.local_control:
                 self.pilot.local_control = local
+                self._note_mode()
                 self._fb_wake.set()
             report = self.adapter.report()
             if report is not None:
@@ -457,8 +462,16 @@ class VehicleAgent:
                 self.adapter.halt()
         if was_failsafe and not self.pilot.in_failsafe:
             self._params["failsafe"] = None
+        self._note_mode()
         if effects:
             self._fb_wake.set()
+
+    def _note_mode(self) -> None:
+        """When the control mode changed, to date it in the feedback (one said after the
+        link came back began when the vehicle took it, not when it could say so)."""
+        mode = self.pilot.control_mode
+        if mode != self._mode:
+            self._mode, self._mode_since = mode, self.clock.server_now(utcnow())
 
     @staticmethod
     async def _wait(event: asyncio.Event, within_s: float) -> None:

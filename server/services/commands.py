@@ -23,7 +23,7 @@ from server.domain import arbitration
 from server.domain import command_ends as ends
 from server.domain import commands as life
 from server.domain.access import Principal
-from server.domain.clock import Clock
+from server.domain.clock import Clock, said_time
 from server.domain.commands import AckOutcome, Command
 from server.domain.events import (
     InstanceFinished,
@@ -294,20 +294,29 @@ class CommandService(CommandLanes):
                 await self._finished(cmd)
 
     async def acknowledge(
-        self, principal: Principal, instance_id: str, control_mode: str | None, acks: list[Any]
+        self,
+        principal: Principal,
+        instance_id: str,
+        control_mode: str | None,
+        acks: list[Any],
+        since: datetime | None = None,
     ) -> list[str]:
-        """Apply the vehicle's acks; returns the ``abort`` list."""
+        """Apply the vehicle's acks; returns the ``abort`` list. ``since``: when the
+        vehicle says it entered ``control_mode`` (its events say so)."""
         state = await self.instances.for_vehicle_caller(principal, instance_id)
         self.instances.touch(state)
         was = state.control_mode
         moved = await self.instances.set_control_mode(state, control_mode)
         if moved:
+            data: dict[str, Any] = {"control_mode": control_mode, "was": was}
+            if since is not None:
+                data["since"] = said_time(since, self.clock(), state.started_at)
             await self.events.record(  # failsafe and local control matter to the operators
                 "control_mode",
                 vehicle_id=state.vehicle_id,
                 instance_id=state.instance_id,
                 actor=principal,
-                data={"control_mode": control_mode, "was": was},
+                data=data,
             )
             if "failsafe" in (was, control_mode):
                 await self.events.record(
@@ -315,7 +324,7 @@ class CommandService(CommandLanes):
                     vehicle_id=state.vehicle_id,
                     instance_id=state.instance_id,
                     actor=principal,
-                    data={"control_mode": control_mode, "was": was},
+                    data=data,
                 )
         lane = await self._sync(state.instance_id) if acks else self._lane(state.instance_id)
         now = self.clock()

@@ -72,7 +72,12 @@ class Failsafes(Protocol):
 
 class Feedback(Protocol):
     async def acknowledge(
-        self, principal: Principal, instance_id: str, control_mode: str | None, acks: list[Any]
+        self,
+        principal: Principal,
+        instance_id: str,
+        control_mode: str | None,
+        acks: list[Any],
+        since: datetime | None = None,
     ) -> list[str]: ...
 
     async def reconcile(self, state: InstanceState, active: list[str]) -> list[str]: ...
@@ -136,7 +141,7 @@ class VehicleLink:
     async def feedback(self, principal: Principal, body: UpdateFbMessage) -> list[str]:
         """The vehicle's acks, control mode and failsafe version; the ``abort`` list."""
         abort = await self.commands.acknowledge(
-            principal, body.instance_id, body.control_mode, body.acks
+            principal, body.instance_id, body.control_mode, body.acks, body.control_mode_since
         )
         if body.failsafe_version is not None:
             state = await self.instances.for_vehicle_caller(principal, body.instance_id)

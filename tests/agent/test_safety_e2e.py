@@ -20,6 +20,7 @@ import httpx
 import pytest
 from asgi_lifespan import LifespanManager
 
+from fleet_protocol import parse_ts
 from server.app import create_app
 from server.settings import Settings
 from tests.factories import ADMIN
@@ -298,6 +299,10 @@ async def test_each_failsafe_action_after_a_cut_link(harbour: Harbour, action: s
         await until_async(recorded, "failsafe_entered recorded once the link is back")
         entered = await h.events(boat, "failsafe_entered")
         assert entered[0]["data"]["control_mode"] == "failsafe"
+        # Dated when the boat took it, 120 s of its time (3 s here) before the link
+        # was back and the server heard of it.
+        waited = parse_ts(entered[0]["at"]) - parse_ts(entered[0]["data"]["since"])
+        assert waited.total_seconds() >= 2.5, entered[0]
 
 
 async def test_a_policy_changed_while_running_reaches_the_vehicle(harbour: Harbour) -> None:

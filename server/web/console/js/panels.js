@@ -295,6 +295,14 @@ export class VehiclePanel {
   }
 }
 
+/** " (on the vehicle since 10:02:11)": when the vehicle says a mode began, if it is not
+ * when the server heard of it (a failsafe taken while the link was down). */
+function sinceText(e) {
+  const since = Date.parse((e.data || {}).since);
+  if (!Number.isFinite(since) || Math.abs(Date.parse(e.at) - since) < 2000) return "";
+  return ` (on the vehicle since ${clock(since)})`;
+}
+
 export function describeEvent(e) {
   const d = e.data || {};
   if (e.kind === "command") {
@@ -306,7 +314,7 @@ export function describeEvent(e) {
     return `${d.type || ""} ${stage}${detail}` + (who ? ` by ${who}` : "");
   }
   if (e.kind === "control_mode") {
-    return `${d.was ? `${d.was} → ` : ""}${d.control_mode || "?"}`;
+    return `${d.was ? `${d.was} → ` : ""}${d.control_mode || "?"}${sinceText(e)}`;
   }
   if (e.kind === "failsafe_changed") return describeFailsafe(d);
   if (e.kind === "zone_breach" || e.kind === "zone_cleared") {
@@ -324,7 +332,7 @@ export function describeEvent(e) {
     return `${pct} % (alarm below ${d.threshold_pct ?? "?"} %)`;
   }
   if (e.kind === "failsafe_entered" || e.kind === "failsafe_left") {
-    return `${d.was || "?"} → ${d.control_mode || "?"}`;
+    return `${d.was || "?"} → ${d.control_mode || "?"}${sinceText(e)}`;
   }
   if (e.kind.startsWith("control_")) {
     const who = d.holder || d.user || d.username || "";
