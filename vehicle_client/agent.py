@@ -143,6 +143,8 @@ class VehicleAgent:
         #: The control mode and when it began (the server's clock, as estimated).
         self._mode = self.pilot.control_mode
         self._mode_since: datetime | None = None
+        #: Whether the ``failsafe`` parameter says the failsafe is on (cleared on leaving).
+        self._failsafe_said = False
         self._cursor = 0
         self._heartbeat_s = 1.0
         self._uplink_wake = asyncio.Event()
@@ -438,15 +440,16 @@ class VehicleAgent:
                     self.pilot.failsafe.action,
                 )
                 self._apply(self.pilot.on_link_lost())
-                self._params["failsafe"] = {
-                    "action": self.pilot.failsafe.action,
-                    "after_s": self.link.after_s,
-                    "engaged_at": format_ts(utcnow()),
-                }
+                if self.pilot.in_failsafe:  # not with ``none``: the vehicle carries on
+                    self._params["failsafe"] = {
+                        "action": self.pilot.failsafe.action,
+                        "after_s": self.link.after_s,
+                        "engaged_at": format_ts(utcnow()),
+                    }
+                    self._failsafe_said = True
 
     # -- effects -----------------------------------------------------------------
     def _apply(self, effects: list[Effect]) -> None:
-        was_failsafe = self.pilot.in_failsafe
         for effect in effects:
             if isinstance(effect, FbAck):
                 self._acks.append(effect)
@@ -460,8 +463,9 @@ class VehicleAgent:
                     )
             elif isinstance(effect, Halt):
                 self.adapter.halt()
-        if was_failsafe and not self.pilot.in_failsafe:
+        if self._failsafe_said and not self.pilot.in_failsafe:  # left it: said so
             self._params["failsafe"] = None
+            self._failsafe_said = False
         self._note_mode()
         if effects:
             self._fb_wake.set()

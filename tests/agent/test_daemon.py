@@ -155,7 +155,12 @@ async def test_link_loss_engages_the_failsafe_and_says_so_when_back(tmp_path: Pa
         await wait_for(lambda: "failed" in fake.statuses(cid), "the interrupted go_to reported")
         await wait_for(lambda: "failsafe" in fake.params, "failsafe told in params")
         await wait_for(lambda: "failsafe" in fake.modes, "failsafe control mode reported")
-    assert fake.params["failsafe"]["action"] == "keep_station"
+        assert fake.params["failsafe"]["action"] == "keep_station"
+        # The next command it accepts ends the failsafe: its parameter goes.
+        nxt = fake.add_command("go_to", point(agent, 0.0, 500.0))
+        await wait_for(lambda: "executing" in fake.statuses(nxt), "the next command under way")
+        await wait_for(lambda: "failsafe" not in fake.params, "the failsafe parameter cleared")
+        assert agent.pilot.control_mode == "remote"
 
 
 async def test_a_restarted_agent_resumes_its_outbox_and_ignores_seen_commands(
