@@ -1,7 +1,8 @@
 """The server's logging: one set-up, and no secret in any line.
 
 :class:`RedactSecrets` sits on every handler the server sets up, its own and
-uvicorn's: a token in a URL's query (``token=...``), the value of an
+uvicorn's: a token in a URL's query (``token=...``, the name as the server decodes
+it: ``%74oken=`` too), the value of an
 ``Authorization: Bearer`` header, a JSON ``token`` field, or anything shaped like
 one of the server's tokens (``fct_...``) is replaced by ``[redacted]`` in a
 record's message and arguments before the line is written (an argument that is an
@@ -23,6 +24,7 @@ import logging
 import re
 from datetime import datetime
 from typing import Any, Literal
+from urllib.parse import unquote_plus
 
 from pythonjsonlogger.core import RESERVED_ATTRS
 from pythonjsonlogger.json import JsonFormatter
@@ -40,11 +42,26 @@ _SECRETS = (
 )
 
 
+#: A URL query's parameter, ``name=value`` (after ``?`` or ``&``).
+_QUERY_PARAM = re.compile(r"(?<=[?&])([^=&\s\"'#?]+)=([^&\s\"'#]*)")
+
+
 def redact(text: str) -> str:
     """``text`` with every secret it holds replaced by ``[redacted]``."""
+    if "=" in text:
+        text = _QUERY_PARAM.sub(_query_param, text)
     for pattern in _SECRETS:
         text = pattern.sub(lambda m: m.group(1) + REDACTED, text)
     return text
+
+
+def _query_param(found: re.Match[str]) -> str:
+    """A query parameter whose name, as the server decodes it (``%74oken`` is ``token``),
+    names a token: its value redacted."""
+    name = found.group(1)
+    if "token" in unquote_plus(name).casefold() and found.group(2):
+        return f"{name}={REDACTED}"
+    return found.group(0)
 
 
 class RedactSecrets(logging.Filter):

@@ -18,6 +18,9 @@ from tests.live import recv_until
 
 def test_redact_finds_tokens_in_urls_headers_and_text() -> None:
     assert redact("GET /ws/client?token=abc123&x=1") == "GET /ws/client?token=[redacted]&x=1"
+    # the name as the server decodes it: %74 is "t"
+    assert redact("GET /ws/client?%74oken=abc123 x") == "GET /ws/client?%74oken=[redacted] x"
+    assert redact("/api/events?vehicle_id=v1&kind=zone") == "/api/events?vehicle_id=v1&kind=zone"
     assert redact("Authorization: Bearer abc.def-ghi") == "Authorization: Bearer [redacted]"
     assert redact("minted fct_Zx9-_aaaaaaa for ana") == "minted [redacted] for ana"
     assert redact("a plain line") == "a plain line"
@@ -38,6 +41,9 @@ async def test_a_token_in_a_socket_url_or_frame_is_not_written_to_the_log(
             await ws.send(json.dumps({"op": "subscribe", "id": "s", "topics": ["fleet"]}))
             assert (await recv_until(ws, lambda f: f.get("id") == "s"))["ok"] is True
         bare = url.partition("?")[0]
+        async with websockets.connect(f"{bare}?%74oken={ADMIN_TOKEN}") as ws:  # "token"
+            await ws.send(json.dumps({"op": "subscribe", "id": "s", "topics": ["fleet"]}))
+            assert (await recv_until(ws, lambda f: f.get("id") == "s"))["ok"] is True
         async with websockets.connect(bare) as ws:
             await ws.send(json.dumps({"op": "auth", "token": ADMIN_TOKEN}))
             await ws.send(json.dumps({"op": "subscribe", "id": "s", "topics": ["fleet"]}))
@@ -49,6 +55,7 @@ async def test_a_token_in_a_socket_url_or_frame_is_not_written_to_the_log(
         await asyncio.to_thread(server.stop)
     log = (tmp_path / "server.log").read_text()
     assert "WebSocket /ws/client?token=[redacted]" in log  # uvicorn's line, redacted
+    assert "WebSocket /ws/client?%74oken=[redacted]" in log
     assert '"op": "auth"' in log  # the frame was logged...
     for start in range(0, len(ADMIN_TOKEN) - 8):  # ...and no piece of the token with it
         assert ADMIN_TOKEN[start : start + 8] not in log, ADMIN_TOKEN[start : start + 8]
