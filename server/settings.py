@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Literal
 
-from pydantic import Field, SecretStr, ValidationError, field_validator
+from pydantic import Field, SecretStr, ValidationError, ValidationInfo, field_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
 from fleet_protocol.links import MAX_BINARY_FRAME_BYTES, MAX_TEXT_FRAME_BYTES
@@ -232,6 +232,28 @@ class Settings(BaseSettings):
                 "(python3 -c 'import secrets; print(secrets.token_urlsafe(32))' makes one)"
             )
         return token
+
+    @field_validator("stale_after_s")
+    @classmethod
+    def _after_a_heartbeat(cls, stale: float, info: ValidationInfo) -> float:
+        beat = info.data.get("heartbeat_interval_s")
+        if beat is not None and stale <= beat:
+            raise ValueError(
+                f"a vehicle goes stale after more than its heartbeat interval "
+                f"({env_name('heartbeat_interval_s')} is {beat:g}); give more than that"
+            )
+        return stale
+
+    @field_validator("offline_after_s")
+    @classmethod
+    def _after_stale(cls, offline: float, info: ValidationInfo) -> float:
+        stale = info.data.get("stale_after_s")
+        if stale is not None and offline <= stale:
+            raise ValueError(
+                f"a vehicle goes offline after it went stale ({env_name('stale_after_s')} "
+                f"is {stale:g}); give more than that"
+            )
+        return offline
 
     @property
     def embedded(self) -> bool:

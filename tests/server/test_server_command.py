@@ -38,3 +38,23 @@ def test_a_bad_option_is_named_as_the_option_and_a_bad_line_of_dot_env_as_its_va
         "--port: input should be less than or equal to 65535",
         "FLEET_STALE_AFTER_S: input should be greater than 0",
     ]
+
+
+def test_presence_times_out_of_order_are_refused_naming_both(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("FLEET_STALE_AFTER_S", "20")  # stale after offline: cannot hold
+    monkeypatch.setenv("FLEET_OFFLINE_AFTER_S", "10")
+    refused = CliRunner().invoke(app, [])
+    assert refused.exit_code == 2, refused.output
+    assert refused.stderr.splitlines() == [
+        "FLEET_OFFLINE_AFTER_S: a vehicle goes offline after it went stale "
+        "(FLEET_STALE_AFTER_S is 20); give more than that"
+    ]
+    monkeypatch.setenv("FLEET_HEARTBEAT_INTERVAL_S", "30")
+    monkeypatch.setenv("FLEET_OFFLINE_AFTER_S", "60")
+    beat = CliRunner().invoke(app, [])
+    assert beat.exit_code == 2 and "FLEET_STALE_AFTER_S: a vehicle goes stale after more" in (
+        beat.stderr
+    )
