@@ -1,4 +1,5 @@
-"""Request-size limit as pure ASGI middleware: 413 before the body is parsed."""
+"""Request-size limit as pure ASGI middleware: 413 before the body is parsed; and 422 for
+a JSON body that is not UTF-8 though Python's JSON reader would take it."""
 
 from __future__ import annotations
 
@@ -20,10 +21,38 @@ def _envelope(limit: int) -> bytes:
     ).encode()
 
 
+_NOT_UTF8 = "the body is not valid UTF-8 (it reads as UTF-16 or UTF-32: send UTF-8)"
+_NOT_UTF8_BODY = json.dumps(
+    {
+        "error": {
+            "code": "invalid",
+            "message": _NOT_UTF8,
+            "details": [{"field": "body", "message": _NOT_UTF8}],
+        }
+    }
+).encode()
+
+
+def _wide(start: bytes) -> bool:
+    """Whether a body's first bytes are UTF-16 or UTF-32, which Python's ``json.loads``
+    reads (it guesses them from a byte order mark or the zero bytes of the first
+    character) where JSON on this server is UTF-8 (no JSON text in UTF-8 starts with a
+    zero byte or those marks)."""
+    return start[:2] in (b"\xff\xfe", b"\xfe\xff") or b"\x00" in start[:4]
+
+
+def _json_body(scope: Scope) -> bool:
+    for name, value in scope.get("headers", []):
+        if name == b"content-type":
+            return b"json" in value.lower()
+    return False
+
+
 class BodyLimit:
     """413 for a body over ``max_bytes``: at once from its ``Content-Length``, or, for a
     body sent without one (chunked), once the bytes read pass the bound, before the app
-    has seen any of it (the body is gathered first, at most ``max_bytes`` of it)."""
+    has seen any of it (the body is gathered first, at most ``max_bytes`` of it). 422
+    naming ``body`` for a JSON body in UTF-16 or UTF-32 (seen in its first bytes)."""
 
     def __init__(self, app: ASGIApp, max_bytes: int) -> None:
         self.app = app
@@ -44,21 +73,34 @@ class BodyLimit:
             if length > self.max_bytes:
                 await self._reject(send)
                 return
-            await self.app(scope, self._counted(receive), send)
+            first = None
+            if length and _json_body(scope):
+                first = await receive()
+                if _wide(first.get("body", b"")):
+                    await self._refuse_wide(send)
+                    return
+            await self.app(scope, self._counted(receive, first), send)
             return
         gathered = await self._gather(receive)
         if gathered is None:
             await self._reject(send)
             return
+        if _wide(gathered[0].get("body", b"")) and _json_body(scope):
+            await self._refuse_wide(send)
+            return
         await self.app(scope, replay(gathered, receive), send)
 
-    def _counted(self, receive: Receive) -> Receive:
-        """A body that lies about its length is cut off at the bound all the same."""
+    def _counted(self, receive: Receive, first: Message | None) -> Receive:
+        """A body that lies about its length is cut off at the bound all the same.
+        ``first``: the request's first message, read already."""
         seen = 0
 
         async def limited() -> Message:
-            nonlocal seen
-            message = await receive()
+            nonlocal seen, first
+            if first is not None:
+                message, first = first, None
+            else:
+                message = await receive()
             if message["type"] == "http.request":
                 seen += len(message.get("body", b""))
                 if seen > self.max_bytes:
@@ -83,13 +125,19 @@ class BodyLimit:
                 return messages
 
     async def _reject(self, send: Send) -> None:
-        body = _envelope(self.max_bytes)
-        headers: list[Any] = [
-            (b"content-type", b"application/json"),
-            (b"content-length", str(len(body)).encode()),
-        ]
-        await send({"type": "http.response.start", "status": 413, "headers": headers})
-        await send({"type": "http.response.body", "body": body})
+        await _answer(send, 413, _envelope(self.max_bytes))
+
+    async def _refuse_wide(self, send: Send) -> None:
+        await _answer(send, 422, _NOT_UTF8_BODY)
+
+
+async def _answer(send: Send, status: int, body: bytes) -> None:
+    headers: list[Any] = [
+        (b"content-type", b"application/json"),
+        (b"content-length", str(len(body)).encode()),
+    ]
+    await send({"type": "http.response.start", "status": status, "headers": headers})
+    await send({"type": "http.response.body", "body": body})
 
 
 def replay(messages: list[Message], receive: Receive) -> Receive:

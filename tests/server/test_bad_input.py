@@ -78,6 +78,10 @@ async def test_every_unreadable_body_is_422_naming_body_and_saying_why(
         (b'{"instance_id": "' + iid.encode() + b'", "x": "\xff\xfe"}', "not valid UTF-8"),
         (b"\xff" * 8, "not valid UTF-8"),
         (b'{"instance_id": "' + iid.encode() + b'", "sam', "not valid JSON"),
+        # JSON in UTF-16 or UTF-32 (Python's reader would take it, guessing)
+        (json.dumps({"instance_id": iid}).encode("utf-16"), "not valid UTF-8"),
+        (json.dumps({"instance_id": iid}).encode("utf-16-be"), "not valid UTF-8"),
+        (json.dumps({"instance_id": iid}).encode("utf-32-le"), "not valid UTF-8"),
     ]
     routes = [("/upper/update_param", vh), ("/api/vehicles", ADMIN), ("/auth/token", {})]
     for path, who in routes:
