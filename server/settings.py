@@ -237,10 +237,10 @@ class Settings(BaseSettings):
     @classmethod
     def _after_a_heartbeat(cls, stale: float, info: ValidationInfo) -> float:
         beat = info.data.get("heartbeat_interval_s")
-        if beat is not None and stale <= beat:
+        if beat is not None and stale < beat:
             raise ValueError(
-                f"a vehicle goes stale after more than its heartbeat interval "
-                f"({env_name('heartbeat_interval_s')} is {beat:g}); give more than that"
+                f"a vehicle goes stale no sooner than its heartbeat interval "
+                f"({env_name('heartbeat_interval_s')} is {beat:g}); give at least that"
             )
         return stale
 
@@ -248,10 +248,10 @@ class Settings(BaseSettings):
     @classmethod
     def _after_stale(cls, offline: float, info: ValidationInfo) -> float:
         stale = info.data.get("stale_after_s")
-        if stale is not None and offline <= stale:
+        if stale is not None and offline < stale:
             raise ValueError(
-                f"a vehicle goes offline after it went stale ({env_name('stale_after_s')} "
-                f"is {stale:g}); give more than that"
+                f"a vehicle goes offline no sooner than it goes stale "
+                f"({env_name('stale_after_s')} is {stale:g}); give at least that"
             )
         return offline
 

@@ -139,7 +139,8 @@ def _query_values(query: tuple[_Query, ...], request: Request, values: dict[str,
 def _undecoded_query(raw: bytes) -> dict[str, str] | None:
     """The query string's parameters when it has nothing to decode (ASCII, no ``%`` or
     ``+``), as Starlette reads them: pairs split on ``&``, a name alone has an empty
-    value, the last of a repeated name counts. None otherwise: Starlette decodes it."""
+    value, the last of a repeated name counts (BodyLimit refuses one before any route).
+    None otherwise: Starlette decodes it."""
     if b"%" in raw or b"+" in raw or not raw.isascii():
         return None
     params: dict[str, str] = {}

@@ -1,10 +1,13 @@
-"""Request-size limit as pure ASGI middleware: 413 before the body is parsed; and 422 for
-a JSON body that is not UTF-8 though Python's JSON reader would take it."""
+"""Request limits as pure ASGI middleware, before anything is parsed: 413 for a body over
+the bound; 422 for a JSON body that is not UTF-8 though Python's JSON reader would take
+it, and for a query parameter given more than once (no parameter of this API takes a
+list: Starlette would keep the last value, and a filter named twice would drop one)."""
 
 from __future__ import annotations
 
 import json
 from typing import Any
+from urllib.parse import unquote_plus
 
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
@@ -22,15 +25,6 @@ def _envelope(limit: int) -> bytes:
 
 
 _NOT_UTF8 = "the body is not valid UTF-8 (it reads as UTF-16 or UTF-32: send UTF-8)"
-_NOT_UTF8_BODY = json.dumps(
-    {
-        "error": {
-            "code": "invalid",
-            "message": _NOT_UTF8,
-            "details": [{"field": "body", "message": _NOT_UTF8}],
-        }
-    }
-).encode()
 
 
 def _wide(start: bytes) -> bool:
@@ -39,6 +33,33 @@ def _wide(start: bytes) -> bool:
     character) where JSON on this server is UTF-8 (no JSON text in UTF-8 starts with a
     zero byte or those marks)."""
     return start[:2] in (b"\xff\xfe", b"\xfe\xff") or b"\x00" in start[:4]
+
+
+def _repeated(query: bytes) -> str | None:
+    """The first query parameter named twice (names as Starlette decodes them)."""
+    seen: set[bytes | str] = set()
+    for part in query.split(b"&"):
+        raw = part.partition(b"=")[0]
+        if not raw:
+            continue
+        name: bytes | str = raw
+        if b"%" in raw or b"+" in raw:
+            name = unquote_plus(raw.decode("latin-1"))
+        else:
+            name = raw.decode("latin-1")
+        if name in seen:
+            return str(name)
+        seen.add(name)
+    return None
+
+
+def _refusal(field: str, message: str) -> bytes:
+    error = {
+        "code": "invalid",
+        "message": message,
+        "details": [{"field": field, "message": message}],
+    }
+    return json.dumps({"error": error}).encode()
 
 
 def _json_body(scope: Scope) -> bool:
@@ -61,6 +82,12 @@ class BodyLimit:
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         if scope["type"] != "http":
             await self.app(scope, receive, send)
+            return
+        if scope["query_string"] and (twice := _repeated(scope["query_string"])):
+            said = f"{twice} is given more than once: give it once"
+            if twice == "names":  # get_param's names: the contract's one list
+                said += ", as a comma list (names=a,b)"
+            await _answer(send, 422, _refusal(twice, said))
             return
         length = None
         for name, value in scope.get("headers", []):
@@ -128,7 +155,7 @@ class BodyLimit:
         await _answer(send, 413, _envelope(self.max_bytes))
 
     async def _refuse_wide(self, send: Send) -> None:
-        await _answer(send, 422, _NOT_UTF8_BODY)
+        await _answer(send, 422, _refusal("body", _NOT_UTF8))
 
 
 async def _answer(send: Send, status: int, body: bytes) -> None:

@@ -96,6 +96,31 @@ async def test_every_unreadable_body_is_422_naming_body_and_saying_why(
             assert why in error["message"], (path, why, error)
 
 
+async def test_a_query_parameter_given_twice_is_422_naming_it(client: httpx.AsyncClient) -> None:
+    """No parameter of the API takes a list: a filter named twice would quietly keep one."""
+    v1, vh = await make_vehicle(client)
+    iid = (await start_instance(client, v1, vh))["instance_id"]
+    for path, query in [
+        ("/api/events", "vehicle_id=a&vehicle_id=b"),
+        ("/client/get_param", f"instance_id={iid}&%69nstance_id={iid}"),  # %69 is "i"
+        ("/upper/get_control", f"instance_id={iid}&wait_s=0&wait_s=1"),
+    ]:
+        who = vh if path.startswith("/upper") else ADMIN
+        r = await client.get(f"{path}?{query}", headers=who)
+        assert r.status_code == 422, (path, r.text)
+        error = r.json()["error"]
+        name = "wait_s" if "wait_s=1" in query else query.partition("=")[0]
+        assert error["details"] == [
+            {"field": name, "message": f"{name} is given more than once: give it once"}
+        ]
+    listed = await client.get(f"/client/get_param?instance_id={iid}&names=a&names=b", headers=ADMIN)
+    assert listed.json()["error"]["message"] == (
+        "names is given more than once: give it once, as a comma list (names=a,b)"
+    )
+    once = await client.get("/api/events", headers=ADMIN, params={"vehicle_id": v1, "limit": 5})
+    assert once.status_code == 200, once.text
+
+
 async def test_over_size_body_is_413(make_settings: object) -> None:
     from asgi_lifespan import LifespanManager
 

@@ -196,8 +196,7 @@ async def test_get_control_answers_as_fastapi_does(app: FastAPI, client: httpx.A
         f"instance_id={iid}&wait_s=0",
         f"instance_id={iid}&wait_s=0.0",
         f"wait_s=0&instance_id={iid}",
-        f"instance_id=x&instance_id={iid}",
-        f"instance_id={iid}&instance_id=x",
+        # (a name given twice is refused before any route: test_bad_input)
         "",
         "instance_id=",
         "instance_id=" + "x" * 65,

@@ -49,12 +49,12 @@ def test_presence_times_out_of_order_are_refused_naming_both(
     refused = CliRunner().invoke(app, [])
     assert refused.exit_code == 2, refused.output
     assert refused.stderr.splitlines() == [
-        "FLEET_OFFLINE_AFTER_S: a vehicle goes offline after it went stale "
-        "(FLEET_STALE_AFTER_S is 20); give more than that"
+        "FLEET_OFFLINE_AFTER_S: a vehicle goes offline no sooner than it goes stale "
+        "(FLEET_STALE_AFTER_S is 20); give at least that"
     ]
     monkeypatch.setenv("FLEET_HEARTBEAT_INTERVAL_S", "30")
     monkeypatch.setenv("FLEET_OFFLINE_AFTER_S", "60")
     beat = CliRunner().invoke(app, [])
-    assert beat.exit_code == 2 and "FLEET_STALE_AFTER_S: a vehicle goes stale after more" in (
+    assert beat.exit_code == 2 and "FLEET_STALE_AFTER_S: a vehicle goes stale no sooner" in (
         beat.stderr
     )
