@@ -227,6 +227,7 @@ class CommandService(CommandLanes):
         deadline = loop.time() + wait_s
         lane.polls += 1
         state.polling += 1
+        answered = False
         try:
             while True:
                 woken = lane.waiter()
@@ -234,6 +235,7 @@ class CommandService(CommandLanes):
                 aborts = self.take_aborts(state.instance_id)
                 remaining = deadline - loop.time()
                 if out or aborts or remaining <= 0 or state.finished:
+                    answered = True
                     return out, aborts
                 try:
                     await asyncio.wait_for(woken.wait(), remaining)
@@ -242,7 +244,8 @@ class CommandService(CommandLanes):
         finally:
             lane.polls -= 1
             state.polling -= 1
-            self.instances.touch(state)
+            if answered:  # not a poll given up (its vehicle gone): that is no contact
+                self.instances.touch(state)
 
     async def take(self, state: InstanceState) -> list[Command]:
         """The commands to hand out now, in order (``stop`` first), marked delivered."""
