@@ -59,7 +59,10 @@ def run(
     ros_bridge: Annotated[str | None, Opt(help="ROS bridge HOST:PORT (adapter ros)")] = None,
     log_level: Annotated[str | None, Opt(help="DEBUG, INFO, WARNING")] = None,
     transport: Annotated[str | None, Opt(help="auto (WebSocket, else HTTP) | ws | http")] = None,
-    retry_ws_s: Annotated[float | None, Opt(help="auto: seconds on HTTP before WS again")] = None,
+    retry_ws_s: Annotated[
+        float | None,
+        Opt(help="auto: the longest wait on HTTP before the WebSocket again (5 s first, doubling)"),
+    ] = None,
     config: Annotated[Path | None, Opt(help="TOML file with the same settings")] = None,
 ) -> None:
     """Run the agent for one vehicle (options also from FLEET_AGENT_* or --config)."""

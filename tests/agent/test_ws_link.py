@@ -84,18 +84,25 @@ def test_pushes_parse_by_op_and_bad_ones_are_named() -> None:
         parse_push('{"op":"launch"}')
 
 
-def test_link_choice_falls_back_then_retries_the_websocket_after_its_delay() -> None:
+def test_link_choice_falls_back_then_retries_the_websocket_sooner_first() -> None:
+    """5 s after a first refusal (a server restarting behind a proxy is back soon), the
+    wait doubling with each refusal in a row up to retry_ws_s (a proxy that never
+    upgrades), and 5 s again once the WebSocket was open."""
     now = [100.0]
     choice = LinkChoice(retry_ws_s=60, clock=lambda: now[0])
     assert choice.use_ws() and choice.mode == "ws"
-    choice.refused("403")
-    assert choice.mode == "http" and not choice.use_ws()
-    now[0] += 59.9
-    assert not choice.use_ws()
-    now[0] += 0.2
-    assert choice.use_ws()
+    for wait in (5, 10, 20, 40, 60, 60):
+        choice.refused("403")
+        assert choice.mode == "http" and not choice.use_ws()
+        now[0] += wait - 0.1
+        assert not choice.use_ws(), wait
+        now[0] += 0.2
+        assert choice.use_ws(), wait
     choice.opened()
     assert choice.mode == "ws" and choice.fallbacks == 1
+    choice.refused("502")
+    now[0] += 5.1
+    assert choice.use_ws() and choice.fallbacks == 2
 
 
 def test_router_keeps_local_what_only_local_units_consume() -> None:

@@ -1,12 +1,16 @@
 """WebSocket first, HTTP long-poll when the WebSocket cannot be opened.
 
 ``LinkChoice`` is the decision, shared by every vehicle of a link: a
-session starts over the WebSocket unless it was refused less than
-``retry_ws_s`` ago (a proxy that will not upgrade, a path that answers
-404); then over HTTP. A session on HTTP ends itself once the retry time has
-come (``get_control`` raises ``RetryableError``), so the next one tries the
-WebSocket again. Anything else (refused connection, 401...) is the same
-error on both and goes to the agent as it is.
+session starts over the WebSocket unless it was refused a while ago (a proxy
+that will not upgrade, a path that answers 404, a server restarting behind a
+proxy); then over HTTP. The while is 5 s after the first refusal, doubling
+with each refusal in a row up to ``retry_ws_s``: a server back from a restart
+has its WebSocket again within seconds (a gateway's topics travel only on
+it), a proxy that never upgrades is asked seldom. A session on HTTP ends
+itself once the retry time has come (``get_control`` raises
+``RetryableError``), so the next one tries the WebSocket again. Anything else
+(refused connection, 401...) is the same error on both and goes to the agent
+as it is.
 """
 
 from __future__ import annotations
@@ -32,8 +36,10 @@ from vehicle_client.transport.ws import WsTransport, WsUnavailable
 
 log = logging.getLogger(__name__)
 
-#: Seconds on HTTP before the WebSocket is tried again.
+#: Seconds on HTTP before the WebSocket is tried again: the longest wait.
 RETRY_WS_S = 60.0
+#: ... and the first (it doubles with each refusal in a row).
+FIRST_RETRY_WS_S = 5.0
 
 
 @dataclass
@@ -45,32 +51,41 @@ class LinkChoice:
     refused_at: float | None = None
     reason: str = ""
     fallbacks: int = field(default=0)
+    #: Refusals in a row (since the WebSocket was last open).
+    refusals: int = 0
 
     @property
     def mode(self) -> str:
         return "http" if self.refused_at is not None else "ws"
 
+    @property
+    def wait_s(self) -> float:
+        """How long after the last refusal the WebSocket is tried again."""
+        doubled = FIRST_RETRY_WS_S * 2 ** min(max(self.refusals - 1, 0), 16)
+        return min(self.retry_ws_s, doubled)
+
     def use_ws(self) -> bool:
         """Whether a session starting now tries the WebSocket."""
         if self.refused_at is None:
             return True
-        return self.clock() - self.refused_at >= self.retry_ws_s
+        return self.clock() - self.refused_at >= self.wait_s
 
     def refused(self, reason: str) -> None:
+        self.refusals += 1
         if self.refused_at is None:
             self.fallbacks += 1
-            log.warning(
-                "the WebSocket cannot be opened (%s): falling back to HTTP long-poll,"
-                " trying the WebSocket again in %.0f s",
-                reason,
-                self.retry_ws_s,
-            )
+        log.warning(
+            "the WebSocket cannot be opened (%s): on HTTP long-poll,"
+            " trying the WebSocket again in %.0f s",
+            reason,
+            self.wait_s,
+        )
         self.refused_at, self.reason = self.clock(), reason
 
     def opened(self) -> None:
         if self.refused_at is not None:
             log.warning("the WebSocket is open again: leaving HTTP long-poll")
-        self.refused_at, self.reason = None, ""
+        self.refused_at, self.reason, self.refusals = None, "", 0
 
 
 class AutoTransport:
@@ -116,7 +131,7 @@ class AutoTransport:
             raise RetryableError("time to try the WebSocket again")
         if self._now is self.http:
             # The long poll ends no later than the WebSocket's retry time.
-            left = self.choice.retry_ws_s - (self.choice.clock() - (self.choice.refused_at or 0))
+            left = self.choice.wait_s - (self.choice.clock() - (self.choice.refused_at or 0))
             wait_s = max(0.0, min(wait_s, left))
         return await self._now.get_control(instance_id, wait_s)
 
