@@ -72,12 +72,14 @@ class LinkChoice:
 
     def refused(self, reason: str) -> None:
         self.refusals += 1
-        if self.refused_at is None:
+        first = self.refused_at is None
+        if first:
             self.fallbacks += 1
         log.warning(
-            "the WebSocket cannot be opened (%s): on HTTP long-poll,"
+            "the WebSocket cannot be opened (%s): %s HTTP long-poll,"
             " trying the WebSocket again in %.0f s",
             reason,
+            "falling back to" if first else "staying on",
             self.wait_s,
         )
         self.refused_at, self.reason = self.clock(), reason
