@@ -4,14 +4,16 @@ gateway takes, what goes up (a real server in this process, as in test_gateway_m
 from __future__ import annotations
 
 import asyncio
+import json
 from collections.abc import Callable
 
 import pytest
 import websockets
 
-from fleet_protocol.links import CLOSE_FORBIDDEN
+from fleet_protocol.links import CLOSE_FORBIDDEN, MAX_TEXT_FRAME_BYTES
 from server.settings import Settings
 from tests.agent.test_gateway_media import ack, event_on, gateway, next_json
+from tests.server.commanding import eventually
 
 
 async def test_a_unit_that_leaves_takes_its_registrations_back_upstream(
@@ -107,3 +109,54 @@ async def test_a_unit_of_a_vehicle_the_token_does_not_list_is_closed(
             assert late.close_code == CLOSE_FORBIDDEN
         async with w.unit(w.b) as ub:  # the listed ones are still taken
             assert (await ack(ub, "register", "r", topics=[f"vehicle/{w.b}/x"]))["ok"] is True
+
+
+async def test_an_unregistered_topic_goes_up_only_once_someone_above_asks(
+    make_settings: Callable[..., Settings],
+) -> None:
+    """API.md: a gateway forwards up what its own units do not consume and someone above
+    subscribed to. A unit's first publish on a topic registers it above for the unit."""
+    async with gateway(make_settings) as w:
+        depth = f"vehicle/{w.a}/sensor/depth"
+        router = w.units.router
+        async with await w.operator_ws() as op, w.unit(w.a) as ua, w.unit(w.b) as ub:
+            assert (await ack(ub, "subscribe", "s", topics=[depth]))["ok"] is True  # a sibling
+            up_before = router.sent_up
+            assert (await ack(ua, "publish", "p1", topic=depth, data=1))["ok"] is True
+            assert (await next_json(ub, event_on(depth)))["data"] == 1
+            assert router.sent_up == up_before  # only a sibling wants it: kept below
+            assert depth in router.units[w.a].produces  # registered above for the unit
+
+            assert (await ack(op, "subscribe", "s", topics=[depth]))["ok"] is True
+
+            async def asked_above() -> bool:  # the routes push, on the gateway's own socket
+                return depth in router.forward_up
+
+            await eventually(asked_above)
+            assert (await ack(ua, "publish", "p2", topic=depth, data=2))["ok"] is True
+            assert (await next_json(op, event_on(depth)))["data"] == 2
+            assert router.sent_up == up_before + 1
+
+
+async def test_a_publish_that_cannot_go_up_is_not_acked_ok(
+    make_settings: Callable[..., Settings],
+) -> None:
+    """The link down, or a frame too large once it names its vehicle: the unit is told
+    (the local units have it all the same), never acked ok for what was dropped."""
+    async with gateway(make_settings) as w:
+        depth = f"vehicle/{w.a}/sensor/depth"
+        async with await w.operator_ws() as op, w.unit(w.a) as ua:
+            assert (await ack(op, "subscribe", "s", topics=[depth]))["ok"] is True
+            assert (await ack(ua, "register", "r", topics=[depth]))["ok"] is True
+            # Under a JSON frame's bound as the unit sends it; over it sent up.
+            up = {"op": "publish", "vehicle_id": w.a, "topic": depth, "data": ""}
+            data = "x" * (MAX_TEXT_FRAME_BYTES + 1 - len(json.dumps(up, separators=(",", ":"))))
+            sent = {"op": "publish", "id": "big", "topic": depth, "data": data}
+            assert len(json.dumps(sent, separators=(",", ":"))) <= MAX_TEXT_FRAME_BYTES
+            await ua.send(json.dumps(sent, separators=(",", ":")))
+            big = await next_json(ua, lambda f: f["op"] == "ack" and f["id"] == "big")
+            assert big["ok"] is False and big["error"]["code"] == "too_large", big
+            assert w.units.link.connected  # the uplink kept (the server would close it: 1009)
+            await w.units.link.aclose()  # the cloud link goes down
+            down = await ack(ua, "publish", "p", topic=depth, data=3)
+            assert down["ok"] is False and down["error"]["code"] == "unavailable", down

@@ -19,8 +19,9 @@ uplink can be read off the gateway.
 Registrations and subscriptions are repeated upstream on the units' behalf
 (ops with ``vehicle_id``), so the server's table holds them, and again after
 every reconnection (:meth:`TopicRouter.replay`); a unit that leaves has both
-taken back upstream. A publish on a topic the unit did not register goes up
-(the table above has no demand for it to read).
+taken back upstream. The gateway registers a topic a unit publishes on
+unregistered before routing it (``UnitServer``); one it could not register
+goes up (the table above has no demand for it to read).
 """
 
 from __future__ import annotations

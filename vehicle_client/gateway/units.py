@@ -28,6 +28,7 @@ import asyncio
 import contextlib
 import logging
 import re
+from typing import Any
 from urllib.parse import parse_qs, urlsplit
 
 from websockets.asyncio.server import Server, ServerConnection, serve
@@ -64,6 +65,7 @@ from vehicle_client.gateway.uplink import (
     MediaUplink,
     PublishBudget,
 )
+from vehicle_client.transport.wire import op_frame
 from vehicle_client.transport.ws import WsLink
 
 log = logging.getLogger(__name__)
@@ -205,14 +207,10 @@ class UnitServer:
             _answer(queue, op.id, ErrorBody(code="invalid", message=message))
             return
         if isinstance(op, PublishOp):
-            if not await self._publish(vehicle_id, op):
-                message = (
-                    f"the gateway sends up at most {self.publish_budget.per_s:g} publishes a "
-                    "second for its units, the vehicles' own ops first; send fewer"
-                )
-                _answer(queue, op.id, ErrorBody(code="rate_limited", message=message))
-                return
-            if op.id:
+            refused = await self._publish(vehicle_id, op)
+            if refused is not None:
+                _answer(queue, op.id, refused)
+            elif op.id:
                 queue.put(AckPush.success(op.id).frame())
             return
         # Taken back here at once; taken on only once the server has: a refused op
@@ -236,22 +234,53 @@ class UnitServer:
         if op.id:
             queue.put(ack.model_copy(update={"id": op.id}).frame())
 
-    async def _publish(self, vehicle_id: str, op: PublishOp) -> bool:
-        """To the local units subscribed, and up when it goes up; False when it should have
-        gone up but the units' share of the uplink is spent (the local units have it)."""
+    async def _publish(self, vehicle_id: str, op: PublishOp) -> ErrorBody | None:
+        """To the local units subscribed, and up when someone above asked for it; what to
+        answer when it should have gone up and did not (the local units have it all the
+        same): the link down, the units' share of the uplink spent, a frame too large
+        once it names its vehicle. A topic the unit publishes on unregistered is
+        registered above first, so that only what someone there asked for goes up."""
+        await self._known_above(vehicle_id, op.topic)
         delivery = self.router.publish(vehicle_id, op.topic)
         frame = EventPush(topic=op.topic, data=op.data).model_dump_json()
         for other in delivery.local:
             self._put(other, frame)
-        if not (delivery.up and self.link.connected):
-            return True
-        if not self.publish_budget.take(asyncio.get_running_loop().time()):
-            return False
-        with contextlib.suppress(AgentError):
-            await self.link.send(
-                {"op": "publish", "vehicle_id": vehicle_id, "topic": op.topic, "data": op.data}
+        if not delivery.up:
+            return None
+        if not self.link.connected:
+            message = "the cloud link is down: the local units got it, nobody above did"
+            return ErrorBody(code="unavailable", message=message)
+        upstream = {"op": "publish", "vehicle_id": vehicle_id, "topic": op.topic, "data": op.data}
+        if (size := _frame_bytes(upstream, len(frame))) > MAX_TEXT_FRAME_BYTES:
+            message = (
+                f"sent up it would take {size} bytes (at most {MAX_TEXT_FRAME_BYTES}): "
+                "the local units got it, nobody above did"
             )
-        return True
+            return ErrorBody(code="too_large", message=message)
+        if not self.publish_budget.take(asyncio.get_running_loop().time()):
+            message = (
+                f"the gateway sends up at most {self.publish_budget.per_s:g} publishes a "
+                "second for its units, the vehicles' own ops first; send fewer"
+            )
+            return ErrorBody(code="rate_limited", message=message)
+        try:
+            await self.link.send(upstream)
+        except AgentError as exc:
+            return ErrorBody(code="unavailable", message=f"the cloud link is down: {exc}")
+        return None
+
+    async def _known_above(self, vehicle_id: str, topic: str) -> None:
+        """Register ``topic`` above for the unit if it publishes on it unregistered (the
+        routing table there then says whether anyone outside wants it). Not when the
+        link is down or the server refuses: it goes up then, as before registering."""
+        unit = self.router.units.get(vehicle_id)
+        if unit is None or topic in unit.produces or not self.link.connected:
+            return
+        with contextlib.suppress(AgentError):
+            op = {"op": "register", "vehicle_id": vehicle_id, "topics": [topic]}
+            ack = await self.link.call(op, check=False)
+            if ack.ok and vehicle_id in self.router.units:
+                self.router.register(vehicle_id, [topic])
 
     def _media(self, vehicle_id: str, queue: UnitQueue, frame: bytes) -> None:
         """A unit's media frame: checked like a publish, then to local units and up on demand."""
@@ -341,3 +370,12 @@ def _not_listed(vehicle_id: str) -> str:
 def _answer(queue: UnitQueue, op_id: str | None, error: ErrorBody) -> None:
     push = AckPush.failure(op_id, error) if op_id else ErrorPush(error=error)
     queue.put(push.frame())
+
+
+def _frame_bytes(op: dict[str, Any], shown: int) -> int:
+    """The bytes ``op`` takes as the link sends it (ASCII JSON); not measured when the
+    event's own frame (``shown`` characters) is far from the bound, as most are: a
+    character is at most 6 bytes escaped."""
+    if 6 * shown + 512 < MAX_TEXT_FRAME_BYTES:
+        return 0
+    return len(op_frame(op))
