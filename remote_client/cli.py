@@ -17,6 +17,7 @@ import typer
 from rich.table import Table
 
 from fleet_protocol import parse_ts
+from fleet_protocol.topics import validate_topic
 from remote_client import cli_data, streams
 from remote_client.cli_admin import gateways_app, users_app, vehicles_app
 from remote_client.cli_common import (
@@ -371,6 +372,11 @@ def watch(
     wanted = list(topics or ["fleet"])
     if any(_names_a_vehicle(t) for t in wanted):
         wanted = run(server, token, lambda fleet: _vehicle_topics(fleet, wanted))
+    for topic in wanted:  # as the server checks a topic: a bad one is a bad argument
+        try:
+            validate_topic(topic)
+        except ValueError as exc:
+            fail(f"not a topic: {topic!r}: {exc}")
     with contextlib.suppress(KeyboardInterrupt):
         follow = streams.Follow(wanted, throttle_ms, count, seconds, as_json)
         asyncio.run(streams.watch(FleetClient(server, token), follow))

@@ -76,6 +76,8 @@ def test_a_float_that_is_not_finite_is_refused_before_anything_is_sent(
         (("path", "43.94,15", "43.95,15"), "give a vehicle (or more) before the waypoints"),
         (("path", "Alpha", "Bravo"), "then the waypoints as LAT,LON pairs"),
         (("path", "Alpha", "43.94", "15"), "not a LAT,LON pair"),
+        (("watch", "Bad/Topic"), "not a topic: 'Bad/Topic'"),
+        (("watch", "fleet", "user/a//b"), "no empty segment"),
     ],
 )
 def test_a_position_out_of_range_or_an_unknown_kind_is_refused_before_anything_is_sent(

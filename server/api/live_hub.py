@@ -304,10 +304,12 @@ class LiveHub:
         self.hops.server_to_operator(self._wall() - stamp)
 
     def _encode(self, message: dict[str, Any]) -> str:
-        """One JSON encoding per message, however many local subscribers it has."""
+        """One JSON encoding per message, however many local subscribers it has (without
+        ``origin``: the publisher's connection, this server's own routing)."""
         if self._last_message is not message:
             self._last_message = message
-            self._last_frame = dumps(message)
+            shown = {k: v for k, v in message.items() if k != "origin"}
+            self._last_frame = dumps(shown)
         return self._last_frame
 
     @staticmethod

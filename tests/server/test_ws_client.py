@@ -199,6 +199,7 @@ async def test_units_register_subscribe_and_publish(base: str, api: httpx.AsyncC
         await call(car, "publish", "p", topic=topic, data={"depth_m": 12.5})
         got = await recv_until(w, lambda f: f["op"] == "event" and not f.get("snapshot"))
         assert got["data"] == {"depth_m": 12.5} and got["source"] == f"vehicle:{vid}"
+        assert set(got) == {"op", "topic", "data", "source", "ts"}  # no routing of our own
         # exactly the subscribers: the bystander hears nothing, the publisher no echo
         results = f"user/{worker}/results/{vid}"  # the worker's results about the vehicle
         refused = await call(bystander, "subscribe", "q0", topics=[f"user/{worker}/results"])

@@ -107,7 +107,8 @@ class HttpTransport:
         except httpx.TimeoutException as exc:
             raise RetryableError(f"{path}: timed out") from exc
         except httpx.TransportError as exc:
-            raise RetryableError(f"{path}: {type(exc).__name__}: {exc}") from exc
+            why = str(exc) or "the connection broke"  # httpx's ReadError often says nothing
+            raise RetryableError(f"{path}: {type(exc).__name__}: {why}") from exc
         status = response.status_code
         if status < 300:
             try:
