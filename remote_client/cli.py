@@ -7,8 +7,6 @@ Exit codes: ``remote_client.cli_common``.
 
 from __future__ import annotations
 
-import asyncio
-import contextlib
 import os
 from datetime import UTC, datetime, timedelta
 from typing import Any
@@ -17,8 +15,7 @@ import typer
 from rich.table import Table
 
 from fleet_protocol import parse_ts
-from fleet_protocol.topics import validate_topic
-from remote_client import cli_data, streams
+from remote_client import cli_data, cli_live
 from remote_client.cli_admin import gateways_app, users_app, vehicles_app
 from remote_client.cli_common import (
     Commands,
@@ -28,7 +25,6 @@ from remote_client.cli_common import (
     between,
     dump,
     fail,
-    finite,
     lat_lon,
     latitude,
     longitude,
@@ -40,8 +36,8 @@ from remote_client.cli_common import (
     with_names,
 )
 from remote_client.cli_safety import alive, audit_app, failsafe_app, zones_app
-from remote_client.output import console, errors
-from remote_client.sdk import STOP_TTL_S, FleetClient, UnknownVehicle, pick_vehicle, shown_status
+from remote_client.output import console
+from remote_client.sdk import STOP_TTL_S, FleetClient, shown_status
 
 app = typer.Typer(
     cls=Commands,
@@ -58,6 +54,8 @@ app.add_typer(zones_app, name="zones")
 app.add_typer(failsafe_app, name="failsafe")
 app.add_typer(audit_app, name="audit")
 app.command()(alive)
+app.command()(cli_live.watch)
+app.command()(cli_live.publish)
 for command in (cli_data.params, cli_data.events, cli_data.export, cli_data.track, cli_data.sync):
     app.command()(command)
 
@@ -351,63 +349,6 @@ def release(
 
     instance_id, data = run(server, token, act)
     say(data, as_json, f"control of {instance_id} released")
-
-
-@app.command()
-def watch(
-    topics: list[str] = typer.Argument(None, help="topics to follow; none: fleet"),
-    count: int | None = typer.Option(None, min=1, help="stop after this many events"),
-    seconds: float | None = typer.Option(None, min=0, callback=finite, help="stop after this long"),
-    throttle_ms: int = typer.Option(0, min=0, help="at most one event per topic per N ms"),
-    server: str = ServerOpt,
-    token: str = TokenOpt,
-    as_json: bool = JsonOpt,
-) -> None:
-    """Follow topics live: a readable line per event (--json: JSON lines).
-
-    Each topic's current state comes first, then every change. Topics: fleet
-    (presence), vehicle/VEHICLE/telemetry, .../commands, .../control, .../events
-    (VEHICLE: an id or a name), or any topic a unit publishes. Ctrl-C stops.
-    """
-    wanted = list(topics or ["fleet"])
-    if any(_names_a_vehicle(t) for t in wanted):
-        wanted = run(server, token, lambda fleet: _vehicle_topics(fleet, wanted))
-    for topic in wanted:  # as the server checks a topic: a bad one is a bad argument
-        try:
-            validate_topic(topic)
-        except ValueError as exc:
-            fail(f"not a topic: {topic!r}: {exc}")
-    with contextlib.suppress(KeyboardInterrupt):
-        follow = streams.Follow(wanted, throttle_ms, count, seconds, as_json)
-        asyncio.run(streams.watch(FleetClient(server, token), follow))
-
-
-def _names_a_vehicle(topic: str) -> bool:
-    parts = topic.split("/")
-    return len(parts) >= 3 and parts[0] == "vehicle"
-
-
-async def _vehicle_topics(fleet: FleetClient, topics: list[str]) -> list[str]:
-    """``vehicle/<id or name>/...`` with the vehicle's id (one look-up for all). A segment
-    that names no vehicle the caller sees is left for the server to judge."""
-    fleet_now = (await fleet.vehicles())["vehicles"]
-    out = []
-    for topic in topics:
-        if _names_a_vehicle(topic):
-            head, ref, rest = topic.split("/", 2)
-            try:
-                ref = pick_vehicle(ref, fleet_now)["vehicle_id"]
-            except UnknownVehicle:
-                errors.print(  # an admin's watch would otherwise wait in silence
-                    f"warning: no vehicle {ref!r} among those you can see: {topic} has "
-                    "nothing to show until one registers under that id",
-                    style="yellow",
-                    markup=False,
-                    highlight=False,
-                )
-            topic = f"{head}/{ref}/{rest}"
-        out.append(topic)
-    return out
 
 
 def main() -> None:

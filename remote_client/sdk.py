@@ -17,14 +17,11 @@ Tests hand it an ``httpx.AsyncClient`` on the app itself (``client=``).
 from __future__ import annotations
 
 import asyncio
-import json
 from collections.abc import AsyncGenerator, Sequence
 from dataclasses import dataclass
 
-import websockets
-
-from fleet_protocol.links import CLOSE_FORBIDDEN, CLOSE_UNAUTHORIZED, websocket_url
 from remote_client.sdk_admin import AdminCalls
+from remote_client.sdk_live import LiveCalls
 from remote_client.sdk_session import Body, FleetApiError, given
 
 __all__ = [
@@ -38,15 +35,9 @@ __all__ = [
     "shown_status",
 ]
 
-#: WebSocket close codes that refuse the token or the socket, as HTTP statuses.
-REFUSING_CLOSE_CODES = {CLOSE_UNAUTHORIZED: 401, CLOSE_FORBIDDEN: 403}
 #: How long a stop waits for a vehicle out of reach: the longest a command may (1 h). A
 #: stop that expired before the vehicle came back would never reach it.
 STOP_TTL_S = 3600
-#: The HTTP status an error code has on the HTTP routes (a refused op is acked with the code).
-STATUS_OF_CODE = {
-    "unauthorized": 401, "forbidden": 403, "not_found": 404, "invalid": 422, "rate_limited": 429,
-}  # fmt: skip
 
 
 class UnknownVehicle(FleetApiError):
@@ -87,7 +78,7 @@ def shown_status(command: Body) -> str:
     return str(command.get("status"))
 
 
-class FleetClient(AdminCalls):
+class FleetClient(LiveCalls, AdminCalls):
     """One operator's (or field manager's) session with a fleet-cloud server."""
 
     # ---- the fleet -------------------------------------------------------------
@@ -415,41 +406,6 @@ class FleetClient(AdminCalls):
             after = page["next_after_seq"]
 
     # ---- live --------------------------------------------------------------------
-    async def events(
-        self, topics: Sequence[str], *, throttle_ms: int = 0
-    ) -> AsyncGenerator[Body, None]:
-        """Subscribe on ``/ws/client`` and yield its ``event`` and ``lagging`` pushes (each
-        topic's current state first, ``snapshot: true``) until the server closes.
-
-        A refused token or subscription raises :class:`FleetApiError`; a lost link ends
-        the iteration (``websockets.ConnectionClosed`` is not raised).
-        """
-        subscribe: Body = {"op": "subscribe", "id": "events", "topics": list(topics)}
-        if throttle_ms:
-            subscribe["throttle_ms"] = throttle_ms
-        async with websockets.connect(
-            websocket_url(self.server, "/ws/client"),
-            additional_headers=self._headers,
-            open_timeout=30,
-        ) as ws:
-            try:
-                await ws.send(json.dumps(subscribe))
-                async for frame in ws:
-                    if not isinstance(frame, str):
-                        continue  # media frames: not for this iterator
-                    push = json.loads(frame)
-                    if push.get("op") == "ack" and not push.get("ok"):
-                        error = push.get("error") or {}
-                        code = error.get("code", "refused")
-                        status = STATUS_OF_CODE.get(code, 409)
-                        message = error.get("message", "")
-                        raise FleetApiError(status, code, message, error.get("details"))
-                    if push.get("op") in ("event", "lagging"):
-                        yield push
-            except websockets.ConnectionClosed as exc:
-                closing = REFUSING_CLOSE_CODES.get(exc.rcvd.code) if exc.rcvd else None
-                if closing is not None and exc.rcvd is not None:
-                    raise FleetApiError(closing, "refused", exc.rcvd.reason) from None
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,112 @@
+"""``fleetctl watch`` and ``fleetctl publish``: topics, live (``docs/live.md``)."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+from typing import Any
+
+import typer
+import websockets
+
+from fleet_protocol.topics import validate_topic
+from remote_client import streams
+from remote_client.cli_common import JsonOpt, ServerOpt, TokenOpt, fail, finite, run, say
+from remote_client.output import errors
+from remote_client.sdk import FleetClient, UnknownVehicle, pick_vehicle
+
+__all__ = ["publish", "watch"]
+
+
+def watch(
+    topics: list[str] = typer.Argument(None, help="topics to follow; none: fleet"),
+    count: int | None = typer.Option(None, min=1, help="stop after this many events"),
+    seconds: float | None = typer.Option(None, min=0, callback=finite, help="stop after this long"),
+    throttle_ms: int = typer.Option(0, min=0, help="at most one event per topic per N ms"),
+    server: str = ServerOpt,
+    token: str = TokenOpt,
+    as_json: bool = JsonOpt,
+) -> None:
+    """Follow topics live: a readable line per event (--json: JSON lines).
+
+    Each topic's current state comes first, then every change. Topics: fleet
+    (presence), vehicle/VEHICLE/telemetry, .../commands, .../control, .../events
+    (VEHICLE: an id or a name), or any topic a unit publishes. Ctrl-C stops.
+    """
+    wanted = list(topics or ["fleet"])
+    if any(_names_a_vehicle(t) for t in wanted):
+        wanted = run(server, token, lambda fleet: _vehicle_topics(fleet, wanted))
+    for topic in wanted:
+        _checked(topic)
+    with contextlib.suppress(KeyboardInterrupt):
+        follow = streams.Follow(wanted, throttle_ms, count, seconds, as_json)
+        asyncio.run(streams.watch(FleetClient(server, token), follow))
+
+
+def _names_a_vehicle(topic: str) -> bool:
+    parts = topic.split("/")
+    return len(parts) >= 3 and parts[0] == "vehicle"
+
+
+async def _vehicle_topics(fleet: FleetClient, topics: list[str]) -> list[str]:
+    """``vehicle/<id or name>/...`` with the vehicle's id (one look-up for all). A segment
+    that names no vehicle the caller sees is left for the server to judge."""
+    fleet_now = (await fleet.vehicles())["vehicles"]
+    out = []
+    for topic in topics:
+        if _names_a_vehicle(topic):
+            head, ref, rest = topic.split("/", 2)
+            try:
+                ref = pick_vehicle(ref, fleet_now)["vehicle_id"]
+            except UnknownVehicle:
+                errors.print(  # an admin's watch would otherwise wait in silence
+                    f"warning: no vehicle {ref!r} among those you can see: {topic} has "
+                    "nothing to show until one registers under that id",
+                    style="yellow",
+                    markup=False,
+                    highlight=False,
+                )
+            topic = f"{head}/{ref}/{rest}"
+        out.append(topic)
+    return out
+
+
+def publish(
+    topic: str = typer.Argument(..., help="a topic you may write: user/YOU/..."),
+    data: str = typer.Argument(
+        ..., help="the message, as JSON: '{\"depth_m\": 12.5}', 42, '\"text\"'"
+    ),
+    server: str = ServerOpt,
+    token: str = TokenOpt,
+    as_json: bool = JsonOpt,
+) -> None:
+    """Publish one message on a topic, to whoever subscribes to it (a unit, a worker,
+    another operator's watch). A user writes under user/ITS-NAME/."""
+    _checked(topic)
+    try:
+        message: Any = json.loads(data, parse_constant=_no_constant)
+    except ValueError as exc:
+        fail(f"DATA is JSON (quote a text: '\"{data}\"'): {exc}")
+
+    async def act(fleet: FleetClient) -> dict[str, Any]:
+        try:
+            await fleet.publish(topic, message)
+        except (OSError, websockets.WebSocketException) as exc:
+            errors.print(f"cannot reach {server}: {exc}", style="red", markup=False)
+            raise typer.Exit(3) from None
+        return {"topic": topic, "published": True}
+
+    say(run(server, token, act), as_json, f"published on {topic}")
+
+
+def _checked(topic: str) -> None:
+    """As the server checks a topic: a bad one is a bad argument (exit 2)."""
+    try:
+        validate_topic(topic)
+    except ValueError as exc:
+        fail(f"not a topic: {topic!r}: {exc}")
+
+
+def _no_constant(name: str) -> Any:
+    raise ValueError(f"{name} is not a JSON number")
