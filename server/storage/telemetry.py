@@ -14,6 +14,11 @@ be stored twice (docs/live.md, "Several replicas"); reads go through
 :func:`distinct_samples`, which gives each ``seq`` once. Indexes
 ``(vehicle_id, max_seq)``, ``(vehicle_id, end)``, ``(end)``; no unique index,
 no ``$group``, no update (see docs/storage.md).
+
+``telemetry_marks``: one document per vehicle (``_id`` its id), ``seq`` the highest
+of its buckets that retention dropped (raised with ``$max`` before they go). The
+highest ``seq`` a vehicle has stored outlives its telemetry: a sample at or below it
+is still a duplicate, and ``start_instance``'s ``last_seq`` still says where to go on.
 """
 
 from __future__ import annotations
@@ -28,6 +33,9 @@ import bson
 from server.storage.backends import ENCODE_ERRORS, Doc, Rejected, Store
 
 COLLECTION = "telemetry"
+MARKS = "telemetry_marks"
+#: Buckets retention reads and drops at a time.
+_DROP_BATCH = 1000
 _META = {"samples": 0}
 _CODEC: bson.CodecOptions[Any] = bson.CodecOptions(tz_aware=True)
 
@@ -87,6 +95,7 @@ def _merged(group: list[Mapping[str, Any]]) -> Iterator[Doc]:
 class TelemetryRepo:
     def __init__(self, store: Store) -> None:
         self.coll = store[COLLECTION]
+        self.marks = store[MARKS]
 
     async def ensure_indexes(self) -> None:
         await self.coll.create_index([("vehicle_id", 1), ("max_seq", 1)])
@@ -119,16 +128,37 @@ class TelemetryRepo:
         await self.coll.insert_many(buckets)
 
     async def drop_ended_before(self, cutoff: datetime) -> int:
-        """Retention: drop every bucket whose newest sample is older than ``cutoff``."""
-        return await self.coll.delete({"end": {"$lt": cutoff}})
+        """Retention: drop every bucket whose newest sample is older than ``cutoff``, each
+        vehicle's highest ``seq`` among them kept in its mark first (by id: a bucket
+        written meanwhile is left for the next pass, never dropped unmarked)."""
+        dropped = 0
+        while True:
+            found = await self.coll.find(
+                {"end": {"$lt": cutoff}},
+                projection={"vehicle_id": 1, "max_seq": 1},
+                limit=_DROP_BATCH,
+            )
+            if not found:
+                return dropped
+            highest: dict[str, int] = {}
+            for bucket in found:
+                vehicle = bucket["vehicle_id"]
+                highest[vehicle] = max(highest.get(vehicle, -1), int(bucket["max_seq"]))
+            for vehicle, seq in highest.items():
+                await self.marks.update({"_id": vehicle}, max={"seq": seq}, upsert=True)
+            dropped += await self.coll.delete({"_id": {"$in": [b["_id"] for b in found]}})
+            if len(found) < _DROP_BATCH:
+                return dropped
 
     # ---- reads --------------------------------------------------------------
     async def max_seq(self, vehicle_id: str) -> int:
-        """Highest stored ``seq`` of the vehicle; -1 when none."""
+        """Highest ``seq`` the vehicle has stored, its dropped buckets' too; -1 when none."""
         doc = await self.coll.find(
             {"vehicle_id": vehicle_id}, sort=[("max_seq", -1)], limit=1, projection=_META
         )
-        return int(doc[0]["max_seq"]) if doc else -1
+        mark = await self.marks.get(vehicle_id)
+        kept = int(doc[0]["max_seq"]) if doc else -1
+        return max(kept, int(mark["seq"]) if mark else -1)
 
     async def latest_sample(self, vehicle_id: str, before: datetime | None = None) -> Doc | None:
         """The stored sample with the greatest ``ts`` (it is in the bucket ending last; of

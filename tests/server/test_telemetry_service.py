@@ -160,6 +160,24 @@ async def test_retention_drops_old_buckets_for_good(world: World) -> None:
     assert await svc.drop_before(T0 - timedelta(days=1)) == 0
 
 
+async def test_the_highest_seq_outlives_the_buckets_retention_drops(world: World) -> None:
+    """API.md: a seq at or below the vehicle's highest stored one is a duplicate, and
+    start_instance's last_seq says where to go on: after retention dropped every bucket
+    of a vehicle as well (its seq 1-5 again were stored as new, and a local copy keyed
+    on seq kept the old ones)."""
+    await world.svc.ingest("usv-1", "i1", samples(range(1, 31), t0=T0 - timedelta(days=2)))
+    await world.svc.make_durable()
+    assert await world.svc.drop_before(T0 - timedelta(days=1)) > 0
+    page, _ = await world.svc.page("usv-1", limit=100)
+    assert seqs_of(page) == []  # all of it dropped
+    svc = await world.restart()
+    assert await svc.last_seq("usv-1") == 30
+    again = await svc.ingest("usv-1", "i1", samples(range(1, 6)))
+    assert (again.accepted, again.duplicates, again.acked_through_seq) == (0, 5, 30)
+    on = await svc.ingest("usv-1", "i1", samples(range(31, 33)))
+    assert on.accepted == 2
+
+
 async def test_latest_is_the_greatest_ts_and_late_samples_are_replayed(world: World) -> None:
     world.clock.now = T0 + timedelta(seconds=20)
     first = await world.svc.ingest("usv-1", "i1", samples(range(10, 13)))
