@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import csv
 import io
+from decimal import Decimal
 from typing import Any
-from xml.sax.saxutils import escape, quoteattr
+from xml.sax.saxutils import escape
 
 from fleet_protocol import format_ts, track_geometry
 from server.services.telemetry_views import TRACK_FIELDS, TrackResult
@@ -47,13 +48,20 @@ def gpx(track: TrackResult) -> str:
         f"<trk><name>{escape(track.vehicle_id)}</name><trkseg>",
     ]
     for p in track.points:
-        ele = f"<ele>{-p['depth_m']}</ele>" if "depth_m" in p else ""
+        ele = f"<ele>{_decimal(-p['depth_m'])}</ele>" if "depth_m" in p else ""
         out.append(
-            f"<trkpt lat={quoteattr(repr(p['lat']))} lon={quoteattr(repr(p['lon']))}>"
+            f'<trkpt lat="{_decimal(p["lat"])}" lon="{_decimal(p["lon"])}">'
             f"{ele}<time>{format_ts(p['ts'])}</time></trkpt>"
         )
     out.append("</trkseg></trk></gpx>")
     return "\n".join(out) + "\n"
+
+
+def _decimal(value: float) -> str:
+    """A float as GPX's ``xsd:decimal`` writes it: the shortest text that reads back as
+    the same float, without an exponent (``5e-05`` is ``0.00005``)."""
+    text = repr(float(value))
+    return text if "e" not in text else format(Decimal(text), "f")
 
 
 def csv_text(track: TrackResult) -> str:

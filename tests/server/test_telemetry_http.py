@@ -117,6 +117,15 @@ async def test_track_gpx(client: httpx.AsyncClient) -> None:
     assert points[0].findtext("g:time", namespaces=ns) == "2026-11-22T10:00:01.000Z"
     assert points[0].findtext("g:ele", namespaces=ns) == "-2.5"
 
+    # Near the prime meridian, at the surface: decimals, never an exponent (xsd:decimal).
+    tiny, _, _ = await vehicle_with_samples(client, range(1, 2), lon=0.00005, depth_m=0.00001)
+    r = await client.get(
+        f"/api/vehicles/{tiny}/track", headers=ADMIN, params={**WINDOW, "format": "gpx"}
+    )
+    [point] = ET.fromstring(r.content).findall(".//g:trkpt", ns)
+    assert (point.get("lon"), point.findtext("g:ele", namespaces=ns)) == ("0.00005", "-0.00001")
+    assert "e-" not in r.text
+
 
 async def test_track_csv(client: httpx.AsyncClient) -> None:
     vid, _, _ = await vehicle_with_samples(client, range(1, 4))
