@@ -532,6 +532,22 @@ def test_a_lost_link_shows_and_comes_back(world: World, open_console: Any, shots
     shots(page, "link-back")
 
 
+def test_a_network_gone_silent_is_a_lost_link_within_25_s(
+    world: World, open_console: Any, shots: Shots
+) -> None:
+    """A phone out of signal: the socket neither answers nor closes. The console's own
+    check (15 s, then 10 s for the answer) says so; it used to stay "live", every boat
+    green, until the network came back."""
+    page, _ = open_console()
+    log_in(page, "ana")
+    page.context.set_offline(True)
+    expect(page.locator("#link")).to_have_attribute("data-state", "lost", timeout=35_000)
+    expect(page.locator("#link")).to_contain_text("link lost")
+    shots(page, "silent-network-lost")
+    page.context.set_offline(False)
+    expect(page.locator("#link")).to_have_attribute("data-state", "live", timeout=30_000)
+
+
 def test_swagger_ui_at_docs_works_offline(world: World, open_console: Any, shots: Shots) -> None:
     page, guard = open_console()
     page.goto("/docs")

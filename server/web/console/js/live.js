@@ -115,7 +115,10 @@ export class LiveLink {
       const asked = this.pingId;
       ws.send(JSON.stringify({ op: "unsubscribe", id: asked, topics: [this.pingTopic] }));
       this.later(() => {
-        if (ws === this.ws && this.pingId === asked) ws.close(4000, "no answer");
+        if (ws !== this.ws || this.pingId !== asked) return;
+        ws.close(4000, "no answer");
+        // Lost now: a browser without a network never confirms the close (onclose).
+        this.closed(ws, { code: 4000, reason: "no answer" });
       }, PING_ANSWER_MS);
       this.schedulePing(ws);
     }, PING_EVERY_MS);
