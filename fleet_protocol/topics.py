@@ -2,10 +2,12 @@
 
 A topic is 1 to 8 segments of ``[a-z0-9_-]`` joined by ``/``, at most 128
 characters, with no wildcards (the grammar, checked here). The first segment
-is the namespace; the server's rules give meaning to these four (a topic
+is the namespace; the server's rules give meaning to these five (a topic
 elsewhere is well formed but nobody may write it):
 
 - ``fleet``: presence changes of the whole fleet, written by the server;
+- ``zones``: that the operating areas and no-go zones changed (**extension**),
+  written by the server;
 - ``vehicle/<vehicle_id>/...``: what a vehicle produces (and, for
   ``telemetry``, ``commands``, ``control`` and ``events``, what the server
   says about it);
@@ -47,7 +49,7 @@ MAX_TOPIC_CHARS = 128
 MAX_TOPIC_SEGMENTS = 8
 _SEGMENT = re.compile(r"^[a-z0-9_-]+$")
 
-NAMESPACES = frozenset({"fleet", "vehicle", "user", "gateway"})
+NAMESPACES = frozenset({"fleet", "zones", "vehicle", "user", "gateway"})
 #: ``vehicle/<id>/<kind>`` (and below) that the server alone writes.
 SERVER_ONLY_VEHICLE_TOPICS = frozenset({"telemetry", "commands", "control", "events"})
 #: A segment (after namespace and owner) that makes a topic a media topic.

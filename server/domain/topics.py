@@ -2,8 +2,8 @@
 
 Writing:
 
-- ``fleet`` and ``vehicle/<id>/{telemetry,commands,control,events}`` (and
-  anything below them) are written by the server alone;
+- ``fleet``, ``zones`` and ``vehicle/<id>/{telemetry,commands,control,events}``
+  (and anything below them) are written by the server alone;
 - under ``vehicle/<id>/`` only vehicle ``<id>`` writes, or a gateway that
   lists it;
 - under ``user/<username>/`` only that user (a person, or a processing
@@ -21,7 +21,8 @@ Reading (every namespace has an owner):
   vehicle: that is how a worker's results reach the vehicle and its operators;
 - ``gateway/<gateway_id>/...``: that gateway, its units (the vehicles it
   lists), whoever may read one of them, and admins;
-- ``fleet`` is for users (the server filters presence per user).
+- ``fleet`` is for users (the server filters presence per user), and ``zones``
+  too (it says only that the zones changed: each reads its own again).
 
 The caller is anything shaped like :class:`Actor` (``server.domain.access.Principal``
 is). Unit identities for the routing table come from :func:`unit_for`.
@@ -73,8 +74,8 @@ def write_refusal(actor: Actor, topic: str) -> str | None:
     """Why ``actor`` may not publish on (or register) ``topic``; ``None`` if it may."""
     segments = split_topic(topic)
     namespace = segments[0]
-    if namespace == "fleet":
-        return "'fleet' is written by the server alone"
+    if namespace in ("fleet", "zones"):
+        return f"'{namespace}' is written by the server alone"
     if namespace not in ("vehicle", "user", "gateway"):
         return f"nobody writes under '{namespace}/': use user/<username>/ or vehicle/<id>/"
     if len(segments) < 3:
@@ -100,10 +101,10 @@ def read_refusal(actor: Actor, topic: str, gateways: Gateways | None = None) -> 
     vehicles of each gateway a ``gateway/...`` topic names (unknown ones: none)."""
     segments = split_topic(topic)
     namespace = segments[0]
-    if namespace == "fleet":
+    if namespace in ("fleet", "zones"):
         if len(segments) > 1:
-            return "there are no topics under 'fleet/': 'fleet' is one topic"
-        return None if actor.kind == "user" else "'fleet' is for users"
+            return f"there are no topics under '{namespace}/': '{namespace}' is one topic"
+        return None if actor.kind == "user" else f"'{namespace}' is for users"
     if namespace not in ("vehicle", "user", "gateway"):
         return f"there are no topics under '{namespace}/'"
     if len(segments) < 3:

@@ -95,6 +95,10 @@ class ServerTopics:
         doc = event.doc
         vehicle_id = doc.get("vehicle_id")
         if not vehicle_id:
+            if doc["kind"] == "zones_changed":  # the fleet's record of it: on ``zones``
+                data = doc.get("data") or {}
+                said = {k: data.get(k) for k in ("zone_id", "action", "version")}
+                return self.emit("zones", said)
             return None
         entry = _jsonable(doc)
         first = self.emit(f"vehicle/{vehicle_id}/events", {"events": [entry]})

@@ -280,3 +280,28 @@ async def test_a_publish_says_its_data_and_sends_json_only_where_json_goes(
         under = await call(user, "subscribe", "s", topics=["fleet/x"])
         assert under["ok"] is False and "no topics under 'fleet/'" in under["error"]["message"]
         assert (await call(user, "subscribe", "s2", topics=["fleet"]))["ok"] is True
+
+
+async def test_zones_says_to_users_that_the_zones_changed(
+    base: str, api: httpx.AsyncClient
+) -> None:
+    """The ``zones`` topic (an extension): a zone drawn for every vehicle is recorded for
+    none, so no vehicle's events say it; users hear it here and read their zones again."""
+    vid, vh, _ = await _vehicle_with_instance(api)
+    _, viewer = await make_user(api, "viewer", [vid])
+    ring = [[15.0, 43.0], [15.01, 43.0], [15.01, 43.01], [15.0, 43.0]]
+    zone = {"name": "reef", "kind": "no_go", "polygon": {"type": "Polygon", "coordinates": [ring]}}
+    async with (
+        await connect(base, "/ws/client", tok(viewer)) as w,
+        await connect(base, "/ws/vehicle", tok(vh)) as car,
+    ):
+        assert (await call(w, "subscribe", "s", topics=["zones"]))["ok"] is True
+        made = (await api.post("/api/zones", headers=ADMIN, json=zone)).json()
+        said = await recv_until(w, lambda f: f["op"] == "event" and f["topic"] == "zones")
+        assert said["data"] == {"zone_id": made["zone_id"], "action": "created", "version": 1}
+        refused = await call(car, "subscribe", "v", topics=["zones"])
+        assert refused["ok"] is False and refused["error"]["code"] == "forbidden"
+        written = await call(w, "publish", "p", topic="zones", data={})
+        assert written["ok"] is False and written["error"]["code"] == "forbidden"
+        below = await call(w, "subscribe", "b", topics=["zones/x"])
+        assert below["ok"] is False and "'zones' is one topic" in below["error"]["message"]

@@ -50,3 +50,30 @@ def test_a_low_battery_shows_in_the_table_and_the_panel_until_it_ends(
     page.click('[data-tab="fleet"]')
     expect(row.locator(".alarm")).to_have_count(0)
     expect(row).not_to_have_class(re.compile(r"\balarmed\b"))
+
+
+def test_a_zone_drawn_or_removed_while_the_console_is_open_is_drawn_or_gone(
+    world: World, open_console: Any, shots: Shots
+) -> None:
+    """A zone for every vehicle is said on the ``zones`` topic: an operator whose console
+    was open saw it only after a reload, and was refused a path across a zone not drawn."""
+    page, _ = open_console()
+    log_in(page, "ana")
+    zones = page.locator("path.zone-no_go")
+    expect(zones).to_have_count(0)
+    here = world.fleet.call("GET", "/api/vehicles/demo-usv-1")["position"]
+    lat, lon = here["lat"], here["lon"]
+    ring = [[lon + dx, lat + dy] for dx, dy in ((0.002, 0.002), (0.003, 0.002), (0.003, 0.003))]
+    made = world.fleet.call(
+        "POST",
+        "/api/zones",
+        json={
+            "name": "Harbour mouth",
+            "kind": "no_go",
+            "polygon": {"type": "Polygon", "coordinates": [[*ring, ring[0]]]},
+        },
+    )
+    expect(zones).to_have_count(1, timeout=10_000)
+    shots(page, "zone-drawn")
+    world.fleet.call("DELETE", f"/api/zones/{made['zone_id']}")
+    expect(zones).to_have_count(0, timeout=10_000)

@@ -171,7 +171,7 @@ class Console {
       onEvent: (topic, data, snapshot) => this.onEvent(topic, data, snapshot),
       onState: (state, info) => this.linkState(state, info),
     });
-    this.live.subscribe(["fleet"]);
+    this.live.subscribe(["fleet", "zones"]);
     this.live.start();
     this.loadShapes();
     this.controlPanel.loadRequests();
@@ -186,6 +186,7 @@ class Console {
 
   onEvent(topic, data, snapshot) {
     if (topic === "fleet") return this.fleet.applyFleet(data, snapshot);
+    if (topic === "zones") return this.loadShapes(); // drawn or removed: read them again
     const [, id, kind] = topic.split("/");
     if (kind === "telemetry") this.fleet.applyTelemetry(id, data);
     else if (kind === "commands") this.fleet.applyCommands(id, data, snapshot);
