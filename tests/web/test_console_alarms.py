@@ -34,8 +34,13 @@ def test_a_low_battery_shows_in_the_table_and_the_panel_until_it_ends(
         "title", re.compile(r"^battery low: \d+(\.\d)? % \(alarm below 100 %\)$")
     )
     expect(row).to_have_class(re.compile(r"\balarmed\b"))
+    expect(row.locator("td").nth(3)).to_have_text(re.compile(r"^\d{1,2} %$"))  # below 100
     for other in ("demo-usv-1", "demo-usv-2"):
         expect(page.locator(f'#fleet-table tr[data-vehicle="{other}"] .alarm')).to_have_count(0)
+        expect(marker(page, other)).not_to_have_class(re.compile(r"\balarmed\b"))
+    # on the map too (a phone opens on it): a red halo and the alarm on the boat's label
+    expect(marker(page, vehicle)).to_have_class(re.compile(r"\balarmed\b"))
+    expect(marker(page, vehicle).locator(".alarm-chip")).to_have_text("low battery")
     shots(page, "alarm-table")
 
     marker(page, vehicle).click()
@@ -50,6 +55,7 @@ def test_a_low_battery_shows_in_the_table_and_the_panel_until_it_ends(
     page.click('[data-tab="fleet"]')
     expect(row.locator(".alarm")).to_have_count(0)
     expect(row).not_to_have_class(re.compile(r"\balarmed\b"))
+    expect(marker(page, vehicle).locator(".alarm-chip")).to_have_count(0)
 
 
 def test_a_zone_drawn_or_removed_while_the_console_is_open_is_drawn_or_gone(

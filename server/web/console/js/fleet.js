@@ -18,6 +18,16 @@ export function stageOf(status, detail) {
   return status;
 }
 
+// How the console names each alarm (VehicleView.alarms; the message says it in full).
+const ALARM_LABELS = {
+  failsafe: "failsafe", no_go_zone: "no-go zone", outside_area: "outside area",
+  low_battery: "low battery",
+};
+
+export function alarmLabel(kind) {
+  return ALARM_LABELS[kind] || kind;
+}
+
 export function isFinal(status) {
   return FINAL.has(status);
 }

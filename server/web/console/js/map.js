@@ -4,7 +4,7 @@
 // label placed clear of its neighbours and a trail of the last minutes.
 
 import * as L from "/vendor/leaflet/leaflet-src.esm.js";
-import { isFinal, lastKnown, stageLabel } from "./fleet.js";
+import { alarmLabel, isFinal, lastKnown, stageLabel } from "./fleet.js";
 import { placeLabels } from "./labels.js";
 
 export { L };
@@ -200,6 +200,8 @@ export class MapView {
     const view = v.view;
     el.dataset.vehicle = v.id;
     el.dataset.presence = view.presence || "offline";
+    const alarms = view.alarms || [];
+    el.classList.toggle("alarmed", alarms.length > 0);
     el.dataset.lat = view.position ? view.position.lat : "";
     el.dataset.lon = view.position ? view.position.lon : "";
     el.classList.toggle("selected", this.selected.has(v.id));
@@ -214,7 +216,13 @@ export class MapView {
       : "";
     const failsafe = view.control_mode === "failsafe" || view.control_mode === "local"
       ? `<span class="chip stage-failed">${escapeHtml(view.control_mode)}</span>` : "";
-    const html = `<b>${escapeHtml(view.name || v.id)}</b>${chip}${failsafe}`;
+    // what is wrong, on the map too (a phone opens on it): the first alarm, and how many more
+    const shown = failsafe ? alarms.filter((a) => a.kind !== "failsafe") : alarms;
+    const alarm = shown.length
+      ? `<span class="chip alarm-chip" title="${escapeHtml(shown.map((a) => a.message).join("; "))}">`
+        + `${escapeHtml(alarmLabel(shown[0].kind))}${shown.length > 1 ? ` +${shown.length - 1}` : ""}</span>`
+      : "";
+    const html = `<b>${escapeHtml(view.name || v.id)}</b>${chip}${failsafe}${alarm}`;
     const label = el.querySelector(".vlabel");
     if (label.innerHTML !== html) {
       label.innerHTML = html;

@@ -2,23 +2,17 @@
 // recent commands and events), and what they and the control panel (control.js) share
 // to say an event or a lease. Each redraws from the Fleet state when it changes.
 
-import { isFinal, lastKnown, stageLabel, stageOf } from "./fleet.js";
+import { alarmLabel, isFinal, lastKnown, stageLabel, stageOf } from "./fleet.js";
 import { ago, clock, h, sending, sends, until } from "./ui.js";
 
 export function presenceBadge(presence) {
   return h(`span.presence.p-${presence || "offline"}`, {}, presence || "unknown");
 }
 
-// How the fleet table names each alarm (VehicleView.alarms; the message is its title).
-const ALARM_LABELS = {
-  failsafe: "failsafe", no_go_zone: "no-go zone", outside_area: "outside area",
-  low_battery: "low battery",
-};
-
 /** A vehicle's alarms as red badges, each saying what is wrong in its title. */
 export function alarmBadges(view) {
   return (view.alarms || []).map((a) => h(`span.alarm.a-${a.kind}`, { title: a.message },
-    ALARM_LABELS[a.kind] || a.kind));
+    alarmLabel(a.kind)));
 }
 
 /** A command's stage as a chip: greyed, "(last known)", when the vehicle is not online. */
@@ -26,6 +20,12 @@ function chip(cmd, presence) {
   if (!cmd) return "–";
   return h(`span.chip.stage-${cmd.stage}${lastKnown(cmd, presence) ? ".last-known" : ""}`, {},
     stageLabel(cmd, presence));
+}
+
+/** A battery reading in whole percent, rounded down: 99.9 % against an alarm at 100 %
+ * reads 99, never the 100 that would sit beside "low battery". */
+function batteryText(pct) {
+  return String(Math.floor(pct));
 }
 
 /** A delay in ms as the console shows it (tenths below 10 ms). */
@@ -128,9 +128,9 @@ export class FleetTable {
               : null),
           // a reading of a vehicle not online is greyed and dated, as in its panel
           v.view.presence === "online"
-            ? h("td", {}, p && p.battery_pct != null ? `${p.battery_pct.toFixed(0)} %` : "–")
+            ? h("td", {}, p && p.battery_pct != null ? `${batteryText(p.battery_pct)} %` : "–")
             : h("td.stale", { title: p ? `as of ${clock(p.ts)}` : null },
-              p && p.battery_pct != null ? `${p.battery_pct.toFixed(0)} %` : "–"),
+              p && p.battery_pct != null ? `${batteryText(p.battery_pct)} %` : "–"),
           h("td", {}, holderText(v.control, me)),
           h("td", {}, chip(fleet.latestCommand(v.id), v.view.presence)),
         );
