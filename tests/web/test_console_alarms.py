@@ -83,3 +83,24 @@ def test_a_zone_drawn_or_removed_while_the_console_is_open_is_drawn_or_gone(
     shots(page, "zone-drawn")
     world.fleet.call("DELETE", f"/api/zones/{made['zone_id']}")
     expect(zones).to_have_count(0, timeout=10_000)
+
+
+def test_a_manager_hears_of_stops_others_send_and_the_log_keeps_them(
+    world: World, open_console: Any, shots: Shots
+) -> None:
+    """An operator's Stop all reached the boats; the field manager saw only labels change."""
+    page, _ = open_console()
+    log_in(page, "mia")
+    ids = [world.instances[v] for v in ("demo-usv-1", "demo-usv-2")]
+    world.as_user(
+        "ana", "POST", "/client/submit_control",
+        json={"instance_ids": ids, "command": {"type": "stop", "args": {}}},
+    )  # fmt: skip
+    told = page.locator("#toasts .toast", has_text="ana stopped")
+    expect(told).to_have_count(1)  # one toast for the two
+    expect(told).to_contain_text("ana stopped H2OmniX Alpha, H2OmniX Bravo")
+    page.click('[data-tab="control"]')
+    stops = page.locator('section.safety-log li[data-kind="command"]')
+    expect(stops).to_have_count(2)
+    expect(stops.first).to_contain_text("stop")
+    shots(page, "stops-told")

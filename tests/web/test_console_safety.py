@@ -309,15 +309,14 @@ def test_what_is_said_is_said_once_and_an_empty_window_says_so(
     marker(page, "demo-usv-2").click(modifiers=["Shift"])
     expect(page.locator("#selection")).to_have_text("2 selected: H2OmniX Alpha, H2OmniX Bravo")
     page.click('#actions [data-tool="path"]')
-    page.locator("#path-plan").uncheck()
+    # one path for two boats is not planned (the planner keeps boats apart): said, and off
+    expect(page.locator("#path-plan")).to_be_disabled()
     page.mouse.click(*screen_point(page, *frame.to_latlon(0, 60)))  # in the reef
     page.click("#path-send")
-    refused = page.locator("#toasts .toast.error", has_text="follow_path refused")
-    expect(refused).to_contain_text(
-        re.compile(r"2 of 2 instances refused \(.*reef.*\); nothing queued")
+    refused = page.locator("#toasts .toast.error", has_text="follow_path NOT sent")
+    expect(refused).to_contain_text(  # each boat by name, the reason once each
+        re.compile(r"to any of them: H2OmniX Alpha: [^;]*reef[^;]*; H2OmniX Bravo: [^;]*reef")
     )
-    said = refused.locator(".msg").inner_text()
-    assert said.endswith("; nothing queued"), said  # not followed by the reason again
     shots(page, "refused-once")
     page.keyboard.press("Escape")
     page.click('#actions [data-tool="go_to"]')  # both to one point: queued, and said
@@ -409,6 +408,9 @@ def test_a_vehicle_gone_offline_shows_its_stage_as_last_known(
     expect(item).to_have_class(re.compile(r"\blast-known\b"))
     expect(item.locator(".steps")).to_contain_text("executing (last known)")
     shots(page, "offline-panel")
+    page.click('[data-tab="control"]')  # the manager's log says it went offline
+    gone = page.locator('section.safety-log li[data-kind="presence"]').first
+    expect(gone).to_contain_text("H2OmniX Bravo is now offline")
 
 
 def test_a_phone_says_who_is_logged_in_and_what_a_finger_does(

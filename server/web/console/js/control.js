@@ -16,6 +16,8 @@ const KIND_LABELS = {
   control_expired: "control expired for", control_deny: "request declined for",
   hold_station: "holds station:",
   control_mode: "control mode",
+  presence: "is now",
+  command: "command",
 };
 const SAFETY_EVENTS = new Set([
   "hold_station", "failsafe_entered", "failsafe_left", "failsafe_changed", "zone_breach",
@@ -28,12 +30,15 @@ const LIVENESS = [
 
 /** Whether "What happened" lists the event: control and safety, not the routine mode
  * changes of every mission (idle ⇄ remote); a crew taking the local controls, or a
- * failsafe, is listed. */
+ * failsafe, is listed; so is a stop, whoever sent it, and a vehicle gone offline (its
+ * return is listed by the caller, which knows it was offline). */
 function isSafetyEvent(e) {
+  const d = e.data || {};
   if (e.kind === "control_mode") {
-    const d = e.data || {};
     return [d.control_mode, d.was].some((m) => m === "local" || m === "failsafe");
   }
+  if (e.kind === "presence") return d.presence === "offline";
+  if (e.kind === "command") return d.type === "stop" && d.status === "queued";
   return e.kind.startsWith("control_") || SAFETY_EVENTS.has(e.kind);
 }
 
@@ -54,8 +59,30 @@ export class ControlPanel {
       if (event.kind === "hold_station" && this.managed(id)) {
         toast(`${this.nameOf(id)} holds station: ${describeEvent(event)}`, "info");
       }
+      this.tellStops(id, event);
       this.tellMine(id, event);
     });
+  }
+
+  /** A manager hears of a stop someone else sent to a vehicle it manages: one toast for
+   * a Stop all (the stops that come within half a second, by sender). */
+  tellStops(id, event) {
+    const d = event.data || {};
+    const by = (event.actor || "").replace(/^user:/, "");
+    if (event.kind !== "command" || d.type !== "stop" || d.status !== "queued") return;
+    if (!this.managed(id) || !by || by === this.ctx.me.username) return;
+    this.stops = this.stops || new Map();
+    const names = this.stops.get(by);
+    if (names) {
+      names.add(this.nameOf(id));
+      return;
+    }
+    this.stops.set(by, new Set([this.nameOf(id)]));
+    setTimeout(() => {
+      const all = [...this.stops.get(by)].sort();
+      this.stops.delete(by);
+      toast(`${by} stopped ${all.join(", ")}`, "info");
+    }, 500);
   }
 
   nameOf(id) {
@@ -296,12 +323,15 @@ export class ControlPanel {
   safetyLog() {
     const items = [];
     for (const v of this.ctx.fleet.vehicles.values()) {
-      for (const e of v.events) {
-        if (isSafetyEvent(e)) items.push([v, e]);
+      let offline = false; // back online after being offline: listed too
+      for (const e of [...v.events].sort((a, b) => (a.at < b.at ? -1 : 1))) {
+        const back = e.kind === "presence" && offline && (e.data || {}).presence === "online";
+        if (e.kind === "presence") offline = (e.data || {}).presence === "offline";
+        if (back || isSafetyEvent(e)) items.push([v, e]);
       }
     }
     items.sort((a, b) => (a[1].at < b[1].at ? 1 : -1));
-    const rows = items.slice(0, 15).map(([v, e]) => h("li", { dataset: { kind: e.kind, vehicle: v.id } },
+    const rows = items.slice(0, 30).map(([v, e]) => h("li", { dataset: { kind: e.kind, vehicle: v.id } },
       h("time", {}, clock(e.at)), " ", h("b", {}, v.view.name || v.id), " ",
       h("span.kind", {}, KIND_LABELS[e.kind] || e.kind.replace(/_/g, " ")), " ", describeEvent(e)));
     return h("section.safety-log", {}, h("h3", {}, "What happened"),

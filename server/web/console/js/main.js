@@ -323,6 +323,13 @@ class Console {
     const names = [...this.selection].map((id) => this.fleet.vehicles.get(id)?.view.name || id);
     $("selection").textContent = n ? `${n} selected: ${names.join(", ")}` : "";
     $("stop-selected").textContent = n > 1 ? `Stop ${n}` : "Stop";
+    // The planner keeps boats apart, so one planned path cannot take several of them.
+    const plan = $("path-plan");
+    plan.disabled = n > 1;
+    plan.parentElement.title = n > 1
+      ? "one path for several boats is sent as drawn: the planner keeps boats apart, so it " +
+        "plans a path for one boat at a time"
+      : "";
     if (!n) this.setTool(null);
   }
 
@@ -480,7 +487,7 @@ class Console {
     const speed = this.speedArg();
     if (speed == null) return undefined;
     const args = { waypoints: this.draftPath, ...speed };
-    if ($("path-plan").checked) args.plan = true;
+    if ($("path-plan").checked && !$("path-plan").disabled) args.plan = true;
     if (await this.send("follow_path", args)) this.setTool(null);
     return undefined;
   }
@@ -539,6 +546,13 @@ class Console {
         run: () => this.requestControl(v.id),
         sends: `request/${v.id}`,
       });
+    } else if (vehicles.length > 1 && Array.isArray(e.details) && e.details.some((d) => d.instance_id)) {
+      // each boat refused by name, in the server's words: all or nothing was sent
+      const said = e.details.filter((d) => d.instance_id).map((d) => {
+        const v = vehicles.find((x) => x.view.instance_id === d.instance_id);
+        return `${v ? v.view.name || v.id : d.instance_id}: ${d.message}`;
+      });
+      toast(`${type} NOT sent to any of them: ${said.join("; ")}`, "error");
     } else {
       toast(notSent(type, e), "error");
     }
