@@ -41,9 +41,13 @@ class FleetViews:
             started_at=state.started_at,
         )
 
-    def live_view(self, state: InstanceState) -> VehicleView:
-        """The view of a vehicle from its instance alone (no store read)."""
-        return self._vehicle_view({"vehicle_id": state.vehicle_id}, state)
+    def live_view(self, state: InstanceState) -> dict[str, Any]:
+        """The view of a vehicle from its instance alone (no store read), as JSON for a
+        push; without ``alarms`` when this replica does not know the vehicle's watch state
+        (another takes its positions): a push must not clear alarms it cannot see."""
+        view = self._vehicle_view({"vehicle_id": state.vehicle_id}, state)
+        known = state.finished or self.safety.watches_here(state)
+        return view.model_dump(mode="json", exclude=None if known else {"alarms"})
 
     async def vehicles(self, principal: Principal) -> list[VehicleView]:
         found = []

@@ -78,7 +78,7 @@ class ServerTopics:
                 "alarms": [],  # nothing is known of a vehicle without an instance here
             }
         else:
-            view = self.views.live_view(state).model_dump(mode="json")
+            view = self.views.live_view(state)
             view["presence"] = event.presence
         return self.emit("fleet", {"vehicles": [view]})
 
@@ -114,9 +114,7 @@ class ServerTopics:
         state = self.instances.current_by_id(instance_id) if instance_id else None
         if state is None:
             return None
-        return self.emit(
-            "fleet", lambda: {"vehicles": [self.views.live_view(state).model_dump(mode="json")]}
-        )
+        return self.emit("fleet", lambda: {"vehicles": [self.views.live_view(state)]})
 
     def on_command_moved(self, event: CommandMoved) -> Awaitable[None] | None:
         """A step between a command's start and its end (those two come as events)."""

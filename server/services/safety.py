@@ -234,6 +234,10 @@ class SafetyService:
         below = f" (alarm below {threshold:g} %)" if threshold is not None else ""
         return f"battery low{reading}{below}"
 
+    def watches_here(self, state: InstanceState) -> bool:
+        """Whether this replica holds the instance's watch state (it took its positions)."""
+        return state.instance_id in self._watch
+
     async def watches(self, instance_ids: list[str]) -> dict[str, WatchState]:
         """The watch state of each of these instances, as the store has it (one read)."""
         docs = await self.repo.watches_of(instance_ids)
