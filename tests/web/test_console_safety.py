@@ -217,6 +217,25 @@ def test_a_double_click_sends_once(world: World, open_console: Any, shots: Shots
     shots(manager, "granted-once")
 
 
+def test_arming_a_tool_moves_no_button(world: World, open_console: Any, shots: Shots) -> None:
+    """Arming Path grew the action bar upward over its own buttons: a click meant for the
+    map then landed on Hold here, which sends at once. The rows a tool adds go above."""
+    page, _ = open_console()
+    log_in(page, "ana")
+    marker(page, "demo-usv-1").click()
+    buttons = ["#hold", "#stop-selected", '#actions [data-tool="path"]']
+    before = [box_of(page.locator(b)) for b in buttons]
+    page.click('#actions [data-tool="path"]')
+    expect(page.locator("#path-bar")).to_be_visible()
+    assert [box_of(page.locator(b)) for b in buttons] == before
+    page.click("#path-cancel")
+    page.click('#actions [data-tool="go_to"]')
+    expect(page.locator("#tool-hint")).to_be_visible()
+    assert [box_of(page.locator(b)) for b in buttons] == before
+    shots(page, "armed-nothing-moved")
+    page.keyboard.press("Escape")
+
+
 def calls(guard: Any, path: str) -> int:
     """How many times the page called ``path``."""
     return len([r for r in guard.requests if r.startswith("POST ") and r.endswith(path)])
