@@ -11,7 +11,7 @@ from server.errors import NotFound
 from server.services.auth import AuthService
 from server.services.instances import InstanceService, InstanceState
 from server.services.link import Leases
-from server.services.safety import SafetyService
+from server.services.safety import SafetyService, StoredWatch
 
 
 class FleetViews:
@@ -41,13 +41,22 @@ class FleetViews:
             started_at=state.started_at,
         )
 
-    def live_view(self, state: InstanceState) -> dict[str, Any]:
+    def live_view(self, state: InstanceState, *, alarms: bool = True) -> dict[str, Any]:
         """The view of a vehicle from its instance alone (no store read), as JSON for a
-        push; without ``alarms`` when this replica does not know the vehicle's watch state
-        (another takes its positions): a push must not clear alarms it cannot see."""
+        push; without ``alarms`` when not asked for, or when this replica does not hold
+        the vehicle's watch state (another takes its positions): a push must not clear
+        alarms it cannot see."""
         view = self._vehicle_view({"vehicle_id": state.vehicle_id}, state)
-        known = state.finished or self.safety.watches_here(state)
+        known = alarms and (state.finished or self.safety.watches_here(state))
         return view.model_dump(mode="json", exclude=None if known else {"alarms"})
+
+    async def stored_view(self, state: InstanceState) -> dict[str, Any]:
+        """:meth:`live_view` with the alarms and the failsafe acknowledgement as the store
+        has them (one read): for a push after they changed, on whichever replica."""
+        view = self._vehicle_view(
+            {"vehicle_id": state.vehicle_id}, state, await self._watches([state])
+        )
+        return view.model_dump(mode="json")
 
     async def vehicles(self, principal: Principal) -> list[VehicleView]:
         found = []
@@ -63,9 +72,9 @@ class FleetViews:
         state = await self.instances.current_or_latest(vehicle_id)
         return self._vehicle_view(meta, state, await self._watches([state]))
 
-    async def _watches(self, states: list[InstanceState | None]) -> dict[str, WatchState]:
-        """The stored watch state of each instance not finished (its alarms): another
-        replica may be the one that took its last positions."""
+    async def _watches(self, states: list[InstanceState | None]) -> dict[str, StoredWatch]:
+        """The stored watch state of each instance not finished (its alarms, the failsafe
+        version it applies): another replica may be the one the vehicle talks to."""
         live = [s.instance_id for s in states if s is not None and not s.finished]
         return await self.safety.watches(live) if live else {}
 
@@ -81,7 +90,7 @@ class FleetViews:
         self,
         meta: dict[str, Any],
         state: InstanceState | None,
-        watches: dict[str, WatchState] | None = None,
+        watches: dict[str, StoredWatch] | None = None,
     ) -> VehicleView:
         """``watches``: the stored watch states (None: as this replica last saw them)."""
         if state is None:
@@ -96,11 +105,15 @@ class FleetViews:
                 failsafe=self.safety.known_policy(meta["vehicle_id"]),
             )
         delay_ms, rtt_ms = state.link.view() if not state.finished else (None, None)
+        acked = self.safety.acked(state)
         if state.finished:
             alarms = []
+        elif watches is None:
+            alarms = self.safety.alarms(state)
         else:
-            watch = watches.get(state.instance_id, WatchState()) if watches is not None else None
-            alarms = self.safety.alarms(state, watch)
+            stored = watches.get(state.instance_id, StoredWatch(WatchState(), None))
+            alarms = self.safety.alarms(state, stored.state)
+            acked = self.safety.acked_version(state, stored.acked_version)
         return VehicleView(
             vehicle_id=state.vehicle_id,
             name=state.name,
@@ -112,7 +125,7 @@ class FleetViews:
             control_mode=state.control_mode,
             last_seen=state.last_seen,
             failsafe=self.safety.known_policy(state.vehicle_id),
-            failsafe_acked=self.safety.acked(state),
+            failsafe_acked=acked,
             link_delay_ms=delay_ms,
             link_rtt_ms=rtt_ms,
             alarms=alarms,

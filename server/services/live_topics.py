@@ -28,7 +28,7 @@ from server.services.commands import CommandService
 from server.services.control import ControlService
 from server.services.events import EventService
 from server.services.fleet import FleetViews
-from server.services.instances import InstanceService
+from server.services.instances import InstanceService, InstanceState
 
 RECENT_EVENTS = 20
 #: Events after which a vehicle's alarms (``VehicleView.alarms``) are not what they were.
@@ -78,7 +78,7 @@ class ServerTopics:
                 "alarms": [],  # nothing is known of a vehicle without an instance here
             }
         else:
-            view = self.views.live_view(state)
+            view = self.views.live_view(state, alarms=False)  # presence alone moved
             view["presence"] = event.presence
         return self.emit("fleet", {"vehicles": [view]})
 
@@ -105,10 +105,24 @@ class ServerTopics:
         if doc["kind"] == "command":
             second = self.emit(f"vehicle/{vehicle_id}/commands", {"commands": [entry["data"]]})
         elif doc["kind"] in _ALARM_EVENTS:  # the vehicle's alarms moved: its view again
-            second = self._view_again(doc.get("instance_id"))
+            second = self._stored_view_again(doc.get("instance_id"))
         else:
             return first
         return None if first is None and second is None else _both(first, second)
+
+    def _stored_view_again(self, instance_id: str | None) -> Awaitable[None] | None:
+        """The vehicle's view on ``fleet``, its alarms as stored (whichever replica took
+        the positions that moved them); read only when someone may listen."""
+        state = self.instances.current_by_id(instance_id) if instance_id else None
+        if state is None or (not self.bus.remote and not self.bus.has_local("fleet")):
+            return None
+        return self._emit_stored(state)
+
+    async def _emit_stored(self, state: InstanceState) -> None:
+        view = await self.views.stored_view(state)
+        rest = self.emit("fleet", {"vehicles": [view]})
+        if rest is not None:
+            await rest
 
     def _view_again(self, instance_id: str | None) -> Awaitable[None] | None:
         state = self.instances.current_by_id(instance_id) if instance_id else None

@@ -23,7 +23,7 @@ from __future__ import annotations
 import logging
 import math
 from collections.abc import Awaitable
-from typing import Any
+from typing import Any, NamedTuple
 
 from fleet_protocol import Alarm, EventKind, FailsafePolicy, SetFailsafe
 from server.domain.access import Principal
@@ -44,6 +44,14 @@ from server.storage.backends import Doc
 from server.storage.safety import SafetyRepo
 
 log = logging.getLogger("fleet.safety")
+
+
+class StoredWatch(NamedTuple):
+    """An instance's watch state and acknowledged failsafe version, as stored."""
+
+    state: WatchState
+    acked_version: int | None
+
 
 #: Tries of a compare-and-set on a policy or a watch state other replicas change too.
 _CAS_TRIES = 5
@@ -167,7 +175,10 @@ class SafetyService:
         return await self.view(principal, vehicle_id)
 
     async def for_start(self, state: InstanceState) -> FailsafePolicy:
-        """The policy a starting instance gets (read from the store: it may have changed)."""
+        """The policy a starting instance gets (read from the store: it may have changed).
+        What this replica kept of the instance is forgotten: it may have been on another
+        replica since, whose changes are in the store (read again at its next sample)."""
+        self.forget(state.instance_id)
         return await self.policy(state.vehicle_id)
 
     async def pending(self, state: InstanceState) -> FailsafePolicy | None:
@@ -238,10 +249,23 @@ class SafetyService:
         """Whether this replica holds the instance's watch state (it took its positions)."""
         return state.instance_id in self._watch
 
-    async def watches(self, instance_ids: list[str]) -> dict[str, WatchState]:
-        """The watch state of each of these instances, as the store has it (one read)."""
+    async def watches(self, instance_ids: list[str]) -> dict[str, StoredWatch]:
+        """The watch state of each of these instances and the failsafe version it applies,
+        as the store has them (one read): the same on every replica."""
         docs = await self.repo.watches_of(instance_ids)
-        return {str(doc["_id"]): _state_of(doc) for doc in docs}
+        return {
+            str(doc["_id"]): StoredWatch(
+                _state_of(doc),
+                int(doc["failsafe_version"]) if doc.get("failsafe_version") is not None else None,
+            )
+            for doc in docs
+        }
+
+    def acked_version(self, state: InstanceState, version: int | None) -> bool | None:
+        """Whether ``version`` (the one the instance acknowledged) is the policy's now."""
+        if version is None:
+            return None
+        return version == self.known_policy(state.vehicle_id).version
 
     # ---- background: read again what the hot path uses ---------------------------------
     async def tick(self) -> None:

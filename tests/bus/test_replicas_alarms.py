@@ -1,0 +1,89 @@
+"""A vehicle's alarms and failsafe acknowledgement as two replicas see them (as
+test_replicas_shared_store: two apps, one store, a real redis-server): the same on both,
+however often the vehicle moves between them."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from datetime import UTC, datetime
+from typing import Any
+
+import httpx
+import pytest
+
+from server.settings import Settings
+from tests.bus.conftest import RedisServer
+from tests.bus.test_replicas_shared_store import _until, two_replicas
+from tests.factories import ADMIN, make_vehicle, sample
+
+pytestmark = pytest.mark.usefixtures("store_backend")
+
+
+async def test_alarms_follow_the_vehicle_from_replica_to_replica(
+    make_settings: Callable[..., Settings], redis_server: RedisServer
+) -> None:
+    """A replica the vehicle left kept its own copy of the vehicle's alarm state, and on
+    the vehicle's return compared with that copy: a low battery that began meanwhile was
+    never raised (and one that ended never cleared)."""
+    async with two_replicas(make_settings, redis_server) as (api_a, api_b, _):
+        vid, vh = await make_vehicle(api_a)
+        seq = 0
+
+        async def on(api: httpx.AsyncClient) -> str:
+            """The vehicle (re)starts on this replica and reports a sample there."""
+            nonlocal seq
+            body = {"vehicle_id": vid, "capabilities": ["stop"]}
+            iid = str(
+                (await api.post("/upper/start_instance", headers=vh, json=body)).json()[
+                    "instance_id"
+                ]
+            )
+            seq += 1
+            now = datetime.now(UTC)
+            sent = {"instance_id": iid, "samples": [sample(seq, ts=now, battery_pct=50.0)]}
+            assert (await api.post("/upper/update_param", headers=vh, json=sent)).is_success
+            return iid
+
+        async def threshold(pct: float | None) -> None:
+            body: dict[str, Any] = {} if pct is None else {"low_battery_pct": pct}
+            r = await api_a.put(f"/api/vehicles/{vid}/failsafe", headers=ADMIN, json=body)
+            assert r.status_code == 200, r.text
+
+        async def alarms_everywhere(want: list[str]) -> bool:
+            for api in (api_a, api_b):
+                view = (await api.get(f"/api/vehicles/{vid}", headers=ADMIN)).json()
+                if [a["kind"] for a in view["alarms"]] != want:
+                    return False
+            return True
+
+        await threshold(80.0)
+        await on(api_a)  # 50 % under 80: low, seen by A
+        await _until(lambda: alarms_everywhere(["low_battery"]), 10)
+        await threshold(None)
+        await _until(lambda: _policy_is(api_b, vid, None), 10)
+        await on(api_b)  # on B now: no threshold, the alarm ends
+        await _until(lambda: alarms_everywhere([]), 10)
+        await threshold(80.0)
+        # A's policies are read again every second: the threshold must be known there
+        # before the sample that A judges by it.
+        for api in (api_a, api_b):
+            await _until(lambda api=api: _policy_is(api, vid, 80.0), 10)
+        iid = await on(api_a)  # back on A: low again, though A last saw it low
+        await _until(lambda: alarms_everywhere(["low_battery"]), 10)
+
+        # The failsafe version the vehicle applies, said on A, is read the same on B.
+        version = (await api_a.get(f"/api/vehicles/{vid}", headers=ADMIN)).json()["failsafe"][
+            "version"
+        ]
+        fb = {"instance_id": iid, "acks": [], "failsafe_version": version}
+        assert (await api_a.post("/upper/update_fbmessage", headers=vh, json=fb)).is_success
+        for api in (api_a, api_b):
+            view = (await api.get(f"/api/vehicles/{vid}", headers=ADMIN)).json()
+            assert view["failsafe_acked"] is True, view
+
+
+async def _policy_is(api: httpx.AsyncClient, vehicle_id: str, pct: float | None) -> bool:
+    """Whether the replica judges the vehicle's samples by this threshold already (each
+    reads the policies again every second)."""
+    r = await api.get(f"/api/vehicles/{vehicle_id}", headers=ADMIN)
+    return bool(r.json()["failsafe"].get("low_battery_pct") == pct)
