@@ -233,27 +233,18 @@ class Settings(BaseSettings):
             )
         return token
 
-    @field_validator("stale_after_s")
+    @field_validator("stale_after_s", "offline_after_s")
     @classmethod
-    def _after_a_heartbeat(cls, stale: float, info: ValidationInfo) -> float:
-        beat = info.data.get("heartbeat_interval_s")
-        if beat is not None and stale < beat:
+    def _in_order(cls, value: float, info: ValidationInfo) -> float:
+        """Presence goes online, stale, offline: each time no sooner than the one before
+        (and stale no sooner than a heartbeat interval)."""
+        earlier, said = _PRESENCE_ORDER[str(info.field_name)]
+        before = info.data.get(earlier)
+        if before is not None and value < before:
             raise ValueError(
-                f"a vehicle goes stale no sooner than its heartbeat interval "
-                f"({env_name('heartbeat_interval_s')} is {beat:g}); give at least that"
+                f"a vehicle {said} ({env_name(earlier)} is {before:g}); give at least that"
             )
-        return stale
-
-    @field_validator("offline_after_s")
-    @classmethod
-    def _after_stale(cls, offline: float, info: ValidationInfo) -> float:
-        stale = info.data.get("stale_after_s")
-        if stale is not None and offline < stale:
-            raise ValueError(
-                f"a vehicle goes offline no sooner than it goes stale "
-                f"({env_name('stale_after_s')} is {stale:g}); give at least that"
-            )
-        return offline
+        return value
 
     @property
     def embedded(self) -> bool:
@@ -277,6 +268,13 @@ class Settings(BaseSettings):
         replicas, ``contact_write_s`` (another may be in contact with the vehicle); with
         one, nothing is newer than this replica's copy."""
         return self.contact_write_s if self.redis_url is not None else 0.0
+
+
+#: Each presence time, the one it comes no sooner than, and how that reads.
+_PRESENCE_ORDER = {
+    "stale_after_s": ("heartbeat_interval_s", "goes stale no sooner than its heartbeat interval"),
+    "offline_after_s": ("stale_after_s", "goes offline no sooner than it goes stale"),
+}
 
 
 def env_name(field: str) -> str:
