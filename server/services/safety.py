@@ -21,12 +21,12 @@ every ``tick`` (a second), the instance's watch state once when first needed.
 from __future__ import annotations
 
 import logging
-import math
 from collections.abc import Awaitable
 from typing import Any, NamedTuple
 
 from fleet_protocol import Alarm, EventKind, FailsafePolicy, SetFailsafe
 from server.domain.access import Principal
+from server.domain.alarms import alarms_of
 from server.domain.arbitration import may_grant
 from server.domain.clock import Clock
 from server.domain.events import FailsafeChanged, SamplesStored
@@ -207,43 +207,25 @@ class SafetyService:
 
     def acked(self, state: InstanceState) -> bool | None:
         """Whether the instance applies the current version (None: not known here)."""
-        acked = self._acked.get(state.instance_id)
-        if acked is None:
-            return None
-        return acked == self.known_policy(state.vehicle_id).version
+        return self.acked_version(state, self._acked.get(state.instance_id))
 
     # ---- what is wrong with a vehicle now ----------------------------------------------
     def alarms(self, state: InstanceState, watch: WatchState | None = None) -> list[Alarm]:
-        """The instance's alarms, most urgent first: its failsafe (the mode it reports),
-        then ``watch``'s breaches and battery (as the store has them; None: as this
-        replica last saw them, nothing when it has not)."""
-        out = []
-        if state.control_mode == "failsafe":
-            action = self.known_policy(state.vehicle_id).action.replace("_", " ")
-            out.append(Alarm(kind="failsafe", message=f"in failsafe: {action}"))
+        """The instance's alarms (:func:`~server.domain.alarms.alarms_of`): ``watch`` as the
+        store has it (None: as this replica last saw it, nothing when it has not)."""
+        policy = self.known_policy(state.vehicle_id)
+        in_failsafe = policy.action if state.control_mode == "failsafe" else None
         watch = watch if watch is not None else self._watch.get(state.instance_id)
         if watch is None:
-            return out
-        for zone_id in sorted(watch.breaches):
-            data = self._zone_data(state, zone_id, entered=True)
-            if data["zone_kind"] == "operating_area":
-                kind, message = "outside_area", f"outside its operating area {data['zone']}"
-            else:
-                kind, message = "no_go_zone", f"inside no-go zone {data['zone']}"
-            out.append(Alarm(kind=kind, message=message.rstrip(), zone_id=data["zone_id"]))
-        if watch.low_battery:
-            out.append(Alarm(kind="low_battery", message=self._battery_text(state)))
-        return out
-
-    def _battery_text(self, state: InstanceState) -> str:
+            return alarms_of(in_failsafe, (), None)
+        zones = [self._zone_data(state, z, entered=True) for z in sorted(watch.breaches)]
         pct = (state.position or {}).get("battery_pct")
-        threshold = self.known_policy(state.vehicle_id).low_battery_pct
-        # to a tenth, down: a reading below the threshold never reads as at it
-        reading = (
-            f": {math.floor(float(pct) * 10) / 10:g} %" if isinstance(pct, int | float) else ""
+        reading = float(pct) if isinstance(pct, int | float) else None
+        return alarms_of(
+            in_failsafe,
+            [(z["zone_kind"], z["zone"], z["zone_id"]) for z in zones],
+            (reading, policy.low_battery_pct) if watch.low_battery else None,
         )
-        below = f" (alarm below {threshold:g} %)" if threshold is not None else ""
-        return f"battery low{reading}{below}"
 
     def watches_here(self, state: InstanceState) -> bool:
         """Whether this replica holds the instance's watch state (it took its positions)."""

@@ -1,0 +1,43 @@
+"""What is wrong with a vehicle now, in words (``VehicleView.alarms``). Pure.
+
+From its watch state (:mod:`server.domain.watch`: the zones it is in breach of, a low
+battery) and the mode it reports (failsafe), most urgent first.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable
+
+from fleet_protocol import Alarm
+
+
+def alarms_of(
+    failsafe_action: str | None,
+    breaches: Iterable[tuple[str, str, str | None]],
+    battery: tuple[float | None, float | None] | None,
+) -> list[Alarm]:
+    """``failsafe_action``: the policy's action while the vehicle is in failsafe (None:
+    it is not); ``breaches``: ``(zone_kind, zone_name, zone_id)`` of each zone breached;
+    ``battery``: ``(reading, threshold)`` while the battery is low (None: it is not)."""
+    out = []
+    if failsafe_action is not None:
+        out.append(
+            Alarm(kind="failsafe", message=f"in failsafe: {failsafe_action.replace('_', ' ')}")
+        )
+    for zone_kind, name, zone_id in breaches:
+        if zone_kind == "operating_area":
+            kind, message = "outside_area", f"outside its operating area {name}"
+        else:
+            kind, message = "no_go_zone", f"inside no-go zone {name}"
+        out.append(Alarm(kind=kind, message=message.rstrip(), zone_id=zone_id))
+    if battery is not None:
+        out.append(Alarm(kind="low_battery", message=_battery_text(*battery)))
+    return out
+
+
+def _battery_text(pct: float | None, threshold: float | None) -> str:
+    # to a tenth, down: a reading below the threshold never reads as at it
+    reading = f": {math.floor(float(pct) * 10) / 10:g} %" if pct is not None else ""
+    below = f" (alarm below {threshold:g} %)" if threshold is not None else ""
+    return f"battery low{reading}{below}"
