@@ -34,16 +34,22 @@ from fleet_protocol import (
     StartInstance,
     UpdateFbMessage,
     UpdateParam,
-    field_errors,
 )
 from fleet_protocol.common import format_ts, utcnow
 from vehicle_client.adapters.base import Adapter
 from vehicle_client.backoff import Backoff
 from vehicle_client.clock import ServerClock
 from vehicle_client.decisions import Effect, Execute, Halt, LinkMonitor, Pilot
-from vehicle_client.errors import FatalError, Refused, RetryableError, SessionLost
+from vehicle_client.errors import (
+    FatalError,
+    Refused,
+    RetryableError,
+    field_errors_of,
+    refusal_of,
+)
 from vehicle_client.outbox import Outbox
 from vehicle_client.sim.simulator import TaskReport
+from vehicle_client.together import run_together
 from vehicle_client.transport.base import Transport
 
 log = logging.getLogger(__name__)
@@ -83,34 +89,6 @@ class AgentStats:
     last_error: str | None = None
     connected: bool = False
     extra: dict[str, Any] = field(default_factory=dict)
-
-
-def _first_error(errors: list[BaseException]) -> BaseException:
-    """The error that decides: a fatal one first, then the rest in order."""
-    for kind in (FatalError, SessionLost, RetryableError):
-        for e in errors:
-            if isinstance(e, kind):
-                return e
-    return errors[0]
-
-
-async def _run_together(coros: dict[str, Any]) -> None:
-    """Run the coroutines until one fails; then stop the others and raise its error.
-
-    Like a TaskGroup, except that a cancellation from outside is never lost:
-    Python 3.11's TaskGroup drops it when a child fails at the same moment,
-    which left the agent retrying after it was told to stop.
-    """
-    tasks = [asyncio.create_task(coro, name=name) for name, coro in coros.items()]
-    try:
-        done, _ = await asyncio.wait(tasks, return_when=asyncio.FIRST_EXCEPTION)
-    finally:
-        for task in tasks:
-            task.cancel()
-        await asyncio.gather(*tasks, return_exceptions=True)
-    errors = [t.exception() for t in done if not t.cancelled() and t.exception() is not None]
-    if errors:
-        raise _first_error([e for e in errors if e is not None])
 
 
 class VehicleAgent:
@@ -154,7 +132,7 @@ class VehicleAgent:
     async def run(self) -> None:
         """Run until cancelled; raises ``FatalError`` when retrying cannot help."""
         self._apply(self.pilot.on_restart(self.outbox.seen.unfinished()))
-        await _run_together(
+        await run_together(
             {
                 "adapter": self.adapter.run(),
                 "sample": self._sample_loop(),
@@ -178,7 +156,7 @@ class VehicleAgent:
 
     async def _session(self) -> None:
         await self._start()
-        await _run_together(
+        await run_together(
             {
                 "uplink": self._uplink(),
                 "downlink": self._downlink(),
@@ -329,15 +307,13 @@ class VehicleAgent:
         """What the wire model or the server refuses cannot block the queue for good:
         samples stored before a rule existed leave the outbox, bad parameters are dropped.
         ``errors``: ``(field, message)``; anything else refused is raised (``exc``)."""
-        reason = "; ".join(f"{field}: {message}" for field, message in errors[:5])
-        at = (_sample_index(f) for f, _ in errors)
-        bad = sorted({i for i in at if i is not None and i < len(batch)})
-        if bad:
-            await asyncio.to_thread(self.outbox.refuse, [batch[i]["seq"] for i in bad], reason)
-        if any(f.split(".")[0] == "params" for f, _ in errors):
-            log.error("%s: parameters not sent: %s", self.config.vehicle_id, reason)
+        refusal = refusal_of(errors, batch)
+        if refusal.seqs:
+            await asyncio.to_thread(self.outbox.refuse, refusal.seqs, refusal.reason)
+        if refusal.params:
+            log.error("%s: parameters not sent: %s", self.config.vehicle_id, refusal.reason)
             self._params.clear()
-        elif not bad:
+        elif not refusal.seqs:
             raise exc  # neither a sample nor a parameter: not the data's fault
 
     async def _downlink(self) -> None:
@@ -487,16 +463,3 @@ class VehicleAgent:
         except TimeoutError:
             pass
         event.clear()
-
-
-def field_errors_of(exc: ValidationError) -> list[tuple[str, str]]:
-    """``(field, message)`` of each error the wire model found."""
-    return [(e.field, e.message) for e in field_errors(exc)]
-
-
-def _sample_index(field: str) -> int | None:
-    """``3`` of ``samples.3.lat``; None for any other field."""
-    parts = field.split(".")
-    if len(parts) > 1 and parts[0] == "samples" and parts[1].isdigit():
-        return int(parts[1])
-    return None

@@ -2,6 +2,13 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+from typing import Any
+
+from pydantic import ValidationError
+
+from fleet_protocol import field_errors
+
 
 class AgentError(Exception):
     """Base of the agent's errors."""
@@ -42,3 +49,36 @@ def refused_fields(details: object) -> list[tuple[str, str]]:
     return [
         (str(d.get("field", "")), str(d.get("message", ""))) for d in details if isinstance(d, dict)
     ]
+
+
+def field_errors_of(exc: ValidationError) -> list[tuple[str, str]]:
+    """``(field, message)`` of each error the wire model found."""
+    return [(e.field, e.message) for e in field_errors(exc)]
+
+
+@dataclass(frozen=True)
+class Refusal:
+    """What a refused ``update_param`` blames: the samples to set aside (their seqs), and
+    whether its parameters were at fault; ``reason`` in a line (the first five fields)."""
+
+    seqs: list[int]
+    params: bool
+    reason: str
+
+
+def refusal_of(errors: list[tuple[str, str]], batch: list[dict[str, Any]]) -> Refusal:
+    """The :class:`Refusal` of ``errors`` (``(field, message)``) for the samples ``batch``
+    that was sent: ``samples.3.lat`` names the fourth of them."""
+    reason = "; ".join(f"{field}: {message}" for field, message in errors[:5])
+    at = (_sample_index(f) for f, _ in errors)
+    bad = sorted({i for i in at if i is not None and i < len(batch)})
+    params = any(f.split(".")[0] == "params" for f, _ in errors)
+    return Refusal([batch[i]["seq"] for i in bad], params, reason)
+
+
+def _sample_index(field: str) -> int | None:
+    """``3`` of ``samples.3.lat``; None for any other field."""
+    parts = field.split(".")
+    if len(parts) > 1 and parts[0] == "samples" and parts[1].isdigit():
+        return int(parts[1])
+    return None
