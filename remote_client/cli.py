@@ -35,7 +35,8 @@ from remote_client.cli_common import (
     split_waypoints,
     with_names,
 )
-from remote_client.cli_safety import alive, audit_app, failsafe_app, zones_app
+from remote_client.cli_safety import alive, audit_app, failsafe_app
+from remote_client.cli_zones import obstacles_app, zones_app
 from remote_client.output import console
 from remote_client.sdk import STOP_TTL_S, FleetClient, shown_status
 
@@ -51,6 +52,7 @@ app.add_typer(vehicles_app, name="vehicles")
 app.add_typer(users_app, name="users")
 app.add_typer(gateways_app, name="gateways")
 app.add_typer(zones_app, name="zones")
+app.add_typer(obstacles_app, name="obstacles")
 app.add_typer(failsafe_app, name="failsafe")
 app.add_typer(audit_app, name="audit")
 app.command()(alive)

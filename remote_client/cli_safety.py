@@ -1,19 +1,16 @@
-"""``fleetctl zones``, ``failsafe``, ``alive`` and ``audit``: where vehicles may go, what
-each does on its own, keeping your leases alive, and checking a vehicle's control log."""
+"""``fleetctl failsafe``, ``alive`` and ``audit``: what each vehicle does on its own,
+keeping your leases alive, and checking a vehicle's control log."""
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
-import json
 from typing import Any
 
 import typer
-from rich.table import Table
 
 from fleet_protocol import first_break
 from remote_client.cli_common import (
-    GroupTokenOpt,
     JsonOpt,
     ServerOpt,
     TokenOpt,
@@ -21,17 +18,12 @@ from remote_client.cli_common import (
     fail,
     finite,
     lat_lon,
-    list_when_bare,
     run,
     say,
 )
 from remote_client.output import console, errors
 from remote_client.sdk import FleetClient
 
-zones_app = typer.Typer(
-    invoke_without_command=True,
-    help="Operating areas and no-go zones: list (no subcommand); add, remove (admin).",
-)
 failsafe_app = typer.Typer(
     no_args_is_help=True,
     help="A vehicle's failsafe: show it; set it (the vehicle's manager, an admin).",
@@ -39,80 +31,6 @@ failsafe_app = typer.Typer(
 audit_app = typer.Typer(no_args_is_help=True, help="A vehicle's control log: show, verify.")
 
 ACTIONS = ("none", "keep_station", "stop", "return_home")
-
-
-# ---- zones ------------------------------------------------------------------------------
-@zones_app.callback()
-def zones(
-    ctx: typer.Context,
-    server: str = ServerOpt,
-    token: str | None = GroupTokenOpt,
-    as_json: bool = JsonOpt,
-) -> None:
-    list_when_bare(ctx, server, token, as_json, _list_zones)
-
-
-def _list_zones(server: str, token: str, as_json: bool) -> None:
-    data = run(server, token, lambda fleet: fleet.zones())
-    if as_json:
-        dump(data)
-        return
-    table = Table(title=f"zones (version {data['version']})")
-    for name in ("zone", "name", "kind", "vehicles", "clearance m"):
-        table.add_column(name, no_wrap=name == "zone")
-    for z in data["zones"]:
-        vehicles = ", ".join(z["vehicles"]) or "every vehicle"
-        table.add_row(z["zone_id"], z["name"], z["kind"], vehicles, f"{z['clearance_m']:g}")
-    console.print(table)
-
-
-@zones_app.command("add")
-def zones_add(
-    name: str = typer.Argument(..., help="what the zone is called"),
-    geojson: str = typer.Argument(..., help="a file holding a GeoJSON Polygon (or a Feature)"),
-    kind: str = typer.Option("no_go", help="no_go or operating_area"),
-    vehicle: list[str] = typer.Option(
-        None, "--vehicle", "-v", help="a vehicle it applies to; repeat (an area needs one)"
-    ),
-    clearance: float | None = typer.Option(
-        None, callback=finite, help="metres a planned path keeps from it"
-    ),
-    server: str = ServerOpt,
-    token: str = TokenOpt,
-    as_json: bool = JsonOpt,
-) -> None:
-    """(admin) Draw a zone from a GeoJSON file."""
-    if kind not in ("no_go", "operating_area"):
-        fail(f"--kind is no_go or operating_area, not {kind!r}")
-    try:
-        with open(geojson, encoding="utf-8") as f:
-            shape = json.load(f)
-    except (OSError, ValueError) as exc:
-        fail(f"cannot read {geojson}: {exc}")
-    polygon = shape.get("geometry", shape) if isinstance(shape, dict) else shape
-
-    async def act(fleet: FleetClient) -> dict[str, Any]:
-        ids = [await fleet.vehicle_id_of(v) for v in vehicle or []]
-        return await fleet.create_zone(name, kind, polygon, ids, clearance)
-
-    data = run(server, token, act)
-    say(
-        data,
-        as_json,
-        f"{data['zone_id']}: {data['kind']} {data['name']} (zones v{data['version']})",
-    )
-
-
-@zones_app.command("remove")
-def zones_remove(
-    zone_id: str = typer.Argument(..., help="the zone's id (fleetctl zones)"),
-    server: str = ServerOpt,
-    token: str = TokenOpt,
-    as_json: bool = JsonOpt,
-) -> None:
-    """(admin) Remove a zone."""
-    data = run(server, token, lambda fleet: fleet.delete_zone(zone_id))
-    say(data, as_json, f"{zone_id} removed")
 
 
 # ---- failsafe ----------------------------------------------------------------------------

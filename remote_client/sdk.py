@@ -19,6 +19,7 @@ from __future__ import annotations
 from collections.abc import AsyncGenerator, Sequence
 from dataclasses import dataclass
 
+from remote_client.names import AmbiguousName, UnknownVehicle, pick_named, pick_vehicle
 from remote_client.sdk_admin import AdminCalls
 from remote_client.sdk_control import ControlCalls
 from remote_client.sdk_live import LiveCalls
@@ -31,6 +32,7 @@ __all__ = [
     "FleetClient",
     "TrackPage",
     "UnknownVehicle",
+    "pick_named",
     "pick_vehicle",
     "shown_status",
 ]
@@ -38,30 +40,6 @@ __all__ = [
 #: How long a stop waits for a vehicle out of reach: the longest a command may (1 h). A
 #: stop that expired before the vehicle came back would never reach it.
 STOP_TTL_S = 3600
-
-
-class UnknownVehicle(FleetApiError):
-    """No vehicle (nor instance) the caller can see goes by that id or name. Found by the
-    client, not refused by the server: ``status`` 404 as the server's would be."""
-
-    def __init__(self, ref: str, message: str | None = None) -> None:
-        message = message or f"no vehicle with the id or name {ref!r} among those you can see"
-        super().__init__(404, "not_found", message)
-        self.ref = ref
-
-
-class AmbiguousName(FleetApiError):
-    """Several vehicles go by that name: give a vehicle id (``details`` lists them)."""
-
-    def __init__(self, ref: str, matches: Sequence[Body]) -> None:
-        ids = ", ".join(v["vehicle_id"] for v in matches)
-        super().__init__(
-            409,
-            "ambiguous_name",
-            f"{len(matches)} vehicles are named {ref!r} ({ids}): give a vehicle id",
-            [{"field": "vehicle", "message": v["vehicle_id"]} for v in matches],
-        )
-        self.ref = ref
 
 
 def shown_status(command: Body) -> str:
@@ -341,23 +319,6 @@ class TrackPage:
 
     content: Body | str
     next_from: str | None
-
-
-def pick_vehicle(ref: str, fleet: Sequence[Body]) -> Body:
-    """The vehicle whose id is ``ref``, else the one named ``ref`` (exactly, then ignoring
-    case)."""
-    for vehicle in fleet:
-        if vehicle["vehicle_id"] == ref:
-            return vehicle
-    named = [v for v in fleet if v.get("name") == ref]
-    if not named:
-        folded = ref.casefold()
-        named = [v for v in fleet if str(v.get("name", "")).casefold() == folded]
-    if len(named) > 1:
-        raise AmbiguousName(ref, named)
-    if not named:
-        raise UnknownVehicle(ref)
-    return named[0]
 
 
 def _instances(kind: str, given_ids: str | Sequence[str]) -> list[str]:

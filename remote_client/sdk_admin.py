@@ -1,11 +1,13 @@
 """The SDK's administration calls: users, vehicles, gateways and their tokens (admins);
-zones and failsafes. A part of :class:`~remote_client.sdk.FleetClient`."""
+zones, obstacles, failsafes and the dead letters. A part of
+:class:`~remote_client.sdk.FleetClient`."""
 
 from __future__ import annotations
 
 from collections.abc import Sequence
 from typing import Any
 
+from remote_client.names import pick_named
 from remote_client.sdk_session import Body, Session, given
 
 __all__ = ["AdminCalls"]
@@ -102,8 +104,50 @@ class AdminCalls(Session):
         )
         return body
 
+    async def update_zone(self, zone_id: str, **changes: Any) -> Body:
+        """(admin) Change any of ``name``, ``polygon``, ``vehicles``, ``clearance_m``
+        (those given); the zone as it is now."""
+        body: Body = await self.call("PATCH", f"/api/zones/{zone_id}", json=changes)
+        return body
+
     async def delete_zone(self, zone_id: str) -> Body:
         body: Body = await self.call("DELETE", f"/api/zones/{zone_id}")
+        return body
+
+    async def zone_id_of(self, ref: str) -> str:
+        """The id of the zone whose id or name is ``ref`` (as :func:`pick_named`)."""
+        return str(pick_named(ref, (await self.zones())["zones"], "zone")["zone_id"])
+
+    # ---- fixed obstacles (the planner keeps clear of them) ---------------------------
+    async def obstacles(self) -> Body:
+        """``{"obstacles": [...]}``: the known fixed obstacles."""
+        body: Body = await self.call("GET", "/api/obstacles")
+        return body
+
+    async def create_obstacle(
+        self, name: str, polygon: Body, clearance_m: float | None = None
+    ) -> Body:
+        """(admin) A fixed obstacle, ``polygon`` GeoJSON."""
+        fields = given(clearance_m=clearance_m)
+        body: Body = await self.call(
+            "POST", "/api/obstacles", json={"name": name, "polygon": polygon} | fields
+        )
+        return body
+
+    async def delete_obstacle(self, obstacle_id: str) -> Body:
+        body: Body = await self.call("DELETE", f"/api/obstacles/{obstacle_id}")
+        return body
+
+    async def obstacle_id_of(self, ref: str) -> str:
+        """The id of the obstacle whose id or name is ``ref``."""
+        found = pick_named(ref, (await self.obstacles())["obstacles"], "obstacle")
+        return str(found["obstacle_id"])
+
+    async def dead_letters(self, loop: str | None = None, limit: int | None = None) -> Body:
+        """(admin) The records a background loop set aside (``docs/storage.md``)."""
+        body: Body = await self.call(
+            "GET", "/api/dead_letters", params=given(loop=loop, limit=limit)
+        )
         return body
 
     async def failsafe(self, vehicle_id: str) -> Body:

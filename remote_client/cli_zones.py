@@ -1,0 +1,217 @@
+"""``fleetctl zones`` and ``obstacles``: where vehicles may go, and what the planner keeps
+clear of. A zone or an obstacle is named by its id or its name."""
+
+from __future__ import annotations
+
+import json
+from typing import Any
+
+import typer
+from rich.table import Table
+
+from remote_client.cli_common import (
+    GroupTokenOpt,
+    JsonOpt,
+    ServerOpt,
+    TokenOpt,
+    dump,
+    fail,
+    finite,
+    list_when_bare,
+    run,
+    say,
+)
+from remote_client.output import console
+from remote_client.sdk import FleetClient
+
+zones_app = typer.Typer(
+    invoke_without_command=True,
+    help="Operating areas and no-go zones: list (no subcommand); add, edit, remove (admin).",
+)
+obstacles_app = typer.Typer(
+    invoke_without_command=True,
+    help="Fixed obstacles the planner keeps clear of: list (no subcommand); add, remove (admin).",
+)
+
+ZoneArg = typer.Argument(..., help="the zone's id or name (fleetctl zones)")
+ObstacleArg = typer.Argument(..., help="the obstacle's id or name (fleetctl obstacles)")
+ClearanceOpt = typer.Option(None, callback=finite, help="metres a planned path keeps from it")
+
+
+def _polygon(path: str) -> Any:
+    """The GeoJSON Polygon in the file (a Feature's geometry); unreadable: exit 2."""
+    try:
+        with open(path, encoding="utf-8") as f:
+            shape = json.load(f)
+    except (OSError, ValueError) as exc:
+        fail(f"cannot read {path}: {exc}")
+    return shape.get("geometry", shape) if isinstance(shape, dict) else shape
+
+
+# ---- zones ------------------------------------------------------------------------------
+@zones_app.callback()
+def zones(
+    ctx: typer.Context,
+    server: str = ServerOpt,
+    token: str | None = GroupTokenOpt,
+    as_json: bool = JsonOpt,
+) -> None:
+    list_when_bare(ctx, server, token, as_json, _list_zones)
+
+
+def _list_zones(server: str, token: str, as_json: bool) -> None:
+    data = run(server, token, lambda fleet: fleet.zones())
+    if as_json:
+        dump(data)
+        return
+    table = Table(title=f"zones (version {data['version']})")
+    for name in ("zone", "name", "kind", "vehicles", "clearance m"):
+        table.add_column(name, no_wrap=name == "zone")
+    for z in data["zones"]:
+        vehicles = ", ".join(z["vehicles"]) or "every vehicle"
+        table.add_row(z["zone_id"], z["name"], z["kind"], vehicles, f"{z['clearance_m']:g}")
+    console.print(table)
+
+
+def _zone_line(data: dict[str, Any]) -> str:
+    return f"{data['zone_id']}: {data['kind']} {data['name']} (zones v{data['version']})"
+
+
+@zones_app.command("add")
+def zones_add(
+    name: str = typer.Argument(..., help="what the zone is called"),
+    geojson: str = typer.Argument(..., help="a file holding a GeoJSON Polygon (or a Feature)"),
+    kind: str = typer.Option("no_go", help="no_go or operating_area"),
+    vehicle: list[str] = typer.Option(
+        None, "--vehicle", "-v", help="a vehicle it applies to; repeat (an area needs one)"
+    ),
+    clearance: float | None = ClearanceOpt,
+    server: str = ServerOpt,
+    token: str = TokenOpt,
+    as_json: bool = JsonOpt,
+) -> None:
+    """(admin) Draw a zone from a GeoJSON file."""
+    if kind not in ("no_go", "operating_area"):
+        fail(f"--kind is no_go or operating_area, not {kind!r}")
+    polygon = _polygon(geojson)
+
+    async def act(fleet: FleetClient) -> dict[str, Any]:
+        ids = [await fleet.vehicle_id_of(v) for v in vehicle or []]
+        return await fleet.create_zone(name, kind, polygon, ids, clearance)
+
+    data = run(server, token, act)
+    say(data, as_json, _zone_line(data))
+
+
+@zones_app.command("edit")
+def zones_edit(
+    zone: str = ZoneArg,
+    name: str | None = typer.Option(None, help="a new name"),
+    polygon: str | None = typer.Option(None, help="a file with the new GeoJSON Polygon"),
+    vehicle: list[str] = typer.Option(
+        None, "--vehicle", "-v", help="the vehicles it applies to from now on; repeat"
+    ),
+    every_vehicle: bool = typer.Option(
+        False, "--every-vehicle", help="(a no-go zone) it applies to every vehicle from now on"
+    ),
+    clearance: float | None = ClearanceOpt,
+    server: str = ServerOpt,
+    token: str = TokenOpt,
+    as_json: bool = JsonOpt,
+) -> None:
+    """(admin) Change a zone: what is given changes, the rest stays (its kind cannot)."""
+    if vehicle and every_vehicle:
+        fail("--vehicle and --every-vehicle cannot go together")
+    changes: dict[str, Any] = {}
+    if name is not None:
+        changes["name"] = name
+    if polygon is not None:
+        changes["polygon"] = _polygon(polygon)
+    if clearance is not None:
+        changes["clearance_m"] = clearance
+    if every_vehicle:
+        changes["vehicles"] = []
+    if not changes and not vehicle:
+        fail("nothing to change: give --name, --polygon, --vehicle, --every-vehicle or "
+             "--clearance")  # fmt: skip
+
+    async def act(fleet: FleetClient) -> dict[str, Any]:
+        zone_id = await fleet.zone_id_of(zone)
+        if vehicle:
+            changes["vehicles"] = [await fleet.vehicle_id_of(v) for v in vehicle]
+        return await fleet.update_zone(zone_id, **changes)
+
+    data = run(server, token, act)
+    say(data, as_json, _zone_line(data))
+
+
+@zones_app.command("remove")
+def zones_remove(
+    zone: str = ZoneArg,
+    server: str = ServerOpt,
+    token: str = TokenOpt,
+    as_json: bool = JsonOpt,
+) -> None:
+    """(admin) Remove a zone."""
+
+    async def act(fleet: FleetClient) -> dict[str, Any]:
+        return await fleet.delete_zone(await fleet.zone_id_of(zone))
+
+    data = run(server, token, act)
+    say(data, as_json, f"{data['zone_id']} ({data['name']}) removed")
+
+
+# ---- obstacles ------------------------------------------------------------------------
+@obstacles_app.callback()
+def obstacles(
+    ctx: typer.Context,
+    server: str = ServerOpt,
+    token: str | None = GroupTokenOpt,
+    as_json: bool = JsonOpt,
+) -> None:
+    list_when_bare(ctx, server, token, as_json, _list_obstacles)
+
+
+def _list_obstacles(server: str, token: str, as_json: bool) -> None:
+    data = run(server, token, lambda fleet: fleet.obstacles())
+    if as_json:
+        dump(data)
+        return
+    table = Table(title="fixed obstacles")
+    for name in ("obstacle", "name", "vertices", "clearance m"):
+        table.add_column(name, no_wrap=name == "obstacle")
+    for o in data["obstacles"]:
+        ring = o["polygon"]["coordinates"][0]
+        table.add_row(o["obstacle_id"], o["name"], str(len(ring) - 1), f"{o['clearance_m']:g}")
+    console.print(table)
+
+
+@obstacles_app.command("add")
+def obstacles_add(
+    name: str = typer.Argument(..., help="what the obstacle is called"),
+    geojson: str = typer.Argument(..., help="a file holding a GeoJSON Polygon (or a Feature)"),
+    clearance: float | None = ClearanceOpt,
+    server: str = ServerOpt,
+    token: str = TokenOpt,
+    as_json: bool = JsonOpt,
+) -> None:
+    """(admin) Draw a fixed obstacle from a GeoJSON file."""
+    polygon = _polygon(geojson)
+    data = run(server, token, lambda fleet: fleet.create_obstacle(name, polygon, clearance))
+    say(data, as_json, f"{data['obstacle_id']}: {data['name']}")
+
+
+@obstacles_app.command("remove")
+def obstacles_remove(
+    obstacle: str = ObstacleArg,
+    server: str = ServerOpt,
+    token: str = TokenOpt,
+    as_json: bool = JsonOpt,
+) -> None:
+    """(admin) Remove a fixed obstacle."""
+
+    async def act(fleet: FleetClient) -> dict[str, Any]:
+        return await fleet.delete_obstacle(await fleet.obstacle_id_of(obstacle))
+
+    data = run(server, token, act)
+    say(data, as_json, f"{data['obstacle_id']} ({data['name']}) removed")
