@@ -4,7 +4,8 @@ server.demo`` in a scratch folder), so that they cannot drift from what the tool
 The blocks are read from README.md itself: the one under "One minute with fleetctl"
 (the placeholder for the admin token filled in with the token the demo printed), and
 the one under "The vehicle agent" (its ``fleet-agent run`` kept running until its
-vehicle is online). The demo runs on a free port: ``FLEET_SERVER`` and the agent's
+vehicle is online), and docs/agent.md's gateway block (until its three vehicles are
+online). The demo runs on a free port: ``FLEET_SERVER`` and the agent's
 ``--server`` point there instead of the README's ``http://127.0.0.1:8000``.
 """
 
@@ -31,9 +32,10 @@ README_SERVER = "http://127.0.0.1:8000"
 DEMO_VEHICLES = ["demo-usv-1", "demo-usv-2", "demo-usv-3"]
 
 
-def sh_block(heading: str) -> list[str]:
-    """The lines of the first ``sh`` block under ``heading``, continuation lines joined."""
-    text = (ROOT / "README.md").read_text()
+def sh_block(heading: str, doc: str = "README.md") -> list[str]:
+    """The lines of the first ``sh`` block under ``heading`` in ``doc``, continuation
+    lines joined."""
+    text = (ROOT / doc).read_text()
     after = text[text.index(f"\n{heading}\n") :]
     found = re.search(r"```sh\n(.*?)```", after, re.S)
     assert found, f"no sh block under {heading}"
@@ -123,6 +125,33 @@ def test_the_readme_walk_through_and_the_agent_path_work_as_written(demo_folder:
         assert vehicles(base, token)["usv-4"]["name"] == "Delta"
         bash("\n".join(lines[at + 1 :]), demo_folder, env)
         assert agent.wait(timeout=30) == 2  # refused by the server: its token was replaced
+
+        # docs/agent.md's gateway: three vehicles added, a gateway token, the gateway run.
+        lines = sh_block("## A surface gateway", "docs/agent.md")
+        (demo_folder / "examples").mkdir()
+        (demo_folder / "examples" / "gateway.toml").write_text(
+            (ROOT / "examples" / "gateway.toml").read_text()
+        )
+        script = "\n".join([*lines[:-1], "exec " + lines[-1]]).replace(README_SERVER, base)
+        agent = subprocess.Popen(
+            ["bash", "-c", "set -euo pipefail\n" + script],
+            cwd=demo_folder,
+            env=env,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+
+        def gateway_online() -> bool:
+            assert agent is not None and agent.stderr is not None
+            assert agent.poll() is None, agent.stderr.read()
+            seen = vehicles(base, token)
+            return all(
+                seen.get(v, {}).get("presence") == "online" for v in ("usv-1", "usv-2", "usv-3")
+            )
+
+        wait_until(gateway_online, "usv-1..3 online through the gateway of docs/agent.md", 60)
+        assert vehicles(base, token)["usv-2"]["name"] == "Omni 2"
     finally:
         if agent is not None and agent.poll() is None:
             agent.kill()
