@@ -218,7 +218,7 @@ def gateways_token(
 def gateways_revoke(
     gateway_id: str, server: str = ServerOpt, token: str = TokenOpt, as_json: bool = JsonOpt
 ) -> None:
-    """Revoke every token of a gateway (its link is closed) until ``gateways token``."""
+    """Revoke every token of a gateway (its link is closed) until `gateways token`."""
     data = run(server, token, lambda fleet: fleet.revoke_tokens("gateway", gateway_id))
     say(data, as_json, f"every token of gateway {gateway_id} revoked")
 

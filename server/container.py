@@ -290,7 +290,7 @@ async def _try_load(runtime: Runtime) -> bool:
     readiness.done()
     if runtime.admin_token:
         # Shown once on the console for a new user; never logged.
-        print(f"fleet-server: admin token (shown once): {runtime.admin_token}", flush=True)
+        print(f"fleet-server: admin token (new at this start): {runtime.admin_token}", flush=True)
     return True
 
 

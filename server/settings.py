@@ -39,7 +39,7 @@ class Settings(BaseSettings):
     admin_token: SecretStr | None = Field(
         default=None,
         description=f"bootstrap admin token, at least {MIN_ADMIN_TOKEN_CHARS} characters; "
-        "unset on a fresh store: one is printed",
+        "unset: a fresh one is printed at each start (the one printed before is revoked)",
     )
     heartbeat_interval_s: float = Field(default=1.0, gt=0, description="agents' heartbeat period")
     stale_after_s: float = Field(default=3.0, gt=0, description="presence: online -> stale")
