@@ -1,4 +1,5 @@
-// Small pieces the panels share: building elements, times, toasts, the confirmation.
+// Small pieces the panels share: building elements, times, toasts (toasts.js), the
+// confirmation.
 
 /** h("button.primary", {onclick}, "text", child...): an element. */
 export function h(spec, props = {}, ...children) {
@@ -95,20 +96,7 @@ function markSending(key, busy) {
   }
 }
 
-/** A toast; ``action`` ({label, run, sends}) adds a button to it. */
-export function toast(message, kind = "info", action = null) {
-  const box = document.getElementById("toasts");
-  const item = h(`div.toast.${kind}`, { role: kind === "error" ? "alert" : "status" },
-    h("span.msg", {}, message));
-  if (action) {
-    item.append(h("button", { ...(action.sends ? sends(action.sends) : {}), onclick: action.run },
-      action.label));
-  }
-  item.append(h("button.quiet.close", { onclick: () => item.remove(), "aria-label": "close" }, "×"));
-  box.append(item);
-  setTimeout(() => item.remove(), kind === "error" || kind === "warn" ? 12000 : 5000);
-  return item;
-}
+export { toast } from "./toasts.js";
 
 /**
  * A number as a person types it: digits with at most one decimal point, or a decimal

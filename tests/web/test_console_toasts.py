@@ -1,0 +1,76 @@
+"""Toasts on a phone, in a real browser (as test_console): a burst of them (requests for
+control, stops, alarms in a row) stacked down over the map and the action bar, so the
+field manager could not reach Stop. At most three show now, the rest behind a "+N more"
+that opens the log of every message. A world of its own (the module's)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import pytest
+from playwright.sync_api import expect
+
+from tests.web.conftest import PASSWORD, Shots, World
+from tests.web.test_console import ALL, log_in, marker
+
+pytestmark = [pytest.mark.slow, pytest.mark.browser]
+
+#: Buttons of the action bar whose centre is not the button itself (or inside it): covered.
+COVERED = """() => [...document.querySelectorAll("#actions .actions-row button")]
+    .filter((b) => b.offsetParent !== null)
+    .filter((b) => {
+        const r = b.getBoundingClientRect();
+        const hit = document.elementFromPoint(r.left + r.width / 2, r.top + r.height / 2);
+        return !(hit && b.contains(hit));
+    })
+    .map((b) => b.textContent.trim())"""
+
+
+def test_a_burst_of_toasts_on_a_phone_leaves_the_action_bar_clear(
+    world: World, open_console: Any, shots: Shots
+) -> None:
+    page, _ = open_console(viewport=(390, 844), is_mobile=True, has_touch=True)
+    log_in(page, "mia")
+    marker(page, "demo-usv-1").tap()
+    expect(page.locator("#actions")).to_be_visible()
+    assert page.evaluate(COVERED) == []
+    askers = ["ben", "cy", "dee", "eli"]
+    for username in askers[1:]:
+        body = {"username": username, "role": "operator", "vehicles": list(ALL), "password": PASSWORD}
+        world.tokens[username] = world.fleet.call("POST", "/api/users", json=body)["token"]
+    # twelve requests in a row: twelve toasts for the manager within a second or two
+    for username in askers:
+        for vehicle in ALL:
+            body = {"instance_id": world.instances[vehicle]}
+            world.as_user(username, "POST", "/client/request_control", json=body)
+    toasts = page.locator("#toasts .toast")
+    expect(toasts).to_have_count(12)
+    covered = page.evaluate(COVERED)
+    shots(page, "twelve-toasts")
+    assert covered == [], f"toasts cover the action bar: {covered}"
+    expect(page.locator("#toasts .toast:visible")).to_have_count(3)  # the newest three
+    expect(toasts.last).to_contain_text("eli asks for control of H2OmniX Charlie")
+    more = page.locator("#toasts .toast-more")
+    expect(more).to_have_text("+9 more")
+    # the buttons answer a finger: Go to arms (and disarms), Stop asks
+    go_to = page.locator('#actions [data-tool="go_to"]')
+    go_to.tap()
+    expect(page.locator("#tool-hint")).to_be_visible()
+    go_to.tap()
+    expect(page.locator("#tool-hint")).to_be_hidden()
+    page.locator("#stop-selected").tap()
+    expect(page.locator("#confirm-title")).to_have_text("Stop H2OmniX Alpha?")
+    page.locator("#confirm-cancel").tap()
+    expect(page.locator("#confirm")).to_be_hidden()
+    # "+9 more" opens the log: every message, the newest first
+    more.tap()
+    log = page.locator("#toast-log-list li")
+    expect(page.locator("#toast-log")).to_be_visible()
+    expect(log.filter(has_text="asks for control")).to_have_count(12)
+    expect(log.first).to_contain_text("eli asks for control of H2OmniX Charlie")
+    shots(page, "toast-log")
+    page.locator("#toast-log-close").tap()
+    expect(page.locator("#toast-log")).to_be_hidden()
+    # they still go on their own, and so does the count
+    expect(toasts).to_have_count(0, timeout=15_000)
+    expect(more).to_have_count(0)
