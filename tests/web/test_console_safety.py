@@ -264,7 +264,9 @@ def test_a_grant_says_which_boat_and_what_the_server_did(
         form.locator("select[name=duration]").select_option(str(duration_s))
         form.locator("button[type=submit]").click()
 
-    grant("demo-usv-1", "bne", 3600)
+    grant("demo-usv-1", "bne", 3600)  # a name nobody knows: questioned first, then sent
+    expect(form.locator("#grant-user-check")).to_contain_text("did you mean ben?")
+    form.locator("button[type=submit]").click()
     expect(toasts).to_contain_text("grant refused: cannot grant control to bne: no such user")
     assert "no such user: no such user" not in toasts.inner_text()
     grant("demo-usv-3", "ben", 300)

@@ -1,6 +1,7 @@
 // The control panel: a field manager's requests, grants and leases, and an operator's
 // own; "What happened" (the control and safety events). Redraws from the Fleet state.
 
+import { controlOffer, grantForm, mayTakeOver } from "./grants.js";
 import { describeEvent, holderText, presenceBadge, throttled } from "./panels.js";
 import { clock, confirmAction, dateTime, h, sending, sends, toast, until } from "./ui.js";
 
@@ -131,6 +132,10 @@ export class ControlPanel {
     if (!this.manages) return;
     try {
       this.requests = (await this.ctx.api.get("/client/control_requests")).requests || [];
+      // an admin may list every user (the grant form's pick list); a manager may not
+      if (this.ctx.me.role === "admin" && !this.users) {
+        this.users = (await this.ctx.api.get("/api/users")).users || [];
+      }
     } catch (e) {
       toast(`control requests: ${e.message}`, "error");
     }
@@ -170,7 +175,7 @@ export class ControlPanel {
     const tab = document.querySelector('.tabs [data-tab="control"]');
     if (tab) tab.textContent = this.manages && this.requests.length ? `Control (${this.requests.length})` : "Control";
     const parts = [h("h2", {}, "Control")];
-    if (this.manages) parts.push(this.requestSection(), this.grantForm());
+    if (this.manages) parts.push(this.requestSection(), grantForm(this));
     parts.push(this.leaseSection(), this.safetyLog());
     // The panel is drawn again on every control, view or event change: what the manager
     // has chosen or typed in its forms (a duration, a user, the grant form open) stays.
@@ -252,31 +257,6 @@ export class ControlPanel {
       items.length ? h("ul.cards", {}, ...items) : h("p.hint", {}, "none pending"));
   }
 
-  grantForm() {
-    const vehicles = [...this.ctx.fleet.vehicles.values()].filter(
-      (v) => this.managed(v.id) && v.view.instance_id && v.view.presence !== "finished",
-    );
-    return h("details.grant", {},
-      h("summary", {}, "Grant control to someone"),
-      h("form", {
-        dataset: { key: "grant" },
-        onsubmit: (e) => {
-          e.preventDefault();
-          const f = e.target;
-          const v = this.ctx.fleet.vehicles.get(f.vehicle.value);
-          sending("grant/form", () => this.grant(
-            v.view.instance_id, f.user.value.trim(), +f.duration.value, +f.liveness.value,
-          ));
-        },
-      },
-      h("label", {}, "vehicle ", h("select", { name: "vehicle" },
-        ...vehicles.map((v) => h("option", { value: v.id }, v.view.name || v.id)))),
-      h("label", {}, "user ", h("input", { name: "user", required: true, autocomplete: "off" })),
-      h("label", {}, "for ", this.durationSelect("duration")),
-      h("label", {}, "lapse when their client is ", this.livenessSelect("liveness")),
-      h("button.primary", { type: "submit", ...sends("grant/form") }, "Grant")));
-  }
-
   leaseSection() {
     const { fleet, me } = this.ctx;
     const rows = [...fleet.vehicles.values()]
@@ -309,11 +289,7 @@ export class ControlPanel {
             mine ? h("button", {
               ...sends(`release/${v.id}`), onclick: () => this.ctx.releaseControl(v.id),
             }, "Release") : null,
-            !mine && me.role !== "viewer" && v.view.instance_id
-              ? h("button.quiet", {
-                ...sends(`request/${v.id}`), onclick: () => this.ctx.requestControl(v.id),
-              }, "Request")
-              : null));
+            mine ? null : controlOffer(this.ctx, v, "Request")));
       });
     return h("section", {}, h("h3", {}, "Leases"), h("ul.cards", {}, ...rows));
   }
@@ -343,7 +319,7 @@ export class ControlPanel {
   }
 
   async grantNow(instanceId, user, durationS, operatorTimeoutS) {
-    if (!(await this.mayTakeOver(instanceId, user))) return;
+    if (!(await mayTakeOver(this, instanceId, user))) return null;
     const v = this.vehicleOf(instanceId);
     const name = v ? v.view.name || v.id : instanceId;
     const before = v && v.control;
@@ -362,24 +338,14 @@ export class ControlPanel {
       if (v) this.ctx.fleet.applyControl(v.id, { control: lease });
     } catch (e) {
       toast(`grant refused: ${e.explain ? e.explain() : e.message}`, "error");
+      this.loadRequests();
+      // the user named is refused (unknown, disabled, not allowed the vehicle): said by
+      // the grant form too
+      const details = Array.isArray(e.details) ? e.details : [];
+      return details.some((d) => d.field === "user") ? e.message : null;
     }
     this.loadRequests();
-  }
-
-  /** A grant to someone while another holds the vehicle ends that lease: asked first. */
-  async mayTakeOver(instanceId, user) {
-    const v = this.vehicleOf(instanceId);
-    const c = v && v.control;
-    if (!c || c.holder === user || !(Date.parse(c.expires_at) > Date.now())) return true;
-    const name = v.view.name || v.id;
-    const holder = holderText(c, this.ctx.me);
-    return confirmAction({
-      title: `Give control of ${name} to ${user}?`,
-      text: `${holder} ${holder === "you" ? "hold" : "holds"} ${name} until ${clock(c.expires_at)}; ` +
-        `give control to ${user} instead? ${holder === "you" ? "Your" : `${c.holder}'s`} commands ` +
-        `it has not begun are cancelled and ${name} holds station.`,
-      confirm: `Give it to ${user}`,
-    });
+    return null;
   }
 
   deny(instanceId, user, name, reason = "") {

@@ -6,6 +6,7 @@ import { Api, forgetToken, login, saveToken, savedToken, tokenWasPasted } from "
 import { Fleet, TRAIL_MINUTES, isFinal, topicsOf } from "./fleet.js";
 import { LiveLink } from "./live.js";
 import { ControlPanel } from "./control.js";
+import { takeControl } from "./grants.js";
 import { FleetTable, VehiclePanel } from "./panels.js";
 import {
   ago, clock, confirmAction, h, metresBetween, readNumber, sending, toast, until, zoneText,
@@ -541,11 +542,11 @@ class Console {
     const code = (first && first.code) || e.code;
     if (code === "control_not_held") {
       const v = vehicles.find((x) => first && x.view.instance_id === first.instance_id) || vehicles[0];
-      toast(`${type} refused: you do not hold control of ${v.view.name || v.id}`, "error", {
-        label: "Request control",
-        run: () => this.requestControl(v.id),
-        sends: `request/${v.id}`,
-      });
+      // its manager takes control (a grant to itself); an operator asks for it
+      const take = this.controlPanel.managed(v.id);
+      toast(`${type} refused: you do not hold control of ${v.view.name || v.id}`, "error", take
+        ? { label: "Take control", run: () => takeControl(this, v), sends: `grant/${v.view.instance_id}` }
+        : { label: "Request control", run: () => this.requestControl(v.id), sends: `request/${v.id}` });
     } else if (vehicles.length > 1 && Array.isArray(e.details) && e.details.some((d) => d.instance_id)) {
       // each boat refused by name, in the server's words: all or nothing was sent
       const said = e.details.filter((d) => d.instance_id).map((d) => {

@@ -3,6 +3,7 @@
 // to say an event or a lease. Each redraws from the Fleet state when it changes.
 
 import { alarmLabel, isFinal, lastKnown, stageLabel, stageOf } from "./fleet.js";
+import { controlOffer } from "./grants.js";
 import { ago, clock, h, sending, sends, until } from "./ui.js";
 
 export function presenceBadge(presence) {
@@ -32,9 +33,6 @@ function batteryText(pct) {
 function millis(x) {
   return `${x < 10 ? x.toFixed(1) : x.toFixed(0)} ms`;
 }
-
-/** How long "Requested…" stands on a request not yet answered (a manager may not be on). */
-const REQUEST_SHOWN_MS = 120000;
 
 /** The course over ground from the trail: the bearing from where the vehicle was about
  * 5 s before its last position to that position; "–" when it moved under a metre. */
@@ -205,13 +203,7 @@ export class VehiclePanel {
           ...sends(`revoke/${v.id}`), onclick: () => this.ctx.controlPanel.revoke(v),
         }, "Revoke")
         : null,
-      me.role !== "viewer" && !mine && view.instance_id
-        ? (v.requested && Date.now() - v.requested < REQUEST_SHOWN_MS
-          ? h("button", { disabled: true, title: "the field manager decides" }, "Requested…")
-          : h("button", {
-            ...sends(`request/${v.id}`), onclick: () => this.ctx.requestControl(v.id),
-          }, "Request control"))
-        : null,
+      mine ? null : controlOffer(this.ctx, v), // Take control (its manager) or Request
       mine ? h("button", {
         ...sends(`release/${v.id}`), onclick: () => this.ctx.releaseControl(v.id),
       }, "Release") : null,
