@@ -2,6 +2,7 @@
 // timeline that also holds their commands, grants and events (each lights up as the
 // cursor passes it); the window exports as GPX or GeoJSON.
 
+import { drawTrack, gapBands, offlinePeriods, offlineText, periodAt } from "./gaps.js";
 import { L, colourOf, escapeHtml } from "./map.js";
 import { describeEvent, kindName } from "./panels.js";
 import { clock, dateTime, h, sending, toast } from "./ui.js";
@@ -68,6 +69,8 @@ export class Replay {
     this.playButton = document.getElementById("replay-play");
     this.speed = document.getElementById("replay-speed");
     this.timeOut = document.getElementById("replay-time");
+    this.statusOut = document.getElementById("replay-status");
+    this.gaps = document.getElementById("timeline-gaps");
     this.ticks = document.getElementById("timeline-ticks");
     this.list = document.getElementById("replay-events");
     this.info = document.getElementById("replay-info");
@@ -154,6 +157,7 @@ export class Replay {
     this.ids = ids;
     this.tracks = new Map(got.map((g) => [g.id, g.points]));
     this.events = got.flatMap((g) => g.events).sort((a, b) => a.t - b.t);
+    this.offline = new Map(got.map((g) => [g.id, offlinePeriods(g.events, g.points, start, end)]));
     this.info.textContent = `${ids.length} vehicle(s), ${total} stored positions, ` +
       `${this.events.length} events, ${dateTime(start)} to ${dateTime(end)}`;
     this.enter();
@@ -195,8 +199,7 @@ export class Replay {
       const colour = colourOf(v ? v.index : 0);
       const pts = this.tracks.get(id).map((p) => [p.lat, p.lon]);
       bounds.push(...pts);
-      L.polyline(pts, { color: colour, weight: 3, opacity: 0.55, interactive: false, className: "replay-track" })
-        .addTo(this.layer);
+      drawTrack(this.layer, id, this.tracks.get(id), this.offline.get(id), colour);
       const marker = L.marker(pts[0] || [0, 0], {
         icon: L.divIcon({
           className: "vicon replay",
@@ -241,6 +244,7 @@ export class Replay {
       title: `${clock(e.t)} ${this.nameOf(e.vehicle)} ${kindName(e.kind)} ${describeEvent(e)}`,
       dataset: { index: i },
     })));
+    this.gaps.replaceChildren(...gapBands(this.offline, this.start, this.end, (id) => this.nameOf(id)));
     this.list.replaceChildren(...this.events.map((e, i) => h("li", {
       dataset: { index: i, kind: e.kind },
       onclick: () => this.seek(e.t),
@@ -255,10 +259,16 @@ export class Replay {
     this.cursor = Math.min(Math.max(t, this.start), this.end);
     this.slider.value = String(this.cursor - this.start);
     this.timeOut.value = `${dateTime(this.cursor)}`;
+    const away = [];
     for (const [id, marker] of this.markers) {
       const points = this.tracks.get(id);
-      // before its first stored position a vehicle waits, faded, where that one will be
-      const at = positionAt(points, this.cursor) || (points[0] && { ...points[0], before: true });
+      const gap = periodAt(this.offline.get(id), this.cursor);
+      if (gap) away.push(`${this.nameOf(id)} ${offlineText(gap)}`);
+      // before its first stored position a vehicle waits, faded, where that one will be;
+      // out of contact, greyed where it was last heard (never gliding across the gap)
+      const last = points[lastAtOrBefore(points, this.cursor)];
+      const at = (gap && last && { ...last, exact: last.t === this.cursor })
+        || positionAt(points, this.cursor) || (points[0] && { ...points[0], before: true });
       if (!at) {
         if (this.layer.hasLayer(marker)) this.layer.removeLayer(marker);
         continue;
@@ -272,9 +282,12 @@ export class Replay {
         el.dataset.lon = at.lon;
         el.dataset.exact = at.exact ? "true" : "false";
         el.classList.toggle("before-first", Boolean(at.before));
+        el.classList.toggle("offline", Boolean(gap));
         el.querySelector("path").setAttribute("transform", `rotate(${at.heading_deg ?? 0})`);
       }
     }
+    this.statusOut.value = away.join("; ");
+    this.statusOut.hidden = !away.length;
     this.markEvents(before, this.cursor);
   }
 
