@@ -59,7 +59,9 @@ def test_a_manager_takes_control_where_an_operator_requests_it(
     assert holder_of(world, "demo-usv-2") == "mia"
     shots(page, "taken")
     # a command refused for want of control offers her to take it, not to ask
-    world.fleet.call("POST", "/client/revoke_control", json={"instance_id": world.instances["demo-usv-3"]})
+    world.fleet.call(
+        "POST", "/client/revoke_control", json={"instance_id": world.instances["demo-usv-3"]}
+    )
     marker(page, "demo-usv-3").click()
     page.click("#hold")
     refused = page.locator("#toasts .toast.error", has_text="you do not hold control")

@@ -2,7 +2,7 @@
 test_console): the track was drawn as if continuous and the replay's clock just jumped.
 The server's presence events (offline, then heard again) bound the gap now: the track
 across it is dashed grey, the timeline has a grey band, the marker waits greyed where the
-vehicle was last heard and the replay says "offline 10:02:11–10:05:40" (from the last
+vehicle was last heard and the replay says "offline 10:02:11-10:05:40" (from the last
 position heard to the first sign of it again). A world of its own
 (the module's): its agent is stopped and started again."""
 
@@ -60,7 +60,11 @@ def test_a_replay_shows_when_a_vehicle_was_offline(
 
     def offline_event() -> dict[str, Any] | None:
         return next(
-            (e for e in events(world) if e["kind"] == "presence" and e["data"]["presence"] == "offline"),
+            (
+                e
+                for e in events(world)
+                if e["kind"] == "presence" and e["data"]["presence"] == "offline"
+            ),
             None,
         )
 
@@ -89,7 +93,9 @@ def test_a_replay_shows_when_a_vehicle_was_offline(
     page.click('[data-tab="replay"]')
     page.click('button[data-minutes="5"]')
     for vehicle_id, *_ in VEHICLES:
-        page.locator(f'#replay-vehicles input[value="{vehicle_id}"]').set_checked(vehicle_id == VEHICLE)
+        page.locator(f'#replay-vehicles input[value="{vehicle_id}"]').set_checked(
+            vehicle_id == VEHICLE
+        )
     page.click("#replay-load")
     expect(page.locator("#replay-bar")).to_be_visible()
     # the way across the gap: dashed and grey, not the vehicle's colour
@@ -104,7 +110,8 @@ def test_a_replay_shows_when_a_vehicle_was_offline(
 
     slider.fill(str(int((off_ms + on_ms) / 2 - start)))  # inside the gap
     # from the last position heard (the server marks it offline offline_after_s later)
-    said = rf"^H2OmniX Bravo offline {clock_re(ms(last_heard['ts']))}–{clock_re(on_ms)}$"
+    dash = "\u2013"  # an en dash between the times
+    said = rf"^H2OmniX Bravo offline {clock_re(ms(last_heard['ts']))}{dash}{clock_re(on_ms)}$"
     expect(status).to_have_text(re.compile(said))
     expect(replay_marker).to_have_class(re.compile(r"\boffline\b"))
     # it waits where it was last heard: no gliding across the gap

@@ -36,7 +36,12 @@ def test_a_burst_of_toasts_on_a_phone_leaves_the_action_bar_clear(
     assert page.evaluate(COVERED) == []
     askers = ["ben", "cy", "dee", "eli"]
     for username in askers[1:]:
-        body = {"username": username, "role": "operator", "vehicles": list(ALL), "password": PASSWORD}
+        body = {
+            "username": username,
+            "role": "operator",
+            "vehicles": list(ALL),
+            "password": PASSWORD,
+        }
         world.tokens[username] = world.fleet.call("POST", "/api/users", json=body)["token"]
     # twelve requests in a row: twelve toasts for the manager within a second or two
     for username in askers:
