@@ -18,7 +18,7 @@ import secrets
 from datetime import datetime
 from typing import Any
 
-from fleet_protocol import SubmitControl
+from fleet_protocol import SubmitControl, format_ts
 from server.domain import arbitration
 from server.domain import command_ends as ends
 from server.domain import commands as life
@@ -313,7 +313,7 @@ class CommandService(CommandLanes):
         if moved:
             data: dict[str, Any] = {"control_mode": control_mode, "was": was}
             if since is not None:
-                data["since"] = said_time(since, self.clock(), state.started_at)
+                data["since"] = format_ts(said_time(since, self.clock(), state.started_at))
             await self.events.record(  # failsafe and local control matter to the operators
                 "control_mode",
                 vehicle_id=state.vehicle_id,

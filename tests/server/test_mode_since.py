@@ -46,6 +46,7 @@ async def test_a_failsafe_is_dated_when_the_vehicle_took_it(w: World) -> None:
     entered = await newest(w, me, "failsafe_entered")
     assert parse_ts(entered["at"]) == w.clock()
     assert parse_ts(entered["data"]["since"]) == started + timedelta(seconds=30)
+    assert entered["data"]["since"] == format_ts(started + timedelta(seconds=30))  # to the ms
     mode = await newest(w, me, "control_mode")
     assert mode["data"]["since"] == entered["data"]["since"]
 
