@@ -168,7 +168,7 @@ async def build(
         settings, instances, telemetry, control, commands, safety, messages, metrics.hops
     )
     topics = ServerTopics(bus, instances, commands, control, events, views)
-    replicas = ReplicaSync(bus, instances, control, commands, auth, messages, dead_letters)
+    replicas = ReplicaSync(bus, instances, control, commands, safety, auth, messages, dead_letters)
     hub = LiveHub(settings, bus, instances, commands, control, topics, metrics.hops)
     services = Services(
         settings=settings,
@@ -210,6 +210,8 @@ async def build(
     messages.register(SamplesStored, topics.on_samples)
     messages.register(SamplesStored, safety.on_samples)
     messages.register(FailsafeChanged, hub.on_failsafe_changed)
+    messages.register(FailsafeChanged, commands.on_failsafe_changed)
+    messages.register(FailsafeChanged, replicas.on_failsafe_changed)
     messages.register(SamplesStored, lambda e: metrics.samples.add(len(e.samples)))
     messages.register(CommandsReady, hub.on_commands_ready)
     messages.register(TokensRevoked, hub.on_tokens_revoked)

@@ -70,7 +70,7 @@ async def get_control(
     request: Request,
     wait_s: Annotated[float, Query(ge=0, le=30, allow_inf_nan=False)] = 0,
 ) -> ModelResponse:
-    poll = s.commands.get_control(caller, instance_id, wait_s)
+    poll = s.link.get_control(caller, instance_id, wait_s)
     answered = await _watched(s, caller, request, poll, wait_s)
     if answered is None:  # nobody is there to read an answer
         return ModelResponse(GetControlResult(commands=[], abort=[]))

@@ -60,6 +60,12 @@ class CommandLanes:
         else:
             lane.wake()
 
+    def wake(self, instance_id: str) -> None:
+        """The instance's open long polls on this replica look again (something else
+        than its commands may be news for the vehicle)."""
+        if (lane := self._lanes.get(instance_id)) is not None:
+            lane.wake()
+
     def take_aborts(self, instance_id: str) -> list[str]:
         """The commands handed to the instance's vehicle that ended since it was last told
         (each told once: by the long poll, the socket or ``update_fbmessage``)."""

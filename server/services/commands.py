@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import asyncio
 import secrets
+from collections.abc import Awaitable, Callable
 from datetime import datetime
 from typing import Any
 
@@ -26,6 +27,7 @@ from server.domain.access import Principal
 from server.domain.clock import Clock, said_time
 from server.domain.commands import AckOutcome, Command
 from server.domain.events import (
+    FailsafeChanged,
     InstanceFinished,
     LeaseEnded,
     StateWritten,
@@ -212,10 +214,17 @@ class CommandService(CommandLanes):
 
     # ---- vehicles -------------------------------------------------------------
     async def get_control(
-        self, principal: Principal, instance_id: str, wait_s: float
+        self,
+        principal: Principal,
+        instance_id: str,
+        wait_s: float,
+        news: Callable[[InstanceState], Awaitable[object]] | None = None,
     ) -> tuple[list[Command], list[str]]:
         """Hand out what is due, waiting up to ``wait_s`` for something to come; and the
-        commands handed out before that ended since (the vehicle aborts them)."""
+        commands handed out before that ended since (the vehicle aborts them). ``news``:
+        something else the vehicle is to be told at once when it is true (a failsafe
+        policy it has not applied); checked at the start and each time the lane is
+        woken (:meth:`wake`)."""
         state = await self.instances.for_vehicle_caller(principal, instance_id)
         lane = self._lane(state.instance_id)
         if wait_s > 0 and lane.polls >= self.settings.long_poll_max:
@@ -234,7 +243,13 @@ class CommandService(CommandLanes):
                 out = await self.take(state)
                 aborts = self.take_aborts(state.instance_id)
                 remaining = deadline - loop.time()
-                if out or aborts or remaining <= 0 or state.finished:
+                if (
+                    out
+                    or aborts
+                    or remaining <= 0
+                    or state.finished
+                    or (news is not None and await news(state))
+                ):
                     answered = True
                     return out, aborts
                 try:
@@ -246,6 +261,11 @@ class CommandService(CommandLanes):
             state.polling -= 1
             if answered:  # not a poll given up (its vehicle gone): that is no contact
                 self.instances.touch(state)
+
+    def on_failsafe_changed(self, event: FailsafeChanged) -> None:
+        """A vehicle's policy changed: its open long polls on this replica look again."""
+        if (state := self.instances.current(event.vehicle_id)) is not None:
+            self.wake(state.instance_id)
 
     async def take(self, state: InstanceState) -> list[Command]:
         """The commands to hand out now, in order (``stop`` first), marked delivered."""

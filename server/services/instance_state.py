@@ -36,6 +36,9 @@ class InstanceState:
     contact_every_s: float = 0.0
     #: The link delay measured on this replica (kept in memory only, never written).
     link: LinkDelay = field(default_factory=LinkDelay)
+    #: The failsafe version a long poll's answer last carried (memory only): a version
+    #: the vehicle was told and has not acknowledged ends no other poll early.
+    failsafe_told: int | None = None
 
     @property
     def finished(self) -> bool:

@@ -7,6 +7,7 @@ so the HTTP routes and the WebSocket ops call the same methods.
 from __future__ import annotations
 
 import time
+from collections.abc import Awaitable, Callable
 from datetime import datetime
 from typing import Any, Protocol
 
@@ -24,6 +25,7 @@ from fleet_protocol import (
     format_ts,
 )
 from server.domain.access import Principal
+from server.domain.commands import Command
 from server.domain.events import LinkChanged, SamplesStored
 from server.domain.latency import one_way_delay_s
 from server.metrics import Hops
@@ -81,6 +83,14 @@ class Feedback(Protocol):
     ) -> list[str]: ...
 
     async def reconcile(self, state: InstanceState, active: list[str]) -> list[str]: ...
+
+    async def get_control(
+        self,
+        principal: Principal,
+        instance_id: str,
+        wait_s: float,
+        news: Callable[[InstanceState], Awaitable[object]] | None = None,
+    ) -> tuple[list[Command], list[str]]: ...
 
 
 class VehicleLink:
@@ -148,12 +158,30 @@ class VehicleLink:
             await self.failsafes.acknowledge(state, body.failsafe_version)
         return abort
 
+    async def get_control(
+        self, principal: Principal, instance_id: str, wait_s: float
+    ) -> tuple[list[Command], list[str]]:
+        """The commands due and the aborts (:meth:`CommandService.get_control`); a long
+        poll also ends as soon as the vehicle has a failsafe policy to apply that no
+        answer carried yet (a client that never acknowledges one is not answered at
+        once poll after poll)."""
+        return await self.commands.get_control(
+            principal, instance_id, wait_s, news=self._failsafe_news
+        )
+
+    async def _failsafe_news(self, state: InstanceState) -> bool:
+        policy = await self.failsafes.pending(state)
+        return policy is not None and policy.version != state.failsafe_told
+
     async def pending_failsafe(
         self, principal: Principal, instance_id: str
     ) -> FailsafePolicy | None:
         """The vehicle's policy, while it has not acknowledged the current version."""
         state = await self.instances.for_vehicle_caller(principal, instance_id)
-        return await self.failsafes.pending(state)
+        policy = await self.failsafes.pending(state)
+        if policy is not None:
+            state.failsafe_told = policy.version
+        return policy
 
     async def heartbeat(self, principal: Principal, instance_id: str) -> HeartbeatResult:
         await self.live(principal, instance_id)

@@ -2,7 +2,8 @@
 
 Whoever writes a part of an instance's state to the store (its record, its
 lease, its commands) emits :class:`~server.domain.events.StateWritten`; this
-sends it on the bus topic ``_state`` (``{origin, instance_id, part}``). A
+sends it on the bus topic ``_state`` (``{origin, instance_id, part}``); a vehicle's
+failsafe policy set goes on ``_policy`` (``{origin, vehicle_id}``). A
 replica that hears another's announcement reads that part back from the
 store, if it keeps a copy of it. Revoked tokens travel the same way on
 ``_auth`` (``{origin, digests, token_ids}``): every replica drops them from
@@ -27,18 +28,20 @@ import secrets
 from typing import Any
 
 from server.bus import Bus, Message, Subscription
-from server.domain.events import StateWritten, TokensRevoked
+from server.domain.events import FailsafeChanged, StateWritten, TokensRevoked
 from server.services.auth import AuthService
 from server.services.commands import CommandService
 from server.services.control import ControlService
 from server.services.dead_letters import DeadLetters
 from server.services.instances import InstanceService
 from server.services.messagebus import MessageBus
+from server.services.safety import SafetyService
 
 log = logging.getLogger("fleet.replicas")
 
 STATE_TOPIC = "_state"
 AUTH_TOPIC = "_auth"
+POLICY_TOPIC = "_policy"
 PARTS = ("instance", "lease", "commands")
 #: How often the sync looks whether the bus came back (then it reads everything back).
 HEALTH_CHECK_S = 0.5
@@ -51,6 +54,7 @@ class ReplicaSync:
         instances: InstanceService,
         control: ControlService,
         commands: CommandService,
+        safety: SafetyService,
         auth: AuthService,
         messages: MessageBus,
         dead_letters: DeadLetters,
@@ -60,6 +64,7 @@ class ReplicaSync:
         self.instances = instances
         self.control = control
         self.commands = commands
+        self.safety = safety
         self.auth = auth
         self.dead_letters = dead_letters
         self.origin = secrets.token_hex(8)
@@ -74,6 +79,7 @@ class ReplicaSync:
         self._subs = [
             await self.bus.subscribe(STATE_TOPIC, self._on_state),
             await self.bus.subscribe(AUTH_TOPIC, self._on_auth),
+            await self.bus.subscribe(POLICY_TOPIC, self._on_policy),
         ]
         self._worker = asyncio.create_task(self._run(), name="replica-sync")
 
@@ -95,6 +101,9 @@ class ReplicaSync:
         if event.local and (event.digests or event.token_ids):
             body = {"digests": sorted(event.digests), "token_ids": sorted(event.token_ids)}
             self._send(AUTH_TOPIC, body)
+
+    def on_failsafe_changed(self, event: FailsafeChanged) -> None:
+        self._send(POLICY_TOPIC, {"vehicle_id": event.vehicle_id})
 
     def _send(self, topic: str, body: dict[str, Any]) -> None:
         if self._stopped:
@@ -119,6 +128,26 @@ class ReplicaSync:
         token_ids = _strings(message.get("token_ids"))
         self.auth.forget(digests, token_ids)
         self.messages.emit_now(TokensRevoked(token_ids, digests, local=False))
+
+    def _on_policy(self, _topic: str, message: Message) -> None:
+        """A vehicle's failsafe policy changed on another replica: read it again, and the
+        vehicle's open long polls here look again (it is theirs to hand out at once)."""
+        if not isinstance(message, dict) or message.get("origin") == self.origin:
+            return
+        vehicle_id = message.get("vehicle_id")
+        state = self.instances.current(vehicle_id) if isinstance(vehicle_id, str) else None
+        if state is not None:
+            task = asyncio.ensure_future(self._policy_again(state.vehicle_id, state.instance_id))
+            self._tasks.add(task)
+            task.add_done_callback(self._tasks.discard)
+
+    async def _policy_again(self, vehicle_id: str, instance_id: str) -> None:
+        try:
+            await self.safety.policy(vehicle_id)
+        except Exception as exc:  # the store away: the safety tick reads it later
+            await self.dead_letters.set_aside("replicas", instance_id, exc, ["policy"])
+            return
+        self.commands.wake(instance_id)
 
     async def _run(self) -> None:
         healthy = self.bus.healthy
