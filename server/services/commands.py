@@ -271,6 +271,7 @@ class CommandService(CommandLanes):
         """The commands to hand out now, in order (``stop`` first), marked delivered."""
         if state.finished:
             return []
+        await self.control.end_if_lapsed(state.instance_id)  # its holder's orders with it
         lane = await self._sync(state.instance_id)
         await self._check_zones(state, lane)
         out, ended = life.handout(

@@ -251,22 +251,8 @@ class ControlService:
         """End the leases past their expiry; forget requests nobody answered in time."""
         now = now or self.clock()
         for lease in list(self._leases.values()):
-            if lease.live(now):
-                continue
-            try:
-                if lease.lapse(now) == "operator_silent":
-                    # A heartbeat may have reached another replica: the store's word.
-                    stored = await self.current(lease.instance_id)
-                    if stored is None or stored.live(now):
-                        continue
-                    lease = stored
-                await self._expire(lease, now)
-            except Unavailable as exc:
-                self.dead_letters.failed("leases", exc)
+            if not lease.live(now) and not await self._lapse(lease, now):
                 return
-            except Exception as exc:
-                await self.dead_letters.set_aside("leases", lease.instance_id, exc, lease)
-                self._leases.pop(lease.instance_id, None)  # not tried again every pass
         if self._requests_swept is None or now - self._requests_swept >= _REQUEST_SWEEP:
             self._requests_swept = now
             too_old = now - timedelta(seconds=self.settings.control_request_ttl_s)
@@ -275,6 +261,35 @@ class ControlService:
                     self.messages.emit_now(StateWritten(doc["instance_id"], "lease"))
             except Unavailable as exc:
                 self.dead_letters.failed("leases", exc)
+
+    async def end_if_lapsed(self, instance_id: str) -> None:
+        """End the instance's lease now if it has lapsed, as the sweep would a moment
+        later: commands are handed out after it, so that none its holder queued goes out
+        once the lease has ended."""
+        lease = self._leases.get(instance_id)
+        if lease is not None:
+            now = self.clock()
+            if not lease.live(now):
+                await self._lapse(lease, now)
+
+    async def _lapse(self, lease: Lease, now: datetime) -> bool:
+        """End a lease that is no longer live (unless the store says it was renewed);
+        False when the store cannot be reached (the sweep stops for this pass)."""
+        try:
+            if lease.lapse(now) == "operator_silent":
+                # A heartbeat may have reached another replica: the store's word.
+                stored = await self.current(lease.instance_id)
+                if stored is None or stored.live(now):
+                    return True
+                lease = stored
+            await self._expire(lease, now)
+        except Unavailable as exc:
+            self.dead_letters.failed("leases", exc)
+            return False
+        except Exception as exc:
+            await self.dead_letters.set_aside("leases", lease.instance_id, exc, lease)
+            self._leases.pop(lease.instance_id, None)  # not tried again every pass
+        return True
 
     async def _expire(self, lease: Lease, now: datetime | None = None) -> None:
         """End a lease that lapsed: past its expiry, or its holder's client silent."""

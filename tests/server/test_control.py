@@ -303,3 +303,18 @@ async def test_an_unanswered_request_is_dropped_after_its_time(w: World) -> None
         return await pending() == []
 
     await eventually(dropped)  # the control sweeper, on its own beat
+
+
+async def test_a_lapsed_lease_s_orders_are_never_handed_out_before_the_sweep(w: World) -> None:
+    """The lease ended by its time while nothing had swept it yet: the vehicle's next
+    poll must not get the former holder's go_to (the sweep runs on its own beat, so the
+    poll ends the lease itself first)."""
+    v = await w.vehicle()
+    op = await w.operator_in_control(v, duration_s=60)
+    cid = await w.queued(op, v, GO_TO, ttl_s=600)
+    w.clock.advance(61)  # past the lease, long before the command's own expiry
+    handed = await w.poll(v)
+    assert [c["type"] for c in handed] == ["keep_station"]  # the server's hold, not the go_to
+    assert handed[0]["issued_by"] == "system"
+    cmd = await w.command(cid)
+    assert cmd["status"] == "cancelled" and cmd["history"][-1]["detail"] == "lease_ended"
