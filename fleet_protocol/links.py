@@ -4,6 +4,7 @@ from __future__ import annotations
 
 __all__ = [
     "CLOSE_FORBIDDEN",
+    "CLOSE_RECONNECT",
     "CLOSE_REPLACED",
     "CLOSE_TOO_BIG",
     "CLOSE_TOO_SLOW",
@@ -25,6 +26,9 @@ CLOSE_UNAUTHORIZED = 4401
 CLOSE_FORBIDDEN = 4403
 #: Another connection took this vehicle's link.
 CLOSE_REPLACED = 4409
+#: The token still stands, but what its user may see or do changed (an admin changed the
+#: user's role or vehicles): connect again, and subscribe again under the new rights.
+CLOSE_RECONNECT = 4012
 #: The server cannot check the token now (its store is down): try again later.
 CLOSE_TRY_AGAIN = 1013
 #: A frame over the server's size bound (RFC 6455: message too big).

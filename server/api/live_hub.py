@@ -22,7 +22,7 @@ from typing import Any
 
 from fleet_protocol import format_ts, utcnow
 from fleet_protocol.common import now_ts, parse_ts
-from fleet_protocol.links import CLOSE_REPLACED, CLOSE_UNAUTHORIZED
+from fleet_protocol.links import CLOSE_RECONNECT, CLOSE_REPLACED, CLOSE_UNAUTHORIZED
 from fleet_protocol.topics import is_media_topic
 from fleet_protocol.ws import (
     AbortPush,
@@ -388,12 +388,19 @@ class LiveHub:
         await conn.outbox.close()
 
     def on_tokens_revoked(self, event: TokensRevoked) -> None:
-        """Close the sockets this replica holds for tokens revoked here or elsewhere."""
+        """Close the sockets this replica holds for tokens revoked here or elsewhere: 4401;
+        for tokens whose user's rights changed, a code to reconnect with (the socket's
+        subscriptions were checked against the former rights)."""
         if not (event.token_ids or event.digests):
             return
+        code, reason = (
+            (CLOSE_UNAUTHORIZED, "the token was revoked")
+            if event.revoked
+            else (CLOSE_RECONNECT, "your rights changed: connect again")
+        )
         for conn in list(self.connections):
             if conn.principal.token_id in event.token_ids or conn.digest in event.digests:
-                self._fire(self.close(conn, CLOSE_UNAUTHORIZED, "the token was revoked"))
+                self._fire(self.close(conn, code, reason))
 
     async def stop(self) -> None:
         for conn in list(self.connections):

@@ -96,12 +96,15 @@ class EventRecorded:
 
 @dataclass(frozen=True, slots=True)
 class TokensRevoked:
-    """Tokens that stopped being valid: by id (their sockets close) and digest (caches)."""
+    """Tokens that stopped being valid: by id (their sockets close) and digest (caches).
+    With ``revoked`` False they still are, but what they may do changed (their user's
+    role or vehicles): read again, and their sockets close for the client to reconnect."""
 
     token_ids: frozenset[str]
     digests: frozenset[str]
     #: False when the news came from another replica (it is not sent on again).
     local: bool = True
+    revoked: bool = True
 
 
 @dataclass(frozen=True, slots=True)

@@ -218,8 +218,8 @@ class AuthService(Tokens):
             await self.repo.update_user(username, fields)
         if body.password is not None or body.disabled:
             await self._end_sessions(username, keep=actor)
-        await self._forget_subject("user", username)
         if body.role is not None or body.vehicles is not None or body.disabled is not None:
+            await self._forget_subject("user", username)
             await self.messages.emit(UserChanged(username, actor))
         return await self.get_user(username)
 

@@ -6,8 +6,9 @@ sends it on the bus topic ``_state`` (``{origin, instance_id, part}``); a vehicl
 failsafe policy set goes on ``_policy`` (``{origin, vehicle_id}``). A
 replica that hears another's announcement reads that part back from the
 store, if it keeps a copy of it. Revoked tokens travel the same way on
-``_auth`` (``{origin, digests, token_ids}``): every replica drops them from
-its cache and closes the sockets it holds for them.
+``_auth`` (``{origin, digests, token_ids, revoked}``; ``revoked`` false: their
+user's rights changed): every replica drops them from its cache and closes the
+sockets it holds for them.
 
 An announcement only tells a replica to look again: lose one (Redis down)
 and a replica acts on its copy until it next reads the store, which the
@@ -99,7 +100,11 @@ class ReplicaSync:
 
     def on_tokens_revoked(self, event: TokensRevoked) -> None:
         if event.local and (event.digests or event.token_ids):
-            body = {"digests": sorted(event.digests), "token_ids": sorted(event.token_ids)}
+            body = {
+                "digests": sorted(event.digests),
+                "token_ids": sorted(event.token_ids),
+                "revoked": event.revoked,
+            }
             self._send(AUTH_TOPIC, body)
 
     def on_failsafe_changed(self, event: FailsafeChanged) -> None:
@@ -127,7 +132,8 @@ class ReplicaSync:
         digests = _strings(message.get("digests"))
         token_ids = _strings(message.get("token_ids"))
         self.auth.forget(digests, token_ids)
-        self.messages.emit_now(TokensRevoked(token_ids, digests, local=False))
+        revoked = message.get("revoked") is not False  # an older replica's: revoked
+        self.messages.emit_now(TokensRevoked(token_ids, digests, local=False, revoked=revoked))
 
     def _on_policy(self, _topic: str, message: Message) -> None:
         """A vehicle's failsafe policy changed on another replica: read it again, and the

@@ -183,10 +183,12 @@ class Tokens:
         revoked = await self.repo.revoke_tokens(flt, utcnow())
         self._forget({doc["digest"] for doc in revoked}, {doc["token_id"] for doc in revoked})
 
-    def _forget(self, digests: set[str], token_ids: set[str]) -> None:
+    def _forget(self, digests: set[str], token_ids: set[str], *, revoked: bool = True) -> None:
         self.forget(frozenset(digests), frozenset(token_ids))
         if digests or token_ids:
-            self.messages.emit_now(TokensRevoked(frozenset(token_ids), frozenset(digests)))
+            self.messages.emit_now(
+                TokensRevoked(frozenset(token_ids), frozenset(digests), revoked=revoked)
+            )
 
     def forget(self, digests: frozenset[str], token_ids: frozenset[str] = frozenset()) -> None:
         """These tokens were revoked (here or on another replica): drop them from the
@@ -220,6 +222,7 @@ class Tokens:
 
     async def _forget_subject(self, kind: str, subject: str) -> None:
         """The subject changed (role, vehicles, disabled): every replica reads its tokens
-        again, and the sockets that hold them close (they reconnect with the new rights)."""
+        again, and the sockets that hold them close (they reconnect with the new rights;
+        a token no longer good is refused then)."""
         docs = await self.repo.tokens_of(kind, subject)
-        self._forget({d["digest"] for d in docs}, {d["token_id"] for d in docs})
+        self._forget({d["digest"] for d in docs}, {d["token_id"] for d in docs}, revoked=False)
