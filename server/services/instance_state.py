@@ -36,8 +36,9 @@ class InstanceState:
     contact_every_s: float = 0.0
     #: The link delay measured on this replica (kept in memory only, never written).
     link: LinkDelay = field(default_factory=LinkDelay)
-    #: The failsafe version a long poll's answer last carried (memory only): a version
-    #: the vehicle was told and has not acknowledged ends no other poll early.
+    #: The failsafe version the vehicle was last told on this replica (``start_instance``'s
+    #: answer, a long poll's; memory only): a version it was told and has not acknowledged
+    #: ends no long poll early.
     failsafe_told: int | None = None
 
     @property

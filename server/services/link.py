@@ -120,6 +120,8 @@ class VehicleLink:
         if body.active_commands is not None:
             abort = await self.commands.reconcile(state, body.active_commands)
         s = self.settings
+        failsafe = await self.failsafes.for_start(state)
+        state.failsafe_told = failsafe.version  # the answer carries it
         return StartInstanceResult(
             instance_id=state.instance_id,
             resumed=resumed,
@@ -129,7 +131,7 @@ class VehicleLink:
             offline_after_s=s.offline_after_s,
             ack_timeout_s=s.ack_timeout_s,
             server_time=self.instances.clock(),
-            failsafe=await self.failsafes.for_start(state),
+            failsafe=failsafe,
             control=self.leases.lease_info(state.instance_id),
             abort=abort,
         )
