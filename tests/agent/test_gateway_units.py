@@ -11,6 +11,7 @@ import pytest
 import websockets
 
 from fleet_protocol.links import CLOSE_FORBIDDEN, MAX_TEXT_FRAME_BYTES
+from fleet_protocol.ws import RoutesPush
 from server.settings import Settings
 from tests.agent.test_gateway_media import ack, event_on, gateway, next_json
 from tests.server.commanding import eventually
@@ -136,6 +137,37 @@ async def test_an_unregistered_topic_goes_up_only_once_someone_above_asks(
             assert (await ack(ua, "publish", "p2", topic=depth, data=2))["ok"] is True
             assert (await next_json(op, event_on(depth)))["data"] == 2
             assert router.sent_up == up_before + 1
+
+
+async def test_a_unit_s_first_publish_reaches_who_already_asked_above(
+    make_settings: Callable[..., Settings],
+) -> None:
+    """Someone above subscribed before the unit ever spoke: its first publish on the topic
+    (registered above on the way) goes up at once, not only the ones after it. The
+    register's ack came before the routes push that says someone above wants it."""
+    async with gateway(make_settings) as w:
+        async with await w.operator_ws() as op, w.unit(w.a) as ua:
+            # The link up (it opens with the first op sent through it): the failure to
+            # see is one of order, not of a link down.
+            other = f"vehicle/{w.b}/status"
+            assert (await ack(ua, "subscribe", "warm", topics=[other]))["ok"] is True
+            # A routes push a moment behind the ack before it, as through a relay or a
+            # slow network that hands each frame over apart.
+            told = w.units.link.on_routes
+            assert told is not None
+            loop = asyncio.get_running_loop()
+
+            def later(push: RoutesPush) -> None:
+                assert told is not None
+                loop.call_later(0.3, told, push)
+
+            w.units.link.on_routes = later
+            for n in range(5):  # a new topic each time: each its own first publish
+                topic = f"vehicle/{w.a}/survey/{n}"
+                assert (await ack(op, "subscribe", f"s{n}", topics=[topic]))["ok"] is True
+                said = await ack(ua, "publish", f"p{n}", topic=topic, data=n)
+                assert said["ok"] is True, said
+                assert (await next_json(op, event_on(topic)))["data"] == n
 
 
 async def test_a_publish_that_cannot_go_up_is_not_acked_ok(

@@ -71,6 +71,8 @@ from vehicle_client.transport.ws import WsLink
 log = logging.getLogger(__name__)
 
 CLOSE_BAD_REQUEST = 4400  # the gateway's own: a unit that did not name its vehicle
+#: How long a unit's first publish on a topic waits for the register's routes push.
+ROUTES_WAIT_S = 2.0
 
 
 def _listen_address(listen: str) -> tuple[str, int]:
@@ -100,6 +102,9 @@ class UnitServer:
         self.router = TopicRouter()
         self.uplink = MediaUplink(link, media_up_per_s)
         self._queues: dict[str, UnitQueue] = {}
+        #: Registrations made for a unit's publish, waiting for the ``routes`` push that
+        #: shows them (the server sends it after the register's ack).
+        self._shown: dict[tuple[str, str], asyncio.Future[None]] = {}
         #: The vehicles the gateway's token acts for, as the server last said (None: not yet).
         self.acts_for: frozenset[str] | None = None
         self._server: Server | None = None
@@ -276,11 +281,22 @@ class UnitServer:
         unit = self.router.units.get(vehicle_id)
         if unit is None or topic in unit.produces or not self.link.connected:
             return
-        with contextlib.suppress(AgentError):
+        key = (vehicle_id, topic)
+        shown = self._shown[key] = asyncio.get_running_loop().create_future()
+        try:
             op = {"op": "register", "vehicle_id": vehicle_id, "topics": [topic]}
             ack = await self.link.call(op, check=False)
             if ack.ok and vehicle_id in self.router.units:
                 self.router.register(vehicle_id, [topic])
+                # The gateway's own routes come before the unit's: once the unit's show
+                # the topic, forward_up says whether anyone above wants it.
+                with contextlib.suppress(TimeoutError):
+                    await asyncio.wait_for(shown, ROUTES_WAIT_S)
+        except AgentError:
+            pass
+        finally:
+            if self._shown.get(key) is shown:
+                del self._shown[key]
 
     def _media(self, vehicle_id: str, queue: UnitQueue, frame: bytes) -> None:
         """A unit's media frame: checked like a publish, then to local units and up on demand."""
@@ -326,6 +342,10 @@ class UnitServer:
     def _routes(self, push: RoutesPush) -> None:
         vehicle_id = self.router.routes(push.unit, push.forward_up, push.forward_down)
         if vehicle_id is not None:
+            for topic in push.produces:
+                waiting = self._shown.get((vehicle_id, topic))
+                if waiting is not None and not waiting.done():
+                    waiting.set_result(None)
             self._put(vehicle_id, push.frame())
 
     async def _replay(self) -> None:
