@@ -190,6 +190,9 @@ class GetControlResult(WireModel):
     #: Commands handed to the vehicle that ended on the server since (cancelled,
     #: expired): it stops carrying them out. A long poll returns as soon as there is one.
     abort: list[Text] = Field(default_factory=list)
+    #: Who holds remote control now (null: nobody), as ``start_instance`` says it
+    #: (**extension**: a vehicle on the HTTP fallback hears of grants and revokes too).
+    control: ControlInfo | None = None
 
 
 class FbAck(WireModel):

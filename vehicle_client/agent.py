@@ -323,6 +323,8 @@ class VehicleAgent:
             asked = loop.time()
             res = await self.transport.get_control(self.instance_id, self.config.poll_wait_s)
             self._contact()
+            if "control" in res.model_fields_set:  # over HTTP (a socket pushes it)
+                self.on_control(res.control)
             if res.failsafe is not None:
                 self.on_failsafe(res.failsafe)
             if res.abort:  # ended on the server (cancelled, say): stop carrying them out

@@ -75,7 +75,11 @@ async def get_control(
     if answered is None:  # nobody is there to read an answer
         return ModelResponse(GetControlResult(commands=[], abort=[]))
     commands, abort = answered
-    result: dict[str, Any] = {"commands": [c.wire() for c in commands], "abort": abort}
+    result: dict[str, Any] = {
+        "commands": [c.wire() for c in commands],
+        "abort": abort,
+        "control": s.control.lease_info(instance_id),
+    }
     failsafe = await s.link.pending_failsafe(caller, instance_id)
     if failsafe is not None:  # a version the vehicle has not acknowledged yet
         result["failsafe"] = failsafe

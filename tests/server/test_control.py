@@ -244,6 +244,11 @@ async def test_the_vehicle_and_the_operators_are_told_who_holds_control(w: World
         "/client/connect_instance", headers=op.headers, json={"instance_id": v.instance_id}
     )
     assert r.json()["instance"]["control"]["holder"] == op.username
+    # A vehicle that polls over HTTP hears of it too (an extension), and of its end.
+    assert (await w.poll_answer(v))["control"]["holder"] == op.username
+    r = await post(w, "revoke_control", ADMIN, instance_id=v.instance_id)
+    assert r.status_code == 200, r.text
+    assert (await w.poll_answer(v))["control"] is None
 
 
 async def test_finish_instance_ends_the_lease(w: World) -> None:
