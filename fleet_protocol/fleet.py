@@ -39,6 +39,9 @@ class Alarm(WireModel):
     kind: Text
     message: Text
     zone_id: Text | None = None
+    #: Since when it is so: the time of the sample that raised a breach or a low battery,
+    #: the time the vehicle says it entered failsafe (None: not known).
+    since: Timestamp | None = None
 
 
 class VehicleView(WireModel):

@@ -44,9 +44,14 @@ def position_text(pos: dict[str, Any] | None) -> str:
 
 
 def alarms_text(view: dict[str, Any]) -> str:
-    """A vehicle's alarms (``VehicleView.alarms``) in a line: ``inside no-go zone pier 3;
-    battery low: 15 %``; empty when it has none."""
-    said = (str(a.get("message") or a.get("kind")) for a in view.get("alarms") or [])
+    """A vehicle's alarms (``VehicleView.alarms``) in a line, each with since when (UTC,
+    to the second) when the server knows it: ``inside no-go zone pier 3 since 10:02:11Z;
+    battery low: 15 % since 10:04:00Z``; empty when it has none."""
+    said = (
+        str(a.get("message") or a.get("kind"))
+        + (f" since {_clock(a['since'])}" if a.get("since") else "")
+        for a in view.get("alarms") or []
+    )
     return "; ".join(_unbidi(text) for text in said)
 
 

@@ -1,38 +1,42 @@
 """What is wrong with a vehicle now, in words (``VehicleView.alarms``). Pure.
 
 From its watch state (:mod:`server.domain.watch`: the zones it is in breach of, a low
-battery) and the mode it reports (failsafe), most urgent first.
+battery) and the mode it reports (failsafe), most urgent first; each says since when it
+is so (``since``; None when not known).
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Iterable
+from datetime import datetime
 
 from fleet_protocol import Alarm
 
 
 def alarms_of(
     failsafe_action: str | None,
-    breaches: Iterable[tuple[str, str, str | None]],
-    battery: tuple[float | None, float | None] | None,
+    breaches: Iterable[tuple[str, str, str | None, datetime | None]],
+    battery: tuple[float | None, float | None, datetime | None] | None,
+    failsafe_since: datetime | None = None,
 ) -> list[Alarm]:
     """``failsafe_action``: the policy's action while the vehicle is in failsafe (None:
-    it is not); ``breaches``: ``(zone_kind, zone_name, zone_id)`` of each zone breached;
-    ``battery``: ``(reading, threshold)`` while the battery is low (None: it is not)."""
+    it is not), since ``failsafe_since``; ``breaches``: ``(zone_kind, zone_name, zone_id,
+    since)`` of each zone breached; ``battery``: ``(reading, threshold, since)`` while the
+    battery is low (None: it is not)."""
     out = []
     if failsafe_action is not None:
-        out.append(
-            Alarm(kind="failsafe", message=f"in failsafe: {failsafe_action.replace('_', ' ')}")
-        )
-    for zone_kind, name, zone_id in breaches:
+        said = f"in failsafe: {failsafe_action.replace('_', ' ')}"
+        out.append(Alarm(kind="failsafe", message=said, since=failsafe_since))
+    for zone_kind, name, zone_id, since in breaches:
         if zone_kind == "operating_area":
             kind, message = "outside_area", f"outside its operating area {name}"
         else:
             kind, message = "no_go_zone", f"inside no-go zone {name}"
-        out.append(Alarm(kind=kind, message=message.rstrip(), zone_id=zone_id))
+        out.append(Alarm(kind=kind, message=message.rstrip(), zone_id=zone_id, since=since))
     if battery is not None:
-        out.append(Alarm(kind="low_battery", message=_battery_text(*battery)))
+        pct, threshold, since = battery
+        out.append(Alarm(kind="low_battery", message=_battery_text(pct, threshold), since=since))
     return out
 
 

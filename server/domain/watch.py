@@ -7,11 +7,17 @@ whether its battery is low. Each new position gives the next state; what changed
 between the two is what gets an event. The battery is low below the vehicle's threshold
 and stays low until it is :data:`BATTERY_HYSTERESIS_PCT` above it again, so that a
 reading that wavers round the threshold raises one event, not one a second.
+
+Each breach and a low battery carry since when (``since``, the time of the sample that
+raised them): dated when the state moves (:func:`dated`), kept while they last. Two
+states are equal by what they hold, not by their dates.
 """
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
+from datetime import datetime
 
 from server.domain.zones import LatLon, ZoneSet, breaches
 
@@ -23,6 +29,10 @@ BATTERY_HYSTERESIS_PCT = 2.0
 class WatchState:
     breaches: frozenset[str] = frozenset()
     low_battery: bool = False
+    #: zone id -> since when it is breached (absent: not known, as in a state stored
+    #: before dates were kept)
+    breach_since: Mapping[str, datetime] = field(default_factory=dict, compare=False)
+    battery_since: datetime | None = field(default=None, compare=False)
 
 
 @dataclass(frozen=True)
@@ -65,3 +75,20 @@ def change(was: WatchState, now: WatchState) -> Change:
     if now.low_battery != was.low_battery:
         battery = "low" if now.low_battery else "recovered"
     return Change(now.breaches - was.breaches, was.breaches - now.breaches, battery)
+
+
+def dated(was: WatchState, now: WatchState, at: datetime) -> WatchState:
+    """``now`` with its dates: what ``was`` held already keeps its own; what is new is
+    dated ``at`` (the time of the sample that raised it); what ended has none."""
+    breach_since = {
+        z: was.breach_since.get(z) if z in was.breaches else at for z in sorted(now.breaches)
+    }
+    battery_since = None
+    if now.low_battery:
+        battery_since = was.battery_since if was.low_battery else at
+    return WatchState(
+        now.breaches,
+        now.low_battery,
+        {z: t for z, t in breach_since.items() if t is not None},
+        battery_since,
+    )

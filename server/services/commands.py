@@ -330,11 +330,13 @@ class CommandService(CommandLanes):
         state = await self.instances.for_vehicle_caller(principal, instance_id)
         self.instances.touch(state)
         was = state.control_mode
-        moved = await self.instances.set_control_mode(state, control_mode)
+        if since is not None and control_mode not in (None, was):  # dated on a change only
+            since = said_time(since, self.clock(), state.started_at)
+        moved = await self.instances.set_control_mode(state, control_mode, since)
         if moved:
             data: dict[str, Any] = {"control_mode": control_mode, "was": was}
             if since is not None:
-                data["since"] = format_ts(said_time(since, self.clock(), state.started_at))
+                data["since"] = format_ts(since)
             await self.events.record(  # failsafe and local control matter to the operators
                 "control_mode",
                 vehicle_id=state.vehicle_id,

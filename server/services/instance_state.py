@@ -23,6 +23,8 @@ class InstanceState:
     params_updated_at: datetime | None = None
     last_seen: datetime | None = None
     control_mode: str = "idle"
+    #: When the vehicle says it entered ``control_mode`` (None: it did not say).
+    control_mode_since: datetime | None = None
     position: dict[str, Any] | None = None
     finished_at: datetime | None = None
     presence: Presence = "offline"  # the presence last told
@@ -62,6 +64,7 @@ class InstanceState:
             "params_updated_at": self.params_updated_at,
             "last_seen": self.last_seen,
             "control_mode": self.control_mode,
+            "control_mode_since": self.control_mode_since,
             "position": self.position,
             "finished_at": self.finished_at,
         }
@@ -85,6 +88,7 @@ class InstanceState:
                 "params_updated_at",
                 "last_seen",
                 "control_mode",
+                "control_mode_since",
                 "position",
                 "finished_at",
             )
@@ -123,6 +127,7 @@ class InstanceState:
                 stored.params_updated_at,
                 stored.control_mode,
             )
+            self.control_mode_since = stored.control_mode_since
         self.merge_contact(doc)
         self.merge_presence(doc)
         if doc.get("finished_at") is not None and self.finished_at is None:

@@ -297,11 +297,14 @@ class InstanceService:
         state.moved = True
         return True
 
-    async def set_control_mode(self, state: InstanceState, mode: str | None) -> bool:
-        """The vehicle's control mode; written at once (submits depend on it)."""
+    async def set_control_mode(
+        self, state: InstanceState, mode: str | None, since: datetime | None = None
+    ) -> bool:
+        """The vehicle's control mode, entered ``since`` (None: not known); written at once
+        (submits depend on it)."""
         if mode is None or mode == state.control_mode:
             return False
-        state.control_mode = mode
+        state.control_mode, state.control_mode_since = mode, since
         state.dirty = True
         await self._write(state, time.monotonic(), whole=True)
         return True

@@ -28,9 +28,9 @@ from fleet_protocol import Alarm, EventKind, FailsafePolicy, SetFailsafe
 from server.domain.access import Principal
 from server.domain.alarms import alarms_of
 from server.domain.arbitration import may_grant
-from server.domain.clock import Clock
+from server.domain.clock import Clock, said_time
 from server.domain.events import FailsafeChanged, SamplesStored
-from server.domain.watch import WatchState, change, next_state
+from server.domain.watch import WatchState, change, dated, next_state
 from server.domain.zones import route_violation
 from server.errors import Conflict, Forbidden, NotFound, ZoneViolation
 from server.services.auth import AuthService
@@ -41,7 +41,7 @@ from server.services.messagebus import MessageBus
 from server.services.zones import ZoneService
 from server.settings import Settings
 from server.storage.backends import Doc
-from server.storage.safety import SafetyRepo
+from server.storage.safety import SafetyRepo, watch_state
 
 log = logging.getLogger("fleet.safety")
 
@@ -215,16 +215,21 @@ class SafetyService:
         store has it (None: as this replica last saw it, nothing when it has not)."""
         policy = self.known_policy(state.vehicle_id)
         in_failsafe = policy.action if state.control_mode == "failsafe" else None
+        entered = state.control_mode_since
         watch = watch if watch is not None else self._watch.get(state.instance_id)
         if watch is None:
-            return alarms_of(in_failsafe, (), None)
-        zones = [self._zone_data(state, z, entered=True) for z in sorted(watch.breaches)]
+            return alarms_of(in_failsafe, (), None, entered)
+        zones = [
+            (self._zone_data(state, z, entered=True), watch.breach_since.get(z))
+            for z in sorted(watch.breaches)
+        ]
         pct = (state.position or {}).get("battery_pct")
         reading = float(pct) if isinstance(pct, int | float) else None
         return alarms_of(
             in_failsafe,
-            [(z["zone_kind"], z["zone"], z["zone_id"]) for z in zones],
-            (reading, policy.low_battery_pct) if watch.low_battery else None,
+            [(z["zone_kind"], z["zone"], z["zone_id"], since) for z, since in zones],
+            (reading, policy.low_battery_pct, watch.battery_since) if watch.low_battery else None,
+            entered,
         )
 
     def watches_here(self, state: InstanceState) -> bool:
@@ -237,7 +242,7 @@ class SafetyService:
         docs = await self.repo.watches_of(instance_ids)
         return {
             str(doc["_id"]): StoredWatch(
-                _state_of(doc),
+                watch_state(doc),
                 int(doc["failsafe_version"]) if doc.get("failsafe_version") is not None else None,
             )
             for doc in docs
@@ -292,7 +297,7 @@ class SafetyService:
             home = (float(sample.lat), float(sample.lon))
             await self.repo.begin_watch(state.instance_id, state.vehicle_id, home)
             doc = await self.repo.watch_of(state.instance_id)
-        was = _state_of(doc)
+        was = watch_state(doc)
         self._watch[state.instance_id] = was
         if doc is not None and doc.get("home"):
             self._home[state.instance_id] = (doc["home"]["lat"], doc["home"]["lon"])
@@ -303,18 +308,19 @@ class SafetyService:
             await self._record(state, sample, now)
 
     async def _record(self, state: InstanceState, sample: Any, now: WatchState) -> None:
-        """Write the new state if it is still news (compare and set); record what changed."""
+        """Write the new state if it is still news (compare and set), each new alarm dated
+        by the sample that raised it; record what changed."""
+        at = said_time(sample.ts, self.clock(), state.started_at)
         for _ in range(_CAS_TRIES):
             doc = await self.repo.watch_of(state.instance_id)
-            stored = _state_of(doc)
+            stored = watch_state(doc)
             moved = change(stored, now)
             if not moved:
-                self._watch[state.instance_id] = now  # another replica recorded it
+                self._watch[state.instance_id] = stored  # another replica recorded it
                 return
+            now = dated(stored, now, at)
             rev = int(doc["rev"]) if doc is not None else None
-            if await self.repo.move_watch(
-                state.instance_id, state.vehicle_id, rev, sorted(now.breaches), now.low_battery
-            ):
+            if await self.repo.move_watch(state.instance_id, state.vehicle_id, rev, now):
                 break
         else:
             return
@@ -408,9 +414,3 @@ class SafetyService:
         self._watch.pop(instance_id, None)
         self._home.pop(instance_id, None)
         self._acked.pop(instance_id, None)
-
-
-def _state_of(doc: Doc | None) -> WatchState:
-    if doc is None:
-        return WatchState()
-    return WatchState(frozenset(doc.get("breaches") or ()), bool(doc.get("low_battery")))

@@ -5,14 +5,29 @@ its manager set, with ``version`` raised by each change; a write names the versi
 read (compare and set), so two replicas changing one policy at once cannot both win.
 
 ``watch``: one document per instance (``_id`` its id): its home (the first position
-it reported), the zones it is in breach of, whether its battery is low, and the
-failsafe version it acknowledged; ``rev`` raised by each write, written by compare and
-set, so that of several replicas seeing one change only one records it.
+it reported), the zones it is in breach of and whether its battery is low, each with
+since when (``breach_since``: zone id -> time, ``battery_since``; absent in documents
+written before they were kept), and the failsafe version it acknowledged; ``rev``
+raised by each write, written by compare and set, so that of several replicas seeing
+one change only one records it.
 """
 
 from __future__ import annotations
 
+from server.domain.watch import WatchState
 from server.storage.backends import Doc, Duplicate, Store
+
+
+def watch_state(doc: Doc | None) -> WatchState:
+    """An instance's watch state as its document holds it (none: nothing wrong)."""
+    if doc is None:
+        return WatchState()
+    return WatchState(
+        frozenset(doc.get("breaches") or ()),
+        bool(doc.get("low_battery")),
+        dict(doc.get("breach_since") or {}),
+        doc.get("battery_since"),
+    )
 
 
 class SafetyRepo:
@@ -75,11 +90,15 @@ class SafetyRepo:
         instance_id: str,
         vehicle_id: str,
         read_rev: int | None,
-        breaches: list[str],
-        low_battery: bool,
+        state: WatchState,
     ) -> bool:
         """Write the new state if it is still the one read (``read_rev``; None: none)."""
-        fields = {"breaches": breaches, "low_battery": low_battery}
+        fields = {
+            "breaches": sorted(state.breaches),
+            "low_battery": state.low_battery,
+            "breach_since": dict(state.breach_since),
+            "battery_since": state.battery_since,
+        }
         if read_rev is None:
             try:
                 await self.watch.insert(
