@@ -5,12 +5,13 @@ however often the vehicle moves between them."""
 from __future__ import annotations
 
 from collections.abc import Callable
-from datetime import UTC, datetime
+from datetime import UTC, datetime, timedelta
 from typing import Any
 
 import httpx
 import pytest
 
+from fleet_protocol import format_ts
 from server.settings import Settings
 from tests.bus.conftest import RedisServer
 from tests.bus.test_replicas_shared_store import _until, two_replicas
@@ -87,3 +88,57 @@ async def _policy_is(api: httpx.AsyncClient, vehicle_id: str, pct: float | None)
     reads the policies again every second)."""
     r = await api.get(f"/api/vehicles/{vehicle_id}", headers=ADMIN)
     return bool(r.json()["failsafe"].get("low_battery_pct") == pct)
+
+
+async def test_both_replicas_say_the_same_since_for_each_alarm(
+    make_settings: Callable[..., Settings], redis_server: RedisServer
+) -> None:
+    """Since when an alarm is so is stored with the watch state and the instance: the
+    replica the vehicle does not talk to says the same, and so does the next replica the
+    vehicle talks to."""
+    async with two_replicas(make_settings, redis_server) as (api_a, api_b, _):
+        vid, vh = await make_vehicle(api_a)
+        put = await api_a.put(
+            f"/api/vehicles/{vid}/failsafe", headers=ADMIN, json={"low_battery_pct": 80.0}
+        )
+        assert put.status_code == 200, put.text
+        for api in (api_a, api_b):
+            await _until(lambda api=api: _policy_is(api, vid, 80.0), 10)
+        body = {"vehicle_id": vid, "capabilities": ["stop"]}
+        started = await api_a.post("/upper/start_instance", headers=vh, json=body)
+        iid = started.json()["instance_id"]
+        raised = datetime.now(UTC)  # after the start: no earlier than the instance began
+
+        async def report(api: httpx.AsyncClient, seq: int, ts: datetime) -> None:
+            sent = {"instance_id": iid, "samples": [sample(seq, ts=ts, battery_pct=50.0)]}
+            assert (await api.post("/upper/update_param", headers=vh, json=sent)).is_success
+
+        async def since_everywhere(want: dict[str, str | None]) -> bool:
+            for api in (api_a, api_b):
+                view = (await api.get(f"/api/vehicles/{vid}", headers=ADMIN)).json()
+                if {a["kind"]: a.get("since") for a in view["alarms"]} != want:
+                    return False
+            return True
+
+        await report(api_a, 1, raised)  # low on A
+        await _until(lambda: since_everywhere({"low_battery": format_ts(raised)}), 10)
+        await report(api_b, 2, datetime.now(UTC))  # still low, now on B: since as it was
+        await _until(lambda: _battery_reading_seen(api_b, vid, 2), 10)
+        assert await since_everywhere({"low_battery": format_ts(raised)})
+
+        entered = raised + timedelta(milliseconds=1)  # the vehicle's date, not its arrival
+        fb = {
+            "instance_id": iid,
+            "acks": [],
+            "control_mode": "failsafe",
+            "control_mode_since": format_ts(entered),
+        }
+        assert (await api_a.post("/upper/update_fbmessage", headers=vh, json=fb)).is_success
+        want = {"failsafe": format_ts(entered), "low_battery": format_ts(raised)}
+        await _until(lambda: since_everywhere(want), 10)
+
+
+async def _battery_reading_seen(api: httpx.AsyncClient, vehicle_id: str, seq: int) -> bool:
+    """Whether the replica holds the vehicle's sample ``seq`` as its latest position."""
+    r = await api.get(f"/api/vehicles/{vehicle_id}", headers=ADMIN)
+    return bool((r.json().get("position") or {}).get("seq") == seq)
