@@ -170,3 +170,30 @@ async def _seconds_since_grant(c: httpx.AsyncClient, vehicle_id: str) -> float:
     )
     (grant,) = r.json()["events"]
     return (utcnow() - parse_ts(grant["at"])).total_seconds()
+
+
+async def test_vehicles_says_since_when_each_alarm_is_so(
+    make_settings: Callable[..., Settings],
+) -> None:
+    async with serve(make_settings()) as base, httpx.AsyncClient(base_url=base) as c:
+        vid, vh = await make_vehicle(c)
+        put = await c.put(
+            f"/api/vehicles/{vid}/failsafe", headers=ADMIN, json={"low_battery_pct": 20.0}
+        )
+        assert put.status_code == 200, put.text
+        iid = (await start_instance(c, vid, vh))["instance_id"]
+        raised = utcnow()
+        body = {"instance_id": iid, "samples": [sample(1, ts=raised, battery_pct=15.0)]}
+        assert (await c.post("/upper/update_param", headers=vh, json=body)).is_success
+
+        async def alarmed() -> bool:
+            view = (await c.get(f"/api/vehicles/{vid}", headers=ADMIN)).json()
+            return bool(view["alarms"])
+
+        await eventually(alarmed)
+        name = (await c.get(f"/api/vehicles/{vid}", headers=ADMIN)).json()["name"]
+        table = await fleetctl(base, ADMIN_TOKEN, "vehicles")
+        assert table.exit_code == 0, table.output
+        assert (
+            f"ALARM {name} ({vid}): battery low: 15 % (alarm below 20 %) since {raised:%H:%M:%S}Z\n"
+        ) in table.stdout
