@@ -30,9 +30,14 @@ def test_a_low_battery_shows_in_the_table_and_the_panel_until_it_ends(
     world.fleet.call("PUT", f"/api/vehicles/{vehicle}/failsafe", json={"low_battery_pct": 100.0})
     badge = row.locator(".alarm.a-low_battery")
     expect(badge).to_have_text("low battery", timeout=15_000)
-    expect(badge).to_have_attribute(
-        "title", re.compile(r"^battery low: \d+(\.\d)? % \(alarm below 100 %\)$")
+    # since when, as the console says a time (this browser's clock, to the second)
+    [alarm] = world.fleet.call("GET", f"/api/vehicles/{vehicle}")["alarms"]
+    since = page.evaluate(
+        "ts => new Date(Date.parse(ts)).toLocaleTimeString([], { hour12: false })",
+        alarm["since"],
     )
+    said = r"^battery low: \d+(\.\d)? % \(alarm below 100 %\) since " + re.escape(since) + "$"
+    expect(badge).to_have_attribute("title", re.compile(said))
     expect(row).to_have_class(re.compile(r"\balarmed\b"))
     expect(row.locator("td").nth(3)).to_have_text(re.compile(r"^\d{1,2} %$"))  # below 100
     for other in ("demo-usv-1", "demo-usv-2"):
@@ -45,9 +50,7 @@ def test_a_low_battery_shows_in_the_table_and_the_panel_until_it_ends(
 
     marker(page, vehicle).click()
     page.click('[data-tab="vehicle"]')
-    expect(page.locator("#vehicle-pane .alarm-list li")).to_have_text(
-        re.compile(r"^battery low: \d+(\.\d)? %")
-    )
+    expect(page.locator("#vehicle-pane .alarm-list li")).to_have_text(re.compile(said))
     shots(page, "alarm-panel")
 
     world.fleet.call("PUT", f"/api/vehicles/{vehicle}/failsafe", json={})  # no threshold

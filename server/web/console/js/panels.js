@@ -2,18 +2,13 @@
 // recent commands and events), and what they and the control panel (control.js) share
 // to say an event or a lease. Each redraws from the Fleet state when it changes.
 
-import { alarmLabel, isFinal, lastKnown, stageLabel, stageOf } from "./fleet.js";
+import { alarmBadges, alarmList } from "./alarms.js";
+import { isFinal, lastKnown, stageLabel, stageOf } from "./fleet.js";
 import { controlOffer } from "./grants.js";
 import { ago, clock, h, sending, sends, until } from "./ui.js";
 
 export function presenceBadge(presence) {
   return h(`span.presence.p-${presence || "offline"}`, {}, presence || "unknown");
-}
-
-/** A vehicle's alarms as red badges, each saying what is wrong in its title. */
-export function alarmBadges(view) {
-  return (view.alarms || []).map((a) => h(`span.alarm.a-${a.kind}`, { title: a.message },
-    alarmLabel(a.kind)));
 }
 
 /** A command's stage as a chip: greyed, "(last known)", when the vehicle is not online. */
@@ -214,10 +209,7 @@ export class VehiclePanel {
       : null;
     this.el.replaceChildren(...[
       h("h2", {}, view.name || v.id, " ", presenceBadge(view.presence)),
-      (view.alarms || []).length
-        ? h("ul.alarm-list", { role: "alert" },
-          ...view.alarms.map((a) => h("li", {}, a.message)))
-        : null,
+      alarmList(view),
       h("p.sub", {}, `${v.id} · ${view.vehicle_type || "vehicle"} · mode ${view.control_mode || "–"}`),
       h("p", {}, "last contact ", h("b.ago", { dataset: { since: contact } }, ago(contact)),
         ` (${clock(contact)})`),
