@@ -146,7 +146,9 @@ def error_body(exc: ValidationError) -> ErrorBody:
     for err in exc.errors(include_url=False):  # the input read, never shown
         if err["type"] == "json_invalid":
             why = unreadable_json(err.get("ctx", {}).get("error", ""))
-            return ErrorBody(code="invalid", message=f"the frame is {why}")
+            message = f"the frame is {why}"  # the field named as HTTP names ``body``
+            details = [FieldError(field="frame", message=message)]
+            return ErrorBody(code="invalid", message=message, details=details)
     details = field_errors(exc)
     summary = "; ".join(f"{d.field}: {d.message}" for d in details[:3])
     return ErrorBody(code="invalid", message=f"invalid op ({summary})", details=details)

@@ -77,6 +77,9 @@ async def test_a_frame_nested_too_deep_is_refused_as_such_not_as_bad_json(base: 
         await ws.send('{"op": "subscribe", "topics": ["fleet"')
         reply = await recv_until(ws, lambda f: f["op"] == "error")
         assert reply["error"]["message"] == "the frame is not valid JSON"
+        assert reply["error"]["details"] == [
+            {"field": "frame", "message": "the frame is not valid JSON"}
+        ]
         assert (await call(ws, "subscribe", "s", topics=["fleet"]))["ok"] is True  # goes on
 
 
