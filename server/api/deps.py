@@ -17,6 +17,7 @@ from typing import Annotated, Any
 
 from fastapi import Depends, Request
 
+from server.api.live_hub import LiveHub
 from server.domain.access import Principal
 from server.errors import Forbidden
 from server.services.registry import Services
@@ -28,6 +29,15 @@ async def get_services(request: Request) -> Services:
 
 
 ServicesDep = Annotated[Services, Depends(get_services)]
+
+
+async def get_hub(request: Request) -> LiveHub:
+    hub: LiveHub = request.app.state.hub
+    return hub
+
+
+#: The live hub (sockets), for the HTTP routes that must tell it something.
+HubDep = Annotated[LiveHub, Depends(get_hub)]
 
 
 def bearer_token(headers: Mapping[str, str]) -> str | None:

@@ -153,9 +153,42 @@ class LiveHub:
                 f"_failsafe/{state.vehicle_id}",
                 lambda _t, m: self._failsafe_push(conn, state.instance_id, m),
             )
+            conn.subs[("_http", state.instance_id)] = await self.bus.subscribe(
+                f"_http/{state.instance_id}",
+                lambda _t, _m: self._http_elsewhere(conn, state.instance_id),
+            )
         control = self.control.lease_info(state.instance_id)
         conn.outbox.put(ControlPush(instance_id=state.instance_id, control=control).frame())
         await self.deliver_commands(state.instance_id)
+
+    def calls_over_http(
+        self, principal: Principal, instance_id: str, *, everywhere: bool = False
+    ) -> None:
+        """The vehicle calls over HTTP now (an agent that fell back to the long poll): a
+        socket that still serves the instance (half-open: nobody reads it, and every
+        command and redelivery would go into it) stops serving it. A vehicle's socket is
+        closed (4409), a gateway's keeps its other vehicles. ``everywhere``: on the other
+        replicas too (a ``start_instance``; a long poll looks on this replica only). Only
+        for a caller that acts for the instance's vehicle (else :class:`NotFound`, as the
+        call itself answers)."""
+        if instance_id in self._vehicle_socket:
+            self.instances.kept_for_vehicle_caller(principal, instance_id)
+        self._detach(instance_id)
+        if everywhere:
+            self._fire(self.bus.publish(f"_http/{instance_id}", {"instance_id": instance_id}))
+
+    def _detach(self, instance_id: str) -> None:
+        conn = self._vehicle_socket.pop(instance_id, None)
+        if conn is not None:
+            conn.instances.discard(instance_id)
+            if conn.principal.kind == "vehicle":
+                self.close_soon(conn, CLOSE_REPLACED, "the vehicle calls over HTTP now")
+
+    def _http_elsewhere(self, conn: Connection, instance_id: str) -> None:
+        """The vehicle started over HTTP (on some replica): this socket, if it still serves
+        the instance, no longer does."""
+        if self._vehicle_socket.get(instance_id) is conn:
+            self._detach(instance_id)
 
     def _on_ready_remote(self, state: InstanceState) -> None:
         self._fire(self.deliver_commands(state.instance_id))

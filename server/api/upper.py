@@ -15,7 +15,7 @@ from fleet_protocol import (
     UpdateParamResult,
     WhoAmIResult,
 )
-from server.api.deps import ServicesDep, VehicleCaller
+from server.api.deps import HubDep, ServicesDep, VehicleCaller
 from server.api.lean import LeanRoute
 from server.api.responses import ModelResponse
 from server.bus.wire import dumps
@@ -33,9 +33,11 @@ async def update_param(body: UpdateParam, caller: VehicleCaller, s: ServicesDep)
 
 @router.post("/start_instance")
 async def start_instance(
-    body: StartInstance, caller: VehicleCaller, s: ServicesDep
+    body: StartInstance, caller: VehicleCaller, s: ServicesDep, hub: HubDep
 ) -> StartInstanceResult:
-    return await s.link.start(caller, body)
+    started = await s.link.start(caller, body)
+    hub.calls_over_http(caller, started.instance_id, everywhere=True)  # a socket left half-open
+    return started
 
 
 @router.post("/finish_instance")

@@ -10,7 +10,7 @@ from typing import Annotated, Any, TypeVar
 from fastapi import APIRouter, Query, Request
 
 from fleet_protocol import GetControlResult, UpdateFbMessage, UpdateFbMessageResult
-from server.api.deps import ServicesDep, VehicleCaller
+from server.api.deps import HubDep, ServicesDep, VehicleCaller
 from server.api.lean import LeanRoute
 from server.api.responses import ModelResponse
 from server.domain.access import Principal
@@ -67,9 +67,11 @@ async def get_control(
     instance_id: Annotated[str, Query(min_length=1, max_length=64)],
     caller: VehicleCaller,
     s: ServicesDep,
+    hub: HubDep,
     request: Request,
     wait_s: Annotated[float, Query(ge=0, le=30, allow_inf_nan=False)] = 0,
 ) -> ModelResponse:
+    hub.calls_over_http(caller, instance_id)  # its commands come here now, not to a socket
     poll = s.link.get_control(caller, instance_id, wait_s)
     answered = await _watched(s, caller, request, poll, wait_s)
     if answered is None:  # nobody is there to read an answer
