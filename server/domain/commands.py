@@ -292,6 +292,22 @@ def drifted(cmd: Command, position: dict[str, Any] | None) -> bool:
     return haversine_m(lat0, lon0, float(position["lat"]), float(position["lon"])) > cmd.max_drift_m
 
 
+def needs_fresh_position(cmd: Command) -> bool:
+    """A queued command whose drift is to be judged: it waits for a current position."""
+    return cmd.status == "queued" and cmd.max_drift_m is not None and cmd.issued_from is not None
+
+
+def position_is_current(position: dict[str, Any] | None, now: datetime, within_s: float) -> bool:
+    """Whether the latest position is recent enough to judge a drift by (its own time at
+    most ``within_s`` before ``now``). None, no position: there is no drift to judge."""
+    if position is None:
+        return True
+    ts = position["ts"]
+    if ts.tzinfo is None:
+        ts = ts.replace(tzinfo=now.tzinfo)
+    return (now - ts).total_seconds() <= within_s
+
+
 def due_for_delivery(cmd: Command, now: datetime, ack_timeout_s: float) -> bool:
     """Queued, or handed out and not acknowledged within ``ack_timeout_s``."""
     if cmd.status == "queued":
@@ -328,10 +344,15 @@ def handout(
     *,
     ack_timeout_s: float,
     position: dict[str, Any] | None,
+    position_current: bool = True,
+    held: list[Command] | None = None,
 ) -> tuple[list[Command], list[Command]]:
     """What to hand out now, in order; and what expired on the way (expiry, drift).
 
     Marks the handed-out commands delivered. An expired command is never handed out.
+    A command with ``max_drift_m`` is not handed out while the position is not current
+    (``position_current`` False: a vehicle back from a link loss whose positions of the
+    meantime have not come yet): it goes into ``held``, and waits for one that is.
     """
     out: list[Command] = []
     ended: list[Command] = []
@@ -342,6 +363,10 @@ def handout(
             ended.append(cmd)
             continue
         if not due_for_delivery(cmd, now, ack_timeout_s):
+            continue
+        if not position_current and needs_fresh_position(cmd):
+            if held is not None:
+                held.append(cmd)
             continue
         if cmd.status == "queued" and drifted(cmd, position):
             cmd.move("expired", now, "drifted")

@@ -60,6 +60,12 @@ class CommandLanes:
         else:
             lane.wake()
 
+    def ready(self, instance_id: str) -> None:
+        """The instance may have something to hand out now (a command held for a current
+        position, which came): its long polls and its socket look again."""
+        if (lane := self._lanes.get(instance_id)) is not None:
+            self._ready(lane)
+
     def wake(self, instance_id: str) -> None:
         """The instance's open long polls on this replica look again (something else
         than its commands may be news for the vehicle)."""

@@ -274,12 +274,19 @@ class CommandService(CommandLanes):
         await self.control.end_if_lapsed(state.instance_id)  # its holder's orders with it
         lane = await self._sync(state.instance_id)
         await self._check_zones(state, lane)
+        now = self.clock()
+        held: list[Command] = []
         out, ended = life.handout(
             list(lane.active.values()),
-            self.clock(),
+            now,
             ack_timeout_s=self.settings.ack_timeout_s,
             position=state.position,
+            position_current=life.position_is_current(
+                state.position, now, self.settings.offline_after_s
+            ),
+            held=held,
         )
+        state.drift_held = bool(held)  # handed out once a current position comes
         for cmd in ended:
             await self._finished(cmd)
         handed = []

@@ -42,6 +42,8 @@ class InstanceState:
     #: answer, a long poll's; memory only): a version it was told and has not acknowledged
     #: ends no long poll early.
     failsafe_told: int | None = None
+    #: A command with ``max_drift_m`` waits for a current position (memory only).
+    drift_held: bool = False
 
     @property
     def finished(self) -> bool:

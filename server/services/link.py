@@ -25,7 +25,7 @@ from fleet_protocol import (
     format_ts,
 )
 from server.domain.access import Principal
-from server.domain.commands import Command
+from server.domain.commands import Command, position_is_current
 from server.domain.events import LinkChanged, SamplesStored
 from server.domain.latency import one_way_delay_s
 from server.metrics import Hops
@@ -83,6 +83,8 @@ class Feedback(Protocol):
     ) -> list[str]: ...
 
     async def reconcile(self, state: InstanceState, active: list[str]) -> list[str]: ...
+
+    def ready(self, instance_id: str) -> None: ...
 
     async def get_control(
         self,
@@ -242,6 +244,11 @@ class VehicleLink:
     ) -> dict[str, Any]:
         if result.latest is not None:
             self.instances.set_position(state, result.latest, result.latest_doc)
+            if state.drift_held and position_is_current(
+                state.position, arrived, self.settings.offline_after_s
+            ):
+                state.drift_held = False
+                self.commands.ready(state.instance_id)  # its drift can be judged now
         if result.stored:
             self.messages.emit_now(SamplesStored(state.vehicle_id, result.stored, result.replayed))
         return {
