@@ -39,7 +39,7 @@ from fleet_protocol.common import format_ts, utcnow
 from vehicle_client.adapters.base import Adapter
 from vehicle_client.backoff import Backoff
 from vehicle_client.clock import ServerClock
-from vehicle_client.decisions import Effect, Execute, Halt, LinkMonitor, Pilot
+from vehicle_client.decisions import Effect, Execute, Halt, LinkMonitor, Pilot, next_tick
 from vehicle_client.errors import (
     FatalError,
     Refused,
@@ -395,7 +395,7 @@ class VehicleAgent:
                 sample = {**fields, "ts": format_ts(utcnow())}
                 if await asyncio.to_thread(self.outbox.append, sample) is not None:
                     self._uplink_wake.set()
-            due += period
+            due = next_tick(due, loop.time(), period)
             await asyncio.sleep(max(0.0, due - loop.time()))
 
     async def _pilot_loop(self) -> None:

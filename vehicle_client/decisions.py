@@ -229,3 +229,12 @@ class LinkMonitor:
             self.lost, self.lost_at = True, now
             return "lost"
         return None
+
+
+def next_tick(due: float, now: float, period: float) -> float:
+    """When the next sample is due, the one at ``due`` just taken at ``now``: a period on;
+    but after a stall (the process stopped, the machine suspended) that left ticks behind,
+    a period from now: the missed ticks are not taken back to back, which would make up
+    samples of one instant and one place for a time nobody measured."""
+    following = due + period
+    return following if following > now - period else now + period

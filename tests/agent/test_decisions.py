@@ -6,7 +6,7 @@ from datetime import UTC, datetime, timedelta
 
 from fleet_protocol import CommandObject, FailsafePolicy, FbAck
 from vehicle_client.clock import ServerClock
-from vehicle_client.decisions import Execute, Halt, LinkMonitor, Pilot, order_commands
+from vehicle_client.decisions import Execute, Halt, LinkMonitor, Pilot, next_tick, order_commands
 from vehicle_client.sim.simulator import TaskReport
 
 NOW = datetime(2026, 11, 22, 10, 0, 0, tzinfo=UTC)
@@ -170,3 +170,16 @@ def test_server_clock_offset_corrects_local_time() -> None:
     clock.observe(NOW + timedelta(seconds=61), sent, received)
     assert clock.offset_s == 60.0
     assert clock.server_now(NOW) == NOW + timedelta(seconds=60)
+
+
+def test_the_sampling_clock_keeps_its_beat_and_skips_what_a_stall_missed() -> None:
+    assert next_tick(10.0, 10.01, 0.5) == 10.5  # on time: a period on
+    assert next_tick(10.0, 10.3, 0.5) == 10.5  # a little late: the beat is kept
+    # Stopped for 20 s at 2 Hz: the next sample a period from now, not 40 at once.
+    woke = 30.0
+    assert next_tick(10.0, woke, 0.5) == woke + 0.5
+    due = next_tick(10.0, woke, 0.5)
+    for _ in range(3):  # then on the beat again, from the wake
+        now = due
+        due = next_tick(due, now, 0.5)
+        assert due == now + 0.5
