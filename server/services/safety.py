@@ -193,8 +193,20 @@ class SafetyService:
         return policy if acked != policy.version else None
 
     async def acknowledge(self, state: InstanceState, version: int | None) -> None:
-        """The instance applies this version of its policy now."""
+        """The instance applies this version of its policy now. A version the server has
+        not issued (yet) is not taken: the vehicle cannot apply what it was never told
+        (an agent that kept a number from another server), and taking it would show a
+        later policy as applied."""
         if version is None or self._acked.get(state.instance_id) == version:
+            return
+        if version > self.known_policy(state.vehicle_id).version and (
+            version > (await self.policy(state.vehicle_id)).version
+        ):
+            log.warning(
+                "%s: failsafe version %d acknowledged, never issued: not taken",
+                state.vehicle_id,
+                version,
+            )
             return
         self._acked[state.instance_id] = version
         await self.repo.ack_failsafe(state.instance_id, state.vehicle_id, version)

@@ -72,3 +72,21 @@ async def test_a_policy_set_during_a_long_poll_ends_it(
         fb = {"instance_id": iid, "failsafe_version": answer["failsafe"]["version"]}
         assert (await c.post("/upper/update_fbmessage", headers=vh, json=fb)).is_success
         assert (await _poll(c, iid, vh, 0))["failsafe"] is None
+
+
+async def test_a_version_never_issued_is_not_taken_as_applied(
+    make_settings: Callable[..., Settings],
+) -> None:
+    async with serve(make_settings()) as base, httpx.AsyncClient(base_url=base, timeout=30) as c:
+        vid, vh = await make_vehicle(c)
+        iid = await _started(c, vid, vh)
+        told = await c.get(f"/api/vehicles/{vid}/failsafe", headers=ADMIN)
+        version = told.json()["failsafe"]["version"]
+        ahead = {"instance_id": iid, "failsafe_version": version + 1}  # from another server
+        assert (await c.post("/upper/update_fbmessage", headers=vh, json=ahead)).is_success
+        policy = {"action": "stop", "after_s": 5.0}
+        put = await c.put(f"/api/vehicles/{vid}/failsafe", headers=ADMIN, json=policy)
+        assert put.json()["failsafe"]["version"] == version + 1
+        assert put.json()["acked"] is False  # the vehicle was never told this one
+        answer = await _poll(c, iid, vh, 0)
+        assert answer["failsafe"]["version"] == version + 1 and answer["failsafe"]["after_s"] == 5
