@@ -126,6 +126,16 @@ def events(
         )
 
 
+def _writable(path: str | Path, what: str = "-o") -> None:
+    """A file to write whose folder exists, checked before anything is asked of the server
+    (bad arguments: one line, exit 2)."""
+    if str(path) == "-":
+        return
+    folder = Path(path).parent
+    if not folder.is_dir():
+        fail(f"cannot write {path} ({what}): there is no folder {folder}")
+
+
 def export(
     vehicle: str = VehicleArg,
     since: str | None = SinceOpt,
@@ -143,8 +153,14 @@ def export(
     """Every stored telemetry sample of a vehicle, in seq order, page by page."""
     fmt = file_format(output, fmt, streams.EXPORT_FORMATS)
     start, end = window(since, until)
+    _writable(output)
     with contextlib.ExitStack() as stack:
-        out = sys.stdout if output == "-" else stack.enter_context(open(output, "w", newline=""))
+        try:
+            out = (
+                sys.stdout if output == "-" else stack.enter_context(open(output, "w", newline=""))
+            )
+        except OSError as exc:
+            fail(f"cannot write {output}: {exc.strerror or exc}")
 
         async def act(fleet: FleetClient) -> int:
             vehicle_id = await fleet.vehicle_id_of(vehicle)
@@ -184,6 +200,7 @@ def track(
     start = start or format_ts(parse_ts(end) - DEFAULT_WINDOW)
     if parse_ts(start) >= parse_ts(end):
         fail(f"the window is empty: {start} is not before {end}")
+    _writable(output)
 
     async def act(fleet: FleetClient) -> tuple[str, TrackJoiner]:
         vehicle_id = await fleet.vehicle_id_of(vehicle)
@@ -209,7 +226,10 @@ def track(
     elif output == "-":
         sys.stdout.write(joined.text())
     else:
-        Path(output).write_text(joined.text())
+        try:
+            Path(output).write_text(joined.text())
+        except OSError as exc:
+            fail(f"cannot write {output}: {exc.strerror or exc}")
     if output != "-":
         errors.print(
             f"{joined.points} points of {vehicle_id} written to {output}",
@@ -238,6 +258,7 @@ def sync(
     vehicle and seq). Safe to interrupt: the next run goes on from there.
     """
     start, _ = window(since, None)
+    _writable(db, "--db")
 
     async def act(fleet: FleetClient) -> list[SyncResult]:
         chosen = await fleet.resolve_vehicles(vehicles)

@@ -112,3 +112,19 @@ def test_format_names_the_format_whatever_the_file_is_called(
     monkeypatch.chdir(tmp_path)
     chosen = fleetctl("track", "Alpha", "--format", "gpx", "-o", "alpha.kml")
     assert chosen.exit_code == 3 and "cannot reach" in chosen.stderr  # past the arguments
+
+
+@pytest.mark.parametrize(
+    ("args", "named"),
+    [
+        (("export", "Alpha", "-o", "no-such-folder/x.csv"), "no-such-folder"),
+        (("track", "Alpha", "-o", "no-such-folder/x.gpx"), "no-such-folder"),
+        (("track", "Alpha", "-o", "no-such-folder/x.png"), "no-such-folder"),
+        (("sync", "Alpha", "--db", "no-such-folder/x.sqlite"), "no-such-folder"),
+    ],
+)
+def test_a_file_in_a_folder_that_is_not_there_is_refused_before_anything_is_sent(
+    args: tuple[str, ...], named: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.chdir(tmp_path)
+    assert_refused(fleetctl(*args), named)
