@@ -294,7 +294,7 @@ class TelemetryService(TelemetryViews):
         """
         chunk, size = self._chunk(state)
         try:
-            await self.repo.insert(self.repo.make_bucket(vehicle_id, chunk))
+            await self.repo.insert(self.repo.make_bucket(vehicle_id, chunk, self.clock()))
         except Rejected as exc:
             try:
                 await self._write_apart(vehicle_id, chunk, exc)
@@ -320,7 +320,7 @@ class TelemetryService(TelemetryViews):
         good: list[Doc] = []
         for doc in chunk:
             try:
-                self.repo.make_bucket(vehicle_id, [doc])
+                self.repo.make_bucket(vehicle_id, [doc], self.clock())
             except Rejected as exc:
                 await self._set_aside(vehicle_id, doc, exc)
                 continue
@@ -328,13 +328,13 @@ class TelemetryService(TelemetryViews):
         if not good:
             return
         try:
-            await self.repo.insert(self.repo.make_bucket(vehicle_id, good))
+            await self.repo.insert(self.repo.make_bucket(vehicle_id, good, self.clock()))
             return
         except Rejected:
             pass  # the store itself refuses something in it: one bucket per sample
         for doc in good:
             try:
-                await self.repo.insert(self.repo.make_bucket(vehicle_id, [doc]))
+                await self.repo.insert(self.repo.make_bucket(vehicle_id, [doc], self.clock()))
             except Rejected as exc:
                 await self._set_aside(vehicle_id, doc, exc)
 

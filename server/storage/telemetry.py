@@ -104,12 +104,15 @@ class TelemetryRepo:
 
     # ---- writes -------------------------------------------------------------
     @staticmethod
-    def make_bucket(vehicle_id: str, samples: list[Doc]) -> Doc:
+    def make_bucket(vehicle_id: str, samples: list[Doc], stored: datetime | None = None) -> Doc:
         """A bucket document for ``samples`` (stored form, ``seq`` order, not empty);
-        :class:`Rejected` when BSON cannot hold them."""
+        :class:`Rejected` when BSON cannot hold them. ``stored``: when the server stores
+        it (retention counts from it too: see :meth:`drop_ended_before`)."""
         packed = pack(samples)
         times = [s["ts"] for s in samples]
+        extra = {"stored": stored} if stored is not None else {}
         return {
+            **extra,
             "vehicle_id": vehicle_id,
             "start": min(times),
             "end": max(times),
@@ -128,13 +131,17 @@ class TelemetryRepo:
         await self.coll.insert_many(buckets)
 
     async def drop_ended_before(self, cutoff: datetime) -> int:
-        """Retention: drop every bucket whose newest sample is older than ``cutoff``, each
+        """Retention: drop every bucket whose newest sample is older than ``cutoff`` and
+        that was stored before it too (samples dated long ago by a vehicle's clock, or
+        uploaded from an outbox days later, are kept for the retention from their
+        arrival: acknowledged as durable, they are not dropped a minute later), each
         vehicle's highest ``seq`` among them kept in its mark first (by id: a bucket
         written meanwhile is left for the next pass, never dropped unmarked)."""
         dropped = 0
+        stored_before = [{"stored": {"$lt": cutoff}}, {"stored": {"$exists": False}}]
         while True:
             found = await self.coll.find(
-                {"end": {"$lt": cutoff}},
+                {"end": {"$lt": cutoff}, "$or": stored_before},
                 projection={"vehicle_id": 1, "max_seq": 1},
                 limit=_DROP_BATCH,
             )

@@ -147,8 +147,16 @@ async def test_restart_keeps_every_sample_and_the_high_water_mark(world: World) 
     assert latest is not None and latest.seq == 13
 
 
+async def stored_two_days_ago(world: World, seqs: range) -> None:
+    """Samples of two days ago, stored then (full buckets: written as they come)."""
+    now = world.clock.now
+    world.clock.now = T0 - timedelta(days=2)
+    await world.svc.ingest("usv-1", "i1", samples(seqs, t0=T0 - timedelta(days=2)))
+    world.clock.now = now
+
+
 async def test_retention_drops_old_buckets_for_good(world: World) -> None:
-    await world.svc.ingest("usv-1", "i1", samples(range(1, 11), t0=T0 - timedelta(days=2)))
+    await stored_two_days_ago(world, range(1, 11))
     await world.svc.ingest("usv-1", "i1", samples(range(11, 16)))
     await world.svc.make_durable()
     assert await world.svc.drop_before(T0 - timedelta(days=1)) == 2
@@ -160,12 +168,30 @@ async def test_retention_drops_old_buckets_for_good(world: World) -> None:
     assert await svc.drop_before(T0 - timedelta(days=1)) == 0
 
 
+async def test_samples_dated_long_ago_are_kept_the_retention_from_their_arrival(
+    world: World,
+) -> None:
+    """A vehicle's clock reset to 1970 (or an outbox uploaded a week late): its samples
+    were acknowledged as durable, then dropped by the next retention pass, a minute on."""
+    epoch = datetime(1970, 1, 1, tzinfo=UTC)
+    result = await world.svc.ingest("usv-1", "i1", samples(range(1, 11), t0=epoch))
+    assert result.accepted == 10
+    await world.svc.make_durable()
+    assert await world.svc.drop_before(world.clock.now - timedelta(hours=1)) == 0
+    page, _ = await world.svc.page("usv-1", limit=100)
+    assert seqs_of(page) == list(range(1, 11))
+    later = world.clock.now + timedelta(seconds=1)  # the retention from their arrival passed
+    assert await world.svc.drop_before(later) == 2
+    page, _ = await world.svc.page("usv-1", limit=100)
+    assert seqs_of(page) == []
+
+
 async def test_the_highest_seq_outlives_the_buckets_retention_drops(world: World) -> None:
     """API.md: a seq at or below the vehicle's highest stored one is a duplicate, and
     start_instance's last_seq says where to go on: after retention dropped every bucket
     of a vehicle as well (its seq 1-5 again were stored as new, and a local copy keyed
     on seq kept the old ones)."""
-    await world.svc.ingest("usv-1", "i1", samples(range(1, 31), t0=T0 - timedelta(days=2)))
+    await stored_two_days_ago(world, range(1, 31))
     await world.svc.make_durable()
     assert await world.svc.drop_before(T0 - timedelta(days=1)) > 0
     page, _ = await world.svc.page("usv-1", limit=100)
