@@ -161,6 +161,11 @@ class LiveHub:
         conn.outbox.put(ControlPush(instance_id=state.instance_id, control=control).frame())
         await self.deliver_commands(state.instance_id)
 
+    def served_elsewhere(self, instance_id: str, conn: Connection) -> bool:
+        """Whether another live socket here serves the instance."""
+        other = self._vehicle_socket.get(instance_id)
+        return other is not None and other is not conn and not other.closed
+
     def calls_over_http(
         self, principal: Principal, instance_id: str, *, everywhere: bool = False
     ) -> None:

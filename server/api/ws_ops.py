@@ -237,7 +237,13 @@ class OpRunner:
         kind = type(op)
         if kind in _INSTANCE_OPS and op.instance_id not in self.conn.instances:
             state = await self.s.instances.for_vehicle_caller(self.conn.principal, op.instance_id)
-            if kind is not FinishInstanceOp:
+            # A vehicle's own new socket takes the instance over (the former is closed,
+            # 4409); a gateway's routine op does not take it from the vehicle's own live
+            # socket (they took it from each other at every heartbeat): its start does.
+            taken = self.conn.principal.kind == "gateway" and self.hub.served_elsewhere(
+                state.instance_id, self.conn
+            )
+            if kind is not FinishInstanceOp and not taken:
                 await self.hub.attach_instance(self.conn, state)
         handler = _HANDLERS.get(kind)
         if handler is None:

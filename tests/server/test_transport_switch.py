@@ -12,7 +12,7 @@ import httpx
 import pytest
 
 from server.settings import Settings
-from tests.factories import make_user, make_vehicle
+from tests.factories import ADMIN, make_user, make_vehicle
 from tests.live import call, connect, recv_until, serve
 from tests.server.test_ws_vehicle import CAPS, _close_code, token_of
 
@@ -60,3 +60,31 @@ async def test_another_vehicle_s_long_poll_leaves_a_socket_alone(
             assert (await call(ws, "heartbeat", "h", instance_id=started["instance_id"]))["ok"]
             await ws.send('{"op": "whoami", "id": "w"}')
             assert (await recv_until(ws, lambda f: f.get("id") == "w"))["ok"] is True
+
+
+async def test_a_gateway_s_heartbeat_does_not_take_a_vehicle_from_its_own_socket(
+    make_settings: Callable[..., Settings],
+) -> None:
+    """A vehicle reachable both through its gateway and on its own socket: the newer (its
+    own) serves it; the gateway's routine heartbeat for it used to take it back, closing
+    the vehicle's socket (4409), and the two took it from each other at every beat."""
+    async with serve(make_settings()) as base, httpx.AsyncClient(base_url=base, timeout=30) as c:
+        vid, vh = await make_vehicle(c)
+        _, op = await make_user(c, "operator", [vid])
+        made = await c.post(
+            "/api/gateways", headers=ADMIN, json={"gateway_id": "gw-both", "vehicles": [vid]}
+        )
+        assert made.status_code == 201, made.text
+        async with await connect(base, "/ws/vehicle", made.json()["token"]) as gw:
+            started = await call(gw, "start_instance", "g", vehicle_id=vid, capabilities=CAPS)
+            iid = started["instance_id"]
+            async with await connect(base, "/ws/vehicle", token_of(vh)) as own:
+                again = await call(own, "start_instance", "s", vehicle_id=vid, capabilities=CAPS)
+                assert again["instance_id"] == iid
+                beat = await call(gw, "heartbeat", "h", vehicle_id=vid, instance_id=iid)
+                assert beat["ok"] is True, beat
+                stop = {"instance_ids": [iid], "command": {"type": "stop", "args": {}}}
+                r = await c.post("/client/submit_control", headers=op, json=stop)
+                assert r.status_code == 202, r.text
+                pushed = await recv_until(own, lambda f: f.get("op") == "command")
+                assert pushed["type"] == "stop"  # the vehicle's own socket still serves it
