@@ -242,11 +242,17 @@ class VehicleAgent:
 
     def _contact(self) -> None:
         if self.link.contact(asyncio.get_running_loop().time()) == "restored":
-            log.warning(
-                "%s: link back; the failsafe (%s) had taken over",
-                self.config.vehicle_id,
-                self.pilot.failsafe.action,
-            )
+            action = self.pilot.failsafe.action
+            if action == "none":
+                log.warning(
+                    "%s: link back (the failsafe is none: it carried on)", self.config.vehicle_id
+                )
+            else:
+                log.warning(
+                    "%s: link back; the failsafe (%s) had taken over",
+                    self.config.vehicle_id,
+                    action,
+                )
             self._fb_wake.set()
 
     # -- session loops ---------------------------------------------------------

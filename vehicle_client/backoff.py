@@ -9,7 +9,10 @@ from dataclasses import dataclass, field
 @dataclass
 class Backoff:
     initial_s: float = 0.5
-    max_s: float = 30.0
+    #: The longest wait: a boat out of contact holds its failsafe and shows offline
+    #: meanwhile, so a link that came back is tried within 5-10 s (the jitter spreads
+    #: a fleet's reconnections after a server restart).
+    max_s: float = 10.0
     factor: float = 2.0
     rng: random.Random = field(default_factory=random.Random)
     attempt: int = 0
