@@ -204,8 +204,11 @@ def apply_ack(
     if rank(status) < rank(cmd.status):
         _note_ignored(cmd, status, now, _join("ignored, backward from " + cmd.status, detail))
         return AckOutcome.BACKWARD
-    if progress is not None:
-        cmd.progress = progress
+    if status == "done":
+        cmd.progress = 1.0  # whatever the ack said: done is all of it
+    elif progress is not None:
+        # Never backwards: a late report of less (acks overtaken on the way) is kept out.
+        cmd.progress = max(progress, cmd.progress or 0.0)
     if status == cmd.status:
         return AckOutcome.APPLIED  # a progress report: no new history entry
     cmd.move(status, now, detail)

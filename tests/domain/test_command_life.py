@@ -122,6 +122,15 @@ def test_repeated_progress_reports_update_progress_without_history() -> None:
     assert len(cmd.history) == entries
 
 
+def test_progress_never_goes_back_and_done_is_all_of_it() -> None:
+    cmd = make_command()
+    life.apply_ack(cmd, "executing", later(1), progress=0.8)
+    life.apply_ack(cmd, "executing", later(2), progress=0.3)  # overtaken on the way
+    assert cmd.progress == 0.8
+    life.apply_ack(cmd, "done", later(3), progress=0.5)
+    assert (cmd.status, cmd.progress) == ("done", 1.0)
+
+
 def test_an_unacknowledged_command_expires_handed_out_or_not() -> None:
     waiting, handed = make_command(ttl_s=5), make_command(ttl_s=5)
     hand_out([handed], later(1))
