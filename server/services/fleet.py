@@ -104,7 +104,9 @@ class FleetViews:
                 control=None,
                 failsafe=self.safety.known_policy(meta["vehicle_id"]),
             )
-        delay_ms, rtt_ms = state.link.view() if not state.finished else (None, None)
+        presence = self.instances.presence(state)
+        # A link's delay is the link's now: none is shown for one that is down.
+        delay_ms, rtt_ms = state.link.view() if presence in ("online", "stale") else (None, None)
         acked = self.safety.acked(state)
         if state.finished:
             alarms = []
@@ -118,7 +120,7 @@ class FleetViews:
             vehicle_id=state.vehicle_id,
             name=state.name,
             vehicle_type=state.vehicle_type,
-            presence=self.instances.presence(state),
+            presence=presence,
             instance_id=state.instance_id,
             position=Sample.from_stored(state.position) if state.position else None,
             control=self.leases.lease_info(state.instance_id),

@@ -65,6 +65,10 @@ async def test_a_skewed_vehicle_clock_is_corrected_into_the_histogram_and_the_vi
         assert r.json()["server_time"] == format_ts(w.clock())  # for the vehicle's estimate
         view = (await w.http.get(f"/api/vehicles/{vehicle.vehicle_id}", headers=ADMIN)).json()
         assert (view["link_delay_ms"], view["link_rtt_ms"]) == (30.0, 45.0)
+        w.clock.advance(60)  # out of contact: its link's delay is not the link's now
+        view = (await w.http.get(f"/api/vehicles/{vehicle.vehicle_id}", headers=ADMIN)).json()
+        assert view["presence"] == "offline"
+        assert (view["link_delay_ms"], view["link_rtt_ms"]) == (None, None)
         text = await metrics_of(w.http)
         hop = "fleet_hop_vehicle_to_server_seconds"
         assert metric(text, f"{hop}_count", transport="http") == 1
