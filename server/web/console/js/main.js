@@ -1,15 +1,15 @@
-// The console: log in, open the live link, and tie the map, the panels and the tools
-// together. `window.fleetConsole` holds the pieces (for a look from the browser's
-// developer tools, and for the browser tests).
+// The console: log in (session.js), open the live link, and tie the map, the panels and
+// the tools together. `window.fleetConsole` holds the pieces (for a look from the
+// browser's developer tools, and for the browser tests).
 
-import { Api, forgetToken, login, saveToken, savedToken, tokenWasPasted } from "./api.js";
 import { Fleet, TRAIL_MINUTES, isFinal, topicsOf } from "./fleet.js";
 import { LiveLink } from "./live.js";
 import { ControlPanel } from "./control.js";
 import { takeControl } from "./grants.js";
 import { FleetTable, VehiclePanel } from "./panels.js";
+import { endSession, logOut, startSession } from "./session.js";
 import {
-  ago, clock, confirmAction, h, metresBetween, readNumber, sending, toast, until, zoneText,
+  ago, clock, confirmAction, metresBetween, readNumber, sending, toast, until, zoneText,
 } from "./ui.js";
 
 const $ = (id) => document.getElementById(id);
@@ -39,89 +39,6 @@ function farthest(vehicles, points) {
   }
   return out;
 }
-
-// ---- logging in ----------------------------------------------------------------------
-
-/** The login page, saying ``message``; ``token``: with the token field open and focused. */
-function showLogin(message = "", { token = false } = {}) {
-  $("app").hidden = true;
-  $("login").hidden = false;
-  $("login-error").textContent = message;
-  if (token) $("login-token").closest("details").open = true;
-  (token ? $("login-token") : $("login-user")).focus();
-}
-
-// What the login page says when a token is refused (401).
-const REFUSED = {
-  pasted: "this token was refused: it is wrong, revoked or expired",
-  saved: "your session has ended (expired or revoked): sign in again",
-  pastedEnded: "the token you pasted is no longer accepted (revoked, or a new one was made, " +
-    "as a demo server does each time it starts): paste the new token the server printed",
-};
-
-/** The login page once a session has ended: one that began with a pasted token (the admin
- * token a demo prints, new at every start) asks for the new token, its field open. */
-function showEnded() {
-  if (tokenWasPasted()) showLogin(REFUSED.pastedEnded, { token: true });
-  else showLogin(REFUSED.saved);
-}
-
-// Set before the page reloads on a refused token, read once by the page that follows.
-const ENDED = "fleet-session-ended";
-
-/** Open the console with ``token``; ``fresh``: a token just pasted (its refusal says so). */
-async function start(token, fresh = false) {
-  let me;
-  let started = false;
-  const api = new Api(token, () => {
-    if (!started) return; // the first call's refusal is said on the login page below
-    saveToken(null);
-    sessionStorage.setItem(ENDED, "1");
-    location.reload();
-  });
-  try {
-    me = await api.get("/api/me");
-    started = true;
-  } catch (e) {
-    saveToken(null);
-    if (e.status !== 401) return showLogin(e.message);
-    return fresh ? showLogin(REFUSED.pasted, { token: true }) : showEnded();
-  }
-  const config = await fetch("/console/config.json").then((r) => r.json()).catch(() => ({}));
-  let MapView;
-  try {
-    ({ MapView } = await import("./map.js"));
-  } catch (e) {
-    document.body.replaceChildren(h("p.fatal", {},
-      "The map library is missing on this server: run `npm ci` in server/web (make web)."));
-    return undefined;
-  }
-  $("login").hidden = true;
-  $("app").hidden = false;
-  return new Console(api, me, config, MapView);
-}
-
-$("login-form").addEventListener("submit", (e) => {
-  e.preventDefault();
-  sending("login", async () => {
-    try {
-      const token = await login($("login-user").value.trim(), $("login-password").value);
-      saveToken(token);
-      $("login-password").value = "";
-      await start(token);
-    } catch (err) {
-      $("login-error").textContent = err.message;
-    }
-  });
-});
-
-$("login-token-go").addEventListener("click", () => {
-  const token = $("login-token").value.trim();
-  if (!token) return;
-  saveToken(token, { pasted: true });
-  $("login-token").value = "";
-  sending("login", () => start(token, true));
-});
 
 // ---- the console ----------------------------------------------------------------------
 
@@ -215,9 +132,7 @@ class Console {
       link.textContent = PHONE.matches ? `link lost · ${s} s` : `link lost · reconnecting in ${s} s`;
     } else if (state === "refused") {
       link.textContent = "refused: log in again";
-      saveToken(null);
-      sessionStorage.setItem(ENDED, "1");
-      setTimeout(() => location.reload(), 1500);
+      endSession(1500);
     } else {
       link.textContent = !this.wasLost ? "connecting…"
         : PHONE.matches ? "link lost · retrying" : "link lost · reconnecting…";
@@ -396,8 +311,7 @@ class Console {
     $("path-send").addEventListener("click", () => sending("path", () => this.sendPath()));
     $("logout").addEventListener("click", () => {
       this.live.stop();
-      forgetToken();
-      location.reload();
+      logOut();
     });
     document.addEventListener("keydown", (e) => {
       if (e.key === "Escape" && this.tool) this.setTool(null);
@@ -658,10 +572,4 @@ function notSent(type, e) {
   return `${type} refused: ${e.explain()}`;
 }
 
-// ---- start ---------------------------------------------------------------------------------
-const token = savedToken();
-if (token) start(token);
-else if (sessionStorage.getItem(ENDED)) {
-  sessionStorage.removeItem(ENDED);
-  showEnded();
-} else showLogin();
+startSession((api, me, config, MapView) => new Console(api, me, config, MapView));
