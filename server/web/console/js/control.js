@@ -287,7 +287,7 @@ export class ControlPanel {
               ? h("button", { ...sends(`revoke/${v.id}`), onclick: () => this.revoke(v) }, "Revoke")
               : null,
             mine ? h("button", {
-              ...sends(`release/${v.id}`), onclick: () => this.ctx.releaseControl(v.id),
+              ...sends(`release/${v.id}`), onclick: () => this.ctx.commands.releaseControl(v.id),
             }, "Release") : null,
             mine ? null : controlOffer(this.ctx, v, "Request")));
       });

@@ -25,7 +25,7 @@ export function controlOffer(ctx, v, label = "Request control") {
     return h("button", { disabled: true, title: "the field manager decides" }, "Requested…");
   }
   return h("button", {
-    ...sends(`request/${v.id}`), onclick: () => ctx.requestControl(v.id),
+    ...sends(`request/${v.id}`), onclick: () => ctx.commands.requestControl(v.id),
   }, label);
 }
 

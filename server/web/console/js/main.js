@@ -5,40 +5,15 @@
 import { Fleet, TRAIL_MINUTES, isFinal, topicsOf } from "./fleet.js";
 import { LiveLink } from "./live.js";
 import { ControlPanel } from "./control.js";
-import { takeControl } from "./grants.js";
+import { Commands } from "./commands.js";
 import { FleetTable, VehiclePanel } from "./panels.js";
 import { endSession, logOut, startSession } from "./session.js";
-import {
-  ago, clock, confirmAction, metresBetween, readNumber, sending, toast, until, zoneText,
-} from "./ui.js";
+import { ago, clock, readNumber, sending, toast, until, zoneText } from "./ui.js";
 
 const $ = (id) => document.getElementById(id);
 const PHONE = window.matchMedia("(max-width: 760px)");
 const TOUCH = window.matchMedia("(pointer: coarse)"); // a finger: no Esc, no ctrl-click
 const SETTLE_MS = 1000; // after a tab switch, how long the rest of its multiple click is dropped
-const FAR_M = 5000; // a target farther than this from its vehicle is confirmed first
-const TTL_S = 120; // how long a mission waits for its vehicle
-const STOP_TTL_S = 3600; // a stop waits for a vehicle out of reach the longest a command may
-
-/** The points a command sends its vehicles to (none for a stop or a hold where it is). */
-function targetPoints(type, args) {
-  if (type === "follow_path") return args.waypoints || [];
-  return args.lat != null ? [{ lat: args.lat, lon: args.lon }] : [];
-}
-
-/** The vehicle farthest from a point it is sent to, and how far: {name, m}, or null. */
-function farthest(vehicles, points) {
-  let out = null;
-  for (const v of vehicles) {
-    const here = v.view.position;
-    if (!here) continue;
-    for (const p of points) {
-      const m = metresBetween(here, p);
-      if (!out || m > out.m) out = { name: v.view.name || v.id, m };
-    }
-  }
-  return out;
-}
 
 // ---- the console ----------------------------------------------------------------------
 
@@ -66,6 +41,7 @@ class Console {
     this.table = new FleetTable(this);
     this.vehiclePanel = new VehiclePanel(this);
     this.controlPanel = new ControlPanel(this);
+    this.commands = new Commands(this); // sent from the bar, the panels and the toasts
     this.wireTabs();
     this.wireTools();
 
@@ -299,10 +275,10 @@ class Console {
     // each button that sends is disabled while its call is in flight (ui.js, sending)
     $("hold").addEventListener("click", () => sending("hold", async () => {
       const radius = this.radius();
-      if (radius != null) await this.send("keep_station", { radius_m: radius });
+      if (radius != null) await this.commands.send("keep_station", { radius_m: radius });
     }));
-    $("stop-selected").addEventListener("click", () => sending("stop", () => this.stopSelected()));
-    $("stop-all").addEventListener("click", () => sending("stop-all", () => this.stopAll()));
+    $("stop-selected").addEventListener("click", () => sending("stop", () => this.commands.stopSelected()));
+    $("stop-all").addEventListener("click", () => sending("stop-all", () => this.commands.stopAll()));
     $("path-undo").addEventListener("click", () => {
       this.draftPath.pop();
       this.drawDraft();
@@ -359,13 +335,13 @@ class Console {
       const speed = this.speedArg();
       if (speed == null) return; // said why; the tool stays for another click
       this.map.flash(latlng);
-      this.send("go_to", { ...point, ...speed });
+      this.commands.send("go_to", { ...point, ...speed });
       this.setTool(null);
     } else if (this.tool === "station") {
       const radius = this.radius();
       if (radius == null) return;
       this.map.flash(latlng);
-      this.send("keep_station", { ...point, radius_m: radius });
+      this.commands.send("keep_station", { ...point, radius_m: radius });
       this.setTool(null);
     } else if (this.tool === "path") {
       this.draftPath.push(point);
@@ -403,173 +379,9 @@ class Console {
     if (speed == null) return undefined;
     const args = { waypoints: this.draftPath, ...speed };
     if ($("path-plan").checked && !$("path-plan").disabled) args.plan = true;
-    if (await this.send("follow_path", args)) this.setTool(null);
+    if (await this.commands.send("follow_path", args)) this.setTool(null);
     return undefined;
   }
-
-  targets(ids) {
-    const out = [];
-    for (const id of ids) {
-      const v = this.fleet.vehicles.get(id);
-      if (v && v.view.instance_id && v.view.presence !== "finished") out.push(v);
-    }
-    return out;
-  }
-
-  /** Submit one command to every selected vehicle (all or nothing, as the server does). */
-  async send(type, args, ids = this.selection) {
-    const vehicles = this.targets(ids);
-    if (!vehicles.length) {
-      toast("no selected vehicle is running", "error");
-      return false;
-    }
-    const far = farthest(vehicles, targetPoints(type, args));
-    if (far && far.m > FAR_M) {
-      const km = (far.m / 1000).toLocaleString(undefined, { maximumFractionDigits: 1 });
-      const ok = await confirmAction({
-        title: `Send ${far.name} ${km} km away?`,
-        text: `The ${type === "follow_path" ? "path goes" : "target is"} ${km} km from where ` +
-          `${far.name} is now: check the point (a click on a zoomed-out map lands far).`,
-        confirm: `Send ${type}`,
-      });
-      if (!ok) return false;
-    }
-    try {
-      const ids = vehicles.map((v) => v.view.instance_id);
-      const ttl = type === "stop" ? STOP_TTL_S : TTL_S;
-      const { commands: made, warnings } = await this.api.submit(ids, type, args, ttl);
-      for (const c of made) {
-        const v = vehicles.find((x) => x.view.instance_id === c.instance_id);
-        if (v) this.fleet.noteSubmitted(v.id, c.command_id, type, args, this.me.username);
-      }
-      toast(`${type} queued for ${vehicles.map((v) => v.view.name || v.id).join(", ")}`, "ok");
-      for (const warning of warnings) toast(`note: ${warning}`, "warn");
-      return true;
-    } catch (e) {
-      this.refused(type, e, vehicles);
-      return false;
-    }
-  }
-
-  refused(type, e, vehicles) {
-    const first = Array.isArray(e.details) ? e.details[0] : null;
-    const code = (first && first.code) || e.code;
-    if (code === "control_not_held") {
-      const v = vehicles.find((x) => first && x.view.instance_id === first.instance_id) || vehicles[0];
-      // its manager takes control (a grant to itself); an operator asks for it
-      const take = this.controlPanel.managed(v.id);
-      toast(`${type} refused: you do not hold control of ${v.view.name || v.id}`, "error", take
-        ? { label: "Take control", run: () => takeControl(this, v), sends: `grant/${v.view.instance_id}` }
-        : { label: "Request control", run: () => this.requestControl(v.id), sends: `request/${v.id}` });
-    } else if (vehicles.length > 1 && Array.isArray(e.details) && e.details.some((d) => d.instance_id)) {
-      // each boat refused by name, in the server's words: all or nothing was sent
-      const said = e.details.filter((d) => d.instance_id).map((d) => {
-        const v = vehicles.find((x) => x.view.instance_id === d.instance_id);
-        return `${v ? v.view.name || v.id : d.instance_id}: ${d.message}`;
-      });
-      toast(`${type} NOT sent to any of them: ${said.join("; ")}`, "error");
-    } else {
-      toast(notSent(type, e), "error");
-    }
-  }
-
-  async stopSelected() {
-    const vehicles = this.targets(this.selection);
-    if (!vehicles.length) return toast("no selected vehicle is running", "error");
-    const names = vehicles.map((v) => v.view.name || v.id).join(", ");
-    const ok = await confirmAction({
-      title: vehicles.length > 1 ? `Stop ${vehicles.length} vehicles?` : `Stop ${names}?`,
-      text: `${names} will stop at once; missions queued and not yet started are cancelled.`,
-      confirm: vehicles.length > 1 ? `Stop ${vehicles.length} vehicles` : "Stop it",
-    });
-    if (!ok) return undefined;
-    this.setTool(null); // a map click after a stop must not send the vehicle off again
-    await this.send("stop", {}, vehicles.map((v) => v.id));
-    return undefined;
-  }
-
-  async stopAll() {
-    const running = this.targets(this.fleet.vehicles.keys());
-    const away = running.filter((v) => v.view.presence !== "online").length;
-    const ok = await confirmAction({
-      title: "Stop every vehicle?",
-      text: `Every vehicle you can see (${running.length} running` +
-        (away ? `, ${away} of them not online: each gets it when back, within an hour` : "") +
-        "); missions queued and not yet started are cancelled.",
-      confirm: "Stop all vehicles",
-    });
-    if (!ok) return;
-    this.setTool(null);
-    try {
-      const { commands: made, warnings } = await this.api.submit(["*"], "stop", {}, STOP_TTL_S);
-      for (const c of made) {
-        const v = running.find((x) => x.view.instance_id === c.instance_id);
-        if (v) this.fleet.noteSubmitted(v.id, c.command_id, "stop", {}, this.me.username);
-      }
-      toast(`stop sent to ${made.length} vehicle(s)`, "ok");
-      for (const warning of warnings) toast(`note: ${warning}`, "warn");
-    } catch (e) {
-      toast(notSent("stop", e), "error");
-    }
-  }
-
-  requestControl(id) {
-    return sending(`request/${id}`, async () => {
-      const v = this.fleet.vehicles.get(id);
-      try {
-        await this.api.post("/client/request_control", { instance_id: v.view.instance_id });
-        v.requested = Date.now(); // the button says so until an answer (or two minutes)
-        this.fleet.changed(id, "control");
-        toast(`control of ${v.view.name || id} requested: the field manager decides`, "ok");
-      } catch (e) {
-        toast(`request refused: ${e.explain()}`, "error");
-      }
-    });
-  }
-
-  /** Give up control, after a confirmation (as Revoke): the vehicle holds station, and
-   * commanding it again takes a new grant. */
-  releaseControl(id) {
-    return sending(`release/${id}`, () => this.release(id));
-  }
-
-  async release(id) {
-    const v = this.fleet.vehicles.get(id);
-    const name = v.view.name || id;
-    const ok = await confirmAction({
-      title: `Release your control of ${name}?`,
-      text: `${name} holds station at once; the commands you queued and it has not begun are ` +
-        "cancelled. To command it again you ask for control.",
-      confirm: "Release",
-    });
-    if (!ok) return;
-    try {
-      await this.api.post("/client/release_control", { instance_id: v.view.instance_id });
-      toast(`control of ${v.view.name || id} released`, "ok");
-    } catch (e) {
-      toast(`release refused: ${e.explain()}`, "error");
-    }
-  }
-
-  cancelCommand(commandId) {
-    return sending(`cancel/${commandId}`, async () => {
-      try {
-        await this.api.post("/client/cancel_command", { command_id: commandId });
-      } catch (e) {
-        toast(`cancel refused: ${e.explain()}`, "error");
-      }
-    });
-  }
-}
-
-/** Why a command did not go: refused by the server, or never sent (no connection), in
- * which case each vehicle's own failsafe is what acts, after its link-loss time. */
-function notSent(type, e) {
-  if (e.code === "unreachable") {
-    return `${type} NOT sent: no connection to the server. Try again; a vehicle that ` +
-      "hears nothing from it applies its failsafe after its link-loss time.";
-  }
-  return `${type} refused: ${e.explain()}`;
 }
 
 startSession((api, me, config, MapView) => new Console(api, me, config, MapView));

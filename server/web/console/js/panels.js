@@ -200,7 +200,7 @@ export class VehiclePanel {
         : null,
       mine ? null : controlOffer(this.ctx, v), // Take control (its manager) or Request
       mine ? h("button", {
-        ...sends(`release/${v.id}`), onclick: () => this.ctx.releaseControl(v.id),
+        ...sends(`release/${v.id}`), onclick: () => this.ctx.commands.releaseControl(v.id),
       }, "Release") : null,
     );
     const failsafe = view.failsafe
@@ -263,7 +263,8 @@ export class VehiclePanel {
         c.detail ? ` · ${readableDetail(c.detail)}` : ""),
       !isFinal(c.status) && this.mayCancel(v, c)
         ? h("button.quiet", {
-          ...sends(`cancel/${c.command_id}`), onclick: () => this.ctx.cancelCommand(c.command_id),
+          ...sends(`cancel/${c.command_id}`),
+          onclick: () => this.ctx.commands.cancelCommand(c.command_id),
         }, "cancel")
         : null,
     )));
