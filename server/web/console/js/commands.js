@@ -125,7 +125,7 @@ export class Commands {
       confirm: vehicles.length > 1 ? `Stop ${vehicles.length} vehicles` : "Stop it",
     });
     if (!ok) return undefined;
-    this.ctx.setTool(null); // a map click after a stop must not send the vehicle off again
+    this.ctx.tools.set(null); // a map click after a stop must not send the vehicle off again
     await this.send("stop", {}, vehicles.map((v) => v.id));
     return undefined;
   }
@@ -142,7 +142,7 @@ export class Commands {
       confirm: "Stop all vehicles",
     });
     if (!ok) return;
-    this.ctx.setTool(null);
+    this.ctx.tools.set(null);
     try {
       const { commands: made, warnings } = await api.submit(["*"], "stop", {}, STOP_TTL_S);
       for (const c of made) {

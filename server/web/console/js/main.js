@@ -2,21 +2,19 @@
 // the tools together. `window.fleetConsole` holds the pieces (for a look from the
 // browser's developer tools, and for the browser tests).
 
+import { Commands } from "./commands.js";
+import { ControlPanel } from "./control.js";
 import { Fleet, TRAIL_MINUTES, isFinal, topicsOf } from "./fleet.js";
 import { LiveLink } from "./live.js";
-import { ControlPanel } from "./control.js";
-import { Commands } from "./commands.js";
 import { FleetTable, VehiclePanel } from "./panels.js";
 import { endSession, logOut, startSession } from "./session.js";
-import { ago, clock, readNumber, sending, toast, until, zoneText } from "./ui.js";
+import { PHONE, Tabs } from "./tabs.js";
+import { Tools } from "./tools.js";
+import { ago, clock, toast, until, zoneText } from "./ui.js";
 
 const $ = (id) => document.getElementById(id);
-const PHONE = window.matchMedia("(max-width: 760px)");
-const TOUCH = window.matchMedia("(pointer: coarse)"); // a finger: no Esc, no ctrl-click
-const SETTLE_MS = 1000; // after a tab switch, how long the rest of its multiple click is dropped
 
-// ---- the console ----------------------------------------------------------------------
-
+/** The console once logged in: ``me`` (from /api/me) decides what it offers. */
 class Console {
   constructor(api, me, config, MapView) {
     this.api = api;
@@ -26,8 +24,6 @@ class Console {
     this.fleet = new Fleet();
     this.selection = new Set();
     this.focused = null;
-    this.tool = null;
-    this.draftPath = [];
     window.fleetConsole = this;
 
     $("who").textContent = `${me.username} · ${me.role}`;
@@ -36,14 +32,18 @@ class Console {
     $("replay-zone").textContent = `local times, ${zoneText()}`;
     this.map = new MapView($("map"), config, this.fleet, {
       onPick: (id, additive) => this.pick(id, additive),
-      onMapClick: (latlng) => this.mapClicked(latlng),
+      onMapClick: (latlng) => this.tools.mapClicked(latlng),
     });
     this.table = new FleetTable(this);
     this.vehiclePanel = new VehiclePanel(this);
     this.controlPanel = new ControlPanel(this);
+    this.tabs = new Tabs(this);
     this.commands = new Commands(this); // sent from the bar, the panels and the toasts
-    this.wireTabs();
-    this.wireTools();
+    this.tools = new Tools(this); // the bar over the map
+    $("logout").addEventListener("click", () => {
+      this.live.stop();
+      logOut();
+    });
 
     this.fleet.addEventListener("added", (e) => {
       this.live.subscribe(topicsOf(e.detail.id));
@@ -189,7 +189,10 @@ class Console {
     }
   }
 
-  // ---- selection ----------------------------------------------------------------------
+  // ---- the selection --------------------------------------------------------------------
+  /** A vehicle clicked, on the map or in the fleet table: it alone selected, or
+   * (``additive``: shift, ctrl or cmd held, or its box ticked) added to the selection or
+   * taken out. */
   pick(id, additive) {
     if (additive) {
       if (this.selection.has(id)) this.selection.delete(id);
@@ -200,187 +203,16 @@ class Console {
     if (this.selection.has(id)) {
       this.focused = id;
       this.vehiclePanel.show(id);
-      if (!additive && !PHONE.matches) this.showTab("vehicle");
+      if (!additive && !PHONE.matches) this.tabs.show("vehicle");
     }
     this.selectionChanged();
   }
 
+  /** The selection changed: the map, the table and the bar over the map say it. */
   selectionChanged() {
     this.map.setSelected(this.selection);
     this.table.render();
-    const n = this.selection.size;
-    // a viewer reads: no command tools (the server would refuse every one)
-    const reads = this.me.role === "viewer";
-    $("actions").hidden = n === 0 || this.app.dataset.replay === "on" || reads;
-    const names = [...this.selection].map((id) => this.fleet.vehicles.get(id)?.view.name || id);
-    $("selection").textContent = n ? `${n} selected: ${names.join(", ")}` : "";
-    $("stop-selected").textContent = n > 1 ? `Stop ${n}` : "Stop";
-    // The planner keeps boats apart, so one planned path cannot take several of them.
-    const plan = $("path-plan");
-    plan.disabled = n > 1;
-    plan.parentElement.title = n > 1
-      ? "one path for several boats is sent as drawn: the planner keeps boats apart, so it " +
-        "plans a path for one boat at a time"
-      : "";
-    if (!n) this.setTool(null);
-  }
-
-  // ---- tabs ---------------------------------------------------------------------------
-  wireTabs() {
-    for (const b of document.querySelectorAll("[data-tab]")) {
-      b.addEventListener("click", () => this.showTab(b.dataset.tab));
-    }
-    // A tab switch never acts on the click that caused it: a double click on a fleet row
-    // opened the Vehicle tab with its first click, and its second landed on the Release
-    // button that had just appeared under the pointer. The rest of a multiple click
-    // (detail 2, 3, ...) that lands in the pane a click has just shown is dropped.
-    window.addEventListener("click", (e) => {
-      const s = this.switched;
-      if (s && e.detail > 1 && e.timeStamp - s.at < SETTLE_MS && s.pane.contains(e.target)) {
-        e.stopPropagation();
-        e.preventDefault();
-      }
-      this.clicking = e; // a tab shown while this click is handled was shown by it
-    }, true);
-    window.addEventListener("click", () => { this.clicking = null; });
-    this.showTab(PHONE.matches ? "map" : "fleet");
-    PHONE.addEventListener("change", () => this.map.map.invalidateSize());
-  }
-
-  showTab(tab) {
-    if (this.clicking && this.app.dataset.tab !== tab) {
-      const pane = tab === "map" ? $("map-pane") : document.querySelector(`.side [data-pane="${tab}"]`);
-      if (pane) this.switched = { at: this.clicking.timeStamp, pane };
-    }
-    this.app.dataset.tab = tab;
-    for (const b of document.querySelectorAll("[data-tab]")) {
-      b.setAttribute("aria-selected", String(b.dataset.tab === tab));
-    }
-    if (tab === "map") {
-      requestAnimationFrame(() => {
-        this.map.map.invalidateSize();
-        this.map.scheduleLabels(); // labels changed while hidden are measured now
-      });
-    }
-    if (tab === "control") this.controlPanel.loadRequests();
-    if (tab === "replay" && this.replay) this.replay.drawChoices();
-    if (tab === "vehicle") this.vehiclePanel.show(this.focused);
-  }
-
-  // ---- tools --------------------------------------------------------------------------
-  wireTools() {
-    for (const b of document.querySelectorAll("[data-tool]")) {
-      b.addEventListener("click", () => this.setTool(this.tool === b.dataset.tool ? null : b.dataset.tool));
-    }
-    // each button that sends is disabled while its call is in flight (ui.js, sending)
-    $("hold").addEventListener("click", () => sending("hold", async () => {
-      const radius = this.radius();
-      if (radius != null) await this.commands.send("keep_station", { radius_m: radius });
-    }));
-    $("stop-selected").addEventListener("click", () => sending("stop", () => this.commands.stopSelected()));
-    $("stop-all").addEventListener("click", () => sending("stop-all", () => this.commands.stopAll()));
-    $("path-undo").addEventListener("click", () => {
-      this.draftPath.pop();
-      this.drawDraft();
-    });
-    $("path-cancel").addEventListener("click", () => this.setTool(null));
-    $("path-send").addEventListener("click", () => sending("path", () => this.sendPath()));
-    $("logout").addEventListener("click", () => {
-      this.live.stop();
-      logOut();
-    });
-    document.addEventListener("keydown", (e) => {
-      if (e.key === "Escape" && this.tool) this.setTool(null);
-    });
-  }
-
-  setTool(tool) {
-    this.tool = tool;
-    for (const b of document.querySelectorAll("[data-tool]")) {
-      b.classList.toggle("active", b.dataset.tool === tool);
-      b.setAttribute("aria-pressed", String(b.dataset.tool === tool));
-    }
-    const hints = TOUCH.matches
-      ? {
-        go_to: "Tap the map where the selected vehicles should go (tap Go to again: cancel).",
-        station: "Tap the map where the selected vehicles should keep station " +
-          "(tap Keep station again: cancel).",
-        path: "Tap the map to add waypoints, then Send path (or Cancel).",
-      }
-      : {
-        go_to: "Click the map where the selected vehicles should go (Esc: cancel).",
-        station: "Click the map where the selected vehicles should keep station (Esc: cancel).",
-        path: "Click the map to add waypoints, then Send path (Esc: cancel).",
-      };
-    $("tool-hint").hidden = !tool;
-    $("tool-hint").textContent = hints[tool] || "";
-    $("path-bar").hidden = tool !== "path";
-    this.app.dataset.tool = tool || "";
-    if (tool === "path") this.map.map.doubleClickZoom.disable();
-    else this.map.map.doubleClickZoom.enable();
-    if (tool !== "path") {
-      this.draftPath = [];
-      this.drawDraft();
-    }
-  }
-
-  drawDraft() {
-    this.map.showDraft(this.draftPath.map((p) => [p.lat, p.lon]));
-    $("path-count").textContent = `${this.draftPath.length} waypoint${this.draftPath.length === 1 ? "" : "s"}`;
-  }
-
-  mapClicked(latlng) {
-    const point = { lat: +latlng.lat.toFixed(7), lon: +latlng.lng.toFixed(7) };
-    if (this.tool === "go_to") {
-      const speed = this.speedArg();
-      if (speed == null) return; // said why; the tool stays for another click
-      this.map.flash(latlng);
-      this.commands.send("go_to", { ...point, ...speed });
-      this.setTool(null);
-    } else if (this.tool === "station") {
-      const radius = this.radius();
-      if (radius == null) return;
-      this.map.flash(latlng);
-      this.commands.send("keep_station", { ...point, radius_m: radius });
-      this.setTool(null);
-    } else if (this.tool === "path") {
-      this.draftPath.push(point);
-      this.drawDraft();
-    }
-  }
-
-  /** The speed option: {} when left empty (the vehicle's own), ``{speed_mps}``, or null
-   * (said in a toast) when it is not a plain number in the field's range: nothing is sent
-   * then. */
-  speedArg() {
-    const field = $("opt-speed");
-    const got = readNumber(field, { what: "speed", unit: "m/s", optional: "the vehicle's own" });
-    if (got.error) return this.badNumber(field, got.error);
-    return got.value === undefined ? {} : { speed_mps: got.value };
-  }
-
-  /** The station radius in metres, or null (said in a toast) when it is not a plain
-   * number in its range. */
-  radius() {
-    const field = $("opt-radius");
-    const got = readNumber(field, { what: "station radius", unit: "m" });
-    return got.error ? this.badNumber(field, got.error) : got.value;
-  }
-
-  badNumber(field, error) {
-    toast(error, "error");
-    field.focus();
-    return null;
-  }
-
-  async sendPath() {
-    if (!this.draftPath.length) return toast("click the map to add waypoints first", "error");
-    const speed = this.speedArg();
-    if (speed == null) return undefined;
-    const args = { waypoints: this.draftPath, ...speed };
-    if ($("path-plan").checked && !$("path-plan").disabled) args.plan = true;
-    if (await this.commands.send("follow_path", args)) this.setTool(null);
-    return undefined;
+    this.tools.showFor(this.selection);
   }
 }
 
