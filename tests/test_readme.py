@@ -56,6 +56,24 @@ def bash(script: str, folder: Path, env: dict[str, str], within_s: float = 120) 
     return done.stdout
 
 
+def _started(script: str, folder: Path, env: dict[str, str]) -> subprocess.Popen[str]:
+    """A block whose last command runs on (an agent, a gateway), started with bash."""
+    return subprocess.Popen(
+        ["bash", "-c", "set -euo pipefail\n" + script],
+        cwd=folder,
+        env=env,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+
+
+def _running(proc: subprocess.Popen[str]) -> None:
+    """Still running (else its stderr says why it stopped)."""
+    assert proc.stderr is not None
+    assert proc.poll() is None, proc.stderr.read()
+
+
 @pytest.fixture
 def demo_folder(tmp_path: Path) -> Path:
     """A scratch folder standing for the repository's top: ``.venv`` is this venv."""
@@ -107,18 +125,10 @@ def test_the_readme_walk_through_and_the_agent_path_work_as_written(demo_folder:
         bin_dir = str(demo_folder / ".venv" / "bin")
         env = {**env, "FLEET_TOKEN": token, "PATH": bin_dir + os.pathsep + env["PATH"]}
         script = "\n".join([*lines[:at], "exec " + lines[at]]).replace(README_SERVER, base)
-        agent = subprocess.Popen(
-            ["bash", "-c", "set -euo pipefail\n" + script],
-            cwd=demo_folder,
-            env=env,
-            stdout=subprocess.DEVNULL,
-            stderr=subprocess.PIPE,
-            text=True,
-        )
+        agent = _started(script, demo_folder, env)
 
         def online() -> bool:
-            assert agent is not None and agent.stderr is not None
-            assert agent.poll() is None, agent.stderr.read()
+            _running(agent)
             return vehicles(base, token).get("usv-4", {}).get("presence") == "online"
 
         wait_until(online, "usv-4 online, its agent run as the README says", 60)
@@ -133,18 +143,10 @@ def test_the_readme_walk_through_and_the_agent_path_work_as_written(demo_folder:
             (ROOT / "examples" / "gateway.toml").read_text()
         )
         script = "\n".join([*lines[:-1], "exec " + lines[-1]]).replace(README_SERVER, base)
-        agent = subprocess.Popen(
-            ["bash", "-c", "set -euo pipefail\n" + script],
-            cwd=demo_folder,
-            env=env,
-            stdout=subprocess.DEVNULL,
-            stderr=subprocess.PIPE,
-            text=True,
-        )
+        agent = _started(script, demo_folder, env)
 
         def gateway_online() -> bool:
-            assert agent is not None and agent.stderr is not None
-            assert agent.poll() is None, agent.stderr.read()
+            _running(agent)
             seen = vehicles(base, token)
             return all(
                 seen.get(v, {}).get("presence") == "online" for v in ("usv-1", "usv-2", "usv-3")
