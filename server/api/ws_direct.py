@@ -47,6 +47,7 @@ from websockets.frames import Frame, apply_mask
 from websockets.http11 import Request
 from websockets.protocol import State
 
+from server.api.http_head import BoundedHttpTools
 from server.api.keepalive import KeepaliveWheel
 from server.api.outbox import LazyEvent
 
@@ -292,7 +293,8 @@ def _header(first: int, length: int) -> bytes:
 
 
 def uvicorn_ws_options() -> dict[str, Any]:
-    """The WebSocket options of every uvicorn that serves the app (the server, the demo,
-    the tests): this protocol, and no permessage-deflate (it costs ~7 ms per 64 KiB
-    round trip, and media frames are compressed already)."""
-    return {"ws": LiveWebSocketProtocol, "ws_per_message_deflate": False}
+    """The protocol options of every uvicorn that serves the app (the server, the demo,
+    the tests): this WebSocket protocol, and no permessage-deflate (it costs ~7 ms per
+    64 KiB round trip, and media frames are compressed already); HTTP with the bounds of
+    :mod:`server.api.http_head`."""
+    return {"ws": LiveWebSocketProtocol, "ws_per_message_deflate": False, "http": BoundedHttpTools}
