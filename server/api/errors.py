@@ -10,6 +10,7 @@ from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException as StarletteHTTPException
+from starlette.requests import ClientDisconnect
 
 from fleet_protocol.values import error_text, escape_controls, shown_text, unreadable_json
 from server.api.responses import SafeJSONResponse
@@ -131,6 +132,14 @@ def install(app: FastAPI) -> None:
         code = _HTTP_CODES.get(exc.status_code, "error")
         message = exc.detail if isinstance(exc.detail, str) else code.replace("_", " ")
         return envelope(exc.status_code, code, message, headers=getattr(exc, "headers", None))
+
+    @app.exception_handler(ClientDisconnect)
+    async def _gone(_: Request, exc: ClientDisconnect) -> JSONResponse:
+        # The client went away while its body was read: nobody reads this answer, and
+        # it is no fault of the server's (no 500, no traceback in the log).
+        log.info("a client closed its connection before its request was read")
+        message = "the connection closed before the request was read"
+        return envelope(400, "bad_request", message)
 
     @app.exception_handler(Exception)
     async def _unexpected(_: Request, exc: Exception) -> JSONResponse:

@@ -8,7 +8,9 @@ from __future__ import annotations
 import asyncio
 from collections.abc import Callable
 
+import httpx
 import pytest
+from prometheus_client.parser import text_string_to_metric_families
 
 from server.api import http_head
 from server.settings import Settings
@@ -61,3 +63,31 @@ async def test_a_stalled_head_or_body_closes_its_connection(
             # Both bounds have passed (each close above took one): the WebSocket, upgraded
             # from HTTP before them, is not HTTP's to close.
             assert (await call(ws, "subscribe", "s", topics=["fleet"]))["ok"] is True
+
+
+async def test_a_client_gone_mid_body_is_no_fault_of_the_server(
+    make_settings: Callable[..., Settings],
+) -> None:
+    """A login whose client hung up halfway through its body: a 500 and two tracebacks in
+    the log before (anyone could set off the server's alerts)."""
+    async with serve(make_settings()) as base, httpx.AsyncClient(base_url=base) as c:
+        head = b"POST /auth/token HTTP/1.1\r\nHost: t\r\nContent-Type: application/json\r\n"
+        host, port = base.removeprefix("http://").split(":")
+        _, writer = await asyncio.open_connection(host, int(port))
+        writer.write(head + b'Content-Length: 100\r\n\r\n{"a":')
+        await writer.drain()
+        writer.close()
+
+        async def counted(status: str) -> float:
+            text = (await c.get("/metrics")).text
+            for family in text_string_to_metric_families(text):
+                for s in family.samples:
+                    labels = s.labels
+                    if labels.get("route") == "/auth/token" and labels.get("status") == status:
+                        return float(s.value)
+            return 0.0
+
+        async with asyncio.timeout(10):
+            while not await counted("400"):  # noqa: ASYNC110 (deadline poll)
+                await asyncio.sleep(0.05)
+        assert await counted("500") == 0
