@@ -12,6 +12,7 @@ ones): past ``FLEET_LOGIN_FAILURES_PER_ADDRESS`` or
 from __future__ import annotations
 
 import asyncio
+import hashlib
 import ipaddress
 import math
 import secrets
@@ -71,7 +72,9 @@ class Logins:
         attempt: dict[str, Any] = {
             "attempt_id": secrets.token_hex(12),
             "address": client_key(address),
-            "user": username,
+            # What was typed as a username is kept as a digest: a token or a password
+            # pasted into that field never reaches the store in clear.
+            "user": "sha256:" + hashlib.sha256(username.encode()).hexdigest(),
             "at": now,
         }
         await self._check_limits(attempt, now, recorded=False)

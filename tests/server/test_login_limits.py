@@ -199,3 +199,16 @@ async def test_an_unknown_user_costs_as_much_as_a_wrong_password(
         print("login medians (ms):", {k: round(v * 1000, 1) for k, v in medians.items()})
         assert medians["unknown"] >= 0.5 * medians["known"], medians
         assert medians["no_password"] >= 0.5 * medians["known"], medians
+
+
+@pytest.mark.usefixtures("store_backend")
+async def test_what_is_typed_as_a_username_is_not_stored_in_clear(
+    make_settings: Callable[..., Settings],
+) -> None:
+    """A token pasted into the username field was stored in clear with the attempt."""
+    async with clients(make_settings(login_window_s=60)) as w:
+        typed = "fct_pasted-in-the-wrong-field-0123456789"
+        assert (await w.login(ADDR_A, typed, "whatever")).status_code == 401
+        attempts = await w.services.store["login_attempts"].find({})
+        assert attempts, "the failed attempt is kept, to be counted"
+        assert typed not in repr(attempts)
