@@ -73,6 +73,10 @@ class LiveWebSocketProtocol(WebSocketsSansIOProtocol):
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
+        # The WebSocket library's debug lines hold each frame's text: an auth frame's token
+        # in any spelling JSON allows (``"tok\u0065n"``) no redaction can know. Never
+        # written, whatever the log level (the server logs what it does with each op).
+        self.conn.debug = False
         # Less held per socket (10,000 of them): the events make their waiter queues at
         # their first wait, and the unbounded queue of ASGI messages, whose ``put`` never
         # waits, keeps no queue of waiting putters (624 bytes each, 4 per socket).

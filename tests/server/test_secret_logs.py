@@ -1,6 +1,8 @@
 """No token reaches a log: a real fleet-server at log level debug, a socket opened with
 ``?token=`` (uvicorn logs every accepted WebSocket with its path and query) and one that
-sends its token in an ``auth`` frame (the protocol library logs every frame at debug)."""
+sends its token in an ``auth`` frame (the protocol library would log every frame's text
+at debug: it is kept from doing so, a token's key can be spelled in ways no redaction
+knows)."""
 
 from __future__ import annotations
 
@@ -48,6 +50,10 @@ async def test_a_token_in_a_socket_url_or_frame_is_not_written_to_the_log(
             await ws.send(json.dumps({"op": "auth", "token": ADMIN_TOKEN}))
             await ws.send(json.dumps({"op": "subscribe", "id": "s", "topics": ["fleet"]}))
             assert (await recv_until(ws, lambda f: f.get("id") == "s"))["ok"] is True
+        async with websockets.connect(bare) as ws:  # the key spelled as JSON also allows
+            await ws.send('{"op":"auth","tok\\u0065n" :\n' + json.dumps(ADMIN_TOKEN) + "}")
+            await ws.send(json.dumps({"op": "subscribe", "id": "s", "topics": ["fleet"]}))
+            assert (await recv_until(ws, lambda f: f.get("id") == "s"))["ok"] is True
         async with websockets.connect(url.replace(ADMIN_TOKEN, "fct_wrong-token-xyz")) as ws:
             with pytest.raises(websockets.ConnectionClosed):
                 await recv_until(ws, lambda f: False, within_s=10)
@@ -56,7 +62,7 @@ async def test_a_token_in_a_socket_url_or_frame_is_not_written_to_the_log(
     log = (tmp_path / "server.log").read_text()
     assert "WebSocket /ws/client?token=[redacted]" in log  # uvicorn's line, redacted
     assert "WebSocket /ws/client?%74oken=[redacted]" in log
-    assert '"op": "auth"' in log  # the frame was logged...
-    for start in range(0, len(ADMIN_TOKEN) - 8):  # ...and no piece of the token with it
+    assert '"op"' not in log  # no frame's text is logged, at debug either
+    for start in range(0, len(ADMIN_TOKEN) - 8):  # nor any piece of the token
         assert ADMIN_TOKEN[start : start + 8] not in log, ADMIN_TOKEN[start : start + 8]
     assert "fct_wrong-token-xyz" not in log
