@@ -7,7 +7,8 @@ of the publishing replica, then the body. A publish is delivered to this
 replica's handlers at once; its echo from Redis is recognised by the replica
 id and skipped, so nothing is delivered twice here.
 
-When Redis goes away the bus keeps serving this replica's own subscribers
+When Redis goes away (or hangs: a connection quiet for a while is pinged, and no
+answer in the timeout counts as gone) the bus keeps serving this replica's own subscribers
 (local delivery), reports ``healthy = False`` (``/readyz``), and reconnects
 with backoff, subscribing again to every topic that has a local handler.
 Messages published anywhere while a replica is cut off do not reach it (Redis
@@ -39,6 +40,9 @@ _JSON = b"j"
 _BYTES = b"b"
 _ORIGIN_BYTES = 8
 _READ_TIMEOUT_S = 1.0
+#: A connection quiet this long is asked for a PONG: a Redis that hangs (stopped, or a
+#: network that drops packets without a reset) answers nothing and raises no error.
+_PING_AFTER_S = 2.0
 
 
 class RedisBus(Bus):
@@ -186,10 +190,7 @@ class RedisBus(Bus):
                 self._healthy.set()
                 log.info("redis bus: connected, %d topics subscribed", len(channels))
                 delay = self._reconnect_min_s
-                while True:
-                    message = await pubsub.get_message(timeout=_READ_TIMEOUT_S)
-                    if message is not None:
-                        self._on_message(message)
+                await self._listen(pubsub)
             except (RedisError, OSError) as exc:
                 if self.healthy:
                     log.warning("redis bus: lost Redis (%s); serving this replica only", exc)
@@ -205,6 +206,27 @@ class RedisBus(Bus):
             with contextlib.suppress(TimeoutError):
                 await asyncio.wait_for(self._closing.wait(), delay)
             delay = min(delay * 2, self._reconnect_max_s)
+
+    async def _listen(self, pubsub: PubSub) -> None:
+        """Hand each message on, until the connection fails; one that stays quiet is
+        pinged, and no PONG within the timeout is a failure too (``healthy`` false,
+        ``/readyz`` degraded, publishes to this replica only until Redis answers again)."""
+        loop = asyncio.get_running_loop()
+        heard = loop.time()
+        pinged: float | None = None
+        while True:
+            message = await pubsub.get_message(timeout=_READ_TIMEOUT_S)
+            now = loop.time()
+            if message is not None:
+                heard, pinged = now, None
+                if message.get("type") != "pong":
+                    self._on_message(message)
+                continue
+            if pinged is not None and now - pinged > self._timeout_s:
+                raise ConnectionError(f"no answer from Redis to a ping in {self._timeout_s} s")
+            if pinged is None and now - heard >= _PING_AFTER_S:
+                await pubsub.ping()
+                pinged = now
 
     def _release_confirmations(self) -> None:
         """Subscribers waiting on a lost connection go on (the reconnect subscribes)."""

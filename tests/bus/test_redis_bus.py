@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import asyncio
 import json
+import os
+import signal
 import sys
 import time
 from pathlib import Path
@@ -166,3 +168,22 @@ async def test_starts_unhealthy_without_redis_and_serves_locally(redis_server):
             assert await next_of(queue) == ("user/a/x", {"n": 2})
         finally:
             await peer.close()
+
+
+async def test_a_redis_that_hangs_is_noticed_and_the_bus_serves_locally(redis_server):
+    """Redis stopped (SIGSTOP: its connections open, nothing answered), as a network that
+    drops packets without a reset: the bus said it was healthy, /readyz ok, while every
+    publish to the other replicas timed out."""
+    async with RedisBus(redis_server.url) as bus:
+        assert bus.healthy
+        queue, handler = inbox()
+        await bus.subscribe("user/a/x", handler)
+        assert redis_server.process is not None
+        os.kill(redis_server.process.pid, signal.SIGSTOP)
+        try:
+            await until(lambda: not bus.healthy, "the bus to notice Redis hangs")
+            await bus.publish("user/a/x", {"while": "hung"})
+            assert await next_of(queue) == ("user/a/x", {"while": "hung"})
+        finally:
+            os.kill(redis_server.process.pid, signal.SIGCONT)
+        assert await bus.wait_healthy(WAIT_S)
