@@ -143,7 +143,7 @@ class LiveHub:
                 await self.close(former, CLOSE_REPLACED, "another connection took this vehicle")
         if ("_ready", state.instance_id) not in conn.subs:
             conn.subs[("_ready", state.instance_id)] = await self.bus.subscribe(
-                f"_ready/{state.instance_id}", lambda _t, _m: self._on_ready_remote(state)
+                f"_ready/{state.instance_id}", lambda _t, m: self._on_ready_remote(conn, state, m)
             )
             topic = f"vehicle/{state.vehicle_id}/control"
             conn.subs[("_control", topic)] = await self.bus.subscribe(
@@ -152,10 +152,6 @@ class LiveHub:
             conn.subs[("_failsafe", state.instance_id)] = await self.bus.subscribe(
                 f"_failsafe/{state.vehicle_id}",
                 lambda _t, m: self._failsafe_push(conn, state.instance_id, m),
-            )
-            conn.subs[("_http", state.instance_id)] = await self.bus.subscribe(
-                f"_http/{state.instance_id}",
-                lambda _t, _m: self._http_elsewhere(conn, state.instance_id),
             )
         control = self.control.lease_info(state.instance_id)
         conn.outbox.put(ControlPush(instance_id=state.instance_id, control=control).frame())
@@ -179,8 +175,9 @@ class LiveHub:
         if instance_id in self._vehicle_socket:
             self.instances.kept_for_vehicle_caller(principal, instance_id)
         self._detach(instance_id)
-        if everywhere:
-            self._fire(self.bus.publish(f"_http/{instance_id}", {"instance_id": instance_id}))
+        if everywhere:  # told on the topic the socket's replica hears for the instance
+            message = {"instance_id": instance_id, "http": True}
+            self._fire(self.bus.publish(f"_ready/{instance_id}", message))
 
     def _detach(self, instance_id: str) -> None:
         conn = self._vehicle_socket.pop(instance_id, None)
@@ -189,13 +186,14 @@ class LiveHub:
             if conn.principal.kind == "vehicle":
                 self.close_soon(conn, CLOSE_REPLACED, "the vehicle calls over HTTP now")
 
-    def _http_elsewhere(self, conn: Connection, instance_id: str) -> None:
-        """The vehicle started over HTTP (on some replica): this socket, if it still serves
-        the instance, no longer does."""
-        if self._vehicle_socket.get(instance_id) is conn:
-            self._detach(instance_id)
-
-    def _on_ready_remote(self, state: InstanceState) -> None:
+    def _on_ready_remote(self, conn: Connection, state: InstanceState, message: Message) -> None:
+        """News for the instance from some replica: commands to hand out; or the vehicle
+        started over HTTP (``http``), and this socket, if it still serves the instance, no
+        longer does."""
+        if isinstance(message, dict) and message.get("http"):
+            if self._vehicle_socket.get(state.instance_id) is conn:
+                self._detach(state.instance_id)
+            return
         self._fire(self.deliver_commands(state.instance_id))
 
     @staticmethod

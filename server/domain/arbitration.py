@@ -223,6 +223,17 @@ class ControlRequest:
             "requested_at": self.requested_at,
         }
 
+    @classmethod
+    def from_doc(cls, doc: dict[str, Any]) -> ControlRequest:
+        """A request as the store keeps it (its wire fields and the vehicle)."""
+        return cls(
+            doc["request_id"],
+            doc["username"],
+            doc["instance_id"],
+            doc["vehicle_id"],
+            doc["requested_at"],
+        )
+
 
 def add_request(
     pending: list[ControlRequest], request: ControlRequest, *, limit: int

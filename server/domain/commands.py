@@ -8,7 +8,6 @@ for a command already final is recorded and leaves the status alone.
 
 from __future__ import annotations
 
-import copy
 from dataclasses import dataclass, field
 from datetime import datetime, timedelta
 from enum import Enum
@@ -16,7 +15,7 @@ from typing import Any
 
 from fleet_protocol import FINAL_STATUSES
 from server.domain.geo import haversine_m
-from server.errors import CapabilityMissing, FleetError, ZoneViolation
+from server.errors import CapabilityMissing
 
 #: Position of each status along the life cycle; every final status ranks last.
 RANK = {"queued": 0, "delivered": 1, "accepted": 2, "executing": 3}
@@ -378,30 +377,3 @@ def handout(
         mark_delivered(cmd, now)
         out.append(cmd)
     return out, ended
-
-
-# ---- submit: all or nothing ---------------------------------------------------
-
-
-def refused(refusals: list[tuple[int, str, FleetError]], asked: int) -> FleetError:
-    """All or nothing: the first refusal's status, and every refusal in ``details``."""
-    refusals.sort(key=lambda r: r[0])
-    first = refusals[0][2]
-    details = [
-        {
-            "field": f"instance_ids.{index}",
-            "instance_id": instance_id,
-            "code": exc.code,
-            "message": exc.message,
-            **(exc.zone if isinstance(exc, ZoneViolation) else {}),
-        }
-        for index, instance_id, exc in refusals
-    ]
-    message = (
-        first.message
-        if asked == 1
-        else f"{len(refusals)} of {asked} instances refused ({first.message}); nothing queued"
-    )
-    error = copy.copy(first)  # same class, status and Retry-After
-    error.message, error.details, error.args = message, details, (message,)
-    return error

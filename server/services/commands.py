@@ -25,6 +25,7 @@ from server.domain import command_ends as ends
 from server.domain import commands as life
 from server.domain.access import Principal
 from server.domain.clock import Clock, said_time
+from server.domain.command_refusals import refused
 from server.domain.commands import AckOutcome, Command
 from server.domain.events import (
     FailsafeChanged,
@@ -130,7 +131,7 @@ class CommandService(CommandLanes):
             if body.command.type == "follow_path":  # planning yields: check again
                 refusals += admission.check_all(principal, targets, body.command)
         if refusals:
-            raise life.refused(refusals, len(body.instance_ids))
+            raise refused(refusals, len(body.instance_ids))
         made = []
         for _, state in targets:
             self._seq += 1

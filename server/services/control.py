@@ -116,7 +116,7 @@ class ControlService:
             docs = await self.repo.requests_of(instance_id)
         else:
             docs = await self.repo.all_requests()
-        pending = [_request(d) for d in docs]
+        pending = [ControlRequest.from_doc(d) for d in docs]
         return [r.wire() for r in pending if rules.may_grant(principal, r.vehicle_id)]
 
     # ---- operators and managers ------------------------------------------
@@ -136,13 +136,14 @@ class ControlService:
             state.vehicle_id,
             self.clock(),
         )
-        pending = [_request(d) for d in await self.repo.requests_of(state.instance_id)]
+        stored_requests = await self.repo.requests_of(state.instance_id)
+        pending = [ControlRequest.from_doc(d) for d in stored_requests]
         _, req = rules.add_request(pending, fresh, limit=self.settings.max_pending_requests)
         if req is not fresh:
             return req.wire()  # asked already: the first request stands
         if not await self.repo.insert_request(req.wire() | {"vehicle_id": req.vehicle_id}):
             stored = await self.repo.request_of(state.instance_id, principal.name)
-            return _request(stored).wire() if stored is not None else req.wire()
+            return ControlRequest.from_doc(stored).wire() if stored is not None else req.wire()
         await self._audit("control_request", state, principal, {"request_id": req.request_id})
         return req.wire()
 
@@ -389,13 +390,3 @@ class ControlService:
             actor=principal,
             data=data,
         )
-
-
-def _request(doc: dict[str, Any]) -> ControlRequest:
-    return ControlRequest(
-        doc["request_id"],
-        doc["username"],
-        doc["instance_id"],
-        doc["vehicle_id"],
-        doc["requested_at"],
-    )

@@ -19,7 +19,8 @@ from collections import deque
 from websockets.asyncio.server import ServerConnection
 from websockets.exceptions import ConnectionClosed
 
-from fleet_protocol.ws import LaggingPush
+from fleet_protocol import ErrorBody
+from fleet_protocol.ws import AckPush, ErrorPush, LaggingPush
 
 __all__ = ["DEFAULT_UNIT_QUEUE", "UnitQueue"]
 
@@ -47,6 +48,11 @@ class UnitQueue:
     def put(self, frame: str) -> None:
         if not self.closed:
             self._append(frame)
+
+    def refuse(self, op_id: str | None, error: ErrorBody) -> None:
+        """An op refused: its ack when it has an ``id``, else an ``error`` push."""
+        push = AckPush.failure(op_id, error) if op_id else ErrorPush(error=error)
+        self.put(push.frame())
 
     def put_media(self, topic: str, frame: bytes) -> None:
         """A media frame: it replaces the one of the same topic still waiting, if any."""

@@ -46,7 +46,6 @@ from fleet_protocol.media import decode_media_frame
 from fleet_protocol.topics import is_media_topic
 from fleet_protocol.ws import (
     AckPush,
-    ErrorPush,
     EventPush,
     PublishOp,
     RegisterOp,
@@ -194,7 +193,7 @@ class UnitServer:
             error = ErrorBody(
                 code="too_large", message=f"a JSON frame has at most {MAX_TEXT_FRAME_BYTES} bytes"
             )
-            _answer(queue, None, error)
+            queue.refuse(None, error)
             return
         try:
             op = parse_client_op(frame)
@@ -205,16 +204,16 @@ class UnitServer:
             topics = [op.topic] if isinstance(op, PublishOp) else op.topics
             refusal = next((r for t in topics if (r := write_refusal(vehicle_id, t))), None)
             if refusal is not None:
-                _answer(queue, op.id, ErrorBody(code="forbidden", message=refusal))
+                queue.refuse(op.id, ErrorBody(code="forbidden", message=refusal))
                 return
         if isinstance(op, PublishOp) and is_media_topic(op.topic):
             message = f"{op.topic} is a media topic: send binary frames on it"
-            _answer(queue, op.id, ErrorBody(code="invalid", message=message))
+            queue.refuse(op.id, ErrorBody(code="invalid", message=message))
             return
         if isinstance(op, PublishOp):
             refused = await self._publish(vehicle_id, op)
             if refused is not None:
-                _answer(queue, op.id, refused)
+                queue.refuse(op.id, refused)
             elif op.id:
                 queue.put(AckPush.success(op.id).frame())
             return
@@ -229,7 +228,7 @@ class UnitServer:
             ack = await self.link.call({**upstream, "vehicle_id": vehicle_id}, check=False)
         except AgentError as exc:
             error = ErrorBody(code="unavailable", message=f"the cloud link is down: {exc}")
-            _answer(queue, op.id, error)
+            queue.refuse(op.id, error)
             return
         if ack.ok and vehicle_id in self.router.units:
             if isinstance(op, RegisterOp):
@@ -302,7 +301,7 @@ class UnitServer:
         """A unit's media frame: checked like a publish, then to local units and up on demand."""
         if len(frame) > self.max_media_bytes:
             message = f"a media frame has at most {self.max_media_bytes} bytes, not {len(frame)}"
-            _answer(queue, None, ErrorBody(code="too_large", message=message))
+            queue.refuse(None, ErrorBody(code="too_large", message=message))
             return
         try:
             header, _ = decode_media_frame(frame)
@@ -312,11 +311,11 @@ class UnitServer:
         topic = header.topic
         if not is_media_topic(topic):
             message = f"{topic} is not a media topic: publish JSON on it"
-            _answer(queue, None, ErrorBody(code="invalid", message=message))
+            queue.refuse(None, ErrorBody(code="invalid", message=message))
             return
         refusal = write_refusal(vehicle_id, topic)
         if refusal is not None:
-            _answer(queue, None, ErrorBody(code="forbidden", message=refusal))
+            queue.refuse(None, ErrorBody(code="forbidden", message=refusal))
             return
         delivery = self.router.publish(vehicle_id, topic, media=True)
         for other in delivery.local:
@@ -385,11 +384,6 @@ class UnitServer:
 
 def _not_listed(vehicle_id: str) -> str:
     return f"this gateway's token does not act for {vehicle_id}"
-
-
-def _answer(queue: UnitQueue, op_id: str | None, error: ErrorBody) -> None:
-    push = AckPush.failure(op_id, error) if op_id else ErrorPush(error=error)
-    queue.put(push.frame())
 
 
 def _frame_bytes(op: dict[str, Any], shown: int) -> int:
