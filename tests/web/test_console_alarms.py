@@ -45,7 +45,9 @@ def test_a_low_battery_shows_in_the_table_and_the_panel_until_it_ends(
         expect(marker(page, other)).not_to_have_class(re.compile(r"\balarmed\b"))
     # on the map too (a phone opens on it): a red halo and the alarm on the boat's label
     expect(marker(page, vehicle)).to_have_class(re.compile(r"\balarmed\b"))
-    expect(marker(page, vehicle).locator(".alarm-chip")).to_have_text("low battery")
+    chip = marker(page, vehicle).locator(".alarm-chip")
+    expect(chip).to_have_text("low battery")
+    expect(chip).to_have_attribute("title", re.compile(said))  # since when, there too
     shots(page, "alarm-table")
 
     marker(page, vehicle).click()

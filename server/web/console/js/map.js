@@ -4,6 +4,7 @@
 // presence, with a label placed clear of its neighbours and a trail of the last minutes.
 
 import * as L from "/vendor/leaflet/leaflet-src.esm.js";
+import { alarmText } from "./alarms.js";
 import { alarmLabel, isFinal, lastKnown, stageLabel } from "./fleet.js";
 import { addBase } from "./grid.js";
 import { placeLabels } from "./labels.js";
@@ -128,7 +129,7 @@ export class MapView {
     // what is wrong, on the map too (a phone opens on it): the first alarm, and how many more
     const shown = failsafe ? alarms.filter((a) => a.kind !== "failsafe") : alarms;
     const alarm = shown.length
-      ? `<span class="chip alarm-chip" title="${escapeHtml(shown.map((a) => a.message).join("; "))}">`
+      ? `<span class="chip alarm-chip" title="${escapeHtml(shown.map(alarmText).join("; "))}">`
         + `${escapeHtml(alarmLabel(shown[0].kind))}${shown.length > 1 ? ` +${shown.length - 1}` : ""}</span>`
       : "";
     const html = `<b>${escapeHtml(view.name || v.id)}</b>${chip}${failsafe}${alarm}`;
