@@ -29,7 +29,8 @@ from fleet_protocol.links import (
 )
 from fleet_protocol.ws import AckPush, AuthOp
 from server.api.deps import bearer_token
-from server.api.live_hub import Connection, LiveHub
+from server.api.live_conn import Connection
+from server.api.live_hub import LiveHub
 from server.api.outbox import Frame, LazyEvent, Outbox
 from server.api.ws_direct import DIRECT
 from server.api.ws_ops import OpRunner

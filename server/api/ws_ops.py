@@ -29,7 +29,8 @@ from fleet_protocol.ws import (
     WhoAmIOp,
 )
 from fleet_protocol.ws_frames import FrameError, PartialBatch, parse_client_op, parse_vehicle_op
-from server.api.live_hub import Connection, LiveHub
+from server.api.live_conn import Connection
+from server.api.live_hub import LiveHub
 from server.domain.topics import UnitRef, check_read, check_write, gateways_named, unit_for
 from server.errors import FleetError, Invalid, RateLimited
 from server.services.registry import Services
