@@ -1,4 +1,4 @@
-"""The embedded store's values and ordered indexes (:mod:`server.storage.embedded`).
+"""The embedded store's values and ordered indexes (:mod:`server.storage.embedded_collection`).
 
 How a document is held (the stored form: BSON's datetimes and binaries) and
 given back (the driver's form), what a projection keeps of it, how two
