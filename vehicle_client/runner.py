@@ -93,7 +93,7 @@ async def run_agents(
             outbox = Outbox(outbox_path, max_samples=link.max_samples)
             agent = VehicleAgent(config, adapter, transport, outbox)
             if ws is not None:
-                ws.vehicle(options.vehicle_id).on_control = agent.on_control
+                ws.vehicle(options.vehicle_id).on_control = agent.helm.on_control
             agents.append(agent)
         if listen is not None:
             if ws is None:
@@ -147,8 +147,8 @@ async def _status(agents: list[VehicleAgent], units: UnitServer | None) -> None:
                 "%s: %s, mode %s, control %s, outbox %d waiting (%d dropped, %d refused), %d sent",
                 a.config.vehicle_id,
                 f"connected over {a.link_kind}" if a.stats.connected else "link down",
-                a.pilot.control_mode,
-                a.control.holder if a.control else "nobody",
+                a.helm.pilot.control_mode,
+                a.helm.control.holder if a.helm.control else "nobody",
                 a.outbox.pending,
                 a.outbox.dropped,
                 a.outbox.refused,

@@ -114,7 +114,7 @@ async def test_parameters_the_server_refuses_are_dropped_and_the_samples_go_on(
     async with running(agent):
         await wait_for(lambda: len(fake.stored) >= 3, "samples sent")
         fake.down = True  # the link lost: the failsafe engages and goes into params
-        await wait_for(lambda: agent.pilot.control_mode == "failsafe", "failsafe engaged")
+        await wait_for(lambda: agent.helm.pilot.control_mode == "failsafe", "failsafe engaged")
         fake.down = False
         await wait_for(lambda: fake.refused_params >= 1, "the params refused")
         sent = len(fake.stored)

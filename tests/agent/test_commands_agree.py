@@ -175,7 +175,7 @@ async def test_a_command_carried_on_through_a_lost_link_is_left_alone(field: Fie
     await until(back, "a new session")
     cmd = await f.call("GET", f"/api/commands/{command_id}")
     assert cmd["status"] == "executing", cmd["history"]
-    assert agent.pilot.active_id == command_id
+    assert agent.helm.pilot.active_id == command_id
 
 
 async def test_a_go_to_cancelled_under_way_stops_the_boat(field: Field) -> None:
@@ -188,10 +188,10 @@ async def test_a_go_to_cancelled_under_way_stops_the_boat(field: Field) -> None:
     await _grant_admin(f, agent.instance_id)
     command_id = await f.go_far(agent.instance_id)
     sim = agent.adapter.sim  # type: ignore[attr-defined]
-    assert sim.task is not None and agent.pilot.active_id == command_id
+    assert sim.task is not None and agent.helm.pilot.active_id == command_id
 
     async def acks_answered() -> bool:  # its last update_fbmessage came back: none follows
-        return not agent._acks and agent._sent_mode == "remote"
+        return not agent.helm.acks and agent.helm.sent_mode == "remote"
 
     await until(acks_answered, "the agent's acks answered")
 
@@ -199,10 +199,10 @@ async def test_a_go_to_cancelled_under_way_stops_the_boat(field: Field) -> None:
     assert cancelled["status"] == "cancelled"
 
     async def halted() -> bool:
-        return sim.task is None and agent.pilot.active_id is None
+        return sim.task is None and agent.helm.pilot.active_id is None
 
     await until(halted, "the boat to give up the cancelled go_to")
-    assert agent.pilot.control_mode == "idle"
+    assert agent.helm.pilot.control_mode == "idle"
 
 
 async def test_over_the_socket_a_go_to_cancelled_under_way_stops_the_boat(
@@ -229,13 +229,13 @@ async def test_over_the_socket_a_go_to_cancelled_under_way_stops_the_boat(
             sim = agent.adapter.sim  # type: ignore[attr-defined]
 
             async def acks_answered() -> bool:
-                return not agent._acks and agent._sent_mode == "remote"
+                return not agent.helm.acks and agent.helm.sent_mode == "remote"
 
             await until(acks_answered, "the agent's acks answered")
             await f.call("POST", "/client/cancel_command", json={"command_id": command_id})
 
             async def halted() -> bool:
-                return sim.task is None and agent.pilot.active_id is None
+                return sim.task is None and agent.helm.pilot.active_id is None
 
             await until(halted, "the boat to give up the cancelled go_to")
         finally:

@@ -136,9 +136,9 @@ async def test_an_aborted_command_is_halted_and_never_reported_done(tmp_path: Pa
     async with running(agent):
         cid = fake.add_command("go_to", point(agent, 500.0, 0.0))
         fake.abort.add(cid)
-        await wait_for(lambda: agent.pilot.seen.get(cid) == "aborted", "the abort taken")
+        await wait_for(lambda: agent.helm.pilot.seen.get(cid) == "aborted", "the abort taken")
         assert agent.adapter.sim.task is None  # type: ignore[attr-defined]
-        assert agent.pilot.control_mode == "idle"
+        assert agent.helm.pilot.control_mode == "idle"
     assert "done" not in fake.statuses(cid)
 
 
@@ -149,7 +149,7 @@ async def test_link_loss_engages_the_failsafe_and_says_so_when_back(tmp_path: Pa
         cid = fake.add_command("go_to", point(agent, 500.0, 0.0))
         await wait_for(lambda: "executing" in fake.statuses(cid), "go_to under way")
         fake.down = True
-        await wait_for(lambda: agent.pilot.control_mode == "failsafe", "failsafe engaged")
+        await wait_for(lambda: agent.helm.pilot.control_mode == "failsafe", "failsafe engaged")
         assert agent.adapter.sim.task.kind == "keep_station"  # type: ignore[attr-defined]
         fake.down = False
         await wait_for(lambda: "failed" in fake.statuses(cid), "the interrupted go_to reported")
@@ -160,7 +160,7 @@ async def test_link_loss_engages_the_failsafe_and_says_so_when_back(tmp_path: Pa
         nxt = fake.add_command("go_to", point(agent, 0.0, 500.0))
         await wait_for(lambda: "executing" in fake.statuses(nxt), "the next command under way")
         await wait_for(lambda: "failsafe" not in fake.params, "the failsafe parameter cleared")
-        assert agent.pilot.control_mode == "remote"
+        assert agent.helm.pilot.control_mode == "remote"
 
 
 async def test_a_restarted_agent_resumes_its_outbox_and_ignores_seen_commands(

@@ -235,7 +235,7 @@ async def cut_and_mend(h: Harbour, boat: Boat, sim_seconds: float) -> tuple[floa
     """Cut the boat's link, let ``sim_seconds`` of its time pass once its failsafe time
     is up, mend the link; the boat's local position when the failsafe time was up."""
     boat.link.cut = True
-    await until(lambda: boat.agent.link.lost, "the agent to find the link lost")
+    await until(lambda: boat.agent.helm.link.lost, "the agent to find the link lost")
     engaged_at = boat.agent.adapter.sim.position  # type: ignore[attr-defined]
     begun = boat.sim_s
     await until(lambda: boat.sim_s >= begun + sim_seconds, f"{sim_seconds} s of the boat's time")
@@ -308,16 +308,16 @@ async def test_each_failsafe_action_after_a_cut_link(harbour: Harbour, action: s
 async def test_a_policy_changed_while_running_reaches_the_vehicle(harbour: Harbour) -> None:
     h = harbour
     boat = await h.boat("fs-change")
-    assert boat.agent.pilot.failsafe.version == 0  # the server's default until set
+    assert boat.agent.helm.pilot.failsafe.version == 0  # the server's default until set
     r = await h.http.put(
         f"/api/vehicles/{boat.vehicle_id}/failsafe",
         headers=ADMIN,
         json={"action": "return_home", "after_s": 12, "home": boat.at(5, 5)},
     )
     assert r.status_code == 200, r.text
-    await until(lambda: boat.agent.pilot.failsafe.version == 1, "the new policy applied")
-    assert boat.agent.pilot.failsafe.action == "return_home"
-    assert boat.agent.link.after_s == 12
+    await until(lambda: boat.agent.helm.pilot.failsafe.version == 1, "the new policy applied")
+    assert boat.agent.helm.pilot.failsafe.action == "return_home"
+    assert boat.agent.helm.link.after_s == 12
 
     async def acked() -> bool:
         view = await h.call("GET", f"/api/vehicles/{boat.vehicle_id}/failsafe")
@@ -458,14 +458,14 @@ async def test_a_vehicle_acknowledging_another_hash_fails_the_command(harbour: H
     h = harbour
     boat = await h.boat("plan-hash")
     op = await h.operator(boat)
-    original = boat.agent.pilot._ack
+    original = boat.agent.helm.pilot._ack
 
     def lying_ack(command_id: str, status: str, **extra: Any) -> Any:
         if extra.get("path_hash"):
             extra["path_hash"] = "sha256:" + "0" * 64
         return original(command_id, status, **extra)
 
-    boat.agent.pilot._ack = lying_ack  # type: ignore[method-assign]
+    boat.agent.helm.pilot._ack = lying_ack  # type: ignore[method-assign]
     command_id = await h.submit(op, boat, "follow_path", {"waypoints": [boat.at(200, 0)]})
 
     async def failed() -> bool:
@@ -477,7 +477,7 @@ async def test_a_vehicle_acknowledging_another_hash_fails_the_command(harbour: H
     assert failed_entry["detail"].startswith("plan_mismatch")
 
     async def halted() -> bool:  # the abort reached the vehicle: it stopped the task
-        return boat.agent.pilot.active_id is None
+        return boat.agent.helm.pilot.active_id is None
 
     await until_async(halted, "the vehicle told to abort")
 
