@@ -1,6 +1,6 @@
 """The pure parts of the WebSocket link: URLs, op ids, pushes, batches, close codes.
 
-No I/O here; ``vehicle_client.transport.ws`` is the shell around it.
+No I/O here; ``vehicle_client.transport.ws`` and ``ws_ops`` are the shell around it.
 """
 
 from __future__ import annotations

@@ -1,15 +1,11 @@
 """``/ws/vehicle`` with the ``websockets`` asyncio client: one link, one or many vehicles.
 
-``WsLink`` holds the socket: ops go out with an ``id`` and wait for their
-``ack`` (with a timeout); one reader task sorts what comes in: acks to their
-waiters, ``command`` and ``control`` pushes to the vehicle they are for,
-``event`` and ``routes`` (and binary media frames) to the gateway's topic
-layer. With ``batch_tick_s``
-(gateways), ops leave as ``batch`` frames, as Nagle's algorithm does with
-bytes: an op that finds no other op awaiting its ack (and no batch forming)
-leaves at once, so a unit's publish on a quiet link is not held for a tick;
-while some are in flight, the next ones gather for at most a tick and leave
-together.
+``WsLink`` holds the socket: it connects, and one reader task sorts what
+comes in: acks to their waiters, ``command`` and ``control`` pushes to the
+vehicle they are for, ``event`` and ``routes`` (and binary media frames) to
+the gateway's topic layer. Ops go out with an ``id`` and wait for their
+``ack`` (with a timeout), batched with ``batch_tick_s`` (gateways): that
+bookkeeping is ``OpChannel``'s (``vehicle_client.transport.ws_ops``).
 
 ``WsTransport`` is one vehicle's view of the link and implements
 ``Transport``: the agent cannot tell it from ``HttpTransport``, except that
@@ -27,14 +23,11 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
-import secrets
 from collections.abc import Awaitable, Callable
-from dataclasses import dataclass, field
 from typing import Any, TypeVar
 
 import websockets
 from pydantic import BaseModel, ValidationError
-from websockets.asyncio.client import ClientConnection
 from websockets.exceptions import ConnectionClosed, InvalidHandshake, InvalidURI
 
 from fleet_protocol import (
@@ -60,16 +53,8 @@ from fleet_protocol.ws import (
     RoutesPush,
 )
 from vehicle_client.errors import AgentError, FatalError, RetryableError
-from vehicle_client.transport.wire import (
-    IdSource,
-    PushError,
-    ack_error,
-    batches,
-    close_error,
-    op_frame,
-    parse_push,
-    ws_url,
-)
+from vehicle_client.transport.wire import PushError, close_error, parse_push, ws_url
+from vehicle_client.transport.ws_ops import OpChannel, Socket
 
 log = logging.getLogger(__name__)
 M = TypeVar("M", bound=BaseModel)
@@ -81,13 +66,6 @@ OPEN_TIMEOUT_S = 10.0
 
 class WsUnavailable(RetryableError):
     """The server (or a proxy before it) would not open a WebSocket; HTTP may work."""
-
-
-@dataclass
-class _Socket:
-    ws: ClientConnection
-    error: AgentError | None = None  # set once closed: what the waiters raise
-    closed: asyncio.Event = field(default_factory=asyncio.Event)
 
 
 class WsLink:
@@ -106,21 +84,20 @@ class WsLink:
             raise FatalError("no token: give --token (or FLEET_AGENT_TOKEN)")
         self.url = ws_url(server)
         self._headers = {"Authorization": f"Bearer {token}"}
-        self.batch_tick_s = batch_tick_s
-        self.ack_timeout_s = ack_timeout_s
         self.ping_interval_s = ping_interval_s
-        self._ids = IdSource(secrets.token_hex(2) + "-")
-        self._sock: _Socket | None = None
+        self._sock: Socket | None = None
         self._opening = asyncio.Lock()
         self._fatal: FatalError | None = None
-        self._pending: dict[str, tuple[asyncio.Future[AckPush], dict[str, Any]]] = {}
-        self._queue: list[dict[str, Any]] = []
-        self._flusher: asyncio.Task[None] | None = None
+        self._ops = OpChannel(
+            batch_tick_s=batch_tick_s,
+            ack_timeout_s=ack_timeout_s,
+            current=lambda: self._sock,
+            broken=self._closed,
+        )
         self._reader: asyncio.Task[None] | None = None
         self._vehicles: dict[str, WsTransport] = {}
         self._vehicle_of: dict[str, str] = {}  # instance_id -> vehicle_id
         self.opened = 0
-        self.frames_out = 0
         #: Gateways' topic layer: events and routes from above, and a hook run
         #: after each (re)connection, to register and subscribe again.
         self.on_event: Callable[[EventPush], None] | None = None
@@ -128,6 +105,11 @@ class WsLink:
         #: Binary (media) frames from above, as they came.
         self.on_media: Callable[[bytes], None] | None = None
         self.on_open: Callable[[], Awaitable[None]] | None = None
+
+    @property
+    def frames_out(self) -> int:
+        """Frames written on the link so far."""
+        return self._ops.frames_out
 
     @property
     def connected(self) -> bool:
@@ -138,7 +120,7 @@ class WsLink:
         return self._vehicles.setdefault(vehicle_id, WsTransport(self, vehicle_id))
 
     # -- connection -----------------------------------------------------------
-    async def _open(self) -> _Socket:
+    async def _open(self) -> Socket:
         if self._fatal is not None:
             raise self._fatal
         sock = self._sock
@@ -161,7 +143,7 @@ class WsLink:
                 raise WsUnavailable(f"{self.url}: no WebSocket: {exc}") from exc
             except (OSError, TimeoutError) as exc:
                 raise RetryableError(f"{self.url}: {type(exc).__name__}: {exc}") from exc
-            self._sock = _Socket(ws)
+            self._sock = Socket(ws)
             self.opened += 1
             self._reader = asyncio.create_task(self._read(self._sock), name="ws-reader")
             log.info("WebSocket open: %s", self.url)
@@ -170,27 +152,23 @@ class WsLink:
         return self._sock
 
     async def aclose(self) -> None:
-        for task in (self._flusher, self._reader):
-            if task is not None:
-                task.cancel()
+        self._ops.cancel()
+        if self._reader is not None:
+            self._reader.cancel()
         sock, self._sock = self._sock, None
         if sock is not None:
             with contextlib.suppress(Exception):
                 await sock.ws.close()
             self._closed(sock, RetryableError("the link was closed"))
 
-    def _closed(self, sock: _Socket, error: AgentError) -> None:
+    def _closed(self, sock: Socket, error: AgentError) -> None:
         if sock.error is not None:
             return
         sock.error = error
         sock.closed.set()
         if isinstance(error, FatalError):
             self._fatal = error
-        for fut, _ in self._pending.values():
-            if not fut.done():
-                fut.set_exception(error)
-        self._pending.clear()
-        self._queue.clear()
+        self._ops.fail_all(error)
         for vehicle in self._vehicles.values():
             vehicle.wake.set()
 
@@ -200,28 +178,11 @@ class WsLink:
     ) -> AckPush:
         """Send ``op`` with a fresh id; its ack (``ok: true``), or the matching error
         (``check=False``: the ack as it came, ``ok: false`` included)."""
-        sock = await self._open()
-        op = {**op, "id": self._ids.next()}
-        fut: asyncio.Future[AckPush] = asyncio.get_running_loop().create_future()
-        self._pending[op["id"]] = (fut, op)
-        try:
-            await self._send(sock, op)
-            async with asyncio.timeout(self.ack_timeout_s):  # never swallows a cancel
-                ack = await fut
-        except TimeoutError:
-            error = RetryableError(f"{op['op']}: no ack within {self.ack_timeout_s:g} s")
-            self._closed(sock, error)  # a link that does not answer is broken
-            self._fire_close(sock)
-            raise error from None
-        finally:
-            self._pending.pop(op["id"], None)
-        if check and not ack.ok:
-            raise ack_error(ack, what or op["op"])
-        return ack
+        return await self._ops.call(await self._open(), op, what, check=check)
 
     async def send(self, op: dict[str, Any]) -> None:
         """Send an op without an id (no ack; a failure comes back as an ``error`` push)."""
-        await self._send(await self._open(), op)
+        await self._ops.send(await self._open(), op)
 
     async def send_media(self, frame: bytes) -> None:
         """A binary frame on the open socket; never opens one (a media frame is not
@@ -229,54 +190,10 @@ class WsLink:
         sock = self._sock
         if sock is None or sock.error is not None:
             raise RetryableError("the link is down")
-        await self._write(sock, frame)
-
-    async def _send(self, sock: _Socket, op: dict[str, Any]) -> None:
-        if self.batch_tick_s <= 0:
-            await self._write(sock, op_frame(op))
-            return
-        flushing = self._flusher is not None and not self._flusher.done()
-        own = op.get("id")
-        if not flushing and not any(key != own for key in self._pending):
-            await self._write(sock, op_frame(op))  # nothing else in flight: no wait
-            return
-        self._queue.append(op)
-        if not flushing:
-            self._flusher = asyncio.create_task(self._flush(), name="ws-batch")
-
-    async def _flush(self) -> None:
-        """At the tick's end: the ops queued during it, as ``batch`` frames."""
-        await asyncio.sleep(self.batch_tick_s)
-        queued, self._queue = self._queue, []
-        sock = self._sock
-        try:
-            if sock is None:
-                raise RetryableError("the link closed before the batch left")
-            for frame in batches(queued):
-                await self._write(sock, frame)
-        except AgentError as exc:
-            for op in queued:  # their waiters hear it now, not at their timeout
-                entry = self._pending.get(op.get("id", ""))
-                if entry is not None and not entry[0].done():
-                    entry[0].set_exception(exc)
-
-    async def _write(self, sock: _Socket, frame: str | bytes) -> None:
-        if sock.error is not None:
-            raise sock.error
-        try:
-            await sock.ws.send(frame)
-        except ConnectionClosed as exc:
-            error = close_error(exc.rcvd.code if exc.rcvd else None, None)
-            self._closed(sock, error)
-            raise error from None
-        self.frames_out += 1
-
-    def _fire_close(self, sock: _Socket) -> None:
-        task = asyncio.ensure_future(sock.ws.close(1001, "no ack"))
-        task.add_done_callback(lambda t: t.cancelled() or t.exception())
+        await self._ops.write(sock, frame)
 
     # -- pushes -----------------------------------------------------------------
-    async def _read(self, sock: _Socket) -> None:
+    async def _read(self, sock: Socket) -> None:
         error: AgentError
         try:
             async for frame in sock.ws:
@@ -302,15 +219,12 @@ class WsLink:
             return
         match push:
             case AckPush():
-                entry = self._pending.get(push.id)
-                if entry is None:
+                op = self._ops.settle(push)
+                if op is None:
                     return  # its waiter gave up
-                fut, op = entry
                 if push.ok and op["op"] == "start_instance":
                     # Before any push for the instance is read: route them.
                     self._vehicle_of[str(getattr(push, "instance_id", ""))] = op["vehicle_id"]
-                if not fut.done():
-                    fut.set_result(push)
             case CommandPush():
                 vehicle = self._for_instance(push.instance_id)
                 if vehicle is not None:
