@@ -15,6 +15,7 @@ from fleet_protocol.fleet import *  # noqa: F403
 from fleet_protocol.media import *  # noqa: F403
 from fleet_protocol.obstacles import *  # noqa: F403
 from fleet_protocol.served import *  # noqa: F403
+from fleet_protocol.text import *  # noqa: F403
 from fleet_protocol.upper import *  # noqa: F403
 from fleet_protocol.values import *  # noqa: F403
 from fleet_protocol.ws import *  # noqa: F403

@@ -8,7 +8,7 @@ from typing import Annotated, Literal
 from pydantic import AfterValidator, ConfigDict, Field, StrictBool
 
 from fleet_protocol.common import Identifier, Timestamp, WireModel
-from fleet_protocol.values import Label, Text
+from fleet_protocol.text import Label, Text
 
 
 def _once_each(ids: list[str]) -> list[str]:

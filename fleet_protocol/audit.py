@@ -15,7 +15,7 @@ from typing import Any
 
 from fleet_protocol.common import Timestamp, WireModel
 from fleet_protocol.served import ServedObject
-from fleet_protocol.values import Text
+from fleet_protocol.text import Text
 
 __all__ = ["GENESIS", "AuditEntry", "AuditPage", "entry_hash", "first_break"]
 

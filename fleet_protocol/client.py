@@ -9,8 +9,8 @@ from pydantic import Field, StrictInt, ValidationInfo, field_validator, model_va
 from fleet_protocol.commands import CommandObject, CommandSpec
 from fleet_protocol.common import Identifier, Sample, Timestamp, WireModel
 from fleet_protocol.served import ServedObject
+from fleet_protocol.text import Text
 from fleet_protocol.upper import ControlInfo, ControlMode, InstanceRef
-from fleet_protocol.values import Text
 
 __all__ = [
     "CancelCommand",

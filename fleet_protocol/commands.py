@@ -10,7 +10,8 @@ from pydantic import Field, StrictBool, StrictFloat, ValidationError, model_vali
 
 from fleet_protocol.common import Latitude, LatLon, Longitude, Timestamp, WireModel
 from fleet_protocol.served import ServedObject
-from fleet_protocol.values import JsonObject, Text
+from fleet_protocol.text import Text
+from fleet_protocol.values import JsonObject
 
 __all__ = [
     "ACK_STATUSES",

@@ -8,8 +8,8 @@ from pydantic import Field
 
 from fleet_protocol.common import Sample, Timestamp, WireModel
 from fleet_protocol.served import ServedObject, ServedObjects
+from fleet_protocol.text import Text
 from fleet_protocol.upper import ControlInfo, FailsafePolicy
-from fleet_protocol.values import Text
 
 __all__ = [
     "Alarm",

@@ -6,8 +6,8 @@ from pydantic import Field, ValidationError
 
 from fleet_protocol.common import Timestamp, WireModel
 from fleet_protocol.errors import ErrorBody
+from fleet_protocol.text import Text
 from fleet_protocol.topics import Topic
-from fleet_protocol.values import Text
 from fleet_protocol.ws import MAX_MEDIA_HEADER_BYTES
 from fleet_protocol.ws_frames import FrameError, error_body
 

@@ -7,7 +7,7 @@ from typing import Literal
 from pydantic import Field, StrictFloat, field_validator
 
 from fleet_protocol.common import Latitude, Longitude, Timestamp, WireModel
-from fleet_protocol.values import Label, Text
+from fleet_protocol.text import Label, Text
 
 __all__ = [
     "MAX_OBSTACLE_VERTICES",

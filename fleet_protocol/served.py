@@ -17,7 +17,8 @@ from typing import Annotated, Any
 from pydantic import SerializerFunctionWrapHandler, WrapSerializer
 from pydantic_core import PydanticSerializationError
 
-from fleet_protocol.values import MAX_INT, MAX_JSON_DEPTH, MIN_INT, SURROGATE
+from fleet_protocol.text import SURROGATE
+from fleet_protocol.values import MAX_INT, MAX_JSON_DEPTH, MIN_INT
 
 __all__ = ["ServedObject", "ServedObjects", "json_safe", "safe_dumps"]
 

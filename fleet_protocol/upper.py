@@ -8,7 +8,8 @@ from pydantic import Field, StrictBool, StrictFloat, StrictInt
 
 from fleet_protocol.commands import ACK_STATUSES, CommandObject, CommandType
 from fleet_protocol.common import Identifier, LatLon, Sample, Timestamp, WireModel
-from fleet_protocol.values import Label, Params, Text
+from fleet_protocol.text import Label, Text
+from fleet_protocol.values import Params
 
 __all__ = [
     "MAX_ACKS_PER_CALL",

@@ -1,4 +1,4 @@
-"""What JSON and the store can hold: the limits every wire model keeps, and the checked types.
+"""What JSON and the store can hold: the limits every wire model keeps, and free-form values.
 
 The server stores what it accepts in MongoDB (BSON; FerretDB in the tests)
 and sends it on as JSON, so a wire model refuses, with the path of the bad
@@ -18,12 +18,14 @@ value in the 422, what either cannot hold (``docs/limits.md``):
 :data:`JsonValue`, :data:`JsonObject` and their bounded variants check a
 free-form value in one walk that stops at the first bad value and names it:
 ``data.reading.0`` under the field, so ``samples.3.data.reading.0`` in the
-422. :data:`Text` is a ``str`` field without lone surrogates. The timestamp
-range is :data:`MIN_TIMESTAMP` to :data:`MAX_TIMESTAMP`
+422. A ``str`` field is :data:`fleet_protocol.text.Text`, without lone
+surrogates (:mod:`fleet_protocol.text`, which also holds ``Label``). The
+timestamp range is :data:`MIN_TIMESTAMP` to :data:`MAX_TIMESTAMP`
 (:data:`fleet_protocol.common.Timestamp`).
 
 The other direction, a value stored before a rule existed made safe to send,
-is :mod:`fleet_protocol.served`.
+is :mod:`fleet_protocol.served`; the words of a refusal (a 422's message, a
+body that cannot be read) are in :mod:`fleet_protocol.errors`.
 
 Pydantic only: the server, the agent and the operator tools all check with it.
 """
@@ -31,25 +33,16 @@ Pydantic only: the server, the agent and the operator tools all check with it.
 from __future__ import annotations
 
 import math
-import re
-from collections.abc import Callable, Mapping
+from collections.abc import Callable
 from datetime import UTC, datetime
 from typing import Annotated, Any
 
-from pydantic import (
-    BeforeValidator,
-    PlainValidator,
-    ValidationError,
-    WithJsonSchema,
-)
-from pydantic_core import (
-    InitErrorDetails,
-    PydanticCustomError,
-    to_json,
-)
+from pydantic import PlainValidator, ValidationError, WithJsonSchema
+from pydantic_core import InitErrorDetails, PydanticCustomError, to_json
+
+from fleet_protocol.text import SURROGATE, SURROGATE_MSG, has_surrogate, shown_text
 
 __all__ = [
-    "BIDI_CONTROLS",
     "MAX_INT",
     "MAX_JSON_DEPTH",
     "MAX_KEY_CHARS",
@@ -59,19 +52,11 @@ __all__ = [
     "MAX_TIMESTAMP",
     "MIN_INT",
     "MIN_TIMESTAMP",
-    "SURROGATE",
     "JsonObject",
     "JsonValue",
-    "Label",
     "Params",
     "SampleData",
-    "Text",
-    "check_text",
-    "error_text",
-    "escape_controls",
     "json_problem",
-    "shown_text",
-    "unreadable_json",
 ]
 
 #: Integers: signed 64-bit, what BSON's widest integer (``int64``) holds.
@@ -98,28 +83,13 @@ MAX_SAMPLE_DATA_BYTES = 8192
 MIN_TIMESTAMP = datetime(1970, 1, 1, tzinfo=UTC)
 MAX_TIMESTAMP = datetime(2100, 1, 1, tzinfo=UTC)
 
-#: Why a body or frame nested past what its JSON reader goes (pydantic's parser: 200
-#: levels; Python's ``json``: its recursion limit) cannot be read.
-_TOO_DEEP_MSG = (
-    f"nested too deep to be read (a value is nested at most {MAX_JSON_DEPTH} levels: "
-    "docs/limits.md)"
-)
-
-#: A lone UTF-16 surrogate: what neither UTF-8 nor BSON can hold.
-SURROGATE = re.compile("[\ud800-\udfff]")
-
 _INT_MSG = f"an integer must lie within signed 64-bit ({MIN_INT} to {MAX_INT})"
 _FLOAT_MSG = "NaN and Infinity are not JSON numbers: send a finite number or null"
-_TEXT_MSG = "a string may not hold a lone UTF-16 surrogate (U+D800 to U+DFFF)"
 _DEPTH_MSG = f"nested deeper than {MAX_JSON_DEPTH} levels"
 
 Path = list[str | int]
 #: A bad value: its path (innermost first, reversed once at the end) and what is wrong.
 Problem = tuple[Path, str]
-
-
-def _has_surrogate(text: str) -> bool:
-    return not text.isascii() and SURROGATE.search(text) is not None
 
 
 def _key_problem(key: object) -> str | None:
@@ -135,14 +105,9 @@ def _key_problem(key: object) -> str | None:
         return "a key may not hold '.'"
     if "\x00" in key:
         return "a key may not hold NUL"
-    if _has_surrogate(key):
-        return _TEXT_MSG
+    if has_surrogate(key):
+        return SURROGATE_MSG
     return None
-
-
-def shown_text(text: str) -> str:
-    """``text`` with any lone surrogate replaced by U+FFFD: for paths and messages."""
-    return text if text.isascii() else SURROGATE.sub("\ufffd", text)
 
 
 def _shown_key(key: object) -> str:
@@ -156,7 +121,7 @@ def _shown_key(key: object) -> str:
 def _scalar_problem(value: Any) -> str | None:
     """What is wrong with a value that is neither an object nor an array (None: nothing)."""
     if isinstance(value, str):
-        return _TEXT_MSG if _has_surrogate(value) else None
+        return SURROGATE_MSG if has_surrogate(value) else None
     if isinstance(value, bool) or value is None:
         return None
     if isinstance(value, int):
@@ -185,7 +150,7 @@ def _object_problem(value: dict[Any, Any], depth: int) -> Problem | None:
         if kind is str:
             if item.isascii() or SURROGATE.search(item) is None:
                 continue
-            return [key], _TEXT_MSG
+            return [key], SURROGATE_MSG
         if kind is float:
             if item - item == 0.0:  # NaN - NaN and inf - inf are NaN
                 continue
@@ -219,7 +184,7 @@ def _array_problem(value: list[Any] | tuple[Any, ...], depth: int) -> Problem | 
         if kind is str:
             if item.isascii() or SURROGATE.search(item) is None:
                 continue
-            return [index], _TEXT_MSG
+            return [index], SURROGATE_MSG
         if kind is bool or item is None:
             continue
         problem = _nested_problem(item, depth)
@@ -323,80 +288,3 @@ SampleData = Annotated[
         }
     ),
 ]
-
-
-def check_text(value: object) -> object:
-    """A string without lone surrogates; anything else for the ``str`` schema to refuse."""
-    if not isinstance(value, str) or value.isascii() or SURROGATE.search(value) is None:
-        return value
-    raise PydanticCustomError("string_unicode", _TEXT_MSG)
-
-
-def error_text(err: Mapping[str, Any]) -> str:
-    """A pydantic error's message for a 422 (without pydantic's "Value error, " prefix).
-    A length bound on an optional string (``Text | None``) is checked by pydantic's
-    generic length rule, whose message counts "items": it is told in characters."""
-    ctx = err.get("ctx") or {}
-    if err.get("type") == "too_long" and isinstance(err.get("input"), str):
-        return f"String should have at most {ctx.get('max_length')} characters"
-    if err.get("type") == "too_short" and isinstance(err.get("input"), str):
-        return f"String should have at least {ctx.get('min_length')} characters"
-    return str(err.get("msg", "invalid value")).removeprefix("Value error, ")
-
-
-#: A ``str`` field: no lone surrogates (pydantic's plain ``str`` lets them through). The
-#: check runs before the ``str`` schema, so that a field's ``max_length`` is that
-#: schema's own ("String should have at most 128 characters"), not a generic length.
-Text = Annotated[str, BeforeValidator(check_text)]
-
-#: Control characters (C0, DEL, C1): a terminal obeys them rather than showing them.
-_CONTROL = re.compile("[\x00-\x1f\x7f-\x9f]")
-
-
-#: Characters that reorder the text around them on a screen (bidirectional embeddings,
-#: overrides and isolates): a name holding one can read as another.
-BIDI_CONTROLS = re.compile("[\u202a-\u202e\u2066-\u2069]")
-
-
-def check_label(value: object) -> object:
-    if isinstance(value, str) and _CONTROL.search(value) is not None:
-        raise PydanticCustomError(
-            "string_control", "a name is shown on screens: no control characters"
-        )
-    if isinstance(value, str) and BIDI_CONTROLS.search(value) is not None:
-        raise PydanticCustomError(
-            "string_bidi",
-            "a name is shown on screens: no characters that reorder the text "
-            "(U+202A to U+202E, U+2066 to U+2069)",
-        )
-    return value
-
-
-def escape_controls(text: str) -> str:
-    """``text`` with each control character shown as its escape (``\\x1b``), for a
-    message that quotes what a client sent."""
-    return _CONTROL.sub(lambda m: f"\\x{ord(m.group()):02x}", text)
-
-
-#: A name people read on a console or a terminal (a vehicle's, an obstacle's): ``Text``
-#: without control characters (NUL, escape sequences, line breaks).
-Label = Annotated[str, BeforeValidator(check_text), BeforeValidator(check_label)]
-
-
-def unreadable_json(error: object, raw: object = None) -> str:
-    """Why a text a JSON reader refused cannot be read, to follow "the body is" or "the
-    frame is": nested too deep, not valid UTF-8, or not valid JSON. ``error`` is the
-    reader's exception (Python's ``json``) or its message (pydantic's ``json_invalid``);
-    ``raw``, the bytes it read when known (pydantic's parser calls a byte that is not
-    UTF-8 outside a string an unexpected character)."""
-    if isinstance(raw, bytes):
-        try:
-            raw.decode("utf-8")
-        except UnicodeDecodeError:
-            return "not valid UTF-8"
-    text = str(error)
-    if isinstance(error, RecursionError) or "recursion limit exceeded" in text:
-        return _TOO_DEEP_MSG
-    if isinstance(error, UnicodeDecodeError) or "invalid unicode code point" in text:
-        return "not valid UTF-8"
-    return "not valid JSON"

@@ -39,6 +39,7 @@ from fleet_protocol.commands import CommandObject
 from fleet_protocol.common import Identifier, Timestamp, WireModel
 from fleet_protocol.errors import ErrorBody
 from fleet_protocol.served import safe_dumps
+from fleet_protocol.text import Text
 from fleet_protocol.topics import Topic
 from fleet_protocol.upper import (
     ControlInfo,
@@ -49,7 +50,7 @@ from fleet_protocol.upper import (
     UpdateFbMessage,
     UpdateParam,
 )
-from fleet_protocol.values import JsonValue, Text
+from fleet_protocol.values import JsonValue
 
 __all__ = [
     "MAX_BATCH_OPS",

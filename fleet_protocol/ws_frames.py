@@ -13,8 +13,8 @@ from typing import Any, Literal, get_args
 
 from pydantic import Field, TypeAdapter, ValidationError
 
-from fleet_protocol.errors import ErrorBody, FieldError
-from fleet_protocol.values import error_text, shown_text, unreadable_json
+from fleet_protocol.errors import ErrorBody, FieldError, error_text, unreadable_json
+from fleet_protocol.text import shown_text
 from fleet_protocol.ws import (
     MAX_BATCH_OPS,
     MAX_OP_ID_CHARS,

@@ -17,7 +17,7 @@ from pydantic import Field, StrictFloat
 
 from fleet_protocol.common import Identifier, Timestamp, WireModel
 from fleet_protocol.obstacles import PolygonGeometry
-from fleet_protocol.values import Text
+from fleet_protocol.text import Text
 
 __all__ = ["CreateZone", "PatchZone", "ZoneKind", "ZoneList", "ZoneView"]
 

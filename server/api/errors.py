@@ -12,7 +12,8 @@ from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.requests import ClientDisconnect
 
-from fleet_protocol.values import error_text, escape_controls, shown_text, unreadable_json
+from fleet_protocol.errors import error_text, unreadable_json
+from fleet_protocol.text import escape_controls, shown_text
 from server.api.responses import SafeJSONResponse
 from server.errors import FleetError, RateLimited, Unavailable
 

@@ -29,8 +29,9 @@ from fleet_protocol import (
 )
 from fleet_protocol.errors import ErrorBody, ErrorEnvelope, FieldError
 from fleet_protocol.served import json_safe, safe_dumps
+from fleet_protocol.text import check_text
 from fleet_protocol.topics import validate_topic
-from fleet_protocol.values import check_text, json_problem
+from fleet_protocol.values import json_problem
 from fleet_protocol.ws import (
     EventPush,
     PublishOp,

@@ -1,0 +1,93 @@
+"""Strings on the wire: the checked ``str`` types, and text made safe to show.
+
+A ``str`` field is :data:`Text`: no lone UTF-16 surrogate (U+D800..U+DFFF),
+which neither UTF-8 nor BSON can hold, yet Python's ``json`` decodes
+``"\\ud800"`` into one (pydantic's plain ``str`` lets it through). A name
+people read on a console or a terminal is :data:`Label`: ``Text`` without
+control characters, nor characters that reorder the text around them
+(``docs/limits.md``).
+
+The other way, text quoted in a message: :func:`shown_text` replaces lone
+surrogates, :func:`escape_controls` shows control characters as escapes.
+
+The free-form values (``JsonValue``, ``JsonObject``...) check their strings
+and keys with the same rule: :mod:`fleet_protocol.values`.
+"""
+
+from __future__ import annotations
+
+import re
+from typing import Annotated
+
+from pydantic import BeforeValidator
+from pydantic_core import PydanticCustomError
+
+__all__ = [
+    "BIDI_CONTROLS",
+    "SURROGATE",
+    "Label",
+    "Text",
+    "check_text",
+    "escape_controls",
+    "shown_text",
+]
+
+#: A lone UTF-16 surrogate: what neither UTF-8 nor BSON can hold.
+SURROGATE = re.compile("[\ud800-\udfff]")
+#: Why a string with a lone surrogate is refused.
+SURROGATE_MSG = "a string may not hold a lone UTF-16 surrogate (U+D800 to U+DFFF)"
+
+
+def has_surrogate(text: str) -> bool:
+    return not text.isascii() and SURROGATE.search(text) is not None
+
+
+def shown_text(text: str) -> str:
+    """``text`` with any lone surrogate replaced by U+FFFD: for paths and messages."""
+    return text if text.isascii() else SURROGATE.sub("\ufffd", text)
+
+
+def check_text(value: object) -> object:
+    """A string without lone surrogates; anything else for the ``str`` schema to refuse."""
+    if not isinstance(value, str) or value.isascii() or SURROGATE.search(value) is None:
+        return value
+    raise PydanticCustomError("string_unicode", SURROGATE_MSG)
+
+
+#: A ``str`` field: no lone surrogates (pydantic's plain ``str`` lets them through). The
+#: check runs before the ``str`` schema, so that a field's ``max_length`` is that
+#: schema's own ("String should have at most 128 characters"), not a generic length.
+Text = Annotated[str, BeforeValidator(check_text)]
+
+#: Control characters (C0, DEL, C1): a terminal obeys them rather than showing them.
+_CONTROL = re.compile("[\x00-\x1f\x7f-\x9f]")
+
+
+#: Characters that reorder the text around them on a screen (bidirectional embeddings,
+#: overrides and isolates): a name holding one can read as another.
+BIDI_CONTROLS = re.compile("[\u202a-\u202e\u2066-\u2069]")
+
+
+def check_label(value: object) -> object:
+    if isinstance(value, str) and _CONTROL.search(value) is not None:
+        raise PydanticCustomError(
+            "string_control", "a name is shown on screens: no control characters"
+        )
+    if isinstance(value, str) and BIDI_CONTROLS.search(value) is not None:
+        raise PydanticCustomError(
+            "string_bidi",
+            "a name is shown on screens: no characters that reorder the text "
+            "(U+202A to U+202E, U+2066 to U+2069)",
+        )
+    return value
+
+
+def escape_controls(text: str) -> str:
+    """``text`` with each control character shown as its escape (``\\x1b``), for a
+    message that quotes what a client sent."""
+    return _CONTROL.sub(lambda m: f"\\x{ord(m.group()):02x}", text)
+
+
+#: A name people read on a console or a terminal (a vehicle's, an obstacle's): ``Text``
+#: without control characters (NUL, escape sequences, line breaks).
+Label = Annotated[str, BeforeValidator(check_text), BeforeValidator(check_label)]
