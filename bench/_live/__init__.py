@@ -36,9 +36,10 @@ The entry points are ``bench/live_ws.py`` (``python -m bench.live_ws`` and
 ``python -m bench --only live_ws``); the package holds one concern a module:
 ``config`` (constants, goals, the command line), ``server`` (the fleet-server
 subprocess), ``clients`` (WebSocket and raw HTTP clients), ``world`` (vehicles,
-users, a gateway), ``loadgen`` (the capacity load's worker processes and their
-minimal WebSocket client), ``pubsub``, ``command``, ``capacity`` and ``layers`` (the
-four sections), ``runner`` (one run), ``report`` (the printed table) and
+users, a gateway), ``loadgen`` (the capacity load's worker processes, started and
+asked for figures), ``loadgen_worker`` (one worker: its vehicles, ticker and counters),
+``rawws`` (their minimal WebSocket client), ``pubsub``, ``command``, ``capacity`` and
+``layers`` (the four sections), ``runner`` (one run), ``report`` (the printed table) and
 ``metrics`` (rows of ``python -m bench``'s table). Mosquitto, child processes
 and latency statistics are shared with ``bench.pubsub_mqtt`` through
 ``bench._mosquitto``, ``bench._proc`` and ``bench._stats``.
