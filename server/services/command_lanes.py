@@ -5,8 +5,10 @@ The store is the record (``commands_active``, and ``commands`` for those that
 ended); a lane is caught up with it before a command is handed out, acked,
 cancelled or expired (:meth:`CommandLanes._sync`), and a command's end is
 recorded once for all replicas (:meth:`CommandLanes._finished`: the first
-replica to insert it into the history). :class:`~server.services.commands.CommandService`
-builds the command life on these.
+replica to insert it into the history).
+:class:`~server.services.command_delivery.CommandDelivery` (the vehicle's side)
+and :class:`~server.services.commands.CommandService` build the command life on
+these.
 """
 
 from __future__ import annotations

@@ -165,7 +165,7 @@ class VehicleLink:
     async def get_control(
         self, principal: Principal, instance_id: str, wait_s: float
     ) -> tuple[list[Command], list[str]]:
-        """The commands due and the aborts (:meth:`CommandService.get_control`); a long
+        """The commands due and the aborts (:meth:`CommandDelivery.get_control`); a long
         poll also ends as soon as the vehicle has a failsafe policy to apply that no
         answer carried yet (a client that never acknowledges one is not answered at
         once poll after poll)."""
