@@ -18,6 +18,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from datetime import datetime
+from typing import Any
 
 from server.domain.zones import LatLon, ZoneSet, breaches
 
@@ -92,3 +93,25 @@ def dated(was: WatchState, now: WatchState, at: datetime) -> WatchState:
         {z: t for z, t in breach_since.items() if t is not None},
         battery_since,
     )
+
+
+def breach_data(zones: ZoneSet, vehicle_id: str, zone_id: str, *, entered: bool) -> dict[str, Any]:
+    """How a zone the vehicle ``entered`` (or left) is named in its events and alarms: its
+    id, name and kind, and what happened. ``area:<vehicle>`` stands for all of its
+    operating areas (it is outside every one)."""
+    if zone_id.startswith("area:"):
+        areas = zones.of(vehicle_id)[1]
+        return {
+            "zone_id": areas[0].zone_id if areas else None,
+            "zone": ", ".join(a.name for a in areas),
+            "zone_kind": "operating_area",
+            "message": "left its operating area" if entered else "back in its operating area",
+        }
+    area = next((a for a in zones.areas if a.zone_id == zone_id), None)
+    name = area.name if area else zone_id
+    return {
+        "zone_id": zone_id,
+        "zone": name,
+        "zone_kind": "no_go",
+        "message": f"{'entered' if entered else 'left'} no-go zone {name}",
+    }

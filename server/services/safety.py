@@ -30,9 +30,9 @@ from server.domain.alarms import alarms_of
 from server.domain.arbitration import may_grant
 from server.domain.clock import Clock, said_time
 from server.domain.events import FailsafeChanged, SamplesStored
-from server.domain.watch import WatchState, change, dated, next_state
-from server.domain.zones import route_violation
-from server.errors import Conflict, Forbidden, NotFound, ZoneViolation
+from server.domain.failsafe import breach_command, check_home
+from server.domain.watch import WatchState, breach_data, change, dated, next_state
+from server.errors import Conflict, Forbidden, NotFound
 from server.services.auth import AuthService
 from server.services.commands import CommandService
 from server.services.events import EventService
@@ -141,7 +141,7 @@ class SafetyService:
                 f"only a manager of vehicle {vehicle_id}, or an admin, sets its failsafe"
             )
         if body.home is not None:
-            self._check_home(vehicle_id, (body.home.lat, body.home.lon))
+            check_home(self.zones.known(), vehicle_id, (body.home.lat, body.home.lon))
         for _ in range(_CAS_TRIES):
             current = await self.repo.policy(vehicle_id)
             version = int(current["version"]) if current else 0
@@ -232,7 +232,10 @@ class SafetyService:
         if watch is None:
             return alarms_of(in_failsafe, (), None, entered)
         zones = [
-            (self._zone_data(state, z, entered=True), watch.breach_since.get(z))
+            (
+                breach_data(self.zones.known(), state.vehicle_id, z, entered=True),
+                watch.breach_since.get(z),
+            )
             for z in sorted(watch.breaches)
         ]
         pct = (state.position or {}).get("battery_pct")
@@ -339,35 +342,23 @@ class SafetyService:
         self._watch[state.instance_id] = now
         where = {"lat": float(sample.lat), "lon": float(sample.lon)}
         for zone_id in sorted(moved.entered):
-            data = {**self._zone_data(state, zone_id, entered=True), **where}
+            data = {
+                **breach_data(self.zones.known(), state.vehicle_id, zone_id, entered=True),
+                **where,
+            }
             action = await self._act_on_breach(state, zone_id, data)
             await self._event("zone_breach", state, {**data, **action})
         for zone_id in sorted(moved.left):
-            data = {**self._zone_data(state, zone_id, entered=False), **where}
+            data = {
+                **breach_data(self.zones.known(), state.vehicle_id, zone_id, entered=False),
+                **where,
+            }
             await self._event("zone_cleared", state, data)
         if moved.battery is not None:
             kind: EventKind = "low_battery" if moved.battery == "low" else "battery_recovered"
             threshold = self.known_policy(state.vehicle_id).low_battery_pct
             data = {"battery_pct": sample.battery_pct, "threshold_pct": threshold, **where}
             await self._event(kind, state, data)
-
-    def _zone_data(self, state: InstanceState, zone_id: str, *, entered: bool) -> dict[str, Any]:
-        if zone_id.startswith("area:"):
-            areas = self.zones.known().of(state.vehicle_id)[1]
-            return {
-                "zone_id": areas[0].zone_id if areas else None,
-                "zone": ", ".join(a.name for a in areas),
-                "zone_kind": "operating_area",
-                "message": "left its operating area" if entered else "back in its operating area",
-            }
-        area = next((a for a in self.zones.known().areas if a.zone_id == zone_id), None)
-        name = area.name if area else zone_id
-        return {
-            "zone_id": zone_id,
-            "zone": name,
-            "zone_kind": "no_go",
-            "message": f"{'entered' if entered else 'left'} no-go zone {name}",
-        }
 
     async def _act_on_breach(
         self, state: InstanceState, zone_id: str, data: dict[str, Any]
@@ -377,45 +368,16 @@ class SafetyService:
         if not policy.on_breach or policy.action == "none":
             return {}
         why = f"failsafe on breach: {data['message']}"
-        kind, args = self._action(state, policy)
-        if kind not in state.capabilities and kind != "stop":
-            kind, args = "stop", {}
+        kind, args = breach_command(
+            policy,
+            self.zones.known(),
+            state.vehicle_id,
+            state.capabilities,
+            state.position,
+            self._home.get(state.instance_id),
+        )
         cmd = await self.commands.system_command(state, kind, args, why)
         return {"action": policy.action, "command_id": cmd.command_id, "command_type": kind}
-
-    def _check_home(self, vehicle_id: str, home: tuple[float, float]) -> None:
-        """A home the vehicle's zones refuse (in a no-go zone, out of its operating area)
-        is 422 naming ``home``: the vehicle drives there itself when its link is lost,
-        where no server checks its way."""
-        found = route_violation(self.zones.known(), vehicle_id, None, [home])
-        if found is None:
-            return
-        message = found.message.replace("the target is", "home is")
-        refused = ZoneViolation(
-            f"the failsafe's {message}", zone_id=found.zone_id, zone=found.name, kind=found.kind
-        )
-        refused.details = [{"field": "home", "message": message, **refused.zone}]
-        raise refused
-
-    def _action(self, state: InstanceState, policy: FailsafePolicy) -> tuple[str, dict[str, Any]]:
-        if policy.action == "stop":
-            return "stop", {}
-        if policy.action == "return_home":
-            home = (
-                (policy.home.lat, policy.home.lon)
-                if policy.home is not None
-                else self._home.get(state.instance_id)
-            )
-            here = state.position
-            start = (float(here["lat"]), float(here["lon"])) if here else None
-            if (
-                home is not None
-                and route_violation(self.zones.known(), state.vehicle_id, start, [home]) is None
-            ):
-                # There, and held there (keep_station on a point goes to it first).
-                kind = "keep_station" if "keep_station" in state.capabilities else "go_to"
-                return kind, {"lat": home[0], "lon": home[1]}
-        return "keep_station", {}
 
     async def _event(self, kind: EventKind, state: InstanceState, data: dict[str, Any]) -> None:
         await self.events.record(
