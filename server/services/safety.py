@@ -1,18 +1,16 @@
-"""Each vehicle's failsafe, and the watch on its telemetry: zone breaches, low battery.
+"""The watch on each vehicle's telemetry: zone breaches, low battery, and the failsafe's
+action on a breach.
 
-**Failsafe policy.** An admin or the vehicle's field manager sets it
-(``PUT /api/vehicles/{id}/failsafe``); until then the server's default applies
-(version 0). The vehicle gets it with ``start_instance``, as a ``failsafe`` push on its
-socket when it changes, or in ``get_control``'s answer while it has not acknowledged
-the current version (``update_fbmessage.failsafe_version``).
-
-**Watch.** Each new position of a live instance is held against the zones and the
+Each new position of a live instance is held against the zones and the
 battery threshold (:mod:`server.domain.watch`); a change is written by compare and set
 (``watch``, one document per instance) and only the replica whose write lands records
 its events: ``zone_breach`` / ``zone_cleared``, ``low_battery`` / ``battery_recovered``.
 On a breach, a policy with ``on_breach`` makes the server send its action at once
-(``stop``, ``keep_station``, or ``go_to`` home when the way there is clear). The first
-position an instance reports is its home, unless the policy names one.
+(:func:`~server.domain.failsafe.breach_command`: ``stop``, ``keep_station``, or
+``go_to`` home when the way there is clear). The first position an instance reports is
+its home, unless the policy names one. The policies themselves (set, sent,
+acknowledged) are :class:`~server.services.failsafe_policies.FailsafePolicies`, this
+service's base.
 
 The check on the hot path reads nothing: the zones and the policies are read again
 every ``tick`` (a second), the instance's watch state once when first needed.
@@ -20,30 +18,24 @@ every ``tick`` (a second), the instance's watch state once when first needed.
 
 from __future__ import annotations
 
-import logging
 from collections.abc import Awaitable
 from typing import Any, NamedTuple
 
-from fleet_protocol import Alarm, EventKind, FailsafePolicy, SetFailsafe
-from server.domain.access import Principal
+from fleet_protocol import Alarm, EventKind, FailsafePolicy
 from server.domain.alarms import alarms_of
-from server.domain.arbitration import may_grant
 from server.domain.clock import Clock, said_time
-from server.domain.events import FailsafeChanged, SamplesStored
-from server.domain.failsafe import breach_command, check_home
+from server.domain.events import SamplesStored
+from server.domain.failsafe import breach_command
 from server.domain.watch import WatchState, breach_data, change, dated, next_state
-from server.errors import Conflict, Forbidden, NotFound
 from server.services.auth import AuthService
 from server.services.commands import CommandService
 from server.services.events import EventService
+from server.services.failsafe_policies import CAS_TRIES, FailsafePolicies
 from server.services.instances import InstanceService, InstanceState
 from server.services.messagebus import MessageBus
 from server.services.zones import ZoneService
 from server.settings import Settings
-from server.storage.backends import Doc
 from server.storage.safety import SafetyRepo, watch_state
-
-log = logging.getLogger("fleet.safety")
 
 
 class StoredWatch(NamedTuple):
@@ -53,11 +45,10 @@ class StoredWatch(NamedTuple):
     acked_version: int | None
 
 
-#: Tries of a compare-and-set on a policy or a watch state other replicas change too.
-_CAS_TRIES = 5
+class SafetyService(FailsafePolicies):
+    """The watch (see the module) on the failsafe policies of
+    :class:`~server.services.failsafe_policies.FailsafePolicies`."""
 
-
-class SafetyService:
     def __init__(
         self,
         settings: Settings,
@@ -79,147 +70,15 @@ class SafetyService:
         self.events = events
         self.messages = messages
         self.clock = clock
-        #: The policies as this replica last read them (parsed once: the watch asks for
-        #: one on every sample); a vehicle with none has the default.
+        # The policies' (what FailsafePolicies keeps: its attributes say what each is).
         self._policies: dict[str, FailsafePolicy] = {}
         self._default = FailsafePolicy(
             after_s=settings.failsafe_after_s, action=settings.failsafe_action
         )
-        #: instance id -> (its watch state, its home, the failsafe version it acknowledged)
+        self._acked: dict[str, int] = {}
+        #: instance id -> its watch state, and its home
         self._watch: dict[str, WatchState] = {}
         self._home: dict[str, tuple[float, float]] = {}
-        self._acked: dict[str, int] = {}
-
-    # ---- policies --------------------------------------------------------------------
-    def _policy_of(self, doc: Doc | None) -> FailsafePolicy:
-        if doc is None:
-            return self._default
-        return FailsafePolicy.model_validate(doc["policy"])
-
-    async def policy(self, vehicle_id: str) -> FailsafePolicy:
-        """The vehicle's policy as the store has it now."""
-        policy = self._policy_of(await self.repo.policy(vehicle_id))
-        if policy is self._default:
-            self._policies.pop(vehicle_id, None)
-        else:
-            self._policies[vehicle_id] = policy
-        return policy
-
-    def known_policy(self, vehicle_id: str) -> FailsafePolicy:
-        """The policy as this replica last read it (no store read)."""
-        return self._policies.get(vehicle_id, self._default)
-
-    async def view(self, principal: Principal, vehicle_id: str) -> dict[str, Any]:
-        if not principal.can_see(vehicle_id) or await self.auth.vehicle_meta(vehicle_id) is None:
-            raise NotFound(f"no vehicle {vehicle_id}")  # as an unknown one (docs/security.md)
-        doc = await self.repo.policy(vehicle_id)
-        policy = self._policy_of(doc)
-        state = self.instances.current(vehicle_id) or await self.instances.current_or_latest(
-            vehicle_id
-        )
-        acked = None
-        if state is not None and not state.finished:
-            watch = await self.repo.watch_of(state.instance_id)
-            acked = (watch or {}).get("failsafe_version")
-        return {
-            "vehicle_id": vehicle_id,
-            "failsafe": policy.model_dump(mode="json"),
-            "acked_version": acked,
-            "acked": None if state is None or state.finished else acked == policy.version,
-            "updated_at": doc.get("updated_at") if doc else None,
-            "updated_by": doc.get("updated_by") if doc else None,
-        }
-
-    async def set_policy(
-        self, principal: Principal, vehicle_id: str, body: SetFailsafe
-    ) -> dict[str, Any]:
-        """Set the vehicle's whole policy (an admin, or a manager of the vehicle)."""
-        if not principal.can_see(vehicle_id) or await self.auth.vehicle_meta(vehicle_id) is None:
-            raise NotFound(f"no vehicle {vehicle_id}")
-        if not may_grant(principal, vehicle_id):
-            raise Forbidden(
-                f"only a manager of vehicle {vehicle_id}, or an admin, sets its failsafe"
-            )
-        if body.home is not None:
-            check_home(self.zones.known(), vehicle_id, (body.home.lat, body.home.lon))
-        for _ in range(_CAS_TRIES):
-            current = await self.repo.policy(vehicle_id)
-            version = int(current["version"]) if current else 0
-            policy = FailsafePolicy(
-                after_s=body.after_s
-                if body.after_s is not None
-                else self.settings.failsafe_after_s,
-                action=body.action or self.settings.failsafe_action,
-                home=body.home,
-                on_breach=body.on_breach,
-                low_battery_pct=body.low_battery_pct,
-                version=version + 1,
-            )
-            doc = {
-                "vehicle_id": vehicle_id,
-                "version": version + 1,
-                "policy": policy.model_dump(mode="json"),
-                "updated_at": self.clock(),
-                "updated_by": principal.name,
-            }
-            if await self.repo.put_policy(doc, version):
-                break
-        else:
-            raise Conflict("the failsafe of this vehicle keeps changing; try again")
-        self._policies[vehicle_id] = policy
-        wire = policy.model_dump(mode="json")
-        await self.events.record(
-            "failsafe_changed", vehicle_id=vehicle_id, actor=principal, data=wire
-        )
-        self.messages.emit_now(FailsafeChanged(vehicle_id, wire))
-        return await self.view(principal, vehicle_id)
-
-    async def for_start(self, state: InstanceState) -> FailsafePolicy:
-        """The policy a starting instance gets (read from the store: it may have changed).
-        What this replica kept of the instance is forgotten: it may have been on another
-        replica since, whose changes are in the store (read again at its next sample)."""
-        self.forget(state.instance_id)
-        return await self.policy(state.vehicle_id)
-
-    async def pending(self, state: InstanceState) -> FailsafePolicy | None:
-        """The policy, when the instance has not acknowledged its version yet."""
-        policy = self.known_policy(state.vehicle_id)
-        acked = self._acked.get(state.instance_id)
-        if acked is None:
-            watch = await self.repo.watch_of(state.instance_id)
-            acked = int((watch or {}).get("failsafe_version", -1))
-            if acked >= 0:
-                self._acked[state.instance_id] = acked
-        return policy if acked != policy.version else None
-
-    async def acknowledge(self, state: InstanceState, version: int | None) -> None:
-        """The instance applies this version of its policy now. A version the server has
-        not issued (yet) is not taken: the vehicle cannot apply what it was never told
-        (an agent that kept a number from another server), and taking it would show a
-        later policy as applied."""
-        if version is None or self._acked.get(state.instance_id) == version:
-            return
-        if version > self.known_policy(state.vehicle_id).version and (
-            version > (await self.policy(state.vehicle_id)).version
-        ):
-            log.warning(
-                "%s: failsafe version %d acknowledged, never issued: not taken",
-                state.vehicle_id,
-                version,
-            )
-            return
-        self._acked[state.instance_id] = version
-        await self.repo.ack_failsafe(state.instance_id, state.vehicle_id, version)
-        await self.events.record(
-            "failsafe_acked",
-            vehicle_id=state.vehicle_id,
-            instance_id=state.instance_id,
-            data={"version": version},
-        )
-
-    def acked(self, state: InstanceState) -> bool | None:
-        """Whether the instance applies the current version (None: not known here)."""
-        return self.acked_version(state, self._acked.get(state.instance_id))
 
     # ---- what is wrong with a vehicle now ----------------------------------------------
     def alarms(self, state: InstanceState, watch: WatchState | None = None) -> list[Alarm]:
@@ -262,23 +121,6 @@ class SafetyService:
             )
             for doc in docs
         }
-
-    def acked_version(self, state: InstanceState, version: int | None) -> bool | None:
-        """Whether ``version`` (the one the instance acknowledged) is the policy's now."""
-        if version is None:
-            return None
-        return version == self.known_policy(state.vehicle_id).version
-
-    # ---- background: read again what the hot path uses ---------------------------------
-    async def tick(self) -> None:
-        await self.zones.current()
-        docs = await self.repo.policies()
-        policies: dict[str, FailsafePolicy] = {}
-        for vehicle_id, doc in docs.items():
-            kept = self._policies.get(vehicle_id)  # parsed again only when its version moved
-            same = kept is not None and kept.version == doc.get("version")
-            policies[vehicle_id] = kept if kept is not None and same else self._policy_of(doc)
-        self._policies = policies
 
     # ---- the watch --------------------------------------------------------------------
     def on_samples(self, event: SamplesStored) -> Awaitable[None] | None:
@@ -326,7 +168,7 @@ class SafetyService:
         """Write the new state if it is still news (compare and set), each new alarm dated
         by the sample that raised it; record what changed."""
         at = said_time(sample.ts, self.clock(), state.started_at)
-        for _ in range(_CAS_TRIES):
+        for _ in range(CAS_TRIES):
             doc = await self.repo.watch_of(state.instance_id)
             stored = watch_state(doc)
             moved = change(stored, now)
@@ -385,6 +227,7 @@ class SafetyService:
         )
 
     def forget(self, instance_id: str) -> None:
+        """Its watch state and home too (read again at its next sample)."""
         self._watch.pop(instance_id, None)
         self._home.pop(instance_id, None)
-        self._acked.pop(instance_id, None)
+        super().forget(instance_id)
