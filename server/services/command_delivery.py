@@ -120,7 +120,7 @@ class CommandDelivery(CommandLanes):
             ack_timeout_s=self.settings.ack_timeout_s,
             position=state.position,
             position_current=life.position_is_current(
-                state.position, now, self.settings.offline_after_s
+                state.position, state.vehicle_clock(now), self.settings.offline_after_s
             ),
             held=held,
         )

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from datetime import datetime
+from datetime import datetime, timedelta
 from typing import Any
 
 from fleet_protocol import Sample
@@ -44,10 +44,19 @@ class InstanceState:
     failsafe_told: int | None = None
     #: A command with ``max_drift_m`` waits for a current position (memory only).
     drift_held: bool = False
+    #: The server's clock minus the vehicle's, in seconds, as the vehicle last said
+    #: (``clock_offset_s`` of its calls; memory only). Its samples are dated by its clock.
+    clock_offset_s: float = 0.0
 
     @property
     def finished(self) -> bool:
         return self.finished_at is not None
+
+    def vehicle_clock(self, now: datetime) -> datetime:
+        """The server's ``now`` by the vehicle's clock (which dates its samples)."""
+        if not self.clock_offset_s:
+            return now
+        return now - timedelta(seconds=self.clock_offset_s)
 
     def position_json(self) -> dict[str, Any] | None:
         if self.position is None:

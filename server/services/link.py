@@ -47,12 +47,18 @@ class IngestResult(Protocol):
 
 class Telemetry(Protocol):
     async def ingest(
-        self, vehicle_id: str, instance_id: str, samples: list[Sample]
+        self,
+        vehicle_id: str,
+        instance_id: str,
+        samples: list[Sample],
+        clock_offset_s: float = 0.0,
     ) -> IngestResult: ...
 
     def takes_now(self, vehicle_id: str, count: int) -> bool: ...
 
-    def ingest_now(self, vehicle_id: str, samples: list[Sample]) -> IngestResult: ...
+    def ingest_now(
+        self, vehicle_id: str, samples: list[Sample], clock_offset_s: float = 0.0
+    ) -> IngestResult: ...
 
     async def last_seq(self, vehicle_id: str) -> int: ...
 
@@ -214,7 +220,9 @@ class VehicleLink:
         arrived = self.instances.clock()  # the call's one reading of the clock
         state = await self.live(principal, body.instance_id, arrived)
         self._merge(state, body, arrived, transport)
-        result = await self.telemetry.ingest(state.vehicle_id, state.instance_id, body.samples)
+        result = await self.telemetry.ingest(
+            state.vehicle_id, state.instance_id, body.samples, state.clock_offset_s
+        )
         return self._after_ingest(state, result, arrived)
 
     def update_param_now(
@@ -229,12 +237,14 @@ class VehicleLink:
         arrived = self.instances.clock()
         self.instances.touch(state, arrived)
         self._merge(state, body, arrived, transport)
-        result = self.telemetry.ingest_now(state.vehicle_id, body.samples)
+        result = self.telemetry.ingest_now(state.vehicle_id, body.samples, state.clock_offset_s)
         return self._after_ingest(state, result, arrived)
 
     def _merge(
         self, state: InstanceState, body: UpdateParam, arrived: datetime, transport: str
     ) -> None:
+        if body.clock_offset_s is not None:
+            state.clock_offset_s = body.clock_offset_s
         if body.sent_at is not None:
             self._timed(state, body, arrived, transport)
         self.instances.merge_params(state, body.params, arrived)
@@ -245,7 +255,7 @@ class VehicleLink:
         if result.latest is not None:
             self.instances.set_position(state, result.latest, result.latest_doc)
             if state.drift_held and position_is_current(
-                state.position, arrived, self.settings.offline_after_s
+                state.position, state.vehicle_clock(arrived), self.settings.offline_after_s
             ):
                 state.drift_held = False
                 self.commands.ready(state.instance_id)  # its drift can be judged now

@@ -127,17 +127,25 @@ class TelemetryService(TelemetryWriter, TelemetryViews):
         state.loaded = True
 
     async def ingest(
-        self, vehicle_id: str, instance_id: str, samples: list[Sample]
+        self,
+        vehicle_id: str,
+        instance_id: str,
+        samples: list[Sample],
+        clock_offset_s: float = 0.0,
     ) -> IngestResult:
+        """Take the samples (duplicates counted, not stored). ``clock_offset_s``: the
+        server's clock minus the vehicle's, as the vehicle last said: its samples are
+        dated by its clock, so whether one is stale or too far ahead is judged by the
+        server's clock turned into the vehicle's."""
         if self.takes_now(vehicle_id, len(samples)):
-            return self.ingest_now(vehicle_id, samples)
+            return self.ingest_now(vehicle_id, samples, clock_offset_s)
         state = self._vehicles.get(vehicle_id) or self._state(vehicle_id)
         cap = self.settings.bucket_samples
         async with state.lock:
             await self._load(vehicle_id, state)
             if samples and len(state.pending) >= cap * MAX_PENDING_BUCKETS:
                 raise Unavailable("telemetry cannot be stored now; send it again shortly")
-            result = self._accept(vehicle_id, state, samples)
+            result = self._accept(vehicle_id, state, samples, clock_offset_s)
             while self._full(state):
                 if not await self._write_bucket(vehicle_id, state, best_effort=True):
                     break
@@ -158,12 +166,18 @@ class TelemetryService(TelemetryWriter, TelemetryViews):
             and state.pending_bytes < self.settings.bucket_max_bytes
         )
 
-    def ingest_now(self, vehicle_id: str, samples: list[Sample]) -> IngestResult:
+    def ingest_now(
+        self, vehicle_id: str, samples: list[Sample], clock_offset_s: float = 0.0
+    ) -> IngestResult:
         """:meth:`ingest` within this call; only when :meth:`takes_now` said so."""
-        return self._accept(vehicle_id, self._vehicles[vehicle_id], samples)
+        return self._accept(vehicle_id, self._vehicles[vehicle_id], samples, clock_offset_s)
 
     def _accept(
-        self, vehicle_id: str, state: VehicleTelemetry, samples: list[Sample]
+        self,
+        vehicle_id: str,
+        state: VehicleTelemetry,
+        samples: list[Sample],
+        clock_offset_s: float,
     ) -> IngestResult:
         """Take the new samples into the open bucket (synchronous: the caller holds the turn)."""
         result = IngestResult(0, 0, -1, -1, None)
@@ -184,6 +198,8 @@ class TelemetryService(TelemetryWriter, TelemetryViews):
         # The same instant in the samples' own tzinfo: two datetimes of one tzinfo are
         # compared without a call to either's utcoffset (one per sample saved).
         now = self.clock()
+        if clock_offset_s:  # now by the vehicle's clock, which dates its samples
+            now -= timedelta(seconds=clock_offset_s)
         stale_before = now - self._offline_after
         ahead = now + _AHEAD  # a sample past it is stored, never the latest position
         if (tz := stored[0].ts.tzinfo) is not None:
