@@ -23,9 +23,13 @@ class Connection:
     digest: str = ""  # the token's digest (its revocation closes the socket)
     id: str = field(default_factory=lambda: secrets.token_hex(8))
     subs: dict[tuple[str, str], Subscription] = field(default_factory=dict)
+    #: topic -> the least ``throttle_ms`` its units asked (the gateway throttles each)
     throttle: dict[str, int] = field(default_factory=dict)
-    #: topic -> the units of this connection subscribed to it (a gateway serves several)
-    topic_units: dict[str, set[str]] = field(default_factory=dict)
+    #: topic -> the units of this connection subscribed to it (a gateway serves several),
+    #: each with the ``throttle_ms`` it asked
+    topic_units: dict[str, dict[str, int]] = field(default_factory=dict)
+    #: unit -> the topics it registered through this connection
+    produces: dict[str, set[str]] = field(default_factory=dict)
     units: set[str] = field(default_factory=set)
     instances: set[str] = field(default_factory=set)  # instances this socket serves
     buffering: dict[str, list[Message]] = field(default_factory=dict)

@@ -45,7 +45,9 @@ class TopicFanout:
         self._stamped: dict[str, Any] | None = None
         self._stamp: float | None = None
         self.routing = RoutingTable(max_topics)
-        self._unit_conn: dict[str, Connection] = {}
+        #: Each unit's connections (a user's console and fleetctl, a gateway's old socket
+        #: and its new one): the unit's part of the table is what any of them holds.
+        self._unit_conns: dict[str, list[Connection]] = {}
         self._last_message: dict[str, Any] | None = None
         self._routes_due: set[str] = set()
         self._last_frame = ""
@@ -60,8 +62,9 @@ class TopicFanout:
         self._add_unit(conn, unit)
         changed = self.routing.subscribe(unit.id, topics)
         for topic in topics:
-            conn.throttle[topic] = throttle_ms
-            conn.topic_units.setdefault(topic, set()).add(unit.id)
+            units = conn.topic_units.setdefault(topic, {})
+            units[unit.id] = throttle_ms
+            conn.throttle[topic] = min(units.values())
         self._push_routes(changed)
 
     async def start_streams(self, conn: Connection, topics: list[str]) -> None:
@@ -88,13 +91,17 @@ class TopicFanout:
                 self._deliver(conn, topic, message)
 
     async def unsubscribe(self, conn: Connection, unit: UnitRef, topics: list[str]) -> None:
+        """The unit no longer wants ``topics`` on this connection (its other connections
+        keep what they subscribed)."""
         if unit.id in self.routing:
-            self._push_routes(self.routing.unsubscribe(unit.id, topics))
+            gone = [t for t in topics if not self._elsewhere(conn, unit.id, t, produced=False)]
+            self._push_routes(self.routing.unsubscribe(unit.id, gone))
         for topic in topics:
-            units = conn.topic_units.get(topic, set())
-            units.discard(unit.id)
-            if units:
-                continue  # another unit behind this gateway still wants it
+            units = conn.topic_units.get(topic, {})
+            units.pop(unit.id, None)
+            if units:  # another unit behind this gateway still wants it
+                conn.throttle[topic] = min(units.values())
+                continue
             conn.topic_units.pop(topic, None)
             sub = conn.subs.pop(("sub", topic), None)
             if sub is not None:
@@ -105,10 +112,24 @@ class TopicFanout:
     def register(self, conn: Connection, unit: UnitRef, topics: list[str]) -> None:
         self._add_unit(conn, unit)
         self._push_routes(self.routing.register(unit.id, topics))
+        conn.produces.setdefault(unit.id, set()).update(topics)
 
     def unregister(self, conn: Connection, unit: UnitRef, topics: list[str]) -> None:
         self._add_unit(conn, unit)
-        self._push_routes(self.routing.unregister(unit.id, topics))
+        conn.produces.get(unit.id, set()).difference_update(topics)
+        gone = [t for t in topics if not self._elsewhere(conn, unit.id, t, produced=True)]
+        self._push_routes(self.routing.unregister(unit.id, gone))
+
+    def _elsewhere(self, conn: Connection, unit_id: str, topic: str, *, produced: bool) -> bool:
+        """Whether another connection of the unit still registers (``produced``) or
+        subscribes to the topic for it."""
+        return any(
+            topic in other.produces.get(unit_id, ())
+            if produced
+            else unit_id in other.topic_units.get(topic, ())
+            for other in self._unit_conns.get(unit_id, ())
+            if other is not conn
+        )
 
     def publish(
         self, conn: Connection, unit: UnitRef, topic: str, data: Any
@@ -191,12 +212,16 @@ class TopicFanout:
     def _add_unit(self, conn: Connection, unit: UnitRef) -> None:
         if unit.parent is not None and unit.parent not in self.routing:
             self.routing.add_unit(unit.parent, "gateway")
-            self._unit_conn[unit.parent] = conn
-            conn.units.add(unit.parent)
+            self._held_by(conn, unit.parent)
         if unit.id not in self.routing:
             self.routing.add_unit(unit.id, unit.kind, unit.parent)
-        self._unit_conn[unit.id] = conn
-        conn.units.add(unit.id)
+        self._held_by(conn, unit.id)
+
+    def _held_by(self, conn: Connection, unit_id: str) -> None:
+        if unit_id in conn.units:
+            return
+        conn.units.add(unit_id)
+        self._unit_conns.setdefault(unit_id, []).append(conn)
 
     def _push_routes(self, changed: frozenset[str]) -> None:
         """Note whose part of the table changed; :meth:`flush_routes` tells them."""
@@ -213,20 +238,41 @@ class TopicFanout:
             return
         due, self._routes_due = self._routes_due, set()
         for unit_id in sorted(due, key=lambda u: (not u.startswith("gateway:"), u)):
-            conn = self._unit_conn.get(unit_id)
-            if conn is not None and not conn.closed and unit_id in self.routing:
-                view = self.routing.view(unit_id)
-                conn.outbox.put(RoutesPush(**view.as_dict()).frame())
+            if unit_id not in self.routing:
+                continue
+            frame = RoutesPush(**self.routing.view(unit_id).as_dict()).frame()
+            for conn in self._unit_conns.get(unit_id, ()):
+                if not conn.closed:
+                    conn.outbox.put(frame)
 
     def _drop_units(self, conn: Connection) -> None:
-        """Take the ended connection's units out of the table; tell the others whose part
-        changed."""
+        """Take what the ended connection held out of the table: a unit it alone held,
+        whole; of a unit another connection holds too, the topics no other one holds.
+        Tell the others whose part changed."""
         changed: set[str] = set()
+        removed: set[str] = set()
         for unit_id in sorted(conn.units, key=lambda u: u.startswith("gateway:")):
-            if self._unit_conn.get(unit_id) is conn and unit_id in self.routing:
+            conns = self._unit_conns.get(unit_id, [])
+            if conn in conns:
+                conns.remove(conn)
+            if not conns:
+                self._unit_conns.pop(unit_id, None)
+                removed.add(unit_id)
+            if unit_id not in self.routing:
+                continue
+            if not conns:
                 changed |= self.routing.remove_unit(unit_id)
-                del self._unit_conn[unit_id]
-        self._push_routes(frozenset(changed - conn.units))
+                continue
+            wanted = [t for t, units in conn.topic_units.items() if unit_id in units]
+            made = conn.produces.get(unit_id, ())
+            changed |= self.routing.unsubscribe(
+                unit_id,
+                [t for t in wanted if not self._elsewhere(conn, unit_id, t, produced=False)],
+            )
+            changed |= self.routing.unregister(
+                unit_id, [t for t in made if not self._elsewhere(conn, unit_id, t, produced=True)]
+            )
+        self._push_routes(frozenset(changed - removed))
         self.flush_routes()
 
 
