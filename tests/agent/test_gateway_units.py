@@ -170,6 +170,34 @@ async def test_a_unit_s_first_publish_reaches_who_already_asked_above(
                 assert (await next_json(op, event_on(topic)))["data"] == n
 
 
+async def test_a_unit_that_publishes_the_moment_its_register_is_acked_reaches_above(
+    make_settings: Callable[..., Settings],
+) -> None:
+    """The register's ack is passed down once the routes push that follows it came: a
+    unit publishing at once used to be kept local (the gateway did not know yet that
+    someone above wants the topic), acknowledged ok and lost above."""
+    async with gateway(make_settings) as w:
+        async with await w.operator_ws() as op, w.unit(w.a) as ua:
+            other = f"vehicle/{w.b}/status"
+            assert (await ack(ua, "subscribe", "warm", topics=[other]))["ok"] is True
+            told = w.units.link.on_routes
+            assert told is not None
+            loop = asyncio.get_running_loop()
+
+            def later(push: RoutesPush) -> None:  # a push a moment behind its ack
+                assert told is not None
+                loop.call_later(0.3, told, push)
+
+            w.units.link.on_routes = later
+            for n in range(3):
+                topics = [f"vehicle/{w.a}/meta/{n}", f"vehicle/{w.a}/meta/{n}/more"]
+                assert (await ack(op, "subscribe", f"s{n}", topics=topics[:1]))["ok"] is True
+                assert (await ack(ua, "register", f"r{n}", topics=topics))["ok"] is True
+                said = await ack(ua, "publish", f"p{n}", topic=topics[0], data=n)
+                assert said["ok"] is True, said
+                assert (await next_json(op, event_on(topics[0])))["data"] == n
+
+
 async def test_a_publish_that_cannot_go_up_is_not_acked_ok(
     make_settings: Callable[..., Settings],
 ) -> None:

@@ -57,6 +57,7 @@ from fleet_protocol.ws import (
 from fleet_protocol.ws_frames import FrameError, parse_client_op
 from vehicle_client.errors import AgentError, FatalError
 from vehicle_client.gateway.forwarding import TopicRouter, in_ops, write_refusal
+from vehicle_client.gateway.registrar import Registrar
 from vehicle_client.gateway.unit_queue import DEFAULT_UNIT_QUEUE, UnitQueue
 from vehicle_client.gateway.uplink import (
     DEFAULT_MEDIA_UP_PER_S,
@@ -70,8 +71,6 @@ from vehicle_client.transport.ws import WsLink
 log = logging.getLogger(__name__)
 
 CLOSE_BAD_REQUEST = 4400  # the gateway's own: a unit that did not name its vehicle
-#: How long a unit's first publish on a topic waits for the register's routes push.
-ROUTES_WAIT_S = 2.0
 
 
 def _listen_address(listen: str) -> tuple[str, int]:
@@ -101,9 +100,7 @@ class UnitServer:
         self.router = TopicRouter()
         self.uplink = MediaUplink(link, media_up_per_s)
         self._queues: dict[str, UnitQueue] = {}
-        #: Registrations made for a unit's publish, waiting for the ``routes`` push that
-        #: shows them (the server sends it after the register's ack).
-        self._shown: dict[tuple[str, str], asyncio.Future[None]] = {}
+        self.registrar = Registrar(link, self.router)
         #: The vehicles the gateway's token acts for, as the server last said (None: not yet).
         self.acts_for: frozenset[str] | None = None
         self._server: Server | None = None
@@ -223,18 +220,21 @@ class UnitServer:
             self.router.unsubscribe(vehicle_id, op.topics)
         elif isinstance(op, UnregisterOp):
             self.router.unregister(vehicle_id, op.topics)
-        upstream = op.model_dump(mode="json", exclude={"id"}, exclude_none=True)
+        upstream = {
+            **op.model_dump(mode="json", exclude={"id"}, exclude_none=True),
+            "vehicle_id": vehicle_id,
+        }
         try:
-            ack = await self.link.call({**upstream, "vehicle_id": vehicle_id}, check=False)
+            if isinstance(op, RegisterOp):
+                ack = await self.registrar.register(vehicle_id, op.topics, upstream)
+            else:
+                ack = await self.link.call(upstream, check=False)
         except AgentError as exc:
             error = ErrorBody(code="unavailable", message=f"the cloud link is down: {exc}")
             queue.refuse(op.id, error)
             return
-        if ack.ok and vehicle_id in self.router.units:
-            if isinstance(op, RegisterOp):
-                self.router.register(vehicle_id, op.topics)
-            elif isinstance(op, SubscribeOp):
-                self.router.subscribe(vehicle_id, op.topics)
+        if ack.ok and vehicle_id in self.router.units and isinstance(op, SubscribeOp):
+            self.router.subscribe(vehicle_id, op.topics)
         if op.id:
             queue.put(ack.model_copy(update={"id": op.id}).frame())
 
@@ -244,7 +244,7 @@ class UnitServer:
         same): the link down, the units' share of the uplink spent, a frame too large
         once it names its vehicle. A topic the unit publishes on unregistered is
         registered above first, so that only what someone there asked for goes up."""
-        await self._known_above(vehicle_id, op.topic)
+        await self.registrar.before_publish(vehicle_id, op.topic)
         delivery = self.router.publish(vehicle_id, op.topic)
         frame = EventPush(topic=op.topic, data=op.data).model_dump_json()
         for other in delivery.local:
@@ -272,30 +272,6 @@ class UnitServer:
         except AgentError as exc:
             return ErrorBody(code="unavailable", message=f"the cloud link is down: {exc}")
         return None
-
-    async def _known_above(self, vehicle_id: str, topic: str) -> None:
-        """Register ``topic`` above for the unit if it publishes on it unregistered (the
-        routing table there then says whether anyone outside wants it). Not when the
-        link is down or the server refuses: it goes up then, as before registering."""
-        unit = self.router.units.get(vehicle_id)
-        if unit is None or topic in unit.produces or not self.link.connected:
-            return
-        key = (vehicle_id, topic)
-        shown = self._shown[key] = asyncio.get_running_loop().create_future()
-        try:
-            op = {"op": "register", "vehicle_id": vehicle_id, "topics": [topic]}
-            ack = await self.link.call(op, check=False)
-            if ack.ok and vehicle_id in self.router.units:
-                self.router.register(vehicle_id, [topic])
-                # The gateway's own routes come before the unit's: once the unit's show
-                # the topic, forward_up says whether anyone above wants it.
-                with contextlib.suppress(TimeoutError):
-                    await asyncio.wait_for(shown, ROUTES_WAIT_S)
-        except AgentError:
-            pass
-        finally:
-            if self._shown.get(key) is shown:
-                del self._shown[key]
 
     def _media(self, vehicle_id: str, queue: UnitQueue, frame: bytes) -> None:
         """A unit's media frame: checked like a publish, then to local units and up on demand."""
@@ -341,10 +317,7 @@ class UnitServer:
     def _routes(self, push: RoutesPush) -> None:
         vehicle_id = self.router.routes(push.unit, push.forward_up, push.forward_down)
         if vehicle_id is not None:
-            for topic in push.produces:
-                waiting = self._shown.get((vehicle_id, topic))
-                if waiting is not None and not waiting.done():
-                    waiting.set_result(None)
+            self.registrar.shown(vehicle_id, push.produces)
             self._put(vehicle_id, push.frame())
 
     async def _replay(self) -> None:
