@@ -9,7 +9,12 @@ from typing import Any
 
 import websockets
 
-from fleet_protocol.links import CLOSE_FORBIDDEN, CLOSE_UNAUTHORIZED, websocket_url
+from fleet_protocol.links import (
+    CLOSE_FORBIDDEN,
+    CLOSE_UNAUTHORIZED,
+    MAX_BINARY_FRAME_BYTES,
+    websocket_url,
+)
 from remote_client.sdk_session import Body, FleetApiError, Session
 
 __all__ = ["LiveCalls"]
@@ -75,6 +80,9 @@ class LiveCalls(Session):
             websocket_url(self.server, "/ws/client"),
             additional_headers=self._headers,
             open_timeout=30,
+            # the largest push: a media frame, or the largest publish with its source
+            # and time added (websockets' default, 1 MiB, refused that one)
+            max_size=MAX_BINARY_FRAME_BYTES,
         )
 
 

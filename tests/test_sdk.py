@@ -4,6 +4,8 @@ missions, control, names, administration, parameters, tracks, the event log, the
 from __future__ import annotations
 
 import asyncio
+import contextlib
+import json
 from collections.abc import Callable
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
@@ -12,6 +14,7 @@ from typing import Any
 import httpx
 import pytest
 
+from fleet_protocol.links import MAX_TEXT_FRAME_BYTES
 from remote_client.localcopy import LocalCopy, sync_vehicle
 from remote_client.sdk import (
     AmbiguousName,
@@ -137,6 +140,42 @@ async def test_events_give_the_state_then_changes_and_refusals_raise(
                 with pytest.raises(FleetApiError) as bad:
                     _ = [p async for p in fleet.events(["Not A Topic"])]
             assert bad.value.status == 422 and bad.value.code == "invalid"
+
+
+async def test_events_take_the_largest_message_the_server_accepts(
+    make_settings: Callable[..., Settings],
+) -> None:
+    """A publish of the full 1 MiB frame comes out as a larger event (its source and
+    time added): the SDK's socket used to refuse it and end the iteration (fleetctl
+    watch: "link lost"), the message lost."""
+    async with serve(make_settings()) as base:
+        async with httpx.AsyncClient(base_url=base) as c:
+            name, headers = await make_user(c, "operator", vehicles=[])
+        topic = f"user/{name}/big"
+        op = {"op": "publish", "id": "publish", "topic": topic, "data": ""}
+        big = "x" * (MAX_TEXT_FRAME_BYTES - len(json.dumps(op)))
+        received: asyncio.Queue[dict[str, Any]] = asyncio.Queue()
+        async with (
+            FleetClient(base, _token(headers)) as fleet,
+            FleetClient(base, ADMIN_TOKEN) as admin,
+        ):
+
+            async def listen() -> None:  # an admin reads under every user's name
+                async for push in admin.events([topic]):
+                    await received.put(push)
+
+            listening = asyncio.create_task(listen())
+            try:
+                async with asyncio.timeout(20):
+                    while received.empty():  # until the subscription is in place
+                        await fleet.publish(topic, "ping")
+                        with contextlib.suppress(TimeoutError):
+                            await received.put(await asyncio.wait_for(received.get(), 0.2))
+                    await fleet.publish(topic, big)
+                    while (push := await received.get())["data"] != big:
+                        assert push["data"] == "ping", push
+            finally:
+                listening.cancel()
 
 
 async def _start(
