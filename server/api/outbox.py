@@ -46,8 +46,8 @@ from collections.abc import Callable, Coroutine
 from types import TracebackType
 from typing import Any, Self
 
+from fleet_protocol.throttle import Throttle
 from fleet_protocol.ws import LaggingPush
-from server.api.throttle import Throttle
 
 __all__ = ["DEFAULT_MAX_QUEUE", "Frame", "LazyEvent", "Outbox"]
 

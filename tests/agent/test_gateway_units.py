@@ -198,6 +198,24 @@ async def test_a_unit_that_publishes_the_moment_its_register_is_acked_reaches_ab
                 assert (await next_json(op, event_on(topics[0])))["data"] == n
 
 
+async def test_a_local_unit_gets_its_topic_at_the_throttle_it_asked(
+    make_settings: Callable[..., Settings],
+) -> None:
+    """``throttle_ms`` holds for a unit behind the gateway as on the server's sockets: at
+    most one event a period, the latest held back going when it is over. The gateway
+    used to hand every event to its units whatever they asked."""
+    async with gateway(make_settings) as w:
+        async with w.unit(w.a) as ua, w.unit(w.b) as ub:
+            topic = f"vehicle/{w.a}/status"
+            asked = await ack(ub, "subscribe", "s", topics=[topic], throttle_ms=2000)
+            assert asked["ok"] is True
+            for n in range(10):
+                assert (await ack(ua, "publish", f"p{n}", topic=topic, data=n))["ok"] is True
+            first = await next_json(ub, event_on(topic))
+            then = await next_json(ub, event_on(topic))
+            assert (first["data"], then["data"]) == (0, 9)
+
+
 async def test_a_publish_that_cannot_go_up_is_not_acked_ok(
     make_settings: Callable[..., Settings],
 ) -> None:

@@ -129,9 +129,11 @@ def test_router_delivers_from_above_and_replays_after_a_reconnection() -> None:
     assert router.from_above("user/op/plan") == ["a"] and router.from_above("user/op/q") == []
     assert router.routes("vehicle:a", [], []) == "a"
     assert router.routes("vehicle:zz", [], []) is None
+    router.subscribe("a", ["user/op/slow"], throttle_ms=500)
     assert router.replay() == [
-        ("a", "register", ["vehicle/a/x"]),
-        ("a", "subscribe", ["user/op/plan"]),
+        {"op": "register", "vehicle_id": "a", "topics": ["vehicle/a/x"]},
+        {"op": "subscribe", "vehicle_id": "a", "topics": ["user/op/plan"]},
+        {"op": "subscribe", "vehicle_id": "a", "topics": ["user/op/slow"], "throttle_ms": 500},
     ]
     router.drop("a")
     assert router.replay() == []

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from server.api.throttle import Throttle
+from fleet_protocol.throttle import Throttle
 
 
 def test_first_goes_at_once_then_the_latest_is_held_until_the_interval_is_over():

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 from dataclasses import dataclass, field
+from typing import Any
 
 from fleet_protocol.topics import SERVER_ONLY_VEHICLE_TOPICS, topic_owner
 from fleet_protocol.ws import MAX_TOPICS_PER_OP
@@ -36,7 +37,8 @@ from fleet_protocol.ws import MAX_TOPICS_PER_OP
 @dataclass
 class _Unit:
     produces: set[str] = field(default_factory=set)
-    consumes: set[str] = field(default_factory=set)
+    #: topic -> the ``throttle_ms`` the unit asked (0: every event)
+    consumes: dict[str, int] = field(default_factory=dict)
 
 
 @dataclass
@@ -70,11 +72,18 @@ class TopicRouter:
     def unregister(self, vehicle_id: str, topics: list[str]) -> None:
         self.units[vehicle_id].produces.difference_update(topics)
 
-    def subscribe(self, vehicle_id: str, topics: list[str]) -> None:
-        self.units[vehicle_id].consumes.update(topics)
+    def subscribe(self, vehicle_id: str, topics: list[str], throttle_ms: int = 0) -> None:
+        self.units[vehicle_id].consumes.update(dict.fromkeys(topics, throttle_ms))
 
     def unsubscribe(self, vehicle_id: str, topics: list[str]) -> None:
-        self.units[vehicle_id].consumes.difference_update(topics)
+        consumes = self.units[vehicle_id].consumes
+        for topic in topics:
+            consumes.pop(topic, None)
+
+    def throttle_ms(self, vehicle_id: str, topic: str) -> int:
+        """The ``throttle_ms`` the unit asked for ``topic`` (0: none, or not subscribed)."""
+        unit = self.units.get(vehicle_id)
+        return unit.consumes.get(topic, 0) if unit is not None else 0
 
     def subscribers(self, topic: str, *, but: str | None = None) -> list[str]:
         return sorted(v for v, u in self.units.items() if topic in u.consumes and v != but)
@@ -118,13 +127,20 @@ class TopicRouter:
         kind, _, vehicle_id = unit.partition(":")
         return vehicle_id if kind == "vehicle" and vehicle_id in self.units else None
 
-    def replay(self) -> list[tuple[str, str, list[str]]]:
-        """``(vehicle_id, "register" | "subscribe", topics)`` to send after a reconnection,
-        at most an op's worth of topics each."""
-        ops: list[tuple[str, str, list[str]]] = []
+    def replay(self) -> list[dict[str, Any]]:
+        """The ops to send after a reconnection: each unit's ``register`` and ``subscribe``
+        (with the ``throttle_ms`` it asked), at most an op's worth of topics each."""
+        ops: list[dict[str, Any]] = []
         for vehicle_id, unit in sorted(self.units.items()):
-            ops += [(vehicle_id, "register", chunk) for chunk in in_ops(unit.produces)]
-            ops += [(vehicle_id, "subscribe", chunk) for chunk in in_ops(unit.consumes)]
+            for chunk in in_ops(unit.produces):
+                ops.append({"op": "register", "vehicle_id": vehicle_id, "topics": chunk})
+            by_throttle: dict[int, list[str]] = {}
+            for topic, throttle_ms in unit.consumes.items():
+                by_throttle.setdefault(throttle_ms, []).append(topic)
+            for throttle_ms, topics in sorted(by_throttle.items()):
+                for chunk in in_ops(topics):
+                    op = {"op": "subscribe", "vehicle_id": vehicle_id, "topics": chunk}
+                    ops.append({**op, "throttle_ms": throttle_ms} if throttle_ms else op)
         return ops
 
 

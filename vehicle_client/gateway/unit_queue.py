@@ -9,17 +9,23 @@ published, nor the uplink's reader. Two rules keep the queue bounded:
   the server's sockets), counted in ``replaced``;
 - past ``size`` waiting frames the oldest is dropped, counted, and a
   ``lagging {dropped}`` push goes out before the next frame.
+
+An event on a topic the unit subscribed to with ``throttle_ms`` goes at most
+once every ``throttle_ms`` (the latest one held back goes when it is over), as
+the server does for each socket (``fleet_protocol.throttle``).
 """
 
 from __future__ import annotations
 
 import asyncio
+import contextlib
 from collections import deque
 
 from websockets.asyncio.server import ServerConnection
 from websockets.exceptions import ConnectionClosed
 
 from fleet_protocol import ErrorBody
+from fleet_protocol.throttle import Throttle
 from fleet_protocol.ws import AckPush, ErrorPush, LaggingPush
 
 __all__ = ["DEFAULT_UNIT_QUEUE", "UnitQueue"]
@@ -37,6 +43,7 @@ class UnitQueue:
         #: Text frames as they are; a media topic stands for its latest frame in ``_media``.
         self._order: deque[str | _MediaSlot] = deque()
         self._media: dict[str, bytes] = {}
+        self._throttle: Throttle[str] = Throttle()
         self._wake = asyncio.Event()
         self._lagging = 0
         self.dropped = 0
@@ -48,6 +55,21 @@ class UnitQueue:
     def put(self, frame: str) -> None:
         if not self.closed:
             self._append(frame)
+
+    def put_event(self, topic: str, frame: str, throttle_ms: int) -> None:
+        """An event on ``topic``: at once, or held back while its ``throttle_ms`` runs."""
+        if self.closed:
+            return
+        now = asyncio.get_running_loop().time()
+        if throttle_ms <= 0 or self._throttle.offer(topic, frame, throttle_ms / 1000, now):
+            self._append(frame)
+        else:
+            self._wake.set()  # the writer sends it when it is due
+
+    def forget(self, topics: list[str]) -> None:
+        """The unit unsubscribed: what was held back of these topics is not sent."""
+        for topic in topics:
+            self._throttle.forget(topic)
 
     def refuse(self, op_id: str | None, error: ErrorBody) -> None:
         """An op refused: its ack when it has an ``id``, else an ``error`` push."""
@@ -77,10 +99,18 @@ class UnitQueue:
 
     async def _write(self) -> None:
         try:
+            loop = asyncio.get_running_loop()
             while True:
                 while not self._order:
                     self._wake.clear()
-                    await self._wake.wait()
+                    for _, held in self._throttle.due(loop.time()):
+                        self._append(held)
+                    if self._order:
+                        break
+                    due = self._throttle.next_due()
+                    with contextlib.suppress(TimeoutError):
+                        wait = None if due is None else max(0.0, due - loop.time())
+                        await asyncio.wait_for(self._wake.wait(), wait)
                 if self._lagging:
                     lagging = LaggingPush(dropped=self._lagging, total=self.dropped)
                     self._lagging = 0

@@ -218,6 +218,7 @@ class UnitServer:
         # (forbidden, or the cloud link down) leaves nothing behind to replay later.
         if isinstance(op, UnsubscribeOp):
             self.router.unsubscribe(vehicle_id, op.topics)
+            queue.forget(op.topics)
         elif isinstance(op, UnregisterOp):
             self.router.unregister(vehicle_id, op.topics)
         upstream = {
@@ -234,7 +235,7 @@ class UnitServer:
             queue.refuse(op.id, error)
             return
         if ack.ok and vehicle_id in self.router.units and isinstance(op, SubscribeOp):
-            self.router.subscribe(vehicle_id, op.topics)
+            self.router.subscribe(vehicle_id, op.topics, op.throttle_ms)
         if op.id:
             queue.put(ack.model_copy(update={"id": op.id}).frame())
 
@@ -248,7 +249,7 @@ class UnitServer:
         delivery = self.router.publish(vehicle_id, op.topic)
         frame = EventPush(topic=op.topic, data=op.data).model_dump_json()
         for other in delivery.local:
-            self._put(other, frame)
+            self._put_event(other, op.topic, frame)
         if not delivery.up:
             return None
         if not self.link.connected:
@@ -303,7 +304,7 @@ class UnitServer:
     def _from_above(self, push: EventPush) -> None:
         frame = push.frame()
         for vehicle_id in self.router.from_above(push.topic):
-            self._put(vehicle_id, frame)
+            self._put_event(vehicle_id, push.topic, frame)
 
     def _media_from_above(self, frame: bytes) -> None:
         try:
@@ -324,9 +325,9 @@ class UnitServer:
         """After a (re)connection: which vehicles the token acts for, then the units'
         registrations and subscriptions again."""
         await self._learn_vehicles()
-        for vehicle_id, kind, topics in self.router.replay():
+        for op in self.router.replay():
             with contextlib.suppress(AgentError):
-                await self.link.send({"op": kind, "vehicle_id": vehicle_id, "topics": topics})
+                await self.link.send(op)
 
     async def _learn_vehicles(self) -> None:
         """Ask the server whom the token acts for; close the units of other vehicles (their
@@ -348,6 +349,12 @@ class UnitServer:
         queue = self._queues.get(vehicle_id)
         if queue is not None:
             queue.put(frame)
+
+    def _put_event(self, vehicle_id: str, topic: str, frame: str) -> None:
+        """An event for a unit, at most one per topic every ``throttle_ms`` it asked."""
+        queue = self._queues.get(vehicle_id)
+        if queue is not None:
+            queue.put_event(topic, frame, self.router.throttle_ms(vehicle_id, topic))
 
     def _put_media(self, vehicle_id: str, topic: str, frame: bytes) -> None:
         queue = self._queues.get(vehicle_id)

@@ -1,4 +1,6 @@
-"""Per-topic throttling, like rosbridge's ``throttle_rate``. Pure: time is passed in.
+"""Per-topic throttling, like rosbridge's ``throttle_rate``: the rule of a subscription's
+``throttle_ms``, kept by the server for each socket and by a gateway for each of its
+local units. Pure: time is passed in.
 
 At most one item per key every ``interval_s``: the first goes at once, the
 ones that come sooner are held back, each replacing the one held before
