@@ -18,10 +18,9 @@ from typing import Any
 
 import httpx
 import pytest
-from asgi_lifespan import LifespanManager
 
-from server.app import create_app
 from server.settings import Settings
+from tests.agent.harbour import in_process
 from tests.factories import ADMIN
 from tests.live import serve
 from vehicle_client.adapters.sim import SimAdapter
@@ -110,19 +109,16 @@ class Field:
 
 @pytest.fixture
 async def field(make_settings: Callable[..., Settings], tmp_path: Path) -> AsyncIterator[Field]:
-    app = create_app(make_settings(heartbeat_interval_s=0.5))
-    async with LifespanManager(app) as manager:
-        transport = httpx.ASGITransport(app=manager.app)
-        async with httpx.AsyncClient(transport=transport, base_url="http://fleet.test") as http:
-            f = Field(manager.app, http, tmp_path)
-            try:
-                yield f
-            finally:
-                for task, agent in f.running:
-                    task.cancel()
-                    with contextlib.suppress(asyncio.CancelledError, Exception):
-                        await task
-                    agent.outbox.close()
+    async with in_process(make_settings(heartbeat_interval_s=0.5)) as (app, http):
+        f = Field(app, http, tmp_path)
+        try:
+            yield f
+        finally:
+            for task, agent in f.running:
+                task.cancel()
+                with contextlib.suppress(asyncio.CancelledError, Exception):
+                    await task
+                agent.outbox.close()
 
 
 async def _grant_admin(f: Field, instance_id: str) -> None:
