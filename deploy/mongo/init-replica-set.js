@@ -1,7 +1,7 @@
 // Run once by the mongo-init service of compose.cluster.yml (mongosh --file), against mongo-1.
 // Makes mongo-1, mongo-2 and mongo-3 the replica set rs0, unless it is made already,
 // then waits for a primary so that the servers, started after it, find one.
-// tests/test_deploy.py reads the set's name and members from this file.
+// tests/deploy/ (files.py) reads the set's name and members from this file.
 
 const config = {
   _id: "rs0",
