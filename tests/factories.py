@@ -72,13 +72,16 @@ async def start_instance(
     headers: dict[str, str],
     capabilities: list[str] | None = None,
     params: dict[str, Any] | None = None,
+    name: str | None = None,
 ) -> dict[str, Any]:
+    """Start the vehicle's instance; ``name``: the display name it announces (its id when
+    not given)."""
     r = await client.post(
         "/upper/start_instance",
         headers=headers,
         json={
             "vehicle_id": vehicle_id,
-            "name": vehicle_id,
+            "name": vehicle_id if name is None else name,
             "vehicle_type": "usv",
             "capabilities": ["stop", "go_to", "keep_station", "follow_path"]
             if capabilities is None
