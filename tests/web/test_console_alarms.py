@@ -1,6 +1,6 @@
-"""What is wrong with a vehicle now, in a real browser (as test_console): its alarms
-(``VehicleView.alarms``) as red badges in the fleet table and a list at the top of its
-panel, there as soon as the server sees them and gone when they end."""
+"""What is wrong with a vehicle now, in a real browser (as test_console_commands): its
+alarms (``VehicleView.alarms``) as red badges in the fleet table and a list at the top of
+its panel, there as soon as the server sees them and gone when they end."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import pytest
 from playwright.sync_api import expect
 
 from tests.web.conftest import Shots, World
-from tests.web.test_console import log_in, marker
+from tests.web.console_helpers import log_in, marker
 
 pytestmark = [pytest.mark.slow, pytest.mark.browser]
 

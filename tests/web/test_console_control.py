@@ -1,7 +1,8 @@
-"""The console's control and its panels, in a real browser (as test_console): a field
-manager grants control on a phone, a lease that needs a live console lapses when it closes,
-people are told when control changes, a go_to cancelled from the panel stops the boat, and
-the vehicle panel dates its readings. A world of its own (the module's), in file order."""
+"""The console's control and its panels, in a real browser (as test_console_commands): a
+field manager grants control on a phone, a lease that needs a live console lapses when it
+closes, people are told when control changes, a go_to cancelled from the panel stops the
+boat, and the vehicle panel dates its readings. A world of its own (the module's), in file
+order."""
 
 from __future__ import annotations
 
@@ -13,7 +14,7 @@ from playwright.sync_api import expect
 
 from tests.agent.procs import wait_until
 from tests.web.conftest import Shots, World
-from tests.web.test_console import (
+from tests.web.console_helpers import (
     assert_labels_apart,
     command_item,
     label_boxes,

@@ -1,8 +1,8 @@
-"""What the console offers a field manager, in a real browser (as test_console): she takes
-control of the vehicles she manages (she was offered "Request control", which only asks
-herself), an operator still asks for it, and the grant form picks the user from those who
-asked and those known rather than taking any name typed. A world of its own (the
-module's), in file order: ana holds every vehicle at the start."""
+"""What the console offers a field manager, in a real browser (as test_console_commands):
+she takes control of the vehicles she manages (she was offered "Request control", which
+only asks herself), an operator still asks for it, and the grant form picks the user from
+those who asked and those known rather than taking any name typed. A world of its own
+(the module's), in file order: ana holds every vehicle at the start."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ import pytest
 from playwright.sync_api import expect
 
 from tests.web.conftest import Shots, World
-from tests.web.test_console import log_in, marker
+from tests.web.console_helpers import log_in, marker
 
 pytestmark = [pytest.mark.slow, pytest.mark.browser]
 

@@ -1,5 +1,5 @@
 """A replay across a time the vehicle was out of contact, in a real browser (as
-test_console): the track was drawn as if continuous and the replay's clock just jumped.
+test_console_watch): the track was drawn as if continuous and the replay's clock just jumped.
 The server's presence events (offline, then heard again) bound the gap now: the track
 across it is dashed grey, the timeline has a grey band, the marker waits greyed where the
 vehicle was last heard and the replay says "offline 10:02:11-10:05:40" (from the last
@@ -18,7 +18,7 @@ from playwright.sync_api import expect
 from server.demo import VEHICLES
 from tests.agent.procs import wait_until
 from tests.web.conftest import Shots, World
-from tests.web.test_console import log_in, ms
+from tests.web.console_helpers import log_in, ms
 from vehicle_client.geo import LocalFrame, distance_m
 
 pytestmark = [pytest.mark.slow, pytest.mark.browser]

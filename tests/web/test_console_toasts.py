@@ -1,7 +1,7 @@
-"""Toasts on a phone, in a real browser (as test_console): a burst of them (requests for
-control, stops, alarms in a row) stacked down over the map and the action bar, so the
-field manager could not reach Stop. At most three show now, the rest behind a "+N more"
-that opens the log of every message. A world of its own (the module's)."""
+"""Toasts on a phone, in a real browser (as test_console_commands): a burst of them
+(requests for control, stops, alarms in a row) stacked down over the map and the action
+bar, so the field manager could not reach Stop. At most three show now, the rest behind a
+"+N more" that opens the log of every message. A world of its own (the module's)."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import pytest
 from playwright.sync_api import expect
 
 from tests.web.conftest import PASSWORD, Shots, World
-from tests.web.test_console import ALL, log_in, marker
+from tests.web.console_helpers import ALL, log_in, marker
 
 pytestmark = [pytest.mark.slow, pytest.mark.browser]
 
