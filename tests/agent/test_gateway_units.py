@@ -6,6 +6,7 @@ from __future__ import annotations
 import asyncio
 import json
 from collections.abc import Callable
+from typing import Any
 
 import pytest
 import websockets
@@ -139,6 +140,23 @@ async def test_an_unregistered_topic_goes_up_only_once_someone_above_asks(
             assert router.sent_up == up_before + 1
 
 
+async def _routes_late(w: Any, unit: Any) -> None:
+    """The link up (it opens with the first op sent through it: the failure to see is
+    one of order, not of a link down), then each routes push handed to the gateway a
+    moment behind the ack before it, as through a relay or a slow network that hands
+    each frame over apart."""
+    other = f"vehicle/{w.b}/status"
+    assert (await ack(unit, "subscribe", "warm", topics=[other]))["ok"] is True
+    told = w.units.link.on_routes
+    assert told is not None
+    loop = asyncio.get_running_loop()
+
+    def later(push: RoutesPush) -> None:
+        loop.call_later(0.3, told, push)
+
+    w.units.link.on_routes = later
+
+
 async def test_a_unit_s_first_publish_reaches_who_already_asked_above(
     make_settings: Callable[..., Settings],
 ) -> None:
@@ -147,21 +165,7 @@ async def test_a_unit_s_first_publish_reaches_who_already_asked_above(
     register's ack came before the routes push that says someone above wants it."""
     async with gateway(make_settings) as w:
         async with await w.operator_ws() as op, w.unit(w.a) as ua:
-            # The link up (it opens with the first op sent through it): the failure to
-            # see is one of order, not of a link down.
-            other = f"vehicle/{w.b}/status"
-            assert (await ack(ua, "subscribe", "warm", topics=[other]))["ok"] is True
-            # A routes push a moment behind the ack before it, as through a relay or a
-            # slow network that hands each frame over apart.
-            told = w.units.link.on_routes
-            assert told is not None
-            loop = asyncio.get_running_loop()
-
-            def later(push: RoutesPush) -> None:
-                assert told is not None
-                loop.call_later(0.3, told, push)
-
-            w.units.link.on_routes = later
+            await _routes_late(w, ua)
             for n in range(5):  # a new topic each time: each its own first publish
                 topic = f"vehicle/{w.a}/survey/{n}"
                 assert (await ack(op, "subscribe", f"s{n}", topics=[topic]))["ok"] is True
@@ -178,17 +182,7 @@ async def test_a_unit_that_publishes_the_moment_its_register_is_acked_reaches_ab
     someone above wants the topic), acknowledged ok and lost above."""
     async with gateway(make_settings) as w:
         async with await w.operator_ws() as op, w.unit(w.a) as ua:
-            other = f"vehicle/{w.b}/status"
-            assert (await ack(ua, "subscribe", "warm", topics=[other]))["ok"] is True
-            told = w.units.link.on_routes
-            assert told is not None
-            loop = asyncio.get_running_loop()
-
-            def later(push: RoutesPush) -> None:  # a push a moment behind its ack
-                assert told is not None
-                loop.call_later(0.3, told, push)
-
-            w.units.link.on_routes = later
+            await _routes_late(w, ua)
             for n in range(3):
                 topics = [f"vehicle/{w.a}/meta/{n}", f"vehicle/{w.a}/meta/{n}/more"]
                 assert (await ack(op, "subscribe", f"s{n}", topics=topics[:1]))["ok"] is True

@@ -7,29 +7,15 @@ never delivered); one gateway unit's ``throttle_ms`` throttled the others."""
 
 from __future__ import annotations
 
-from collections.abc import AsyncIterator, Callable
 from typing import Any
 
 import httpx
 import pytest
 
-from server.settings import Settings
 from tests.factories import ADMIN, make_user, make_vehicle
-from tests.live import call, connect, recv_until, serve
+from tests.live import call, connect, recv_until
 
 pytestmark = pytest.mark.usefixtures("store_backend")
-
-
-@pytest.fixture
-async def base(make_settings: Callable[..., Settings]) -> AsyncIterator[str]:
-    async with serve(make_settings()) as url:
-        yield url
-
-
-@pytest.fixture
-async def api(base: str) -> AsyncIterator[httpx.AsyncClient]:
-    async with httpx.AsyncClient(base_url=base, timeout=10) as c:
-        yield c
 
 
 def tok(headers: dict[str, str]) -> str:
