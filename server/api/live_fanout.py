@@ -80,15 +80,22 @@ class TopicFanout:
             conn.subs[("sub", topic)] = await self.bus.subscribe(
                 topic, functools.partial(self._deliver, conn)
             )
+            kept: dict[str, Any] | None = None
             try:
                 snapshot = await self.topics.snapshot(conn.principal, topic)
+                if snapshot is None:
+                    kept = await self.bus.kept(topic)
             finally:
                 held = conn.buffering.pop(topic, [])
             if snapshot is not None:
                 frame = EventPush(topic=topic, data=snapshot, snapshot=True).frame()
                 conn.outbox.put(frame, topic=topic)
+            elif kept is not None and kept.get("origin") != conn.id:
+                shown = {k: v for k, v in kept.items() if k != "origin"}
+                conn.outbox.put(dumps({**shown, "snapshot": True}), topic=topic)
             for message in held:
-                self._deliver(conn, topic, message)
+                if message != kept:  # the kept one, published while it was read: sent
+                    self._deliver(conn, topic, message)
 
     async def unsubscribe(self, conn: Connection, unit: UnitRef, topics: list[str]) -> None:
         """The unit no longer wants ``topics`` on this connection (its other connections
@@ -134,7 +141,8 @@ class TopicFanout:
     def publish(
         self, conn: Connection, unit: UnitRef, topic: str, data: Any
     ) -> Awaitable[None] | None:
-        """A unit's message to the topic's subscribers (not back to its own connection).
+        """A unit's message to the topic's subscribers (not back to its own connection),
+        kept as the topic's latest: the state a new subscriber gets first.
 
         Delivered here at once; on a bus that leaves the process, the rest (the
         other replicas) is the awaitable returned.
@@ -148,7 +156,18 @@ class TopicFanout:
             "origin": conn.id,
             "ts": now_ts() if self._clock is utcnow else format_ts(self._clock()),
         }
+        keeping = self.bus.keep(topic, message, self._encode(message))
+        if keeping is not None:
+            return self._kept_then_published(keeping, topic, message)
         return self.bus.publish_here_first(topic, message)  # no coroutine on a local bus
+
+    async def _kept_then_published(
+        self, keeping: Awaitable[None], topic: str, message: dict[str, Any]
+    ) -> None:
+        """Kept for the other replicas before it is published to them: one that subscribes
+        and then reads the kept message cannot miss it."""
+        await keeping
+        await self.bus.publish(topic, message)
 
     def publish_media(self, topic: str, frame: bytes) -> Awaitable[None] | None:
         """A binary media frame to the topic's subscribers, as :meth:`publish`."""

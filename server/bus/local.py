@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from server.bus.base import Bus, Handler, LocalRouter, Message, Subscription
+from server.bus.base import Bus, Handler, Kept, LocalRouter, Message, Subscription
 
 __all__ = ["LocalBus"]
 
@@ -10,6 +10,7 @@ __all__ = ["LocalBus"]
 class LocalBus(Bus):
     def __init__(self) -> None:
         self._router = LocalRouter()
+        self._kept = Kept()
 
     async def publish(self, topic: str, message: Message) -> None:
         self._router.deliver(topic, message)

@@ -23,6 +23,8 @@ import contextlib
 import json
 import logging
 import secrets
+from collections.abc import Awaitable
+from typing import Any
 
 from redis.asyncio import Redis
 from redis.asyncio.client import PubSub
@@ -30,7 +32,16 @@ from redis.asyncio.retry import Retry
 from redis.backoff import NoBackoff
 from redis.exceptions import RedisError
 
-from server.bus.base import Bus, Handler, LocalRouter, Message, Subscription
+from server.bus.base import (
+    KEEP_MAX_BYTES,
+    KEEP_TTL_S,
+    Bus,
+    Handler,
+    Kept,
+    LocalRouter,
+    Message,
+    Subscription,
+)
 
 __all__ = ["RedisBus"]
 
@@ -59,6 +70,7 @@ class RedisBus(Bus):
     ) -> None:
         self._url = url
         self._topic_prefix = f"{prefix}t:".encode()
+        self._kept_prefix = f"{prefix}k:"
         #: Always subscribed, so the connection lives (and fails) even with no topic.
         self._control_channel = f"{prefix}replicas".encode()
         self._timeout_s = timeout_s
@@ -66,6 +78,7 @@ class RedisBus(Bus):
         self._reconnect_max_s = reconnect_max_s
         self.replica_id = secrets.token_bytes(_ORIGIN_BYTES)
         self._router = LocalRouter()
+        self._kept = Kept()
         self._redis: Redis | None = None
         self._pubsub: PubSub | None = None
         self._lock = asyncio.Lock()
@@ -128,6 +141,44 @@ class RedisBus(Bus):
         except (RedisError, OSError) as exc:
             self.local_only_publishes += 1
             log.warning("redis bus: publish on %s reached this replica only: %s", topic, exc)
+
+    def keep(self, topic: str, message: dict[str, Any], text: str) -> Awaitable[None] | None:
+        """Here, and in Redis for the other replicas (for ``KEEP_TTL_S``; one too large is
+        deleted there: it is no longer the latest). Awaited before the publish is sent, so
+        a replica that subscribes and then reads the kept message misses nothing."""
+        self._kept.put(topic, message, len(text))
+        if not self.healthy or self._redis is None:
+            return None
+        return self._keep_remote(topic, message, len(text))
+
+    async def _keep_remote(self, topic: str, message: dict[str, Any], size: int) -> None:
+        assert self._redis is not None
+        key = self._kept_prefix + topic
+        try:
+            if size > KEEP_MAX_BYTES:
+                await self._redis.delete(key)
+            else:
+                body = json.dumps(message, separators=(",", ":"))
+                await self._redis.set(key, body, ex=KEEP_TTL_S)
+        except (RedisError, OSError) as exc:
+            log.warning("redis bus: the latest of %s kept on this replica only: %s", topic, exc)
+
+    async def kept(self, topic: str) -> dict[str, Any] | None:
+        """From Redis (another replica may have published it); this replica's while Redis
+        is down."""
+        if not self.healthy or self._redis is None:
+            return self._kept.get(topic)
+        try:
+            raw = await self._redis.get(self._kept_prefix + topic)
+        except (RedisError, OSError):
+            return self._kept.get(topic)
+        if raw is None:
+            return None
+        try:
+            found = json.loads(raw)
+        except ValueError:
+            return None
+        return found if isinstance(found, dict) else None
 
     async def subscribe(self, topic: str, handler: Handler) -> Subscription:
         subscription, first = self._router.add(topic, handler)

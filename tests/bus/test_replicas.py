@@ -48,6 +48,24 @@ async def test_events_published_on_one_replica_reach_the_other(
             assert got["data"] == {"from": "a"} and got["topic"] == "user/admin/notes"
 
 
+async def test_a_topics_latest_message_published_on_one_replica_is_the_others_snapshot(
+    make_settings: Callable[..., Settings], redis_server: RedisServer
+) -> None:
+    a_settings = make_settings(redis_url=redis_server.url)
+    b_settings = make_settings(
+        redis_url=redis_server.url, snapshot_path=a_settings.snapshot_path.with_name("b.snapshot")
+    )
+    async with serve(a_settings) as a, serve(b_settings) as b:
+        async with await connect(a, "/ws/client", ADMIN_TOKEN) as talker:
+            for n in range(2):
+                said = await call(talker, "publish", f"p{n}", topic="user/admin/plan", data=n)
+                assert said["ok"]
+        async with await connect(b, "/ws/client", ADMIN_TOKEN) as late:
+            assert (await call(late, "subscribe", "s", topics=["user/admin/plan"]))["ok"]
+            first = await recv_until(late, lambda f: f["op"] == "event")
+            assert (first["data"], first["snapshot"]) == (1, True)
+
+
 async def test_redis_going_away_degrades_to_local_and_shows_in_readyz(
     make_settings: Callable[..., Settings], redis_server: RedisServer
 ) -> None:
