@@ -210,6 +210,28 @@ async def test_a_local_unit_gets_its_topic_at_the_throttle_it_asked(
             assert (first["data"], then["data"]) == (0, 9)
 
 
+async def test_units_subscribe_and_register_among_themselves_while_the_cloud_link_is_down(
+    make_settings: Callable[..., Settings],
+) -> None:
+    """A unit restarted at sea, the cloud out of reach: it still gets the data of the unit
+    beside it (it used to be refused, unavailable); the ops go up with the replay."""
+    async with gateway(make_settings) as w:
+        async with w.unit(w.a) as ua, w.unit(w.b) as ub:
+            assert (await ack(ub, "subscribe", "warm", topics=[f"vehicle/{w.b}/x"]))["ok"]
+            w.units.link.url = "ws://127.0.0.1:1/ws/vehicle"  # the cloud out of reach
+            await w.units.link.aclose()  # and the link goes down
+            depth = f"vehicle/{w.a}/sensor/depth"
+            taken = await ack(ub, "subscribe", "s", topics=[depth])
+            assert (taken["ok"], taken["local_only"]) == (True, True)
+            registered = await ack(ua, "register", "r", topics=[depth])
+            assert (registered["ok"], registered["local_only"]) == (True, True)
+            assert (await ack(ua, "publish", "p", topic=depth, data=7))["ok"] is True
+            assert (await next_json(ub, event_on(depth)))["data"] == 7
+            replay = w.units.router.replay()
+            replayed = {(op["op"], op["vehicle_id"], t) for op in replay for t in op["topics"]}
+            assert {("subscribe", w.b, depth), ("register", w.a, depth)} <= replayed
+
+
 async def test_a_publish_that_cannot_go_up_is_not_acked_ok(
     make_settings: Callable[..., Settings],
 ) -> None:

@@ -214,8 +214,8 @@ class UnitServer:
             elif op.id:
                 queue.put(AckPush.success(op.id).frame())
             return
-        # Taken back here at once; taken on only once the server has: a refused op
-        # (forbidden, or the cloud link down) leaves nothing behind to replay later.
+        # Taken back here at once; taken on once the server has (a refused op leaves
+        # nothing behind to replay later), or at once while the cloud link is down.
         if isinstance(op, UnsubscribeOp):
             self.router.unsubscribe(vehicle_id, op.topics)
             queue.forget(op.topics)
@@ -230,14 +230,27 @@ class UnitServer:
                 ack = await self.registrar.register(vehicle_id, op.topics, upstream)
             else:
                 ack = await self.link.call(upstream, check=False)
-        except AgentError as exc:
-            error = ErrorBody(code="unavailable", message=f"the cloud link is down: {exc}")
-            queue.refuse(op.id, error)
+        except AgentError:
+            self._taken_here(vehicle_id, op)
+            if op.id:
+                queue.put(AckPush.success(op.id, {"local_only": True}).frame())
             return
         if ack.ok and vehicle_id in self.router.units and isinstance(op, SubscribeOp):
             self.router.subscribe(vehicle_id, op.topics, op.throttle_ms)
         if op.id:
             queue.put(ack.model_copy(update={"id": op.id}).frame())
+
+    def _taken_here(self, vehicle_id: str, op: Any) -> None:
+        """The cloud link is down: a ``register`` or ``subscribe`` takes effect among the
+        local units at once (a unit restarted at sea still gets its neighbours' data) and
+        goes up with the replay when the link is back; the server may refuse it then,
+        and nothing comes from above for it."""
+        if vehicle_id not in self.router.units:
+            return
+        if isinstance(op, RegisterOp):
+            self.router.register(vehicle_id, op.topics)
+        elif isinstance(op, SubscribeOp):
+            self.router.subscribe(vehicle_id, op.topics, op.throttle_ms)
 
     async def _publish(self, vehicle_id: str, op: PublishOp) -> ErrorBody | None:
         """To the local units subscribed, and up when someone above asked for it; what to
