@@ -158,7 +158,8 @@ class OpRunner:
             self._rate()
             header, _ = decode_media_frame(frame)
             if not is_media_topic(header.topic):
-                raise Invalid(f"{header.topic} is not a media topic; send JSON on it")
+                message = f"{header.topic} is not a media topic; send JSON on it"
+                raise Invalid(message, details=[{"field": "topic", "message": message}])
             check_write(self.conn.principal, header.topic)
         except FrameError as exc:
             self.conn.outbox.put(exc.reply().frame())
@@ -316,7 +317,8 @@ class OpRunner:
         if op.topic not in self._writable:
             check_write(principal, op.topic)
             if is_media_topic(op.topic):
-                raise Invalid(f"{op.topic} is a media topic: send binary frames on it")
+                message = f"{op.topic} is a media topic: send binary frames on it"
+                raise Invalid(message, details=[{"field": "topic", "message": message}])
             self._writable.add(op.topic)
         return self.hub.publish(self.conn, unit, op.topic, op.data)
 

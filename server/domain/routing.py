@@ -235,11 +235,12 @@ class RoutingTable:
             return frozenset()
         if add and len(mine) + len(delta) > self.max_topics_per_unit:
             verb = "registers" if produce else "subscribes to"
-            raise Invalid(
+            message = (
                 f"a unit {verb} at most {self.max_topics_per_unit} topics"
-                f" ({unit_id} has {len(mine)}, {len(delta)} more asked)",
-                code="too_many_topics",
+                f" ({unit_id} has {len(mine)}, {len(delta)} more asked)"
             )
+            details = [{"field": "topics", "message": message}]
+            raise Invalid(message, code="too_many_topics", details=details)
         # Whose view can this change: the unit, its gateways, and the units on
         # the other side of each topic (their lists name this unit). A
         # subscription also moves the forward_up of the producers' gateways.

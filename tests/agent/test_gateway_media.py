@@ -177,10 +177,12 @@ async def test_a_unit_publishes_media_only_in_its_own_namespace(
             refused = await next_json(ua, lambda f: f["op"] == "error")
             assert refused["error"]["code"] == "forbidden"
             assert f"vehicle/{w.a}/" in refused["error"]["message"]
+            assert [d["field"] for d in refused["error"]["details"]] == ["topic"]
             await ua.send(media(f"vehicle/{w.a}/notes", b"not media"))
             invalid = await next_json(ua, lambda f: f["op"] == "error")
             assert invalid["error"]["code"] == "invalid"
             assert "not a media topic" in invalid["error"]["message"]
+            assert [d["field"] for d in invalid["error"]["details"]] == ["topic"]
             assert (w.units.router.media_up, w.units.router.media_kept) == (0, 0)
 
 

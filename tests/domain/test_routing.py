@@ -156,6 +156,7 @@ def test_topics_per_unit_are_bounded_and_refused_whole():
     with pytest.raises(Invalid) as caught:
         table.subscribe("op", ["user/a/z", "user/a/w"])
     assert caught.value.code == "too_many_topics"
+    assert [d["field"] for d in caught.value.details] == ["topics"]
     assert table.view("op").consumes.keys() == {"user/a/x", "user/a/y"}
     table.subscribe("op", ["user/a/z", "user/a/x"])  # one new: fits
     table.register("op", ["user/op/a", "user/op/b", "user/op/c"])  # its own bound

@@ -277,6 +277,7 @@ async def test_a_publish_says_its_data_and_sends_json_only_where_json_goes(
         assert said["ok"] is True
         camera = await call(car, "publish", "p3", topic=f"vehicle/{vid}/camera/front", data=1)
         assert camera["ok"] is False and "binary frames" in camera["error"]["message"]
+        assert [d["field"] for d in camera["error"]["details"]] == ["topic"]
         under = await call(user, "subscribe", "s", topics=["fleet/x"])
         assert under["ok"] is False and "no topics under 'fleet/'" in under["error"]["message"]
         assert (await call(user, "subscribe", "s2", topics=["fleet"]))["ok"] is True

@@ -201,11 +201,12 @@ class UnitServer:
             topics = [op.topic] if isinstance(op, PublishOp) else op.topics
             refusal = next((r for t in topics if (r := write_refusal(vehicle_id, t))), None)
             if refusal is not None:
-                queue.refuse(op.id, ErrorBody(code="forbidden", message=refusal))
+                field = "topic" if isinstance(op, PublishOp) else "topics"
+                queue.refuse(op.id, _refusal("forbidden", refusal, field))
                 return
         if isinstance(op, PublishOp) and is_media_topic(op.topic):
             message = f"{op.topic} is a media topic: send binary frames on it"
-            queue.refuse(op.id, ErrorBody(code="invalid", message=message))
+            queue.refuse(op.id, _refusal("invalid", message, "topic"))
             return
         if isinstance(op, PublishOp):
             refused = await self._publish(vehicle_id, op)
@@ -301,11 +302,11 @@ class UnitServer:
         topic = header.topic
         if not is_media_topic(topic):
             message = f"{topic} is not a media topic: publish JSON on it"
-            queue.refuse(None, ErrorBody(code="invalid", message=message))
+            queue.refuse(None, _refusal("invalid", message, "topic"))
             return
         refusal = write_refusal(vehicle_id, topic)
         if refusal is not None:
-            queue.refuse(None, ErrorBody(code="forbidden", message=refusal))
+            queue.refuse(None, _refusal("forbidden", refusal, "topic"))
             return
         delivery = self.router.publish(vehicle_id, topic, media=True)
         for other in delivery.local:
@@ -373,6 +374,11 @@ class UnitServer:
         queue = self._queues.get(vehicle_id)
         if queue is not None:
             queue.put_media(topic, frame)
+
+
+def _refusal(code: str, message: str, field: str) -> ErrorBody:
+    """An op refused for one of its fields, named as the server names it."""
+    return ErrorBody(code=code, message=message, details=[{"field": field, "message": message}])
 
 
 def _not_listed(vehicle_id: str) -> str:
