@@ -326,6 +326,7 @@ def _start_background(runtime: Runtime) -> None:
     if services.store.kind == "embedded" and runtime.owns_store:
         runtime.spawn("journal", lambda: _flush(services.store), settings.snapshot_interval_s)
     runtime.spawn("retention", lambda: _retention(services), 60.0)
+    runtime.spawn("demand", runtime.hub.demand.step, 0.25)  # across replicas (live_demand)
 
 
 async def _flush(store: Store) -> None:

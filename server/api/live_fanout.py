@@ -228,6 +228,20 @@ class TopicFanout:
         return {**message, "data": {"vehicles": vehicles}}
 
     # ---- routing table ------------------------------------------------------------
+    def remote_demand(self, unit_id: str, topics: set[str] | None) -> None:
+        """Another replica's subscribers (one ``replica:<id>`` unit) want ``topics`` now;
+        None: that replica is gone (:mod:`server.api.live_demand`)."""
+        if topics is None:
+            if unit_id in self.routing:
+                self._push_routes(self.routing.remove_unit(unit_id))
+        else:
+            if unit_id not in self.routing:
+                self.routing.add_unit(unit_id, "operator", bounded=False)
+            gone = self.routing.consumes_of(unit_id) - topics
+            self._push_routes(self.routing.unsubscribe(unit_id, gone))
+            self._push_routes(self.routing.subscribe(unit_id, topics))
+        self.flush_routes()
+
     def _add_unit(self, conn: Connection, unit: UnitRef) -> None:
         if unit.parent is not None and unit.parent not in self.routing:
             self.routing.add_unit(unit.parent, "gateway")

@@ -18,6 +18,7 @@ from typing import Any
 from fleet_protocol.links import CLOSE_RECONNECT, CLOSE_REPLACED, CLOSE_UNAUTHORIZED
 from fleet_protocol.ws import AbortPush, CommandPush, ControlPush, FailsafePush
 from server.api.live_conn import Connection
+from server.api.live_demand import DemandShare
 from server.api.live_fanout import TopicFanout
 from server.bus import Bus, Message
 from server.domain.access import Principal
@@ -53,6 +54,8 @@ class LiveHub(TopicFanout):
         self.connections: set[Connection] = set()
         self._vehicle_socket: dict[str, Connection] = {}  # instance_id -> its socket here
         self._tasks: set[asyncio.Task[Any]] = set()
+        #: What this replica's subscribers want of the gateways on the others, and theirs.
+        self.demand = DemandShare(bus, self)
 
     def _fire(self, coro: Awaitable[Any]) -> None:
         task = asyncio.ensure_future(coro)
@@ -218,6 +221,7 @@ class LiveHub(TopicFanout):
                 self._fire(self.close(conn, code, reason))
 
     async def stop(self) -> None:
+        await self.demand.stop()
         for conn in list(self.connections):
             await self.close(conn, 1001, "the server is shutting down")
         for task in list(self._tasks):

@@ -74,6 +74,7 @@ class _Unit:
     produces: set[str] = field(default_factory=set)
     consumes: set[str] = field(default_factory=set)
     children: set[str] = field(default_factory=set)
+    bounded: bool = True  # held to max_topics_per_unit
 
 
 class RoutingTable:
@@ -84,11 +85,17 @@ class RoutingTable:
         self._units: dict[str, _Unit] = {}
         self._producers: dict[str, set[str]] = {}
         self._consumers: dict[str, set[str]] = {}
+        #: Counts the changes of who produces and consumes what (for what is worked out
+        #: from the table: it is worked out again when this moved).
+        self.version = 0
 
     # -- units ----------------------------------------------------------------
 
-    def add_unit(self, unit_id: str, kind: UnitKind, parent: str | None = None) -> None:
-        """Add a unit (no topics yet: no one else's view changes). Idempotent."""
+    def add_unit(
+        self, unit_id: str, kind: UnitKind, parent: str | None = None, *, bounded: bool = True
+    ) -> None:
+        """Add a unit (no topics yet: no one else's view changes). Idempotent.
+        ``bounded``: held to ``max_topics_per_unit`` (not: a stand-in for many units)."""
         existing = self._units.get(unit_id)
         if existing is not None:
             if (existing.kind, existing.parent) != (kind, parent):
@@ -102,7 +109,7 @@ class RoutingTable:
             if gateway is None or gateway.kind != "gateway":
                 raise NotFound(f"no gateway unit {parent} to put {unit_id} under")
             gateway.children.add(unit_id)
-        self._units[unit_id] = _Unit(unit_id, kind, parent)
+        self._units[unit_id] = _Unit(unit_id, kind, parent, bounded=bounded)
 
     def remove_unit(self, unit_id: str) -> frozenset[str]:
         """Remove a unit, its topics and the units under it; the remaining units affected."""
@@ -150,6 +157,14 @@ class RoutingTable:
 
     def unsubscribe(self, unit_id: str, topics: Iterable[str]) -> frozenset[str]:
         return self._change(unit_id, topics, produce=False, add=False)
+
+    def consumes_of(self, unit_id: str) -> frozenset[str]:
+        """The topics ``unit_id`` subscribes to."""
+        return frozenset(self._unit(unit_id).consumes)
+
+    def consumed(self) -> frozenset[str]:
+        """Every topic some unit subscribes to."""
+        return frozenset(self._consumers)
 
     def subscribers(self, topic: str) -> frozenset[str]:
         """Exactly the units subscribed to ``topic``."""
@@ -233,7 +248,8 @@ class RoutingTable:
         delta = topics - mine if add else topics & mine
         if not delta:
             return frozenset()
-        if add and len(mine) + len(delta) > self.max_topics_per_unit:
+        self.version += 1
+        if add and unit.bounded and len(mine) + len(delta) > self.max_topics_per_unit:
             verb = "registers" if produce else "subscribes to"
             message = (
                 f"a unit {verb} at most {self.max_topics_per_unit} topics"

@@ -66,6 +66,36 @@ async def test_a_topics_latest_message_published_on_one_replica_is_the_others_sn
             assert (first["data"], first["snapshot"]) == (1, True)
 
 
+async def test_a_gateway_forwards_up_what_a_subscriber_on_the_other_replica_wants(
+    make_settings: Callable[..., Settings], redis_server: RedisServer
+) -> None:
+    """Each replica's routing table held its own units alone: a gateway on one replica
+    kept to itself a topic that only an operator on the other wanted."""
+    a_settings = make_settings(redis_url=redis_server.url)
+    b_settings = make_settings(
+        redis_url=redis_server.url, snapshot_path=a_settings.snapshot_path.with_name("b.snapshot")
+    )
+    async with serve(a_settings) as a, serve(b_settings) as b:
+        async with httpx.AsyncClient(base_url=a, timeout=10) as api:
+            vid, _ = await make_vehicle(api)
+            body = {"gateway_id": "gw-far", "vehicles": [vid]}
+            gw = (await api.post("/api/gateways", headers=ADMIN, json=body)).json()["token"]
+        topic = f"vehicle/{vid}/sss_meta"
+        async with await connect(a, "/ws/vehicle", gw) as g:
+            assert (await call(g, "register", "r", topics=[topic], vehicle_id=vid))["ok"]
+            async with await connect(b, "/ws/client", ADMIN_TOKEN) as far:
+                assert (await call(far, "subscribe", "s", topics=[topic]))["ok"]
+                routes = await recv_until(
+                    g, lambda f: f["op"] == "routes" and f.get("forward_up") == [topic]
+                )
+                assert routes["unit"] == "gateway:gw-far"
+                said = await call(g, "publish", "p", topic=topic, data=1, vehicle_id=vid)
+                assert said["ok"]
+                assert (await recv_until(far, lambda f: f["op"] == "event"))["data"] == 1
+            # the operator gone, the other replica says so: nothing more goes up
+            await recv_until(g, lambda f: f["op"] == "routes" and f.get("forward_up") == [])
+
+
 async def test_redis_going_away_degrades_to_local_and_shows_in_readyz(
     make_settings: Callable[..., Settings], redis_server: RedisServer
 ) -> None:
