@@ -76,6 +76,7 @@ class CommandMoved:
     status: str
     detail: str | None
     progress: float | None
+    issued_by: str = ""
 
 
 @dataclass(frozen=True, slots=True)

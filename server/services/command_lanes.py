@@ -197,6 +197,7 @@ class CommandLanes:
                 cmd.status,
                 last.get("detail"),
                 cmd.progress,
+                cmd.issued_by,
             )
         )
 
@@ -206,5 +207,11 @@ class CommandLanes:
             vehicle_id=cmd.vehicle_id,
             instance_id=cmd.instance_id,
             actor=actor,
-            data={"command_id": cmd.command_id, "type": cmd.type, "status": cmd.status, **data},
+            data={
+                "command_id": cmd.command_id,
+                "type": cmd.type,
+                "status": cmd.status,
+                "issued_by": cmd.issued_by,
+                **data,
+            },
         )

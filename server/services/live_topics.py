@@ -138,6 +138,7 @@ class ServerTopics:
             "status": event.status,
             "detail": event.detail,
             "progress": event.progress,
+            "issued_by": event.issued_by,
         }
         return self.emit(f"vehicle/{event.vehicle_id}/commands", {"commands": [moved]})
 

@@ -4,7 +4,7 @@
 // confirmed first, a refusal said with what to do about it; control requested or
 // released, a command cancelled.
 
-import { takeControl } from "./grants.js";
+import { holdText, takeControl } from "./grants.js";
 import { confirmAction, metresBetween, sending, toast } from "./ui.js";
 
 const FAR_M = 5000; // a target farther than this from its vehicle is confirmed first
@@ -181,8 +181,8 @@ export class Commands {
     const name = v.view.name || id;
     const ok = await confirmAction({
       title: `Release your control of ${name}?`,
-      text: `${name} holds station at once; the commands you queued and it has not begun are ` +
-        "cancelled. To command it again you ask for control.",
+      text: `${holdText(name, v.view.presence)}; the commands you queued and it has not ` +
+        "begun are cancelled. To command it again you ask for control.",
       confirm: "Release",
     });
     if (!ok) return;

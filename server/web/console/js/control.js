@@ -1,7 +1,8 @@
 // The control panel: a field manager's requests, grants and leases, and an operator's
 // own; "What happened" (the control and safety events). Redraws from the Fleet state.
 
-import { controlOffer, grantForm, mayTakeOver } from "./grants.js";
+import { controlOffer, grantForm, holdText, mayTakeOver } from "./grants.js";
+import { ControlLapses } from "./lapses.js";
 import { describeEvent, holderText, presenceBadge, throttled } from "./panels.js";
 import { clock, confirmAction, dateTime, h, sending, sends, toast, until } from "./ui.js";
 
@@ -50,13 +51,17 @@ export class ControlPanel {
     this.requests = [];
     this.caps = new Map();
     this.render = throttled(() => this.draw());
+    this.lapses = new ControlLapses(ctx);
     ctx.fleet.addEventListener("change", (e) => {
       const what = e.detail.what;
       if (what === "control" || what === "view" || what === "events") this.render();
     });
     ctx.fleet.addEventListener("event", (e) => {
       const { id, event } = e.detail;
-      if (event.kind.startsWith("control_")) this.loadRequests();
+      if (event.kind.startsWith("control_")) {
+        this.loadRequests();
+        this.lapses.told(id);
+      }
       if (event.kind === "hold_station" && this.managed(id)) {
         toast(`${this.nameOf(id)} holds station: ${describeEvent(event)}`, "info");
       }
@@ -71,7 +76,9 @@ export class ControlPanel {
     const d = event.data || {};
     const by = (event.actor || "").replace(/^user:/, "");
     if (event.kind !== "command" || d.type !== "stop" || d.status !== "queued") return;
-    if (!this.managed(id) || !by || by === this.ctx.me.username) return;
+    const v = this.ctx.fleet.vehicles.get(id);
+    const holding = v && v.control && v.control.holder === this.ctx.me.username;
+    if (!(this.managed(id) || holding) || !by || by === this.ctx.me.username) return;
     this.stops = this.stops || new Map();
     const names = this.stops.get(by);
     if (names) {
@@ -275,7 +282,7 @@ export class ControlPanel {
               h("p.allows", {},
                 `allows ${holderText(c, me)} to send ${caps.length ? caps.join(", ") : "its missions"}` +
                 ` to ${v.view.name || v.id} until ${dateTime(c.expires_at)}; ` +
-                "anyone who sees the vehicle may still stop it." +
+                "any operator or manager who sees the vehicle may still stop it." +
                 (c.operator_timeout_s
                   ? ` It lapses (and the vehicle holds station) if ${mine ? "your" : "their"}` +
                     ` client is silent for ${c.operator_timeout_s} s` +
@@ -370,14 +377,16 @@ export class ControlPanel {
     const holder = v.control ? v.control.holder : "its holder";
     const ok = await confirmAction({
       title: `Revoke ${holder}'s control of ${name}?`,
-      text: `${name} holds station at once; the commands ${holder} queued and it has not ` +
-        "begun are cancelled.",
+      text: `${holdText(name, v.view.presence)}; the commands ${holder} queued and it has ` +
+        "not begun are cancelled.",
       confirm: "Revoke",
     });
     if (!ok) return;
     try {
       await this.ctx.api.post("/client/revoke_control", { instance_id: v.view.instance_id });
-      toast(`control of ${v.view.name || v.id} revoked`, "ok");
+      const online = v.view.presence === "online";
+      toast(`control of ${name} revoked${online ? "" : `; ${holdText(name, v.view.presence)}`}`,
+        online ? "ok" : "warn");
     } catch (e) {
       toast(`revoke refused: ${e.message}`, "error");
     }

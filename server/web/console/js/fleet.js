@@ -101,7 +101,12 @@ export class Fleet extends EventTarget {
       const known = this.vehicles.has(view.vehicle_id);
       const v = this.vehicle(view.vehicle_id);
       const was = v.view.presence;
+      const alarmed = new Set((v.view.alarms || []).map((a) => a.kind));
       v.view = { ...v.view, ...view };
+      const raised = (view.alarms || []).filter((a) => !alarmed.has(a.kind));
+      if (known && !snapshot && raised.length) {
+        this.dispatchEvent(new CustomEvent("alarms", { detail: { id: v.id, raised } }));
+      }
       if (known && !snapshot && view.presence && view.presence !== was) {
         this.dispatchEvent(new CustomEvent("presence", {
           detail: { id: v.id, was, now: view.presence },
@@ -167,6 +172,8 @@ export class Fleet extends EventTarget {
       }
       if (c.args) cmd.args = c.args;
       if (c.progress != null) cmd.progress = c.progress;
+      if (c.issued_by) cmd.issued_by = c.issued_by;
+      const expired = had && !snapshot && c.status === "expired" && cmd.status !== "expired";
       cmd.status = c.status;
       if (c.detail !== undefined) cmd.detail = c.detail;
       cmd.stage = stageOf(cmd.status, cmd.detail);
@@ -175,6 +182,7 @@ export class Fleet extends EventTarget {
       if (!cmd.issued_at) cmd.issued_at = new Date().toISOString();
       v.commands.set(cmd.command_id, cmd);
       if (!had) this.dispatchEvent(new CustomEvent("command", { detail: { id, cmd } }));
+      if (expired) this.dispatchEvent(new CustomEvent("expired", { detail: { id, cmd } }));
     }
     for (const old of this.recentCommands(id).slice(RECENT_COMMANDS)) {
       v.commands.delete(old.command_id);

@@ -188,3 +188,14 @@ function questionUser(panel, user, names) {
   };
   panel.render();
 }
+
+/** What becomes of a boat whose control ends: it holds station at once when online; out
+ * of contact, the hold waits for it, and expires if it is not back in time (only its own
+ * link-loss failsafe acts then). */
+export function holdText(name, presence) {
+  return presence === "online" || presence === undefined
+    ? `${name} holds station at once`
+    : `${name} is ${presence}: the hold is queued and reaches it only when it is back in ` +
+      "contact (if it is not back in time the hold expires, and only its own link-loss " +
+      "failsafe acts)";
+}

@@ -2,6 +2,7 @@
 // the tools together. `window.fleetConsole` holds the pieces (for a look from the
 // browser's developer tools, and for the browser tests).
 
+import { alarmText } from "./alarms.js";
 import { Commands } from "./commands.js";
 import { ControlPanel } from "./control.js";
 import { Fleet, TRAIL_MINUTES, isFinal, topicsOf } from "./fleet.js";
@@ -59,6 +60,11 @@ class Console {
       if (e.detail.event.kind === "zones_changed") this.loadShapes(); // a zone of a vehicle
     });
     this.fleet.addEventListener("presence", (e) => this.presenceChanged(e.detail));
+    this.fleet.addEventListener("expired", (e) => this.expired(e.detail));
+    this.fleet.addEventListener("alarms", (e) => { // what went wrong, whatever tab is open
+      const name = this.fleet.vehicles.get(e.detail.id).view.name || e.detail.id;
+      for (const a of e.detail.raised) toast(`${name}: ${alarmText(a)}`, "error");
+    });
     this.live = new LiveLink({
       token: api.token,
       pingTopic: `user/${me.username}/console-ping`,
@@ -117,7 +123,23 @@ class Console {
 
   /** A vehicle that goes offline in the middle of a command is said at once: its map label
    * would otherwise still read "executing". */
-  presenceChanged({ id, now }) {
+  /** A command that expired unacknowledged, said to whom it concerns: its sender, the
+   * boat's managers, and everyone for the server's own (a hold at a lease's end that
+   * never reached a boat out of contact). */
+  expired({ id, cmd }) {
+    const mine = cmd.issued_by === this.me.username;
+    if (!mine && cmd.issued_by !== "system" && !this.controlPanel.managed(id)) return;
+    const name = this.fleet.vehicles.get(id).view.name || id;
+    const what = `${cmd.issued_by === "system" ? "the server's " : ""}${cmd.type.replace(/_/g, " ")}`;
+    const why = cmd.detail ? ` (${cmd.detail})` : "";
+    toast(`${what} for ${name} expired${why}: the boat never acknowledged it`, "error");
+  }
+
+  presenceChanged({ id, was, now }) {
+    if (now === "online" && was === "offline") {
+      const v = this.fleet.vehicles.get(id);
+      toast(`${v.view.name || id} is back online`, "ok");
+    }
     if (now !== "offline") return;
     const cmd = this.fleet.latestCommand(id);
     if (!cmd || isFinal(cmd.status)) return;

@@ -1,0 +1,110 @@
+"""What the people at the consoles are told without looking for it, in a real browser (as
+test_console_watch): a stop someone else sent to the boat you command, and who sent it;
+an alarm, whatever tab is open; a revoke of a boat out of contact (the hold waits for
+it), a command that expired unacknowledged, the boat back online; and control that
+ended while your console was out of contact. Each was found missing by a field test.
+A world of its own (the module's): an agent is stopped and started again."""
+
+from __future__ import annotations
+
+import re
+from typing import Any
+
+import pytest
+from playwright.sync_api import expect
+
+from server.demo import VEHICLES
+from tests.agent.procs import wait_until
+from tests.web.conftest import Shots, World
+from tests.web.console_helpers import command_item, lease_of, log_in, marker
+
+pytestmark = [pytest.mark.slow, pytest.mark.browser]
+
+
+def toasts(page: Any) -> Any:
+    return page.locator("#toasts .toast .msg")
+
+
+def vehicle_view(world: World, vehicle_id: str) -> dict[str, Any]:
+    return dict(world.fleet.call("GET", f"/api/vehicles/{vehicle_id}"))
+
+
+def test_a_stop_someone_else_sent_is_told_to_whoever_commands_the_boat(
+    world: World, open_console: Any, shots: Shots
+) -> None:
+    page, _ = open_console()
+    log_in(page, "ana")  # she holds control of every boat (the world's grants)
+    marker(page, "demo-usv-1").click()
+    page.click('[data-tab="vehicle"]')
+    cid = world.fleet.submit(world.tokens["mia"], world.instances["demo-usv-1"], "stop", {})
+    expect(toasts(page).filter(has_text="mia stopped H2OmniX Alpha")).to_have_count(1)
+    # and the boat's command list says who sent it, as it comes
+    expect(command_item(page, cid)).to_contain_text("by mia")
+    shots(page, "stop-told")
+
+
+def test_an_alarm_is_a_toast_whatever_tab_is_open(
+    world: World, open_console: Any, shots: Shots
+) -> None:
+    page, _ = open_console()
+    log_in(page, "ana")
+    page.click('[data-tab="fleet"]')
+    # The simulated boats run on 100 % or less: a threshold of 100 % is a low battery.
+    world.fleet.call("PUT", "/api/vehicles/demo-usv-3/failsafe", json={"low_battery_pct": 100.0})
+    said = toasts(page).filter(has_text=re.compile(r"^H2OmniX Charlie: battery low"))
+    expect(said).to_have_count(1, timeout=15_000)
+    shots(page, "alarm-told")
+    world.fleet.call("PUT", "/api/vehicles/demo-usv-3/failsafe", json={})
+
+
+def test_a_boat_out_of_contact_revoked_expired_and_back_is_told_as_it_is(
+    world: World, open_console: Any, shots: Shots
+) -> None:
+    vehicle = "demo-usv-2"
+    agent = world.agents[[v[0] for v in VEHICLES].index(vehicle)]
+    manager, _ = open_console(viewport=(390, 844))
+    log_in(manager, "mia")
+    operator, _ = open_console()
+    log_in(operator, "ana")
+    agent.stop()  # out of contact
+    wait_until(lambda: vehicle_view(world, vehicle)["presence"] == "offline", "Bravo offline")
+
+    # a command that expires unacknowledged is told to its sender
+    world.fleet.submit(world.tokens["ana"], world.instances[vehicle], "keep_station", {}, ttl_s=2)
+    expired = toasts(operator).filter(has_text="keep station for H2OmniX Bravo expired")
+    expect(expired).to_have_count(1, timeout=20_000)
+    expect(expired).to_contain_text("never acknowledged")
+
+    # the revoke says the hold waits for the boat, not that it holds station at once
+    manager.click('[data-tab="control"]')
+    lease = manager.locator('li.lease[data-vehicle="demo-usv-2"]')
+    lease.get_by_role("button", name="Revoke").click()
+    dialog = manager.locator("dialog[open]")
+    expect(dialog).to_contain_text("H2OmniX Bravo is offline: the hold is queued")
+    shots(manager, "revoke-offline")
+    dialog.get_by_role("button", name="Revoke").click()
+    said = toasts(manager).filter(has_text="control of H2OmniX Bravo revoked; H2OmniX Bravo is")
+    expect(said).to_have_count(1)
+
+    agent.start()  # back in contact
+    back = toasts(manager).filter(has_text="H2OmniX Bravo is back online")
+    expect(back).to_have_count(1, timeout=60_000)
+    shots(manager, "back-online")
+
+
+def test_control_that_ended_while_the_console_was_out_of_contact_is_told(
+    world: World, open_console: Any, shots: Shots
+) -> None:
+    page, _ = open_console()
+    log_in(page, "ana")
+    instance = world.instances["demo-usv-3"]
+    assert lease_of(world, instance)["holder"] == "ana"
+    page.context.set_offline(True)  # a phone out of signal: its socket neither answers
+    world.fleet.call("POST", "/client/revoke_control", world.tokens["mia"], json={
+        "instance_id": instance})  # fmt: skip
+    expect(page.locator("#link")).to_have_attribute("data-state", "lost", timeout=35_000)
+    page.context.set_offline(False)
+    expect(page.locator("#link")).to_have_attribute("data-state", "live", timeout=30_000)
+    said = toasts(page).filter(has_text="you no longer hold control of H2OmniX Charlie")
+    expect(said).to_have_count(1, timeout=10_000)
+    shots(page, "lapse-told")
