@@ -29,6 +29,7 @@ __all__ = [
     "GatewayList",
     "GatewayView",
     "LoginRequest",
+    "LogoutResult",
     "PatchUser",
     "Role",
     "TokenResult",
@@ -148,6 +149,12 @@ class TokenResult(WireModel):
     access_token: Text
     token_type: Literal["bearer"] = "bearer"
     expires_in: int
+
+
+class LogoutResult(WireModel):
+    """``POST /auth/logout``: whether a session token was ended (an API token is not)."""
+
+    ended: bool
 
 
 class DeadLetter(WireModel):

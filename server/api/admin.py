@@ -19,6 +19,7 @@ from fleet_protocol import (
     GatewayList,
     GatewayView,
     LoginRequest,
+    LogoutResult,
     PatchUser,
     TokenResult,
     UserCreated,
@@ -172,6 +173,13 @@ _LOGIN_SCHEMA = {
         },
     }
 }
+
+
+@router.post("/auth/logout", tags=["auth"])
+async def log_out(caller: Viewer, s: ServicesDep) -> LogoutResult:
+    """End the caller's session (**extension**): a token from ``/auth/token`` is revoked at
+    once; an API token stays valid (the caller just stops using it)."""
+    return LogoutResult(ended=await s.auth.log_out(caller))
 
 
 @router.post(

@@ -229,6 +229,13 @@ class AuthService(Tokens):
             for user in await self.repo.all_users()
         )
 
+    async def log_out(self, principal: Principal) -> bool:
+        """End the caller's token if it is a login's session token (an API token, the
+        admin's first, stays: logging out of a console forgets it there, no more)."""
+        if principal.kind != "user":
+            return False
+        return await self._revoke({"token_id": principal.token_id, "purpose": "session"}) > 0
+
     async def _end_sessions(self, username: str, keep: Principal | None) -> None:
         """Revoke the user's session tokens, but the one ``keep`` holds if it is theirs."""
         flt: dict[str, Any] = {"kind": "user", "subject": username, "purpose": "session"}

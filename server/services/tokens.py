@@ -179,9 +179,11 @@ class Tokens:
         )
         return token
 
-    async def _revoke(self, flt: dict[str, Any]) -> None:
+    async def _revoke(self, flt: dict[str, Any]) -> int:
+        """Revoke the tokens ``flt`` matches; how many."""
         revoked = await self.repo.revoke_tokens(flt, utcnow())
         self._forget({doc["digest"] for doc in revoked}, {doc["token_id"] for doc in revoked})
+        return len(revoked)
 
     def _forget(self, digests: set[str], token_ids: set[str], *, revoked: bool = True) -> None:
         self.forget(frozenset(digests), frozenset(token_ids))

@@ -83,6 +83,7 @@ ROWS: dict[tuple[str, str], tuple[Call, dict[str, int]]] = {
         everyone(200),  # the password decides, not the bearer
     ),
     ("GET", "/api/me"): (get("/api/me"), users()),
+    ("POST", "/auth/logout"): (post("/auth/logout"), users()),  # ends session tokens alone
     ("GET", "/api/vehicles"): (get("/api/vehicles"), users()),
     ("POST", "/api/vehicles"): (
         post("/api/vehicles", lambda w: {"vehicle_id": f"new-{w.n}"}),

@@ -89,3 +89,25 @@ async def test_a_session_socket_closes_when_its_token_expires(
             assert 0.5 < time.monotonic() - opened < 5
         r = await api.get("/api/vehicles", headers={"Authorization": f"Bearer {session}"})
         assert r.status_code == 401
+
+
+async def test_logging_out_ends_a_session_token_and_its_socket_but_no_api_token(
+    base: str,
+) -> None:
+    async with httpx.AsyncClient(base_url=base, timeout=10) as api:
+        _, api_headers = await make_user(
+            api, "operator", [], username="lea", password="a long passphrase"
+        )
+        r = await api.post("/auth/token", json={"username": "lea", "password": "a long passphrase"})
+        session = {"Authorization": f"Bearer {r.json()['access_token']}"}
+        async with websockets.connect(ws_url(base, "/ws/client", r.json()["access_token"])) as ws:
+            await ws.send(json.dumps({"op": "subscribe", "id": "s", "topics": ["fleet"]}))
+            assert (await recv_until(ws, lambda f: f.get("id") == "s"))["ok"] is True
+            out = await api.post("/auth/logout", headers=session)
+            assert (out.status_code, out.json()) == (200, {"ended": True})
+            assert await closed_with(ws) == 4401
+        assert (await api.get("/api/me", headers=session)).status_code == 401
+        # an API token (an admin's first, a script's) is not ended by a console's logout
+        kept = await api.post("/auth/logout", headers=api_headers)
+        assert (kept.status_code, kept.json()) == (200, {"ended": False})
+        assert (await api.get("/api/me", headers=api_headers)).status_code == 200

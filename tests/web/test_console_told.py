@@ -108,3 +108,19 @@ def test_control_that_ended_while_the_console_was_out_of_contact_is_told(
     said = toasts(page).filter(has_text="you no longer hold control of H2OmniX Charlie")
     expect(said).to_have_count(1, timeout=10_000)
     shots(page, "lapse-told")
+
+
+def test_logging_out_while_holding_control_asks_first_and_ends_the_session(
+    world: World, open_console: Any, shots: Shots
+) -> None:
+    page, _ = open_console()
+    log_in(page, "ana")  # with her password: a session token
+    token = page.evaluate("() => window.fleetConsole.api.token")
+    page.click("#logout")
+    dialog = page.locator("dialog[open]")
+    expect(dialog).to_contain_text("Log out while you hold control of H2OmniX Alpha")
+    shots(page, "logout-asks")
+    dialog.get_by_role("button", name="Log out").click()
+    expect(page.locator("#login")).to_be_visible()
+    with pytest.raises(AssertionError, match="401"):
+        world.fleet.call("GET", "/api/me", token)

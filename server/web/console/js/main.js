@@ -11,7 +11,7 @@ import { FleetTable, VehiclePanel } from "./panels.js";
 import { endSession, logOut, startSession } from "./session.js";
 import { PHONE, Tabs } from "./tabs.js";
 import { Tools } from "./tools.js";
-import { ago, clock, toast, until, zoneText } from "./ui.js";
+import { ago, clock, confirmAction, sending, toast, until, zoneText } from "./ui.js";
 
 const $ = (id) => document.getElementById(id);
 
@@ -41,10 +41,7 @@ class Console {
     this.tabs = new Tabs(this);
     this.commands = new Commands(this); // sent from the bar, the panels and the toasts
     this.tools = new Tools(this); // the bar over the map
-    $("logout").addEventListener("click", () => {
-      this.live.stop();
-      logOut();
-    });
+    $("logout").addEventListener("click", () => sending("logout", () => this.logOut()));
 
     this.fleet.addEventListener("added", (e) => {
       this.live.subscribe(topicsOf(e.detail.id));
@@ -123,6 +120,26 @@ class Console {
 
   /** A vehicle that goes offline in the middle of a command is said at once: its map label
    * would otherwise still read "executing". */
+  /** Log out, after a word when this user holds control of a boat (it stays theirs): the
+   * session ended on the server too (a pasted API token is only forgotten here). */
+  async logOut() {
+    const held = [...this.fleet.vehicles.values()]
+      .filter((v) => v.control && v.control.holder === this.me.username);
+    if (held.length) {
+      const names = held.map((v) => v.view.name || v.id).join(", ");
+      const ok = await confirmAction({
+        title: `Log out while you hold control of ${names}?`,
+        text: "Control stays yours until it ends (or lapses, if you chose a lapse when this " +
+          "console is silent): release it first if nobody is to command them from here.",
+        confirm: "Log out",
+      });
+      if (!ok) return;
+    }
+    this.live.stop();
+    await this.api.post("/auth/logout", {}).catch(() => null); // gone or refused: forget it
+    logOut();
+  }
+
   /** A command that expired unacknowledged, said to whom it concerns: its sender, the
    * boat's managers, and everyone for the server's own (a hold at a lease's end that
    * never reached a boat out of contact). */
