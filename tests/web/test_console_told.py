@@ -124,3 +124,16 @@ def test_logging_out_while_holding_control_asks_first_and_ends_the_session(
     expect(page.locator("#login")).to_be_visible()
     with pytest.raises(AssertionError, match="401"):
         world.fleet.call("GET", "/api/me", token)
+
+
+def test_a_lease_about_to_end_is_told_a_minute_before(
+    world: World, open_console: Any, shots: Shots
+) -> None:
+    page, _ = open_console()
+    log_in(page, "ben")
+    body = {"instance_id": world.instances["demo-usv-3"], "user": "ben", "duration_s": 65}
+    world.fleet.call("POST", "/client/grant_control", world.tokens["mia"], json=body)
+    said = toasts(page).filter(has_text="your control of H2OmniX Charlie ends at")
+    expect(said).to_have_count(1, timeout=20_000)
+    expect(said).to_contain_text("ask for more in time")
+    shots(page, "lease-ending")

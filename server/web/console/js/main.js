@@ -173,11 +173,28 @@ class Console {
   tick() {
     const now = Date.now();
     this.keepLeasesAlive(now);
+    this.warnLeasesEnding(now);
     for (const el of document.querySelectorAll("[data-since]")) {
       el.textContent = ago(+el.dataset.since, now);
     }
     for (const el of document.querySelectorAll("[data-until]")) {
       el.textContent = `(${until(el.dataset.until, now)})`;
+    }
+  }
+
+  /** A minute before a lease of this user's ends, once: the boat then holds station, and
+   * more time is the manager's to grant (a new request). */
+  warnLeasesEnding(now) {
+    this.warned = this.warned || new Set();
+    for (const v of this.fleet.vehicles.values()) {
+      const c = v.control;
+      if (!c || c.holder !== this.me.username || !c.expires_at) continue;
+      const left = Date.parse(c.expires_at) - now;
+      const key = `${v.id}@${c.expires_at}`;
+      if (left > 60000 || left <= 0 || this.warned.has(key)) continue;
+      this.warned.add(key);
+      toast(`your control of ${v.view.name || v.id} ends at ${clock(c.expires_at)} ` +
+        `(${until(c.expires_at, now)}); then it holds station: ask for more in time`, "warn");
     }
   }
 
