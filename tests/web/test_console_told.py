@@ -41,6 +41,10 @@ def test_a_stop_someone_else_sent_is_told_to_whoever_commands_the_boat(
     # and the boat's command list says who sent it, as it comes
     expect(command_item(page, cid)).to_contain_text("by mia")
     shots(page, "stop-told")
+    # gone after its time, the message can be read again (Messages, in the header)
+    page.click("#messages")
+    expect(page.locator("#toast-log-list")).to_contain_text("mia stopped H2OmniX Alpha")
+    page.keyboard.press("Escape")
 
 
 def test_an_alarm_is_a_toast_whatever_tab_is_open(

@@ -63,7 +63,7 @@ export class ControlPanel {
         this.lapses.told(id);
       }
       if (event.kind === "hold_station" && this.managed(id)) {
-        toast(`${this.nameOf(id)} holds station: ${describeEvent(event)}`, "info");
+        toast(`${this.nameOf(id)} holds station: ${describeEvent(event)}`, "warn");
       }
       this.tellStops(id, event);
       this.tellMine(id, event);
@@ -89,7 +89,7 @@ export class ControlPanel {
     setTimeout(() => {
       const all = [...this.stops.get(by)].sort();
       this.stops.delete(by);
-      toast(`${by} stopped ${all.join(", ")}`, "info");
+      toast(`${by} stopped ${all.join(", ")}`, "warn");
     }, 500);
   }
 

@@ -10,6 +10,7 @@ import { LiveLink } from "./live.js";
 import { FleetTable, VehiclePanel } from "./panels.js";
 import { endSession, logOut, startSession } from "./session.js";
 import { PHONE, Tabs } from "./tabs.js";
+import { openLog } from "./toasts.js";
 import { Tools } from "./tools.js";
 import { ago, clock, confirmAction, sending, toast, until, zoneText } from "./ui.js";
 
@@ -42,6 +43,7 @@ class Console {
     this.commands = new Commands(this); // sent from the bar, the panels and the toasts
     this.tools = new Tools(this); // the bar over the map
     $("logout").addEventListener("click", () => sending("logout", () => this.logOut()));
+    $("messages").addEventListener("click", openLog); // a toast gone can be read again
 
     this.fleet.addEventListener("added", (e) => {
       this.live.subscribe(topicsOf(e.detail.id));
