@@ -3,9 +3,13 @@
 // to say an event or a lease. Each redraws from the Fleet state when it changes.
 
 import { alarmBadges, alarmList } from "./alarms.js";
-import { isFinal, lastKnown, stageLabel, stageOf } from "./fleet.js";
+import { describeEvent, describeFailsafe, kindName } from "./describe.js";
+import { isFinal, lastKnown, stageLabel } from "./fleet.js";
 import { controlOffer } from "./grants.js";
 import { ago, clock, h, sending, sends, until } from "./ui.js";
+
+// said here before describe.js was split out; control.js reads them from here
+export { describeData, describeEvent, describeFailsafe, kindName } from "./describe.js";
 
 export function presenceBadge(presence) {
   return h(`span.presence.p-${presence || "offline"}`, {}, presence || "unknown");
@@ -43,7 +47,6 @@ export function courseText(trail) {
   return `${Math.round((Math.atan2(east, north) / rad + 360) % 360) % 360} °`;
 }
 
-/** The vehicle's link as the server measures it (docs/live.md, "Latency per hop"). */
 /** A command's detail as people read it ("superseded_by go_to c-1": "superseded by go_to
  * c-1"; "superseded_by_stop": "superseded by a stop"). */
 function readableDetail(detail) {
@@ -51,6 +54,7 @@ function readableDetail(detail) {
   return String(detail).replace(/^superseded_by /, "superseded by ");
 }
 
+/** The vehicle's link as the server measures it (docs/live.md, "Latency per hop"). */
 function linkText(view) {
   if (view.link_delay_ms == null) return null;
   const rtt = view.link_rtt_ms != null ? ` · ${millis(view.link_rtt_ms)} round trip` : "";
@@ -279,112 +283,3 @@ export class VehiclePanel {
     return c.issued_by === me.username || (v.control && v.control.holder === me.username);
   }
 }
-
-/** " (on the vehicle since 10:02:11)": when the vehicle says a mode began, if it is not
- * when the server heard of it (a failsafe taken while the link was down). */
-function sinceText(e) {
-  const since = Date.parse((e.data || {}).since);
-  if (!Number.isFinite(since) || Math.abs(Date.parse(e.at) - since) < 2000) return "";
-  return ` (on the vehicle since ${clock(since)})`;
-}
-
-export function describeEvent(e) {
-  const d = e.data || {};
-  if (e.kind === "command") {
-    const stage = d.status ? stageOf(d.status, d.detail) : "";
-    const who = e.actor ? e.actor.replace(/^user:/, "") : null;
-    // a cancel's detail is "by <who>": said once, not "(by ana) by ana"
-    const detail = d.detail && d.detail !== "superseded_by_stop" && d.detail !== `by ${who}`
-      ? ` (${d.detail.replace(/^superseded_by /, "by ")})` : "";
-    return `${d.type || ""} ${stage}${detail}` + (who ? ` by ${who}` : "");
-  }
-  if (e.kind === "control_mode") {
-    return `${d.was ? `${d.was} → ` : ""}${d.control_mode || "?"}${sinceText(e)}`;
-  }
-  if (e.kind === "failsafe_changed") return describeFailsafe(d);
-  if (e.kind === "zone_breach" || e.kind === "zone_cleared") {
-    const what = d.message || `${e.kind === "zone_breach" ? "entered" : "left"} ${d.zone || "a zone"}`;
-    const sent = d.command_type ? `; the server sent ${d.command_type.replace(/_/g, " ")}` : "";
-    return `${what}${sent}`;
-  }
-  if (e.kind === "collision_risk") {
-    const n = (x) => (x == null ? "?" : Math.round(x));
-    return `with ${d.other_vehicle_id || "another vehicle"} in ${n(d.in_s)} s: ` +
-      `closest ${n(d.closest_m)} m (${n(d.distance_now_m)} m apart now)`;
-  }
-  if (e.kind === "low_battery" || e.kind === "battery_recovered") {
-    const pct = d.battery_pct == null ? "?" : Number(d.battery_pct).toFixed(0);
-    return `${pct} % (alarm below ${d.threshold_pct ?? "?"} %)`;
-  }
-  if (e.kind === "failsafe_entered" || e.kind === "failsafe_left") {
-    return `${d.was || "?"} → ${d.control_mode || "?"}${sinceText(e)}`;
-  }
-  if (e.kind.startsWith("control_")) {
-    const who = d.holder || d.user || d.username || "";
-    const by = e.actor ? e.actor.replace(/^user:/, "") : "";
-    const terms = e.kind === "control_grant" && d.expires_at
-      ? ` until ${clock(d.expires_at)}` +
-        (d.operator_timeout_s ? `, lapses after ${d.operator_timeout_s} s of silence` : "")
-      : "";
-    // "released by ben", not "released by ben (by ben)"
-    return `${who}${terms}${d.reason ? `: ${String(d.reason).replace(/_/g, " ")}` : ""}` +
-      `${by && by !== who ? ` (by ${by})` : ""}`;
-  }
-  if (e.kind === "hold_station") {
-    const why = String(d.reason || "ended").replace(/_/g, " ");
-    return `${d.holder ? `${d.holder}'s control ended` : "control ended"} (${why}); ` +
-      `${d.type === "stop" ? "stopped" : "keeps station where it is"}`;
-  }
-  if (e.kind === "presence") return d.presence || "";
-  if (e.kind === "instance") return d.action || "";
-  if (e.kind === "failsafe_acked") return d.version != null ? `version ${d.version}` : "";
-  return describeData(d);
-}
-
-// An event's kind as a person reads it ("failsafe applied", not failsafe_acked).
-const KIND_NAMES = {
-  failsafe_acked: "failsafe applied by the vehicle", failsafe_changed: "failsafe set",
-  control_request: "control requested", control_deny: "control request declined",
-  hold_station: "holds station", instance: "instance",
-};
-
-export function kindName(kind) {
-  return KIND_NAMES[kind] || kind.replace(/_/g, " ");
-}
-
-/** A link-loss policy as a field manager reads it: "keep station where it is after 30 s
- * without the server; on a zone breach too · the server's default". */
-export function describeFailsafe(f) {
-  if (!f) return "";
-  const what = {
-    none: "carry on (no failsafe)",
-    keep_station: "keep station where it is",
-    stop: "stop",
-    return_home: f.home ? `return home (${(+f.home.lat).toFixed(5)}, ${(+f.home.lon).toFixed(5)})`
-      : "return home (where it started)",
-  }[f.action] || String(f.action);
-  const parts = [f.action === "none" ? what : `${what} after ${f.after_s ?? "?"} s without the server`];
-  if (f.on_breach && f.action !== "none") parts.push("the same at once on a zone breach");
-  if (f.low_battery_pct != null) parts.push(`low-battery alarm below ${f.low_battery_pct} %`);
-  if (!f.version) parts.push("the server's default");
-  return parts.join(" · ");
-}
-
-const UNITS = { s: " s", m: " m", pct: " %", mps: " m/s", deg: "°" };
-
-/** An object as "key value · key value" (nulls left out, units from the key's suffix:
- * after_s 30 reads "after 30 s"; nested values as JSON). */
-export function describeData(d) {
-  return Object.entries(d || {})
-    .filter(([, v]) => v !== null && v !== undefined)
-    .map(([k, v]) => {
-      const unit = k.match(/^(.*)_(s|m|pct|mps|deg)$/);
-      const name = (unit ? unit[1] : k).replace(/_/g, " ");
-      const value = typeof v === "object" ? JSON.stringify(v) : String(v);
-      return `${name} ${value}${unit ? UNITS[unit[2]] : ""}`;
-    })
-    .join(" · ")
-    .slice(0, 160);
-}
-
-// ---- control: requests, grants, leases -------------------------------------------------------
