@@ -23,9 +23,10 @@ function chip(cmd, presence) {
 }
 
 /** A battery reading in whole percent, rounded down: 99.9 % against an alarm at 100 %
- * reads 99, never the 100 that would sit beside "low battery". */
+ * reads 99, never the 100 that would sit beside "low battery"; the same in the fleet
+ * table and the vehicle panel. */
 function batteryText(pct) {
-  return String(Math.floor(pct));
+  return pct == null ? "–" : `${Math.floor(pct)} %`;
 }
 
 /** A delay in ms as the console shows it (tenths below 10 ms). */
@@ -125,9 +126,9 @@ export class FleetTable {
               : null),
           // a reading of a vehicle not online is greyed and dated, as in its panel
           v.view.presence === "online"
-            ? h("td", {}, p && p.battery_pct != null ? `${batteryText(p.battery_pct)} %` : "–")
+            ? h("td", {}, batteryText(p && p.battery_pct))
             : h("td.stale", { title: p ? `as of ${clock(p.ts)}` : null },
-              p && p.battery_pct != null ? `${batteryText(p.battery_pct)} %` : "–"),
+              batteryText(p && p.battery_pct)),
           h("td", {}, holderText(v.control, me)),
           h("td", {}, chip(fleet.latestCommand(v.id), v.view.presence)),
         );
@@ -229,7 +230,7 @@ export class VehiclePanel {
         h("dt", { title: "where it moves, from its last positions" }, "course"),
         h("dd", {}, courseText(v.trail)),
         h("dt", {}, "speed"), h("dd", {}, num(p.speed_mps, "m/s")),
-        h("dt", {}, "battery"), h("dd", {}, num(p.battery_pct, "%", 0)),
+        h("dt", {}, "battery"), h("dd", {}, batteryText(p.battery_pct)),
         h("dt", {}, "link"), h("dd.link-delay", {}, linkText(view) || "–"),
         p.depth_m != null ? [h("dt", {}, "depth"), h("dd", {}, num(p.depth_m, "m"))] : null),
       h("h3", {}, "Parameters ", h("button.quiet", {

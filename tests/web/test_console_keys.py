@@ -1,0 +1,72 @@
+"""What a field tester found with a keyboard and in the panels, in a real browser (as
+test_console_input): the fleet table's tick boxes and the vehicle panel's buttons keep the
+keyboard's focus while samples come in (each sample drew them anew: the focus fell to the
+page within a second), a map marker reached with Tab is selected by Enter or Space, "plan
+round obstacles" says in words why it is off for several boats (and is unticked then),
+the vehicle panel's battery reads as the table's, and the replay's window is brought up to
+the moment its tab opens. A world of its own (the module's): ana holds every vehicle."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import pytest
+from playwright.sync_api import expect
+
+from tests.web import console_helpers as console
+from tests.web.conftest import Shots, World
+
+pytestmark = [pytest.mark.slow, pytest.mark.browser]
+
+
+def samples_drawn(page: Any, vehicle_id: str, n: int = 3) -> None:
+    """Until ``n`` more samples of the vehicle have come in (2 a second) and been drawn."""
+    page.evaluate(
+        """([id, n]) => new Promise((done) => {
+            let seen = 0;
+            const fleet = fleetConsole.fleet;
+            const on = (e) => {
+                if (e.detail.id !== id || e.detail.what !== "position" || ++seen < n) return;
+                fleet.removeEventListener("change", on);
+                requestAnimationFrame(() => requestAnimationFrame(done));
+            };
+            fleet.addEventListener("change", on);
+        })""",
+        [vehicle_id, n],
+    )
+
+
+def focused(page: Any) -> str:
+    """What has the keyboard's focus: the tag, and its label or text."""
+    return str(
+        page.evaluate(
+            """() => { const el = document.activeElement;
+                return `${el.tagName} ${el.getAttribute("aria-label") || el.textContent}`; }"""
+        )
+    )
+
+
+def test_the_panel_rounds_the_battery_as_the_table(
+    world: World, open_console: Any, shots: Shots
+) -> None:
+    """At 99.56 % the fleet table said 99 % and the vehicle panel 100 %. A sample of
+    99.56 % is handed to the page as the telemetry topic would (dated a minute ahead, so
+    that the vehicle's own samples do not replace it while the test reads)."""
+    page, _ = open_console()
+    console.log_in(page, "ana")
+    console.marker(page, "demo-usv-2").click()
+    page.evaluate(
+        """(id) => {
+            const v = fleetConsole.fleet.vehicles.get(id);
+            const ts = new Date(Date.now() + 60000).toISOString();
+            fleetConsole.fleet.applyTelemetry(id, { ...v.view.position, ts, battery_pct: 99.56 });
+        }""",
+        "demo-usv-2",
+    )
+    cell = page.locator('#fleet-table tr[data-vehicle="demo-usv-2"] td').nth(3)
+    panel = page.locator("#vehicle-pane dl.readings").locator(
+        "xpath=dt[.='battery']/following-sibling::dd[1]"
+    )
+    expect(cell).to_have_text("99 %")
+    expect(panel).to_have_text("99 %")
+    shots(page, "battery-99")
