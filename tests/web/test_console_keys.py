@@ -8,6 +8,7 @@ the moment its tab opens. A world of its own (the module's): ana holds every veh
 
 from __future__ import annotations
 
+import re
 from typing import Any
 
 import pytest
@@ -44,6 +45,54 @@ def focused(page: Any) -> str:
                 return `${el.tagName} ${el.getAttribute("aria-label") || el.textContent}`; }"""
         )
     )
+
+
+def test_a_tick_box_keeps_the_focus_while_samples_come_in(
+    world: World, open_console: Any, shots: Shots
+) -> None:
+    """Tab to a tick box, wait a second, press Space: nothing was selected (the box had
+    been drawn anew with the next sample, the focus on the page's body)."""
+    page, _ = open_console()
+    console.log_in(page, "ana")
+    rows = page.locator("#fleet-table tbody tr")
+    rows.locator('[aria-label="select demo-usv-1"]').focus()
+    page.keyboard.press("Tab")  # to the next row's tick box
+    assert focused(page) == "INPUT select demo-usv-2"
+    samples_drawn(page, "demo-usv-2")
+    assert focused(page) == "INPUT select demo-usv-2"
+    page.keyboard.press("Space")
+    expect(page.locator("#selection")).to_have_text("1 selected: H2OmniX Bravo")
+    expect(page.locator('#fleet-table tr[data-vehicle="demo-usv-2"]')).to_have_class(
+        re.compile(r"\bselected\b")
+    )
+    page.keyboard.press("Tab")
+    samples_drawn(page, "demo-usv-3")
+    page.keyboard.press("Space")
+    expect(page.locator("#selection")).to_have_text("2 selected: H2OmniX Bravo, H2OmniX Charlie")
+    shots(page, "ticked-by-keyboard")
+
+
+def test_the_vehicle_panel_s_buttons_keep_the_focus_while_samples_come_in(
+    world: World, open_console: Any, shots: Shots
+) -> None:
+    """The panel's buttons (Release, refresh, ...) were drawn anew with every sample: one
+    focused with Tab lost the focus before Enter was pressed."""
+    page, _ = open_console()
+    console.log_in(page, "ana")
+    console.marker(page, "demo-usv-3").click()
+    release = page.locator("#vehicle-pane button", has_text="Release")
+    release.focus()
+    samples_drawn(page, "demo-usv-3")
+    assert focused(page) == "BUTTON Release"
+    page.keyboard.press("Enter")
+    expect(page.locator("#confirm-title")).to_have_text("Release your control of H2OmniX Charlie?")
+    page.locator("#confirm-cancel").click()
+    expect(page.locator("#confirm")).to_be_hidden()
+    refresh = page.locator("#vehicle-pane button", has_text="refresh")
+    refresh.focus()
+    samples_drawn(page, "demo-usv-3")
+    assert focused(page) == "BUTTON refresh"
+    shots(page, "panel-button-still-focused")
 
 
 def test_the_panel_rounds_the_battery_as_the_table(

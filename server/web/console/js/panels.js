@@ -6,6 +6,7 @@ import { alarmBadges, alarmList } from "./alarms.js";
 import { describeEvent, describeFailsafe, kindName } from "./describe.js";
 import { isFinal, lastKnown, stageLabel } from "./fleet.js";
 import { controlOffer } from "./grants.js";
+import { patchChildren } from "./patch.js";
 import { ago, clock, h, sending, sends, until } from "./ui.js";
 
 // said here before describe.js was split out; control.js reads them from here
@@ -93,8 +94,10 @@ export class FleetTable {
   draw() {
     const { fleet, me } = this.ctx;
     const rows = [...fleet.vehicles.values()].sort((a, b) => (a.id < b.id ? -1 : 1));
-    this.body.replaceChildren(
-      ...rows.map((v) => {
+    // each row, its tick box, kept from one drawing to the next (patch.js): the keyboard's
+    // focus stays where it is while samples come in
+    patchChildren(this.body,
+      rows.map((v) => {
         const p = v.view.position;
         const selected = this.ctx.selection.has(v.id);
         const alarmed = (v.view.alarms || []).length > 0;
@@ -180,7 +183,7 @@ export class VehiclePanel {
     const { fleet, me } = this.ctx;
     const v = fleet.vehicles.get(this.id);
     if (!v) {
-      this.el.replaceChildren(h("p.hint", {}, "Select a vehicle on the map or in the fleet."));
+      patchChildren(this.el, [h("p.hint", {}, "Select a vehicle on the map or in the fleet.")]);
       return;
     }
     const view = v.view;
@@ -212,7 +215,8 @@ export class VehiclePanel {
       ? h("p.failsafe", {}, h("b", {}, "If the link is lost: "), describeFailsafe(view.failsafe),
         view.failsafe_acked === false ? " (not yet acknowledged by the vehicle)" : "")
       : null;
-    this.el.replaceChildren(...[
+    // what is the same kept (patch.js): a focused button stays focused while samples come in
+    patchChildren(this.el, [
       h("h2", {}, view.name || v.id, " ", presenceBadge(view.presence)),
       alarmList(view),
       h("p.sub", {}, `${v.id} · ${view.vehicle_type || "vehicle"} · mode ${view.control_mode || "–"}`),
@@ -242,7 +246,7 @@ export class VehiclePanel {
       h("h3", {}, "Recent events"),
       h("ol.events", {}, ...[...v.events].reverse().slice(0, 20).map((e) => h("li", {},
         h("time", {}, clock(e.at)), " ", h("b", {}, kindName(e.kind)), " ", describeEvent(e)))),
-    ].filter(Boolean));
+    ]);
   }
 
   paramsTable() {
