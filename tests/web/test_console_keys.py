@@ -72,6 +72,24 @@ def test_a_tick_box_keeps_the_focus_while_samples_come_in(
     shots(page, "ticked-by-keyboard")
 
 
+def test_a_marker_reached_with_tab_is_selected_by_enter_or_space(
+    world: World, open_console: Any, shots: Shots
+) -> None:
+    """A marker is reached with Tab (role=button), but Enter and Space did nothing."""
+    page, _ = open_console()
+    console.log_in(page, "ana")
+    console.marker(page, "demo-usv-1").focus()
+    page.keyboard.press("Enter")  # selected alone, its panel open, as a click does
+    expect(page.locator("#selection")).to_have_text("1 selected: H2OmniX Alpha")
+    expect(page.locator('.tabs [data-tab="vehicle"]')).to_have_attribute("aria-selected", "true")
+    expect(page.locator("#vehicle-pane h2")).to_contain_text("H2OmniX Alpha")
+    console.marker(page, "demo-usv-3").focus()
+    page.keyboard.press(" ")
+    expect(page.locator("#selection")).to_have_text("1 selected: H2OmniX Charlie")
+    expect(console.marker(page, "demo-usv-3")).to_have_class(re.compile(r"\bselected\b"))
+    shots(page, "marker-by-keyboard")
+
+
 def test_the_vehicle_panel_s_buttons_keep_the_focus_while_samples_come_in(
     world: World, open_console: Any, shots: Shots
 ) -> None:

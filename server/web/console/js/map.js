@@ -96,6 +96,14 @@ export class MapView {
         const ev = e.originalEvent || {};
         this.onPick(v.id, Boolean(ev.shiftKey || ev.ctrlKey || ev.metaKey));
       });
+      // reached with Tab (role=button): Enter or Space selects it as a click does
+      // (Leaflet turns neither into a click)
+      m.on("keydown", (e) => {
+        const ev = e.originalEvent;
+        if (ev.key !== "Enter" && ev.key !== " ") return;
+        ev.preventDefault();
+        this.onPick(v.id, Boolean(ev.shiftKey || ev.ctrlKey || ev.metaKey));
+      });
       m.addTo(this.vehicleLayer);
       this.markers.set(v.id, m);
     } else {
