@@ -113,6 +113,43 @@ def test_the_vehicle_panel_s_buttons_keep_the_focus_while_samples_come_in(
     shots(page, "panel-button-still-focused")
 
 
+def test_plan_round_obstacles_says_why_it_is_off_for_several_boats(
+    world: World, open_console: Any, shots: Shots
+) -> None:
+    """With several boats selected the box was greyed out but still ticked, and why only in
+    a tooltip (a phone shows none). Now it is unticked and says why beside it, and ticked
+    again as the person left it when one boat is selected again."""
+    page, _ = open_console()
+    console.log_in(page, "ana")
+    plan, why = page.locator("#path-plan"), page.locator("#path-plan-why")
+    console.marker(page, "demo-usv-1").click()
+    page.click('#actions [data-tool="path"]')
+    expect(plan).to_be_enabled()
+    expect(plan).to_be_checked()
+    expect(why).to_be_hidden()
+    console.marker(page, "demo-usv-2").click(modifiers=["Shift"])
+    expect(page.locator("#selection")).to_have_text("2 selected: H2OmniX Alpha, H2OmniX Bravo")
+    expect(plan).to_be_disabled()
+    expect(plan).not_to_be_checked()
+    expect(why).to_be_visible()
+    expect(why).to_contain_text("off for several boats")
+    expect(why).to_contain_text("goes as drawn")
+    shots(page, "several-boats")
+    console.marker(page, "demo-usv-2").click()  # one boat again
+    expect(page.locator("#selection")).to_have_text("1 selected: H2OmniX Bravo")
+    expect(plan).to_be_enabled()
+    expect(plan).to_be_checked()
+    expect(why).to_be_hidden()
+    plan.uncheck()  # the person's choice, kept across several boats and back
+    console.marker(page, "demo-usv-3").click(modifiers=["Shift"])
+    expect(plan).to_be_disabled()
+    expect(plan).not_to_be_checked()
+    console.marker(page, "demo-usv-3").click()
+    expect(plan).to_be_enabled()
+    expect(plan).not_to_be_checked()
+    page.click("#path-cancel")
+
+
 def test_the_panel_rounds_the_battery_as_the_table(
     world: World, open_console: Any, shots: Shots
 ) -> None:

@@ -47,14 +47,22 @@ export class Tools {
     const names = [...selection].map((id) => fleet.vehicles.get(id)?.view.name || id);
     $("selection").textContent = n ? `${n} selected: ${names.join(", ")}` : "";
     $("stop-selected").textContent = n > 1 ? `Stop ${n}` : "Stop";
-    // The planner keeps boats apart, so one planned path cannot take several of them.
-    const plan = $("path-plan");
-    plan.disabled = n > 1;
-    plan.parentElement.title = n > 1
-      ? "one path for several boats is sent as drawn: the planner keeps boats apart, so it " +
-        "plans a path for one boat at a time"
-      : "";
+    this.showPlan(n);
     if (!n) this.set(null);
+  }
+
+  /** "plan round obstacles" for ``n`` selected: the planner keeps boats apart, so one
+   * planned path cannot take several of them. Then the box is off, unticked (the path
+   * goes as drawn) and says why beside it (a phone shows no tooltip); for one boat it is
+   * ticked again as the person left it. */
+  showPlan(n) {
+    const plan = $("path-plan");
+    const several = n > 1;
+    if (several && !plan.disabled) this.planWanted = plan.checked;
+    if (!several && plan.disabled) plan.checked = this.planWanted ?? true;
+    if (several) plan.checked = false;
+    plan.disabled = several;
+    $("path-plan-why").hidden = !several;
   }
 
   /** Take up ``tool`` ("go_to", "station", "path"), or put it away (null). */
@@ -144,7 +152,7 @@ export class Tools {
     const speed = this.speedArg();
     if (speed == null) return undefined;
     const args = { waypoints: this.draftPath, ...speed };
-    if ($("path-plan").checked && !$("path-plan").disabled) args.plan = true;
+    if ($("path-plan").checked && !$("path-plan").disabled) args.plan = true; // one boat
     if (await this.ctx.commands.send("follow_path", args)) this.set(null);
     return undefined;
   }
