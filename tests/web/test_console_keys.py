@@ -174,3 +174,82 @@ def test_the_panel_rounds_the_battery_as_the_table(
     expect(cell).to_have_text("99 %")
     expect(panel).to_have_text("99 %")
     shots(page, "battery-99")
+
+
+def test_the_replay_window_is_up_to_date_when_its_tab_opens(
+    world: World, open_console: Any, shots: Shots
+) -> None:
+    """At 16:09 the replay still offered a window ending at 16:03 (set when the page
+    loaded). The browser's clock is moved on (Playwright's clock) between loading the page
+    and opening the tab: the window (15 min, or the shortcut pressed) ends when the tab
+    opens; one typed stays as typed."""
+    page, _ = open_console()
+    page.clock.install()
+    console.log_in(page, "ana")
+    frm, to = page.locator("#replay-from"), page.locator("#replay-to")
+
+    def window() -> tuple[float, float, float]:
+        got = page.evaluate(
+            """() => [document.getElementById("replay-from").value,
+                      document.getElementById("replay-to").value, Date.now()]
+                .map((x) => (typeof x === "number" ? x : new Date(x).getTime()))"""
+        )
+        return got[0], got[1], got[2]
+
+    expect(frm).not_to_have_value("")  # the replay module is up
+    page.clock.fast_forward("07:00")  # seven minutes on
+    page.click('[data-tab="replay"]')
+    start, end, now = window()
+    assert now - 5000 < end <= now, (end, now)  # up to now, not to when the page loaded
+    assert end - start == 15 * 60000
+    page.click('#replay-form [data-minutes="60"]')
+    page.click('[data-tab="fleet"]')
+    page.clock.fast_forward("03:00")
+    page.click('[data-tab="replay"]')
+    start, end, now = window()
+    assert now - 5000 < end <= now and end - start == 3600000  # the last hour, up to now
+
+    typed = page.evaluate(
+        """() => {
+            const local = (t) => new Date(t - new Date(t).getTimezoneOffset() * 60000)
+                .toISOString().slice(0, 19);
+            return [local(Date.now() - 4 * 3600000), local(Date.now() - 3 * 3600000)];
+        }"""
+    )
+    frm.fill(typed[0])
+    to.fill(typed[1])
+    page.click('[data-tab="fleet"]')
+    page.clock.fast_forward("02:00")
+    page.click('[data-tab="replay"]')
+    expect(frm).to_have_value(typed[0])
+    expect(to).to_have_value(typed[1])
+    shots(page, "typed-window-kept")
+
+
+def test_a_refused_window_leaves_no_earlier_answer_under_the_form(
+    world: World, open_console: Any, shots: Shots
+) -> None:
+    """After "the window must start before it ends" the earlier "Nothing was recorded…"
+    stayed under the form, as if it answered the window refused."""
+    page, _ = open_console()
+    console.log_in(page, "ana")
+    page.click('[data-tab="replay"]')
+    frm, to = page.locator("#replay-from"), page.locator("#replay-to")
+    typed = page.evaluate(
+        """() => {  // an hour that ended three hours before now (before the server started)
+            const local = (t) => new Date(t - new Date(t).getTimezoneOffset() * 60000)
+                .toISOString().slice(0, 19);
+            return [local(Date.now() - 4 * 3600000), local(Date.now() - 3 * 3600000)];
+        }"""
+    )
+    frm.fill(typed[0])
+    to.fill(typed[1])
+    info = page.locator("#replay-info")
+    page.click("#replay-load")
+    expect(info).to_contain_text("Nothing was recorded for these vehicles")
+    to.fill(typed[0])  # the window ends where it starts
+    frm.fill(typed[1])
+    page.click("#replay-load")
+    expect(info).to_have_text("the window must start before it ends: nothing read")
+    expect(info).not_to_contain_text("Nothing was recorded")
+    shots(page, "refused-window")

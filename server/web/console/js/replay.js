@@ -4,22 +4,14 @@
 
 import { drawTrack, gapBands, offlinePeriods, offlineText, periodAt } from "./gaps.js";
 import { L, colourOf, escapeHtml } from "./map.js";
-import { describeEvent, kindName } from "./panels.js";
+import { describeEvent, kindName } from "./describe.js";
+import { ReplayForm } from "./replayform.js";
 import { clock, dateTime, h, sending, toast } from "./ui.js";
 
 const MAX_EVENTS_PER_VEHICLE = 100000;
 const MAX_POINTS_PER_VEHICLE = 50000; // five pages of the track route
 const HOLD_GAP_MS = 30000; // samples further apart than this: the marker waits, not glides
 const FLASH_MS = 1500;
-
-function toLocalInput(t) {
-  const d = new Date(t - new Date(t).getTimezoneOffset() * 60000);
-  return d.toISOString().slice(0, 19);
-}
-
-function fromLocalInput(value) {
-  return new Date(value).getTime(); // a datetime-local value is read as local time
-}
 
 /** The index of the last point at or before ``t`` (-1 if none): points sorted by t. */
 export function lastAtOrBefore(points, t) {
@@ -64,6 +56,7 @@ export class Replay {
     this.ctx = ctx;
     this.map = ctx.map;
     this.form = document.getElementById("replay-form");
+    this.choice = new ReplayForm(ctx); // the vehicles and the window
     this.slider = document.getElementById("replay-slider");
     this.bar = document.getElementById("replay-bar");
     this.playButton = document.getElementById("replay-play");
@@ -81,10 +74,6 @@ export class Replay {
     this.playing = false;
     this.cursor = 0;
 
-    this.setLastMinutes(15);
-    for (const b of this.form.querySelectorAll("[data-minutes]")) {
-      b.addEventListener("click", () => this.setLastMinutes(+b.dataset.minutes));
-    }
     this.form.addEventListener("submit", (e) => {
       e.preventDefault();
       sending("replay", () => this.load());
@@ -97,28 +86,14 @@ export class Replay {
     }
   }
 
-  setLastMinutes(minutes) {
-    const now = Date.now();
-    document.getElementById("replay-from").value = toLocalInput(now - minutes * 60000);
-    document.getElementById("replay-to").value = toLocalInput(now);
+  /** The vehicles offered again (one has appeared). */
+  drawChoices() {
+    this.choice.drawChoices();
   }
 
-  /** The vehicle checkboxes: the user's ticks kept; a vehicle not offered before is
-   * ticked when it is selected, or when nothing is selected (every vehicle). */
-  drawChoices() {
-    const box = document.getElementById("replay-vehicles");
-    const offered = new Map(
-      [...box.querySelectorAll("input")].map((i) => [i.value, i.checked]),
-    );
-    const selection = this.ctx.selection;
-    const vehicles = [...this.ctx.fleet.vehicles.values()].sort((a, b) => (a.id < b.id ? -1 : 1));
-    box.replaceChildren(...vehicles.map((v) => h("label", {},
-      h("input", {
-        type: "checkbox", name: "vehicle", value: v.id,
-        checked: offered.has(v.id) ? offered.get(v.id)
-          : selection.size ? selection.has(v.id) : true,
-      }),
-      ` ${v.view.name || v.id}`)));
+  /** The Replay tab opens: its window brought up to now (unless typed). */
+  opened() {
+    this.choice.opened();
   }
 
   nameOf(id) {
@@ -126,16 +101,12 @@ export class Replay {
     return (v && v.view.name) || id;
   }
 
-  chosen() {
-    return [...document.querySelectorAll("#replay-vehicles input:checked")].map((i) => i.value);
-  }
-
   async load() {
-    const ids = this.chosen();
-    const start = fromLocalInput(document.getElementById("replay-from").value);
-    const end = fromLocalInput(document.getElementById("replay-to").value);
-    if (!ids.length) return toast("choose at least one vehicle", "error");
-    if (!(start < end)) return toast("the window must start before it ends", "error");
+    const ids = this.choice.chosen();
+    const { start, end } = this.choice.window();
+    // a form refused: said under it, in place of what an earlier replay said there
+    if (!ids.length) return this.refuse("choose at least one vehicle");
+    if (!(start < end)) return this.refuse("the window must start before it ends");
     this.pause();
     this.info.textContent = "loading…";
     let got;
@@ -161,6 +132,11 @@ export class Replay {
     this.info.textContent = `${ids.length} vehicle(s), ${total} stored positions, ` +
       `${this.events.length} events, ${dateTime(start)} to ${dateTime(end)}`;
     this.enter();
+  }
+
+  refuse(why) {
+    this.info.textContent = `${why}: nothing read`;
+    toast(why, "error");
   }
 
   async fetchVehicle(id, start, end) {

@@ -46,7 +46,7 @@ export class Tabs {
       });
     }
     if (tab === "control") ctx.controlPanel.loadRequests();
-    if (tab === "replay" && ctx.replay) ctx.replay.drawChoices();
+    if (tab === "replay" && ctx.replay) ctx.replay.opened(); // its window up to now
     if (tab === "vehicle") ctx.vehiclePanel.show(ctx.focused);
   }
 }
