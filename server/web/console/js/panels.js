@@ -16,11 +16,11 @@ export function presenceBadge(presence) {
   return h(`span.presence.p-${presence || "offline"}`, {}, presence || "unknown");
 }
 
-/** A command's stage as a chip: greyed, "(last known)", when the vehicle is not online. */
-function chip(cmd, presence) {
+/** A command's stage as a chip ({stage, label, last}): greyed, "(last known)", when the
+ * vehicle is not online. */
+function chip(cmd) {
   if (!cmd) return "–";
-  return h(`span.chip.stage-${cmd.stage}${lastKnown(cmd, presence) ? ".last-known" : ""}`, {},
-    stageLabel(cmd, presence));
+  return h(`span.chip.stage-${cmd.stage}${cmd.last ? ".last-known" : ""}`, {}, cmd.label);
 }
 
 /** A battery reading in whole percent, rounded down: 99.9 % against an alarm at 100 %
@@ -87,57 +87,77 @@ export class FleetTable {
   constructor(ctx) {
     this.ctx = ctx;
     this.body = document.querySelector("#fleet-table tbody");
+    this.drawn = new Map(); // vehicle id -> {key: its data as last drawn, row}
     this.render = throttled(() => this.draw());
     ctx.fleet.addEventListener("change", this.render);
   }
 
   draw() {
+    const vehicles = [...this.ctx.fleet.vehicles.values()].sort((a, b) => (a.id < b.id ? -1 : 1));
+    // A row whose data has not changed is not built again; the others are built and
+    // patched into theirs (patch.js): each row and its tick box stay the same elements,
+    // and the keyboard's focus where it is, while samples come in.
+    const rows = vehicles.map((v) => {
+      const d = this.rowData(v);
+      const key = JSON.stringify(d);
+      const had = this.drawn.get(v.id);
+      return had && had.key === key && had.row.isConnected ? had.row : this.row(v.id, d, key);
+    });
+    patchChildren(this.body, rows);
+    for (const row of this.body.children) this.drawn.get(row.dataset.vehicle).row = row;
+  }
+
+  /** Everything a row shows of a vehicle (its key: a row is built again when it changes). */
+  rowData(v) {
     const { fleet, me } = this.ctx;
-    const rows = [...fleet.vehicles.values()].sort((a, b) => (a.id < b.id ? -1 : 1));
-    // each row, its tick box, kept from one drawing to the next (patch.js): the keyboard's
-    // focus stays where it is while samples come in
-    patchChildren(this.body,
-      rows.map((v) => {
-        const p = v.view.position;
-        const selected = this.ctx.selection.has(v.id);
-        const alarmed = (v.view.alarms || []).length > 0;
-        const row = h(
-          "tr",
-          {
-            dataset: { vehicle: v.id },
-            class: [selected ? "selected" : "", alarmed ? "alarmed" : ""].join(" ").trim(),
-            onclick: (e) => {
-              if (e.target.type === "checkbox") return;
-              this.ctx.pick(v.id, e.shiftKey || e.ctrlKey || e.metaKey);
-              this.ctx.map.bringIntoView(v.id); // picked from the list: shown on the map
-            },
-          },
-          h("td", {}, h("input", {
-            type: "checkbox",
-            checked: selected,
-            "aria-label": `select ${v.id}`,
-            onchange: () => this.ctx.pick(v.id, true),
-          })),
-          h("td", {}, h("b", {}, v.view.name || v.id), h("br"), h("small", {}, v.id),
-            alarmed ? h("div.alarms", {}, ...alarmBadges(v.view)) : null),
-          h("td", {}, presenceBadge(v.view.presence), h("br"),
-            h("small.ago", { dataset: { since: fleet.lastContact(v.id) } },
-              ago(fleet.lastContact(v.id))),
-            v.view.link_delay_ms != null
-              ? [h("br"), h("small.link-delay", { title: "one-way delay to the server" },
-                `link ${millis(v.view.link_delay_ms)}`)]
-              : null),
-          // a reading of a vehicle not online is greyed and dated, as in its panel
-          v.view.presence === "online"
-            ? h("td", {}, batteryText(p && p.battery_pct))
-            : h("td.stale", { title: p ? `as of ${clock(p.ts)}` : null },
-              batteryText(p && p.battery_pct)),
-          h("td", {}, holderText(v.control, me)),
-          h("td", {}, chip(fleet.latestCommand(v.id), v.view.presence)),
-        );
-        return row;
-      }),
+    const view = v.view;
+    const p = view.position;
+    const cmd = fleet.latestCommand(v.id);
+    return {
+      selected: this.ctx.selection.has(v.id), name: view.name || v.id, alarms: view.alarms || [],
+      presence: view.presence, contact: fleet.lastContact(v.id), delay: view.link_delay_ms,
+      battery: p ? p.battery_pct : null, asOf: p ? p.ts : null, holder: holderText(v.control, me),
+      cmd: cmd && { stage: cmd.stage, label: stageLabel(cmd, view.presence),
+        last: lastKnown(cmd, view.presence) },
+    };
+  }
+
+  row(id, d, key) {
+    const alarmed = d.alarms.length > 0;
+    const row = h(
+      "tr",
+      {
+        dataset: { vehicle: id },
+        class: [d.selected ? "selected" : "", alarmed ? "alarmed" : ""].join(" ").trim(),
+        onclick: (e) => {
+          if (e.target.type === "checkbox") return;
+          this.ctx.pick(id, e.shiftKey || e.ctrlKey || e.metaKey);
+          this.ctx.map.bringIntoView(id); // picked from the list: shown on the map
+        },
+      },
+      h("td", {}, h("input", {
+        type: "checkbox",
+        checked: d.selected,
+        "aria-label": `select ${id}`,
+        onchange: () => this.ctx.pick(id, true),
+      })),
+      h("td", {}, h("b", {}, d.name), h("br"), h("small", {}, id),
+        alarmed ? h("div.alarms", {}, ...alarmBadges({ alarms: d.alarms })) : null),
+      h("td", {}, presenceBadge(d.presence), h("br"),
+        h("small.ago", { dataset: { since: d.contact } }, ago(d.contact)),
+        d.delay != null
+          ? [h("br"), h("small.link-delay", { title: "one-way delay to the server" },
+            `link ${millis(d.delay)}`)]
+          : null),
+      // a reading of a vehicle not online is greyed and dated, as in its panel
+      d.presence === "online"
+        ? h("td", {}, batteryText(d.battery))
+        : h("td.stale", { title: d.asOf ? `as of ${clock(d.asOf)}` : null }, batteryText(d.battery)),
+      h("td", {}, d.holder),
+      h("td", {}, chip(d.cmd)),
     );
+    this.drawn.set(id, { key, row });
+    return row;
   }
 }
 

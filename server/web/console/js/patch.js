@@ -45,10 +45,10 @@ function place(parent, nodes) {
   let from = 0;
   const out = nodes.map((n) => {
     for (let i = from; i < old.length; i += 1) {
-      if (sameOne(old[i], n)) {
+      if (old[i] === n || sameOne(old[i], n)) {
         from = i + 1;
         kept.add(old[i]);
-        return patch(old[i], n);
+        return old[i] === n ? n : patch(old[i], n); // itself: as it is (a row not changed)
       }
     }
     return n;
