@@ -47,6 +47,11 @@ def focused(page: Any) -> str:
     )
 
 
+def replay_up(page: Any) -> None:
+    """Until the replay's module is loaded (after the page: its form is not yet handled)."""
+    page.wait_for_function("() => Boolean(window.fleetConsole && fleetConsole.replay)")
+
+
 def test_a_tick_box_keeps_the_focus_while_samples_come_in(
     world: World, open_console: Any, shots: Shots
 ) -> None:
@@ -196,7 +201,7 @@ def test_the_replay_window_is_up_to_date_when_its_tab_opens(
         )
         return got[0], got[1], got[2]
 
-    expect(frm).not_to_have_value("")  # the replay module is up
+    replay_up(page)
     page.clock.fast_forward("07:00")  # seven minutes on
     page.click('[data-tab="replay"]')
     start, end, now = window()
@@ -233,6 +238,7 @@ def test_a_refused_window_leaves_no_earlier_answer_under_the_form(
     stayed under the form, as if it answered the window refused."""
     page, _ = open_console()
     console.log_in(page, "ana")
+    replay_up(page)
     page.click('[data-tab="replay"]')
     frm, to = page.locator("#replay-from"), page.locator("#replay-to")
     typed = page.evaluate(
