@@ -44,6 +44,8 @@ class Console {
     this.tools = new Tools(this); // the bar over the map
     $("logout").addEventListener("click", () => sending("logout", () => this.logOut()));
     $("messages").addEventListener("click", openLog); // a toast gone can be read again
+    // Replay pressed before its module (loaded below) took the form: not a page reload.
+    $("replay-form").addEventListener("submit", (e) => e.preventDefault());
 
     this.fleet.addEventListener("added", (e) => {
       this.live.subscribe(topicsOf(e.detail.id));
