@@ -9,7 +9,8 @@ test_replicas_processes.py runs two fleet-server processes.
 from __future__ import annotations
 
 import asyncio
-from collections.abc import Callable
+from collections.abc import AsyncIterator, Callable
+from contextlib import asynccontextmanager
 
 import httpx
 
@@ -25,14 +26,23 @@ async def _get(url: str) -> httpx.Response:
         return await client.get(url)
 
 
+@asynccontextmanager
+async def _two_replicas(
+    make_settings: Callable[..., Settings], redis: RedisServer
+) -> AsyncIterator[tuple[str, str]]:
+    """Two replicas joined by ``redis``, each on its own embedded store: their URLs."""
+    a_settings = make_settings(redis_url=redis.url)
+    b_settings = make_settings(
+        redis_url=redis.url, snapshot_path=a_settings.snapshot_path.with_name("b.snapshot")
+    )
+    async with serve(a_settings) as a, serve(b_settings) as b:
+        yield a, b
+
+
 async def test_events_published_on_one_replica_reach_the_other(
     make_settings: Callable[..., Settings], redis_server: RedisServer
 ) -> None:
-    a_settings = make_settings(redis_url=redis_server.url)
-    b_settings = make_settings(
-        redis_url=redis_server.url, snapshot_path=a_settings.snapshot_path.with_name("b.snapshot")
-    )
-    async with serve(a_settings) as a, serve(b_settings) as b:
+    async with _two_replicas(make_settings, redis_server) as (a, b):
         for base in (a, b):
             ready = (await _get(f"{base}/readyz")).json()
             assert ready["checks"] == {"store": True, "redis": True}
@@ -51,11 +61,7 @@ async def test_events_published_on_one_replica_reach_the_other(
 async def test_a_topics_latest_message_published_on_one_replica_is_the_others_snapshot(
     make_settings: Callable[..., Settings], redis_server: RedisServer
 ) -> None:
-    a_settings = make_settings(redis_url=redis_server.url)
-    b_settings = make_settings(
-        redis_url=redis_server.url, snapshot_path=a_settings.snapshot_path.with_name("b.snapshot")
-    )
-    async with serve(a_settings) as a, serve(b_settings) as b:
+    async with _two_replicas(make_settings, redis_server) as (a, b):
         async with await connect(a, "/ws/client", ADMIN_TOKEN) as talker:
             for n in range(2):
                 said = await call(talker, "publish", f"p{n}", topic="user/admin/plan", data=n)
@@ -71,11 +77,7 @@ async def test_a_gateway_forwards_up_what_a_subscriber_on_the_other_replica_want
 ) -> None:
     """Each replica's routing table held its own units alone: a gateway on one replica
     kept to itself a topic that only an operator on the other wanted."""
-    a_settings = make_settings(redis_url=redis_server.url)
-    b_settings = make_settings(
-        redis_url=redis_server.url, snapshot_path=a_settings.snapshot_path.with_name("b.snapshot")
-    )
-    async with serve(a_settings) as a, serve(b_settings) as b:
+    async with _two_replicas(make_settings, redis_server) as (a, b):
         async with httpx.AsyncClient(base_url=a, timeout=10) as api:
             vid, _ = await make_vehicle(api)
             body = {"gateway_id": "gw-far", "vehicles": [vid]}
