@@ -16,7 +16,7 @@ from playwright.sync_api import expect
 from server.demo import VEHICLES
 from tests.agent.procs import wait_until
 from tests.web.conftest import Shots, World
-from tests.web.console_helpers import command_item, lease_of, log_in, marker
+from tests.web.console_helpers import centre_on, command_item, lease_of, log_in, marker
 
 pytestmark = [pytest.mark.slow, pytest.mark.browser]
 
@@ -141,3 +141,26 @@ def test_a_lease_about_to_end_is_told_a_minute_before(
     expect(said).to_have_count(1, timeout=20_000)
     expect(said).to_contain_text("ask for more in time")
     shots(page, "lease-ending")
+
+
+def test_all_boats_brings_every_boat_back_into_view(
+    world: World, open_console: Any, shots: Shots
+) -> None:
+    page, _ = open_console(viewport=(390, 844))  # a phone: no wheel to zoom out with
+    log_in(page, "mia")
+    here = world.fleet.position(world.instances["demo-usv-1"])
+    centre_on(page, here["lat"], here["lon"], 21)
+    view = page.locator("#map").bounding_box()
+    assert view is not None
+
+    def inside(vehicle_id: str) -> bool:
+        box = marker(page, vehicle_id).bounding_box()
+        return box is not None and (
+            view["x"] <= box["x"] + box["width"] / 2 <= view["x"] + view["width"]
+            and view["y"] <= box["y"] + box["height"] / 2 <= view["y"] + view["height"]
+        )
+
+    assert not all(inside(v[0]) for v in VEHICLES)  # zoomed in on one
+    page.get_by_role("button", name="All boats").click()
+    wait_until(lambda: all(inside(v[0]) for v in VEHICLES), "every boat in view", 10)
+    shots(page, "all-boats")

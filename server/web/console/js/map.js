@@ -64,6 +64,18 @@ export class MapView {
         Trails: this.trailLayer,
       }, { collapsed: true })
       .addTo(map);
+    new (L.Control.extend({ // back to every boat after zooming in (a phone has no wheel)
+      options: { position: "topleft" },
+      onAdd: () => {
+        const button = L.DomUtil.create("button", "fit-all leaflet-bar");
+        button.type = "button";
+        button.textContent = "All boats";
+        button.title = "show every boat on the map";
+        L.DomEvent.disableClickPropagation(button);
+        button.addEventListener("click", () => this.fitFleet());
+        return button;
+      },
+    }))().addTo(map);
 
     map.on("click", (e) => onMapClick(e.latlng));
     map.on("zoomend moveend resize", () => this.scheduleLabels());
