@@ -21,9 +21,9 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-from fleet_protocol.topics import SERVER_ONLY_VEHICLE_TOPICS
 from server.api.live_fanout import TopicFanout
 from server.bus import Bus, Message, Subscription
+from server.domain.topics import vehicle_written
 
 __all__ = ["DEMAND_TOPIC", "DemandShare"]
 
@@ -33,14 +33,6 @@ EVERY_S = 2.0
 #: A replica not heard for this long is taken out of the others' tables.
 FORGET_AFTER_S = 3 * EVERY_S
 REPLICA_PREFIX = "replica:"
-
-
-def shared(topic: str) -> bool:
-    """A topic a gateway's unit may produce: ``vehicle/<id>/<name>...``, not the server's."""
-    parts = topic.split("/")
-    if len(parts) < 3 or parts[0] != "vehicle":
-        return False
-    return not (len(parts) == 3 and parts[2] in SERVER_ONLY_VEHICLE_TOPICS)
 
 
 class DemandShare:
@@ -89,7 +81,7 @@ class DemandShare:
         topics = frozenset(
             topic
             for topic in routing.consumed()
-            if shared(topic)
+            if vehicle_written(topic)
             and any(not u.startswith(REPLICA_PREFIX) for u in routing.subscribers(topic))
         )
         self._local = (self.fanout.routing.version, topics)
@@ -102,5 +94,5 @@ class DemandShare:
             return
         unit = REPLICA_PREFIX + replica
         self._heard[unit] = self.clock()
-        wanted = {t for t in topics if isinstance(t, str) and shared(t)}
+        wanted = {t for t in topics if isinstance(t, str) and vehicle_written(t)}
         self.fanout.remote_demand(unit, wanted)

@@ -146,7 +146,7 @@ class RedisBus(Bus):
         """Here, and in Redis for the other replicas (for ``KEEP_TTL_S``; one too large is
         deleted there: it is no longer the latest). Awaited before the publish is sent, so
         a replica that subscribes and then reads the kept message misses nothing."""
-        self._kept.put(topic, message, len(text))
+        super().keep(topic, message, text)
         if not self.healthy or self._redis is None:
             return None
         return self._keep_remote(topic, message, len(text))

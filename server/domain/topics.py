@@ -70,6 +70,17 @@ class Actor(Protocol):
     def acts_for(self, vehicle_id: str) -> bool: ...
 
 
+def vehicle_written(topic: str) -> bool:
+    """A topic a vehicle (or a unit behind its gateway) writes: ``vehicle/<id>/<name>...``,
+    not one the server writes alone (as :func:`write_refusal` judges it)."""
+    segments = topic.split("/")
+    return (
+        len(segments) >= 3
+        and segments[0] == "vehicle"
+        and segments[2] not in SERVER_ONLY_VEHICLE_TOPICS
+    )
+
+
 def write_refusal(actor: Actor, topic: str) -> str | None:
     """Why ``actor`` may not publish on (or register) ``topic``; ``None`` if it may."""
     segments = split_topic(topic)

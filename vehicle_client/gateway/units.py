@@ -232,20 +232,20 @@ class UnitServer:
             else:
                 ack = await self.link.call(upstream, check=False)
         except AgentError:
-            self._taken_here(vehicle_id, op)
+            self._take(vehicle_id, op)
             if op.id:
                 queue.put(AckPush.success(op.id, {"local_only": True}).frame())
             return
-        if ack.ok and vehicle_id in self.router.units and isinstance(op, SubscribeOp):
-            self.router.subscribe(vehicle_id, op.topics, op.throttle_ms)
+        if ack.ok and isinstance(op, SubscribeOp):  # a register: taken on by the registrar
+            self._take(vehicle_id, op)
         if op.id:
             queue.put(ack.model_copy(update={"id": op.id}).frame())
 
-    def _taken_here(self, vehicle_id: str, op: Any) -> None:
-        """The cloud link is down: a ``register`` or ``subscribe`` takes effect among the
-        local units at once (a unit restarted at sea still gets its neighbours' data) and
-        goes up with the replay when the link is back; the server may refuse it then,
-        and nothing comes from above for it."""
+    def _take(self, vehicle_id: str, op: Any) -> None:
+        """A ``register`` or ``subscribe`` takes effect among the local units: once the
+        server accepted it, or at once while the cloud link is down (a unit restarted at
+        sea still gets its neighbours' data; it goes up with the replay when the link is
+        back, where the server may refuse it, and nothing comes from above for it)."""
         if vehicle_id not in self.router.units:
             return
         if isinstance(op, RegisterOp):

@@ -127,8 +127,7 @@ class Console {
   /** Log out, after a word when this user holds control of a boat (it stays theirs): the
    * session ended on the server too (a pasted API token is only forgotten here). */
   async logOut() {
-    const held = [...this.fleet.vehicles.values()]
-      .filter((v) => v.control && v.control.holder === this.me.username);
+    const held = this.held();
     if (held.length) {
       const names = held.map((v) => v.view.name || v.id).join(", ");
       const ok = await confirmAction({
@@ -186,13 +185,19 @@ class Console {
     }
   }
 
+  /** The vehicles whose control this user holds. */
+  held() {
+    return [...this.fleet.vehicles.values()]
+      .filter((v) => v.control && v.control.holder === this.me.username);
+  }
+
   /** A minute before a lease of this user's ends, once: the boat then holds station, and
    * more time is the manager's to grant (a new request). */
   warnLeasesEnding(now) {
     this.warned = this.warned || new Set();
-    for (const v of this.fleet.vehicles.values()) {
+    for (const v of this.held()) {
       const c = v.control;
-      if (!c || c.holder !== this.me.username || !c.expires_at) continue;
+      if (!c.expires_at) continue;
       const left = Date.parse(c.expires_at) - now;
       const key = `${v.id}@${c.expires_at}`;
       if (left > 60000 || left <= 0 || this.warned.has(key)) continue;
@@ -209,10 +214,7 @@ class Console {
    * lease lapses: the vehicle holds station.
    */
   keepLeasesAlive(now) {
-    const held = [...this.fleet.vehicles.values()].filter((v) => {
-      const c = v.control;
-      return c && c.holder === this.me.username && c.operator_timeout_s && v.view.instance_id;
-    });
+    const held = this.held().filter((v) => v.control.operator_timeout_s && v.view.instance_id);
     if (!held.length || this.heartbeatBusy) return;
     const every = Math.max(1000, (Math.min(...held.map((v) => v.control.operator_timeout_s)) * 1000) / 4);
     if (now - (this.lastHeartbeat || 0) < every) return;
