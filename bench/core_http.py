@@ -1,7 +1,8 @@
 """Core server figures (issue 2).
 
-(a) ``POST /upper/update_param`` (10 samples a call) and ``GET /upper/get_control``
-    (``wait_s=0``) throughput as a ratio to a trivial route of the same app in
+(a) ``POST /upper/update_param`` (10 samples a call, and 1: a vehicle at 1 Hz sending
+    each sample as it is taken) and ``GET /upper/get_control`` (``wait_s=0``)
+    throughput as a ratio to a trivial route of the same app in
     the same process: a real uvicorn in a subprocess, loaded over keep-alive
     connections from this process. Goal: ratio >= 0.6.
 (b) Ingest through ``TelemetryService.ingest`` (batches of 10, 20 vehicles, the
@@ -102,8 +103,10 @@ def _vehicles(port: int, count: int) -> list[tuple[str, str]]:
 def _http(runs: int) -> list[Metric]:
     trivial = Metric("trivial route", "req/s")
     update = Metric("update_param (10 samples)", "req/s")
+    single = Metric("update_param (1 sample)", "req/s")
     control = Metric("get_control (wait_s=0)", "req/s")
     update_ratio = Metric("update_param / trivial", "ratio", goal=("min", 0.6))
+    single_ratio = Metric("update_param (1 sample) / trivial", "ratio", goal=("min", 0.6))
     floor_ratio = Metric("parse-only floor / trivial", "ratio")
     control_ratio = Metric("get_control / trivial", "ratio", goal=("min", 0.6))
     port = _free_port()
@@ -130,12 +133,16 @@ def _http(runs: int) -> list[Metric]:
             def floor_req(i: int, _: int) -> bytes:
                 return post_json("/_bench/parse_only", floor_body, {})
 
-            def update_req(i: int, _: int) -> bytes:
+            def update_req(i: int, _: int, count: int = 10) -> bytes:
                 iid, tok = units[i]
                 first = seqs[i] + 1
-                seqs[i] += 10
-                body = _update_body(iid, first)
+                seqs[i] += count
+                body = _update_body(iid, first, count)
                 return post_json("/upper/update_param", body, {"Authorization": f"Bearer {tok}"})
+
+            def single_req(i: int, n: int) -> bytes:
+                """A vehicle at 1 Hz: each call carries the one sample taken since the last."""
+                return update_req(i, n, 1)
 
             async def measure() -> None:
                 await hammer(port, lambda i, n: t_req, connections=CONNECTIONS, seconds=1.0)
@@ -146,30 +153,44 @@ def _http(runs: int) -> list[Metric]:
                     up, e1 = await hammer(
                         port, update_req, connections=CONNECTIONS, seconds=SECONDS
                     )
+                    one, e4 = await hammer(
+                        port, single_req, connections=CONNECTIONS, seconds=SECONDS
+                    )
                     ctl, e2 = await hammer(
                         port, lambda i, n: c_req[i], connections=CONNECTIONS, seconds=SECONDS
                     )
                     floor, e3 = await hammer(
                         port, floor_req, connections=CONNECTIONS, seconds=SECONDS
                     )
-                    if e0 or e1 or e2 or e3:
-                        raise RuntimeError(f"bench requests failed: {e0 + e1 + e2 + e3}")
+                    if e0 or e1 or e2 or e3 or e4:
+                        raise RuntimeError(f"bench requests failed: {e0 + e1 + e2 + e3 + e4}")
                     floor_ratio.values.append(floor / base)
                     trivial.values.append(base)
                     update.values.append(up)
                     control.values.append(ctl)
                     update_ratio.values.append(up / base)
+                    single.values.append(one)
+                    single_ratio.values.append(one / base)
                     control_ratio.values.append(ctl / base)
 
             asyncio.run(measure())
         finally:
             proc.terminate()
             proc.wait(timeout=30)
-    return [trivial, update, control, update_ratio, control_ratio, floor_ratio]
+    return [
+        trivial,
+        update,
+        single,
+        control,
+        update_ratio,
+        single_ratio,
+        control_ratio,
+        floor_ratio,
+    ]
 
 
-def _update_body(instance_id: str, first_seq: int) -> bytes:
-    """An update_param body with 10 samples numbered from ``first_seq``."""
+def _update_body(instance_id: str, first_seq: int, count: int = 10) -> bytes:
+    """An update_param body with ``count`` samples numbered from ``first_seq``."""
     now = datetime.now(UTC).isoformat()
     samples = [
         {
@@ -180,7 +201,7 @@ def _update_body(instance_id: str, first_seq: int) -> bytes:
             "speed_mps": 1.2,
             "heading_deg": 90.0,
         }
-        for k in range(10)
+        for k in range(count)
     ]
     return json.dumps(
         {"instance_id": instance_id, "params": {"mode": "auto"}, "samples": samples}
