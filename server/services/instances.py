@@ -105,18 +105,27 @@ class InstanceService(InstanceCopies):
                     return self._adopt(doc), False
                 await self.repo.release(vehicle_id, current)  # a claim left by a crash
                 continue
+            # A new instance goes on from the vehicle's last one: the name and type its
+            # last start gave (else the registered ones), and its latest position.
+            last = await self.repo.latest_for_vehicle(vehicle_id) or {}
             now = self.clock()
             state = InstanceState(
                 instance_id="i-" + secrets.token_hex(8),
                 vehicle_id=vehicle_id,
-                name=body.name or meta.get("name") or vehicle_id,
-                vehicle_type=body.vehicle_type or meta.get("vehicle_type") or "usv",
+                name=body.name or last.get("name") or meta.get("name") or vehicle_id,
+                vehicle_type=(
+                    body.vehicle_type
+                    or last.get("vehicle_type")
+                    or meta.get("vehicle_type")
+                    or "usv"
+                ),
                 capabilities=list(body.capabilities),
                 started_at=now,
                 params=dict(body.params),
                 params_updated_at=now if body.params else None,
                 last_seen=now,
                 presence="online",
+                position=last.get("position"),
             )
             if not await self.repo.claim(vehicle_id, state.instance_id):
                 continue  # another replica started one at the same moment: take it up

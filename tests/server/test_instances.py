@@ -274,3 +274,34 @@ async def test_a_name_with_control_characters_is_422(client: httpx.AsyncClient, 
     )
     assert r.status_code == 422, r.text
     assert [d["field"] for d in r.json()["error"]["details"]] == ["name"]
+
+
+async def test_a_new_instance_takes_up_the_name_type_and_position_the_last_one_had(
+    client: httpx.AsyncClient,
+) -> None:
+    """After a finish, a start that gives no name or type keeps those its last start gave
+    (not the registered ones), and the boat stays on the map at its latest sample."""
+    vid, vh = await make_vehicle(client, vehicle_type="auv")
+    first = await client.post(
+        "/upper/start_instance",
+        headers=vh,
+        json={"vehicle_id": vid, "name": "Renamed", "vehicle_type": "usv"},
+    )
+    iid = first.json()["instance_id"]
+    r = await client.post(
+        "/upper/update_param",
+        headers=vh,
+        json={"instance_id": iid, "samples": [sample(1, lat=43.95, depth_m=1.5)]},
+    )
+    assert r.status_code == 200, r.text
+    await client.post("/upper/finish_instance", headers=vh, json={"instance_id": iid})
+
+    r = await client.post("/upper/start_instance", headers=vh, json={"vehicle_id": vid})
+    assert r.status_code == 200 and r.json()["resumed"] is False
+    view = (await client.get(f"/api/vehicles/{vid}", headers=ADMIN)).json()
+    assert (view["name"], view["vehicle_type"]) == ("Renamed", "usv")
+    assert view["position"]["seq"] == 1 and view["position"]["lat"] == 43.95
+    got = await client.get(
+        "/client/get_param", headers=ADMIN, params={"instance_id": r.json()["instance_id"]}
+    )
+    assert got.json()["position"]["depth_m"] == 1.5
