@@ -7,13 +7,23 @@ import sys
 
 from rich.console import Console
 
-console = Console()
-errors = Console(stderr=True)  # stdout stays the answer alone (what --json scripts read)
-
 
 class OutputClosed(Exception):
     """Nobody reads the answer any more: stdout's reader has gone (``watch ... | head -1``).
     Not an ``OSError``, so that no handler of a lost link takes it for one."""
+
+
+class _Answers(Console):
+    """rich's console, whose reader going away is :class:`OutputClosed` (exit 141 in
+    ``fleetctl``), as for a line printed; rich itself would exit 1, a refusal's code."""
+
+    def on_broken_pipe(self) -> None:
+        self.quiet = True
+        raise OutputClosed
+
+
+console = _Answers()
+errors = Console(stderr=True)  # stdout stays the answer alone (what --json scripts read)
 
 
 def answer_line(text: str) -> None:

@@ -84,3 +84,25 @@ async def test_export_stops_quietly_when_its_output_is_closed(
     assert json.loads(first)["seq"] == 1
     assert exporter.returncode == 141, stderr
     assert stderr == b""
+
+
+@pytest.mark.parametrize("command", [["vehicles"], ["users"], ["params", "{vid}"]])
+async def test_a_table_whose_reader_has_gone_ends_with_141_as_a_line_does(
+    make_settings: Callable[..., Settings], command: list[str]
+) -> None:
+    """``fleetctl vehicles | grep -q ...`` under ``pipefail``: the tables end as the line
+    printers do (141, quiet), not as a refusal (1)."""
+    async with served_vehicle(make_settings()) as (base, _c, vid, _vh, _iid):
+        read_end, write_end = os.pipe()
+        os.close(read_end)  # the reader has gone before the answer is printed
+        env = {**os.environ, "FLEET_SERVER": base, "FLEET_TOKEN": ADMIN_TOKEN}
+        args = [part.format(vid=vid) for part in command]
+        proc = await asyncio.create_subprocess_exec(
+            sys.executable, "-m", "remote_client.cli", *args,
+            env=env, stdout=write_end, stderr=asyncio.subprocess.PIPE,
+        )  # fmt: skip
+        os.close(write_end)
+        async with asyncio.timeout(30):
+            _, stderr = await proc.communicate()
+    assert proc.returncode == 141, stderr
+    assert stderr == b""
