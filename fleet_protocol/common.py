@@ -22,8 +22,10 @@ from pydantic_core import core_schema
 
 from fleet_protocol.served import json_safe
 from fleet_protocol.values import (
+    MAX_DEPTH_M,
     MAX_SAMPLE_DATA_BYTES,
     MAX_TIMESTAMP,
+    MIN_DEPTH_M,
     MIN_TIMESTAMP,
     SampleData,
 )
@@ -173,7 +175,10 @@ class Sample(WireModel):
     ts: Timestamp
     lat: Latitude
     lon: Longitude
-    depth_m: StrictFloat | None = Field(default=None, allow_inf_nan=False)
+    #: Metres, positive down: from above any mast to below the deepest trench.
+    depth_m: StrictFloat | None = Field(
+        default=None, ge=MIN_DEPTH_M, le=MAX_DEPTH_M, allow_inf_nan=False
+    )
     heading_deg: StrictFloat | None = Field(default=None, ge=0, le=360, allow_inf_nan=False)
     speed_mps: StrictFloat | None = Field(default=None, ge=0, le=200, allow_inf_nan=False)
     battery_pct: StrictFloat | None = Field(default=None, ge=0, le=100, allow_inf_nan=False)

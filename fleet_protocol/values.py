@@ -77,6 +77,10 @@ MAX_PARAMS = 512
 MAX_PARAMS_BYTES = 65536
 #: A sample's ``data``: at most this many bytes of compact UTF-8 JSON.
 MAX_SAMPLE_DATA_BYTES = 8192
+#: A sample's ``depth_m`` (metres, positive down): 1 km above the surface is past any
+#: mast or aerial, 12 km below it past the deepest trench (10.9 km).
+MIN_DEPTH_M = -1_000.0
+MAX_DEPTH_M = 12_000.0
 #: Timestamps, both ends included. A vehicle without a GPS fix may send the
 #: epoch (1970); 2100 is far past any real clock. Every ``Timestamp`` field and
 #: the ``from``/``to`` query parameters keep to it.

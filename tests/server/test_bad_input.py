@@ -312,3 +312,35 @@ async def test_a_login_sent_as_multipart_is_told_what_to_send(client: httpx.Asyn
     assert error["details"] == [
         {"field": "body", "message": "multipart/form-data is not read here"}
     ]
+
+
+@pytest.mark.parametrize(
+    ("field", "bad", "good"),
+    [
+        ("depth_m", -1e308, -2.5),
+        ("depth_m", 12_000.5, 10_935.0),
+        ("speed_mps", 200.5, 0.0),
+        ("heading_deg", 360.5, 360.0),
+        ("battery_pct", -0.5, 100.0),
+    ],
+)
+async def test_a_reading_past_any_real_one_is_422_naming_it(
+    client: httpx.AsyncClient, field: str, bad: float, good: float
+) -> None:
+    """A sensor glitch (a depth of -1e308) never becomes the boat's position."""
+    vid, vh = await make_vehicle(client)
+    iid = (await start_instance(client, vid, vh))["instance_id"]
+    sample = {"seq": 1, "ts": "2026-11-26T10:00:00Z", "lat": 43.9, "lon": 15.4}
+    r = await client.post(
+        "/upper/update_param",
+        headers=vh,
+        json={"instance_id": iid, "samples": [{**sample, field: bad}]},
+    )
+    assert r.status_code == 422, r.text
+    assert [d["field"] for d in r.json()["error"]["details"]] == [f"samples.0.{field}"]
+    r = await client.post(
+        "/upper/update_param",
+        headers=vh,
+        json={"instance_id": iid, "samples": [{**sample, field: good}]},
+    )
+    assert r.status_code == 200 and r.json()["accepted"] == 1, r.text
