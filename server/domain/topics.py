@@ -170,7 +170,8 @@ def _check(rule: Callable[[Actor, str], str | None], actor: Actor, topics: str |
     for topic in [topics] if isinstance(topics, str) else topics:
         reason = rule(actor, topic)
         if reason is not None:
-            raise Forbidden(reason, details=[{"field": "topic", "message": topic}])
+            said = f"{topic}: {reason}"  # the detail is a sentence that names the topic
+            raise Forbidden(reason, details=[{"field": "topic", "message": said}])
 
 
 @dataclass(frozen=True)

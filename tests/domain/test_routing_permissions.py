@@ -142,7 +142,13 @@ def test_a_gateway_namespace_is_read_by_it_its_units_their_readers_and_admins():
 def test_checks_raise_forbidden_naming_the_topic():
     with pytest.raises(Forbidden, match="only vehicle usv-2") as caught:
         check_write(vehicle("usv-1"), ["vehicle/usv-1/camera", "vehicle/usv-2/camera"])
-    assert caught.value.details == [{"field": "topic", "message": "vehicle/usv-2/camera"}]
+    assert caught.value.details == [
+        {
+            "field": "topic",
+            "message": "vehicle/usv-2/camera: only vehicle usv-2 (or its gateway) writes"
+            " under 'vehicle/usv-2/'",
+        }
+    ]
     with pytest.raises(Forbidden, match="no read access"):
         check_read(user("alice"), "vehicle/usv-1/telemetry")
     check_read(user("alice", "usv-1"), ["fleet", "vehicle/usv-1/telemetry"])
