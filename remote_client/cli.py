@@ -197,7 +197,8 @@ def commands(
     if as_json:
         dump(data)
         return
-    table = Table("type")
+    table = Table()
+    table.add_column("type", no_wrap=True, min_width=len("keep_station"))  # never "keep_…"
     table.add_column("status", no_wrap=True, min_width=len("superseded"))
     table.add_column("issued by")
     table.add_column("issued at (UTC)", no_wrap=True)

@@ -108,6 +108,7 @@ async def test_missions_requests_and_the_lease_from_the_command_line(
         assert {cmd["args"].get("radius_m") for cmd in kinds.values()} >= {5.0}
         table = await fleetctl(base, op_token, "commands", iid)
         assert path_id in table.stdout and "control mode" in table.stdout
+        assert "keep_station" in table.stdout and "follow_path" in table.stdout  # 80 columns
 
         cancelled = await fleetctl(base, op_token, "cancel", path_id, "--json")
         assert cancelled.exit_code == 0 and json.loads(cancelled.stdout)["status"] == "cancelled"
