@@ -129,20 +129,20 @@ class EventList(WireModel):
     cursor: Text | None = None
 
 
-def track_geometry(coordinates: list[list[float]]) -> dict[str, Any] | None:
-    """A track's GeoJSON geometry (``[lon, lat]`` positions): a LineString, which has two
-    positions at least (RFC 7946); one position is a Point, none a null geometry."""
-    if len(coordinates) >= 2:
-        return {"type": "LineString", "coordinates": coordinates}
-    if coordinates:
-        return {"type": "Point", "coordinates": coordinates[0]}
-    return None
+def track_geometry(coordinates: list[list[float]]) -> dict[str, Any]:
+    """A track's GeoJSON geometry: always a LineString of ``[lon, lat]`` positions (the
+    contract's). RFC 7946 asks two positions at least: a track of one point holds it
+    twice (a line of no length), a track of none has no coordinates (an empty geometry)."""
+    if len(coordinates) == 1:
+        coordinates = [coordinates[0], coordinates[0]]
+    return {"type": "LineString", "coordinates": coordinates}
 
 
-def track_coordinates(geometry: dict[str, Any] | None) -> list[list[float]]:
-    """The positions of a geometry :func:`track_geometry` made."""
+def track_coordinates(geometry: dict[str, Any] | None, points: int) -> list[list[float]]:
+    """The ``points`` positions of a track's geometry (:func:`track_geometry`'s, or an
+    older server's: a Point for one, null for none)."""
     if geometry is None:
         return []
     if geometry["type"] == "Point":
         return [geometry["coordinates"]]
-    return list(geometry["coordinates"])
+    return list(geometry["coordinates"])[:points]

@@ -54,11 +54,13 @@ class TrackJoiner:
         return len(page["points"])
 
     def _add_geojson(self, page: dict[str, Any]) -> int:
-        coords = track_coordinates(page["geometry"])
+        coords = track_coordinates(page["geometry"], len(page["properties"]["seqs"]))
         if self._json is None:
             self._json = page
         else:
-            joined = track_coordinates(self._json["geometry"]) + coords
+            whole = self._json
+            joined = track_coordinates(whole["geometry"], len(whole["properties"]["seqs"]))
+            joined += coords
             self._json["geometry"] = track_geometry(joined)
             for key in ("times", "seqs"):
                 self._json["properties"][key].extend(page["properties"][key])

@@ -193,6 +193,17 @@ def test_track_pages_join_into_one_document_of_their_format() -> None:
     geometry = json.loads(lone.text())["geometry"]
     assert geometry["type"] == "LineString" and len(geometry["coordinates"]) == 2
 
+    held = TrackJoiner("geojson")  # one point a page as the server writes it now: held twice
+    for points in (_points(1, 1), _points(2, 1), _points(3, 1)):
+        at = [points[0]["lon"], points[0]["lat"]]
+        held.add(json.dumps({
+            "type": "Feature",
+            "geometry": {"type": "LineString", "coordinates": [at, at]},
+            "properties": {"times": [points[0]["ts"]], "seqs": [points[0]["seq"]]},
+        }))  # fmt: skip
+    feature = json.loads(held.text())
+    assert len(feature["geometry"]["coordinates"]) == 3 and held.points == 3
+
     table = TrackJoiner("csv")
     for points in pages:
         table.add("ts,seq\n" + "".join(f"{p['ts']},{p['seq']}\n" for p in points))

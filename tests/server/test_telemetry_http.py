@@ -95,14 +95,18 @@ async def test_track_geojson(client: httpx.AsyncClient) -> None:
 async def test_a_track_of_one_point_or_none_is_still_valid_geojson(
     client: httpx.AsyncClient,
 ) -> None:
-    """A LineString has two positions at least (RFC 7946): one is a Point, none null."""
+    """Always a Feature with a LineString (the contract's). A LineString has two positions
+    at least (RFC 7946): one point is held twice; none is a line with no coordinates."""
     vid, _, _ = await vehicle_with_samples(client, range(1, 2))
     params = {**WINDOW, "format": "geojson"}
     one = (await client.get(f"/api/vehicles/{vid}/track", headers=ADMIN, params=params)).json()
-    assert one["geometry"] == {"type": "Point", "coordinates": [15.44, 43.94]}
+    point = [15.44, 43.94]
+    assert one["geometry"] == {"type": "LineString", "coordinates": [point, point]}
+    assert one["properties"]["seqs"] == [1]
     empty_id, _ = await make_vehicle(client)
     r = await client.get(f"/api/vehicles/{empty_id}/track", headers=ADMIN, params=params)
-    assert r.json()["type"] == "Feature" and r.json()["geometry"] is None
+    assert r.json()["type"] == "Feature"
+    assert r.json()["geometry"] == {"type": "LineString", "coordinates": []}
 
 
 async def test_track_gpx(client: httpx.AsyncClient) -> None:
