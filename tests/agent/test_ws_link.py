@@ -14,7 +14,7 @@ from websockets.asyncio.server import ServerConnection, serve
 from fleet_protocol import ErrorBody, StartInstance
 from fleet_protocol.ws import AckPush, CommandPush, RoutesPush
 from vehicle_client.errors import FatalError, RetryableError, SessionLost
-from vehicle_client.gateway.forwarding import TopicRouter, write_refusal
+from vehicle_client.gateway.forwarding import LocalUnit, TopicRouter, write_refusal
 from vehicle_client.transport.auto import LinkChoice
 from vehicle_client.transport.wire import (
     IdSource,
@@ -107,35 +107,37 @@ def test_link_choice_falls_back_then_retries_the_websocket_sooner_first() -> Non
 
 def test_router_keeps_local_what_only_local_units_consume() -> None:
     router = TopicRouter()
-    for unit in ("a", "b"):
+    a, b = LocalUnit("a", "#1"), LocalUnit("b", "#2")
+    for unit in (a, b):
         router.add(unit)
-    router.register("a", ["vehicle/a/sonar"])
-    router.subscribe("b", ["vehicle/a/sonar"])
-    first = router.publish("a", "vehicle/a/sonar")
-    assert first.local == ["b"] and first.up is False
+    router.register(a, ["vehicle/a/sonar"])
+    router.subscribe(b, ["vehicle/a/sonar"])
+    first = router.publish(a, "vehicle/a/sonar")
+    assert first.local == [b] and first.up is False
     assert router.routes("gateway:g", ["vehicle/a/sonar"], []) is None  # someone above asks
-    second = router.publish("a", "vehicle/a/sonar")
-    assert second.local == ["b"] and second.up is True
+    second = router.publish(a, "vehicle/a/sonar")
+    assert second.local == [b] and second.up is True
     assert (router.sent_up, router.kept_local) == (1, 1)
-    router.unsubscribe("b", ["vehicle/a/sonar"])
-    assert router.publish("a", "vehicle/a/sonar").local == []
+    router.unsubscribe(b, ["vehicle/a/sonar"])
+    assert router.publish(a, "vehicle/a/sonar").local == []
 
 
 def test_router_delivers_from_above_and_replays_after_a_reconnection() -> None:
     router = TopicRouter()
-    router.add("a")
-    router.subscribe("a", ["user/op/plan"])
-    router.register("a", ["vehicle/a/x"])
-    assert router.from_above("user/op/plan") == ["a"] and router.from_above("user/op/q") == []
+    a = LocalUnit("a", "#1")
+    router.add(a)
+    router.subscribe(a, ["user/op/plan"])
+    router.register(a, ["vehicle/a/x"])
+    assert router.from_above("user/op/plan") == [a] and router.from_above("user/op/q") == []
     assert router.routes("vehicle:a", [], []) == "a"
     assert router.routes("vehicle:zz", [], []) is None
-    router.subscribe("a", ["user/op/slow"], throttle_ms=500)
+    router.subscribe(a, ["user/op/slow"], throttle_ms=500)
     assert router.replay() == [
         {"op": "register", "vehicle_id": "a", "topics": ["vehicle/a/x"]},
         {"op": "subscribe", "vehicle_id": "a", "topics": ["user/op/plan"]},
         {"op": "subscribe", "vehicle_id": "a", "topics": ["user/op/slow"], "throttle_ms": 500},
     ]
-    router.drop("a")
+    router.drop(a)
     assert router.replay() == []
 
 

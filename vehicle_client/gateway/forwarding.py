@@ -16,10 +16,17 @@ Media frames (binary, on media topics) take the same routes; they are
 counted apart (``media_up``, ``media_kept``) so that what a camera costs the
 uplink can be read off the gateway.
 
-Registrations and subscriptions are repeated upstream on the units' behalf
-(ops with ``vehicle_id``), so the server's table holds them, and again after
-every reconnection (:meth:`TopicRouter.replay`); a unit that leaves has both
-taken back upstream. The gateway registers a topic a unit publishes on
+A unit is a :class:`LocalUnit`: one connection, acting for one vehicle;
+several may act for the same one (a sonar driver, a camera, a mission
+script), each with its own registrations and subscriptions. The table above
+knows only the vehicle (ops with ``vehicle_id``), so what goes up is what the
+vehicle's units hold together (:class:`Held`: the topics any of them
+registers, the topics any of them subscribes to at the least ``throttle_ms``
+they asked): :meth:`TopicRouter.ops_for` gives the ops that a change of one
+unit makes to it (a topic subscribed above once, by the first unit; taken
+back above by the last one; subscribed again when the least throttle
+changes), and :meth:`TopicRouter.replay` the whole of it after every
+reconnection. The gateway registers a topic a unit publishes on
 unregistered before routing it (``UnitServer``); one it could not register
 goes up (the table above has no demand for it to read).
 """
@@ -34,6 +41,18 @@ from fleet_protocol.topics import SERVER_ONLY_VEHICLE_TOPICS, topic_owner
 from fleet_protocol.ws import MAX_TOPICS_PER_OP
 
 
+@dataclass(frozen=True, order=True)
+class LocalUnit:
+    """One local unit: the vehicle it acts for, and its name (the one it gave with
+    ``?unit=``, or ``#<n>`` for a connection that gave none: a unit of its own)."""
+
+    vehicle_id: str
+    name: str
+
+    def __str__(self) -> str:
+        return f"{self.vehicle_id}/{self.name}"
+
+
 @dataclass
 class _Unit:
     produces: set[str] = field(default_factory=set)
@@ -42,16 +61,30 @@ class _Unit:
 
 
 @dataclass
+class Held:
+    """What a vehicle's local units hold together, as the table above holds it."""
+
+    produces: set[str] = field(default_factory=set)
+    #: topic -> the least ``throttle_ms`` its units asked
+    consumes: dict[str, int] = field(default_factory=dict)
+
+    def add(self, unit: _Unit) -> None:
+        self.produces |= unit.produces
+        for topic, throttle_ms in unit.consumes.items():
+            self.consumes[topic] = min(throttle_ms, self.consumes.get(topic, throttle_ms))
+
+
+@dataclass
 class Delivery:
     """Where a publish goes: these local units, and up or not."""
 
-    local: list[str]
+    local: list[LocalUnit]
     up: bool
 
 
 @dataclass
 class TopicRouter:
-    units: dict[str, _Unit] = field(default_factory=dict)
+    units: dict[LocalUnit, _Unit] = field(default_factory=dict)
     forward_up: frozenset[str] = frozenset()
     forward_down: frozenset[str] = frozenset()
     sent_up: int = 0
@@ -59,43 +92,85 @@ class TopicRouter:
     media_up: int = 0
     media_kept: int = 0
 
-    def add(self, vehicle_id: str) -> None:
-        self.units.setdefault(vehicle_id, _Unit())
+    def add(self, unit: LocalUnit) -> None:
+        self.units.setdefault(unit, _Unit())
 
-    def drop(self, vehicle_id: str) -> _Unit | None:
-        """Forget a unit; what it had (to unregister upstream)."""
-        return self.units.pop(vehicle_id, None)
+    def drop(self, unit: LocalUnit) -> _Unit | None:
+        """Forget a unit; what it had."""
+        return self.units.pop(unit, None)
 
-    def register(self, vehicle_id: str, topics: list[str]) -> None:
-        self.units[vehicle_id].produces.update(topics)
+    def register(self, unit: LocalUnit, topics: list[str]) -> None:
+        self.units[unit].produces.update(topics)
 
-    def unregister(self, vehicle_id: str, topics: list[str]) -> None:
-        self.units[vehicle_id].produces.difference_update(topics)
+    def unregister(self, unit: LocalUnit, topics: list[str]) -> None:
+        self.units[unit].produces.difference_update(topics)
 
-    def subscribe(self, vehicle_id: str, topics: list[str], throttle_ms: int = 0) -> None:
-        self.units[vehicle_id].consumes.update(dict.fromkeys(topics, throttle_ms))
+    def subscribe(self, unit: LocalUnit, topics: list[str], throttle_ms: int = 0) -> None:
+        self.units[unit].consumes.update(dict.fromkeys(topics, throttle_ms))
 
-    def unsubscribe(self, vehicle_id: str, topics: list[str]) -> None:
-        consumes = self.units[vehicle_id].consumes
+    def unsubscribe(self, unit: LocalUnit, topics: list[str]) -> None:
+        consumes = self.units[unit].consumes
         for topic in topics:
             consumes.pop(topic, None)
 
-    def throttle_ms(self, vehicle_id: str, topic: str) -> int:
+    def throttle_ms(self, unit: LocalUnit, topic: str) -> int:
         """The ``throttle_ms`` the unit asked for ``topic`` (0: none, or not subscribed)."""
-        unit = self.units.get(vehicle_id)
-        return unit.consumes.get(topic, 0) if unit is not None else 0
+        held = self.units.get(unit)
+        return held.consumes.get(topic, 0) if held is not None else 0
 
-    def subscribers(self, topic: str, *, but: str | None = None) -> list[str]:
-        return sorted(v for v, u in self.units.items() if topic in u.consumes and v != but)
+    def of_vehicle(self, vehicle_id: str) -> list[LocalUnit]:
+        """The local units acting for ``vehicle_id``."""
+        return sorted(u for u in self.units if u.vehicle_id == vehicle_id)
 
-    def publish(self, vehicle_id: str, topic: str, *, media: bool = False) -> Delivery:
+    def held(self, vehicle_id: str) -> Held:
+        """What the units of ``vehicle_id`` hold together (what the table above holds)."""
+        held = Held()
+        for unit, own in self.units.items():
+            if unit.vehicle_id == vehicle_id:
+                held.add(own)
+        return held
+
+    def produced(self, vehicle_id: str, topic: str) -> bool:
+        """Whether a unit of ``vehicle_id`` registered ``topic`` (so did the vehicle above)."""
+        units = self.units.items()
+        return any(u.vehicle_id == vehicle_id and topic in held.produces for u, held in units)
+
+    def ops_for(
+        self,
+        unit: LocalUnit,
+        *,
+        produces: set[str] | None = None,
+        consumes: dict[str, int] | None = None,
+    ) -> list[dict[str, Any]]:
+        """The ops that tell the server what changes for the unit's vehicle if ``unit``
+        came to hold ``produces`` and ``consumes`` (``None``: what it holds now) instead:
+        none for a topic another unit of the vehicle holds as well, a ``subscribe``
+        again where the least ``throttle_ms`` changes. Nothing is changed here."""
+        own = self.units.get(unit, _Unit())
+        before = self.held(unit.vehicle_id)
+        after = Held()
+        for other, theirs in self.units.items():
+            if other.vehicle_id == unit.vehicle_id and other != unit:
+                after.add(theirs)
+        after.add(
+            _Unit(
+                own.produces if produces is None else produces,
+                own.consumes if consumes is None else consumes,
+            )
+        )
+        return changes(unit.vehicle_id, before, after)
+
+    def subscribers(self, topic: str, *, but: LocalUnit | None = None) -> list[LocalUnit]:
+        return sorted(u for u, held in self.units.items() if topic in held.consumes and u != but)
+
+    def publish(self, unit: LocalUnit, topic: str, *, media: bool = False) -> Delivery:
         """A local unit published on ``topic``: to whom (the caller checked the right).
 
-        A topic the unit registered goes up on demand (``forward_up``); one it did not
-        register is unknown to the routing table above, whose demand cannot be known
-        here: it goes up, as a publish straight to the server reaches its subscribers."""
-        unit = self.units.get(vehicle_id)
-        up = topic in self.forward_up or unit is None or topic not in unit.produces
+        A topic the unit's vehicle registered goes up on demand (``forward_up``); one it
+        did not register is unknown to the routing table above, whose demand cannot be
+        known here: it goes up, as a publish straight to the server reaches its
+        subscribers. The other units of the same vehicle get it as any other unit."""
+        up = topic in self.forward_up or not self.produced(unit.vehicle_id, topic)
         if media and up:
             self.media_up += 1
         elif media:
@@ -104,44 +179,59 @@ class TopicRouter:
             self.sent_up += 1
         else:
             self.kept_local += 1
-        return Delivery(self.subscribers(topic, but=vehicle_id), up)
+        return Delivery(self.subscribers(topic, but=unit), up)
 
-    def from_above(self, topic: str, *, media: bool = False) -> list[str]:
+    def from_above(self, topic: str, *, media: bool = False) -> list[LocalUnit]:
         """An event came down from the cloud: the local units subscribed to it.
 
         The server filters a JSON event by the connection it came from, not a
-        media frame: one on a topic of a unit connected here is this gateway's
-        own frame coming back, which its units had already (none, then).
+        media frame: one on a topic of a vehicle with a unit connected here is
+        this gateway's own frame coming back, which its units had already (none,
+        then).
         """
         namespace, owner = topic_owner(topic)
-        if media and namespace == "vehicle" and owner in self.units:
+        if media and namespace == "vehicle" and any(u.vehicle_id == owner for u in self.units):
             return []
         return self.subscribers(topic)
 
     def routes(self, unit: str, forward_up: list[str], forward_down: list[str]) -> str | None:
-        """A ``routes`` push: the gateway's own updates forwarding (``None`` back);
-        a local unit's (``vehicle:<id>``) is for that unit: its vehicle id back."""
+        """A ``routes`` push: the gateway's own updates forwarding (``None`` back); a
+        vehicle's (``vehicle:<id>``) is for that vehicle's local units: its id back
+        while it has one here."""
         if unit.startswith("gateway:"):
             self.forward_up, self.forward_down = frozenset(forward_up), frozenset(forward_down)
             return None
         kind, _, vehicle_id = unit.partition(":")
-        return vehicle_id if kind == "vehicle" and vehicle_id in self.units else None
+        here = any(u.vehicle_id == vehicle_id for u in self.units)
+        return vehicle_id if kind == "vehicle" and here else None
 
     def replay(self) -> list[dict[str, Any]]:
-        """The ops to send after a reconnection: each unit's ``register`` and ``subscribe``
-        (with the ``throttle_ms`` it asked), at most an op's worth of topics each."""
-        ops: list[dict[str, Any]] = []
-        for vehicle_id, unit in sorted(self.units.items()):
-            for chunk in in_ops(unit.produces):
-                ops.append({"op": "register", "vehicle_id": vehicle_id, "topics": chunk})
-            by_throttle: dict[int, list[str]] = {}
-            for topic, throttle_ms in unit.consumes.items():
-                by_throttle.setdefault(throttle_ms, []).append(topic)
-            for throttle_ms, topics in sorted(by_throttle.items()):
-                for chunk in in_ops(topics):
-                    op = {"op": "subscribe", "vehicle_id": vehicle_id, "topics": chunk}
-                    ops.append({**op, "throttle_ms": throttle_ms} if throttle_ms else op)
-        return ops
+        """The ops to send after a reconnection: for each vehicle, what its units hold
+        together (each topic once, subscribed at the least ``throttle_ms`` they asked)."""
+        vehicles = sorted({u.vehicle_id for u in self.units})
+        return [op for v in vehicles for op in changes(v, Held(), self.held(v))]
+
+
+def changes(vehicle_id: str, before: Held, after: Held) -> list[dict[str, Any]]:
+    """The ops that take the table above from ``before`` to ``after`` for the vehicle:
+    ``register``, ``subscribe`` (one for each ``throttle_ms``), ``unsubscribe``,
+    ``unregister``, at most an op's worth of topics each."""
+    ops: list[dict[str, Any]] = []
+
+    def add(kind: str, topics: Iterable[str], **extra: Any) -> None:
+        for chunk in in_ops(topics):
+            ops.append({"op": kind, "vehicle_id": vehicle_id, "topics": chunk, **extra})
+
+    add("register", after.produces - before.produces)
+    by_throttle: dict[int, list[str]] = {}
+    for topic, throttle_ms in after.consumes.items():
+        if before.consumes.get(topic) != throttle_ms:
+            by_throttle.setdefault(throttle_ms, []).append(topic)
+    for throttle_ms, topics in sorted(by_throttle.items()):
+        add("subscribe", topics, **({"throttle_ms": throttle_ms} if throttle_ms else {}))
+    add("unsubscribe", before.consumes.keys() - after.consumes.keys())
+    add("unregister", before.produces - after.produces)
+    return ops
 
 
 def in_ops(topics: Iterable[str]) -> list[list[str]]:

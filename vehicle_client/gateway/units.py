@@ -1,15 +1,25 @@
 """The gateway's own WebSocket for its local units (``listen`` in gateway.toml).
 
-A unit connects to ``ws://<listen>/?vehicle_id=<id>`` (a vehicle the
-gateway's token acts for) and speaks the topic ops of ``/ws/client``:
-``register``, ``subscribe``, ``unsubscribe``, ``publish`` (``id`` for an
-ack). A unit of a vehicle the gateway's token does not list is closed with 4403
-once the server has said which it lists (``whoami``, at each connection). The
-gateway repeats ``register``/``subscribe``/``unsubscribe``
-upstream with ``vehicle_id`` and relays the server's ack; ``publish`` goes
-where ``TopicRouter`` says (local subscribers, up only on demand). Events
-from above and each unit's ``routes`` are passed down as they came. A second
-connection for the same vehicle replaces the first (closed with 4409).
+A unit connects to ``ws://<listen>/?vehicle_id=<id>[&unit=<name>]`` (a
+vehicle the gateway's token acts for) and speaks the topic ops of
+``/ws/client``: ``register``, ``unregister``, ``subscribe``, ``unsubscribe``,
+``publish`` (``id`` for an ack). A unit of a vehicle the gateway's token does
+not list is closed with 4403 once the server has said which it lists
+(``whoami``, at each connection).
+
+Each connection is a unit of its own (a :class:`LocalUnit`), with its own
+subscriptions, registrations, throttles and queue, and several may act for
+one vehicle (a sonar driver, a camera, a mission script). A connection that
+names itself (``unit=<name>``, an identifier) is that unit: a new connection
+with the same vehicle and name replaces the former one (closed with 4409)
+and keeps what it held, as a unit coming back after its connection went
+stale; one without a name is a new unit each time. The topic ops go up with
+``vehicle_id`` for what they change in what the vehicle's units hold
+together (:class:`TopicOps`: a topic sent up once, taken back with its last
+unit); ``publish`` goes where ``TopicRouter`` says (the other local units
+subscribed, the vehicle's own included; up only on demand). Events from
+above go to every unit subscribed, and a vehicle's ``routes`` to each of its
+units, as they came.
 
 Media frames (binary: a JSON header line, a newline, the bytes; see
 ``fleet_protocol.media``) on media topics follow the same rules as a
@@ -25,7 +35,7 @@ that; past it, it closes with 1009). What goes to a unit waits in its own
 from __future__ import annotations
 
 import asyncio
-import contextlib
+import itertools
 import logging
 import re
 from typing import Any
@@ -44,20 +54,12 @@ from fleet_protocol.links import (
 )
 from fleet_protocol.media import decode_media_frame
 from fleet_protocol.topics import is_media_topic
-from fleet_protocol.ws import (
-    AckPush,
-    EventPush,
-    PublishOp,
-    RegisterOp,
-    RoutesPush,
-    SubscribeOp,
-    UnregisterOp,
-    UnsubscribeOp,
-)
+from fleet_protocol.ws import AckPush, EventPush, PublishOp, RegisterOp, RoutesPush
 from fleet_protocol.ws_frames import FrameError, parse_client_op
 from vehicle_client.errors import AgentError, FatalError
-from vehicle_client.gateway.forwarding import TopicRouter, in_ops, write_refusal
+from vehicle_client.gateway.forwarding import LocalUnit, TopicRouter, write_refusal
 from vehicle_client.gateway.registrar import Registrar
+from vehicle_client.gateway.topic_ops import TopicOps
 from vehicle_client.gateway.unit_queue import DEFAULT_UNIT_QUEUE, UnitQueue
 from vehicle_client.gateway.uplink import (
     DEFAULT_MEDIA_UP_PER_S,
@@ -70,7 +72,8 @@ from vehicle_client.transport.ws import WsLink
 
 log = logging.getLogger(__name__)
 
-CLOSE_BAD_REQUEST = 4400  # the gateway's own: a unit that did not name its vehicle
+CLOSE_BAD_REQUEST = 4400  # the gateway's own: a unit that did not name its vehicle (or
+# named itself with what is not an identifier)
 
 
 def _listen_address(listen: str) -> tuple[str, int]:
@@ -99,8 +102,10 @@ class UnitServer:
         self.queue_size = queue_size
         self.router = TopicRouter()
         self.uplink = MediaUplink(link, media_up_per_s)
-        self._queues: dict[str, UnitQueue] = {}
+        self._queues: dict[LocalUnit, UnitQueue] = {}
+        self._unnamed = itertools.count(1)
         self.registrar = Registrar(link, self.router)
+        self.topic_ops = TopicOps(link, self.router, self.registrar)
         #: The vehicles the gateway's token acts for, as the server last said (None: not yet).
         self.acts_for: frozenset[str] | None = None
         self._server: Server | None = None
@@ -121,7 +126,7 @@ class UnitServer:
         except OSError as exc:
             raise FatalError(f"cannot listen on {self.host}:{self.port}: {exc}") from exc
         self.port = self._server.sockets[0].getsockname()[1] if self.port == 0 else self.port
-        log.info("local units: ws://%s:%d/?vehicle_id=...", self.host, self.port)
+        log.info("local units: ws://%s:%d/?vehicle_id=...&unit=...", self.host, self.port)
 
     async def stop(self) -> None:
         if self._server is not None:
@@ -133,8 +138,10 @@ class UnitServer:
     def describe(self) -> str:
         """The forwarding counters, for the status log."""
         r, up = self.router, self.uplink
+        vehicles = len({u.vehicle_id for u in self._queues})
         return (
-            f"{len(self._queues)} connected; publishes {r.sent_up} up, {r.kept_local} kept local;"
+            f"{len(self._queues)} connected ({vehicles} vehicles);"
+            f" publishes {r.sent_up} up, {r.kept_local} kept local;"
             f" media {r.media_up} up ({up.sent} sent, {up.replaced} replaced by newer,"
             f" {up.dropped} dropped), {r.media_kept} kept local;"
             f" {self.publish_budget.refused} publishes refused (over the units' share)"
@@ -144,48 +151,41 @@ class UnitServer:
     async def _serve(self, conn: ServerConnection) -> None:
         query = parse_qs(urlsplit(conn.request.path if conn.request else "").query)
         vehicle_id = (query.get("vehicle_id") or [""])[0]
+        name = query["unit"][0] if "unit" in query else None
         if not re.fullmatch(ID_PATTERN, vehicle_id):
             await conn.close(CLOSE_BAD_REQUEST, "connect with ?vehicle_id=<the unit's vehicle>")
+            return
+        if name is not None and not re.fullmatch(ID_PATTERN, name):
+            await conn.close(CLOSE_BAD_REQUEST, f"unit=<name>: a name matching {ID_PATTERN}")
             return
         if self.acts_for is not None and vehicle_id not in self.acts_for:
             log.warning("local unit %s refused: %s", vehicle_id, _not_listed(vehicle_id))
             await conn.close(CLOSE_FORBIDDEN, _not_listed(vehicle_id))
             return
+        unit = LocalUnit(vehicle_id, name or f"#{next(self._unnamed)}")
         queue = UnitQueue(conn, self.queue_size)
-        former = self._queues.get(vehicle_id)
-        self._queues[vehicle_id] = queue
+        former = self._queues.get(unit)
+        self._queues[unit] = queue
         if former is not None:
             await former.close()
-            await former.conn.close(CLOSE_REPLACED, "another connection took this unit")
-        self.router.add(vehicle_id)
-        log.info("local unit %s connected", vehicle_id)
+            await former.conn.close(CLOSE_REPLACED, f"another connection took unit {name}")
+        self.router.add(unit)
+        log.info("local unit %s connected", unit)
         try:
             async for frame in conn:
                 if isinstance(frame, str):
-                    await self._op(vehicle_id, queue, frame)
+                    await self._op(unit, queue, frame)
                 else:
-                    self._media(vehicle_id, queue, frame)
+                    self._media(unit, queue, frame)
         except ConnectionClosed:
             pass
         finally:
             await queue.close()
-            if self._queues.get(vehicle_id) is queue:
-                del self._queues[vehicle_id]
-                await self._gone(vehicle_id)
+            if self._queues.get(unit) is queue:
+                del self._queues[unit]
+                await self.topic_ops.gone(unit)
 
-    async def _gone(self, vehicle_id: str) -> None:
-        """A unit left: what it subscribed to and registered is taken back upstream too
-        (else its registrations stay in the table above and count against its bound)."""
-        unit = self.router.drop(vehicle_id)
-        if unit is None or not self.link.connected:
-            return  # after a reconnection the replay leaves it out anyway
-        for kind, topics in (("unsubscribe", unit.consumes), ("unregister", unit.produces)):
-            for chunk in in_ops(topics):
-                with contextlib.suppress(AgentError):
-                    op = {"op": kind, "vehicle_id": vehicle_id, "topics": chunk}
-                    await self.link.send(op)
-
-    async def _op(self, vehicle_id: str, queue: UnitQueue, frame: str) -> None:
+    async def _op(self, unit: LocalUnit, queue: UnitQueue, frame: str) -> None:
         if len(frame) > MAX_TEXT_FRAME_BYTES:
             error = ErrorBody(
                 code="too_large", message=f"a JSON frame has at most {MAX_TEXT_FRAME_BYTES} bytes"
@@ -199,7 +199,7 @@ class UnitServer:
             return
         if isinstance(op, PublishOp | RegisterOp):
             topics = [op.topic] if isinstance(op, PublishOp) else op.topics
-            refusal = next((r for t in topics if (r := write_refusal(vehicle_id, t))), None)
+            refusal = next((r for t in topics if (r := write_refusal(unit.vehicle_id, t))), None)
             if refusal is not None:
                 field = "topic" if isinstance(op, PublishOp) else "topics"
                 queue.refuse(op.id, _refusal("forbidden", refusal, field))
@@ -209,58 +209,24 @@ class UnitServer:
             queue.refuse(op.id, _refusal("invalid", message, "topic"))
             return
         if isinstance(op, PublishOp):
-            refused = await self._publish(vehicle_id, op)
+            refused = await self._publish(unit, op)
             if refused is not None:
                 queue.refuse(op.id, refused)
             elif op.id:
                 queue.put(AckPush.success(op.id).frame())
             return
-        # Taken back here at once; taken on once the server has (a refused op leaves
-        # nothing behind to replay later), or at once while the cloud link is down.
-        if isinstance(op, UnsubscribeOp):
-            self.router.unsubscribe(vehicle_id, op.topics)
-            queue.forget(op.topics)
-        elif isinstance(op, UnregisterOp):
-            self.router.unregister(vehicle_id, op.topics)
-        upstream = {
-            **op.model_dump(mode="json", exclude={"id"}, exclude_none=True),
-            "vehicle_id": vehicle_id,
-        }
-        try:
-            if isinstance(op, RegisterOp):
-                ack = await self.registrar.register(vehicle_id, op.topics, upstream)
-            else:
-                ack = await self.link.call(upstream, check=False)
-        except AgentError:
-            self._take(vehicle_id, op)
-            if op.id:
-                queue.put(AckPush.success(op.id, {"local_only": True}).frame())
-            return
-        if ack.ok and isinstance(op, SubscribeOp):  # a register: taken on by the registrar
-            self._take(vehicle_id, op)
+        answer = await self.topic_ops.take(unit, op)
         if op.id:
-            queue.put(ack.model_copy(update={"id": op.id}).frame())
+            queue.put(answer.frame())
 
-    def _take(self, vehicle_id: str, op: Any) -> None:
-        """A ``register`` or ``subscribe`` takes effect among the local units: once the
-        server accepted it, or at once while the cloud link is down (a unit restarted at
-        sea still gets its neighbours' data; it goes up with the replay when the link is
-        back, where the server may refuse it, and nothing comes from above for it)."""
-        if vehicle_id not in self.router.units:
-            return
-        if isinstance(op, RegisterOp):
-            self.router.register(vehicle_id, op.topics)
-        elif isinstance(op, SubscribeOp):
-            self.router.subscribe(vehicle_id, op.topics, op.throttle_ms)
-
-    async def _publish(self, vehicle_id: str, op: PublishOp) -> ErrorBody | None:
+    async def _publish(self, unit: LocalUnit, op: PublishOp) -> ErrorBody | None:
         """To the local units subscribed, and up when someone above asked for it; what to
         answer when it should have gone up and did not (the local units have it all the
         same): the link down, the units' share of the uplink spent, a frame too large
         once it names its vehicle. A topic the unit publishes on unregistered is
         registered above first, so that only what someone there asked for goes up."""
-        await self.registrar.before_publish(vehicle_id, op.topic)
-        delivery = self.router.publish(vehicle_id, op.topic)
+        await self.topic_ops.before_publish(unit, op.topic)
+        delivery = self.router.publish(unit, op.topic)
         frame = EventPush(topic=op.topic, data=op.data).model_dump_json()
         for other in delivery.local:
             self._put_event(other, op.topic, frame)
@@ -269,7 +235,12 @@ class UnitServer:
         if not self.link.connected:
             message = "the cloud link is down: the local units got it, nobody above did"
             return ErrorBody(code="unavailable", message=message)
-        upstream = {"op": "publish", "vehicle_id": vehicle_id, "topic": op.topic, "data": op.data}
+        upstream = {
+            "op": "publish",
+            "vehicle_id": unit.vehicle_id,
+            "topic": op.topic,
+            "data": op.data,
+        }
         if (size := _frame_bytes(upstream, len(frame))) > MAX_TEXT_FRAME_BYTES:
             message = (
                 f"sent up it would take {size} bytes (at most {MAX_TEXT_FRAME_BYTES}): "
@@ -288,7 +259,7 @@ class UnitServer:
             return ErrorBody(code="unavailable", message=f"the cloud link is down: {exc}")
         return None
 
-    def _media(self, vehicle_id: str, queue: UnitQueue, frame: bytes) -> None:
+    def _media(self, unit: LocalUnit, queue: UnitQueue, frame: bytes) -> None:
         """A unit's media frame: checked like a publish, then to local units and up on demand."""
         if len(frame) > self.max_media_bytes:
             message = f"a media frame has at most {self.max_media_bytes} bytes, not {len(frame)}"
@@ -304,11 +275,11 @@ class UnitServer:
             message = f"{topic} is not a media topic: publish JSON on it"
             queue.refuse(None, _refusal("invalid", message, "topic"))
             return
-        refusal = write_refusal(vehicle_id, topic)
+        refusal = write_refusal(unit.vehicle_id, topic)
         if refusal is not None:
             queue.refuse(None, _refusal("forbidden", refusal, "topic"))
             return
-        delivery = self.router.publish(vehicle_id, topic, media=True)
+        delivery = self.router.publish(unit, topic, media=True)
         for other in delivery.local:
             self._put_media(other, topic, frame)
         if delivery.up and self.link.connected:
@@ -317,8 +288,8 @@ class UnitServer:
     # -- from above -------------------------------------------------------------
     def _from_above(self, push: EventPush) -> None:
         frame = push.frame()
-        for vehicle_id in self.router.from_above(push.topic):
-            self._put_event(vehicle_id, push.topic, frame)
+        for unit in self.router.from_above(push.topic):
+            self._put_event(unit, push.topic, frame)
 
     def _media_from_above(self, frame: bytes) -> None:
         try:
@@ -326,22 +297,22 @@ class UnitServer:
         except FrameError as exc:
             log.warning("a media frame from the server without a header: %s", exc)
             return
-        for vehicle_id in self.router.from_above(header.topic, media=True):
-            self._put_media(vehicle_id, header.topic, frame)
+        for unit in self.router.from_above(header.topic, media=True):
+            self._put_media(unit, header.topic, frame)
 
     def _routes(self, push: RoutesPush) -> None:
         vehicle_id = self.router.routes(push.unit, push.forward_up, push.forward_down)
         if vehicle_id is not None:
             self.registrar.shown(vehicle_id, push.produces)
-            self._put(vehicle_id, push.frame())
+            frame = push.frame()
+            for unit in self.router.of_vehicle(vehicle_id):
+                self._put(unit, frame)
 
     async def _replay(self) -> None:
         """After a (re)connection: which vehicles the token acts for, then the units'
-        registrations and subscriptions again."""
+        registrations and subscriptions again (each vehicle's once)."""
         await self._learn_vehicles()
-        for op in self.router.replay():
-            with contextlib.suppress(AgentError):
-                await self.link.send(op)
+        await self.topic_ops.replay()
 
     async def _learn_vehicles(self) -> None:
         """Ask the server whom the token acts for; close the units of other vehicles (their
@@ -354,24 +325,24 @@ class UnitServer:
         if not ack.ok or not isinstance(vehicles, list):
             return
         self.acts_for = frozenset(v for v in vehicles if isinstance(v, str))
-        for vehicle_id, queue in list(self._queues.items()):
-            if vehicle_id not in self.acts_for:
-                log.warning("local unit %s: %s", vehicle_id, _not_listed(vehicle_id))
-                await queue.conn.close(CLOSE_FORBIDDEN, _not_listed(vehicle_id))
+        for unit, queue in list(self._queues.items()):
+            if unit.vehicle_id not in self.acts_for:
+                log.warning("local unit %s: %s", unit, _not_listed(unit.vehicle_id))
+                await queue.conn.close(CLOSE_FORBIDDEN, _not_listed(unit.vehicle_id))
 
-    def _put(self, vehicle_id: str, frame: str) -> None:
-        queue = self._queues.get(vehicle_id)
+    def _put(self, unit: LocalUnit, frame: str) -> None:
+        queue = self._queues.get(unit)
         if queue is not None:
             queue.put(frame)
 
-    def _put_event(self, vehicle_id: str, topic: str, frame: str) -> None:
+    def _put_event(self, unit: LocalUnit, topic: str, frame: str) -> None:
         """An event for a unit, at most one per topic every ``throttle_ms`` it asked."""
-        queue = self._queues.get(vehicle_id)
+        queue = self._queues.get(unit)
         if queue is not None:
-            queue.put_event(topic, frame, self.router.throttle_ms(vehicle_id, topic))
+            queue.put_event(topic, frame, self.router.throttle_ms(unit, topic))
 
-    def _put_media(self, vehicle_id: str, topic: str, frame: bytes) -> None:
-        queue = self._queues.get(vehicle_id)
+    def _put_media(self, unit: LocalUnit, topic: str, frame: bytes) -> None:
+        queue = self._queues.get(unit)
         if queue is not None:
             queue.put_media(topic, frame)
 

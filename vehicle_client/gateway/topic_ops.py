@@ -1,0 +1,132 @@
+"""A local unit's topic ops (``register``, ``unregister``, ``subscribe``,
+``unsubscribe``), and what they send up for its vehicle.
+
+Several local units may act for one vehicle, each holding its own topics;
+the server holds them for the vehicle (ops with ``vehicle_id``), once. So
+an op of one unit goes up only for what it changes in what the vehicle's
+units hold together (``TopicRouter.ops_for``), as the server itself counts
+a unit's sockets:
+
+- the first unit to subscribe to (or register) a topic sends it up, and is
+  answered with the server's ack; a unit subscribing to a topic another unit
+  of its vehicle holds already is answered here, at once;
+- a topic is taken back above (``unsubscribe``, ``unregister``) only when the
+  last unit of the vehicle holding it lets go of it or leaves;
+- the vehicle is served each topic at the least ``throttle_ms`` its units
+  asked: a change of that least one subscribes it again above, at the new one
+  (the gateway holds each unit to what that unit asked, ``UnitQueue``);
+- after a reconnection, the union goes up again (``TopicRouter.replay``).
+
+A ``register`` or ``subscribe`` takes effect among the local units once the
+server accepted it (refused: it leaves nothing to replay later), or at once
+while the cloud link is down (acked with ``local_only``: a unit restarted at sea
+still gets its neighbours' data; it goes up with the replay when the link is
+back, where the server may refuse it, and nothing comes from above for it).
+An ``unsubscribe`` or ``unregister`` takes effect here at once. The ops of one
+vehicle's units, and their leaving, take turns (a lock for each vehicle), so
+that what is held here and what was said above never cross.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+from collections import defaultdict
+from typing import Any
+
+from fleet_protocol.ws import AckPush, RegisterOp, SubscribeOp, UnregisterOp, UnsubscribeOp
+from vehicle_client.errors import AgentError
+from vehicle_client.gateway.forwarding import LocalUnit, TopicRouter
+from vehicle_client.gateway.registrar import Registrar
+from vehicle_client.transport.ws import WsLink
+
+__all__ = ["TopicOp", "TopicOps"]
+
+TopicOp = RegisterOp | UnregisterOp | SubscribeOp | UnsubscribeOp
+
+
+class TopicOps:
+    def __init__(self, link: WsLink, router: TopicRouter, registrar: Registrar) -> None:
+        self.link = link
+        self.router = router
+        self.registrar = registrar
+        self._turns: defaultdict[str, asyncio.Lock] = defaultdict(asyncio.Lock)
+
+    async def take(self, unit: LocalUnit, op: TopicOp) -> AckPush:
+        """Do ``op`` for ``unit``, sending up what it changes for the vehicle; the answer
+        for the unit (its ``id`` the op's, empty when it had none)."""
+        async with self._turns[unit.vehicle_id]:
+            return await self._take_op(unit, op)
+
+    async def before_publish(self, unit: LocalUnit, topic: str) -> None:
+        """A topic the unit's vehicle publishes on unregistered: registered above first."""
+        async with self._turns[unit.vehicle_id]:
+            await self.registrar.before_publish(unit, topic)
+
+    async def _take_op(self, unit: LocalUnit, op: TopicOp) -> AckPush:
+        upstream = self._upstream(unit, op)
+        if isinstance(op, UnsubscribeOp):
+            self.router.unsubscribe(unit, op.topics)
+        elif isinstance(op, UnregisterOp):
+            self.router.unregister(unit, op.topics)
+        answer: dict[str, Any] = {"topics": op.topics}
+        try:
+            for sent in upstream:
+                if sent["op"] == "register":
+                    ack = await self.registrar.register(unit, op.topics, sent)
+                else:
+                    ack = await self.link.call(sent, check=False)
+                if not ack.ok:
+                    return ack.model_copy(update={"id": op.id or ""})
+        except AgentError:
+            self._take(unit, op)
+            return AckPush.success(op.id or "", {**answer, "local_only": True})
+        self._take(unit, op)
+        if not upstream and not self.link.connected:
+            answer["local_only"] = True  # as the other unit's that holds it above
+        return AckPush.success(op.id or "", answer)
+
+    def _upstream(self, unit: LocalUnit, op: TopicOp) -> list[dict[str, Any]]:
+        """What ``op`` changes above for the unit's vehicle (``TopicRouter.ops_for``)."""
+        held = self.router.units.get(unit)
+        produces = set() if held is None else held.produces
+        consumes = {} if held is None else held.consumes
+        if isinstance(op, RegisterOp):
+            return self.router.ops_for(unit, produces=produces | set(op.topics))
+        if isinstance(op, UnregisterOp):
+            return self.router.ops_for(unit, produces=produces - set(op.topics))
+        if isinstance(op, SubscribeOp):
+            asked = {**consumes, **dict.fromkeys(op.topics, op.throttle_ms)}
+            return self.router.ops_for(unit, consumes=asked)
+        kept = {t: ms for t, ms in consumes.items() if t not in op.topics}
+        return self.router.ops_for(unit, consumes=kept)
+
+    def _take(self, unit: LocalUnit, op: TopicOp) -> None:
+        """A ``register`` or ``subscribe`` takes effect among the local units (the
+        registrar took a register sent up on already: again changes nothing)."""
+        if unit not in self.router.units:
+            return
+        if isinstance(op, RegisterOp):
+            self.router.register(unit, op.topics)
+        elif isinstance(op, SubscribeOp):
+            self.router.subscribe(unit, op.topics, op.throttle_ms)
+
+    async def gone(self, unit: LocalUnit) -> None:
+        """A unit left: what only it held for its vehicle is taken back upstream too (else
+        its registrations stay in the table above and count against the vehicle's
+        bound); a topic its vehicle's other units still hold stays, at their least
+        ``throttle_ms``."""
+        async with self._turns[unit.vehicle_id]:
+            upstream = self.router.ops_for(unit, produces=set(), consumes={})
+            self.router.drop(unit)
+            if not self.link.connected:
+                return  # after a reconnection the replay leaves it out anyway
+            for sent in upstream:
+                with contextlib.suppress(AgentError):
+                    await self.link.send(sent)
+
+    async def replay(self) -> None:
+        """After a reconnection: what each vehicle's units hold, once."""
+        for sent in self.router.replay():
+            with contextlib.suppress(AgentError):
+                await self.link.send(sent)
