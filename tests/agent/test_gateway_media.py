@@ -41,9 +41,10 @@ class World:
     operator: str  # a username on the server with read access to both
     operator_token: str
 
-    def unit(self, vehicle_id: str) -> Any:
-        """A local unit's connection to the gateway (``async with``)."""
+    def unit(self, vehicle_id: str, name: str | None = None) -> Any:
+        """A local unit's connection to the gateway (``async with``), named or not."""
         url = f"ws://127.0.0.1:{self.units.port}/?vehicle_id={vehicle_id}"
+        url += f"&unit={name}" if name is not None else ""
         return websockets.connect(url, compression=None)
 
     async def operator_ws(self) -> Any:

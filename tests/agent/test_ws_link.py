@@ -141,6 +141,41 @@ def test_router_delivers_from_above_and_replays_after_a_reconnection() -> None:
     assert router.replay() == []
 
 
+def test_router_tells_the_server_what_a_vehicle_s_units_hold_together() -> None:
+    """Several units of one vehicle: a topic goes up with the first, is taken back with
+    the last, at the least throttle_ms any of them asked; the replay sends the union."""
+    router = TopicRouter()
+    sonar, script, other = LocalUnit("a", "sonar"), LocalUnit("a", "#1"), LocalUnit("b", "#2")
+    for unit in (sonar, script, other):
+        router.add(unit)
+    plan, x = "user/op/plan/a", "vehicle/a/x"
+    up = {"op": "subscribe", "vehicle_id": "a", "topics": [plan]}
+    assert router.ops_for(sonar, consumes={plan: 500}) == [{**up, "throttle_ms": 500}]
+    router.subscribe(sonar, [plan], 500)
+    assert router.ops_for(script, consumes={plan: 800}) == []  # held, at 500 still
+    assert router.ops_for(other, consumes={plan: 800}) == [
+        {**up, "vehicle_id": "b", "throttle_ms": 800}
+    ]
+    assert router.ops_for(script, consumes={plan: 0}) == [up]  # more often: asked again
+    router.subscribe(script, [plan], 0)
+    assert router.replay() == [up]
+    assert router.ops_for(script, consumes={}) == [{**up, "throttle_ms": 500}]  # back to 500
+    assert router.ops_for(sonar, produces=set(), consumes={}) == []  # script still holds
+    router.unsubscribe(sonar, [plan])
+    assert router.ops_for(script, consumes={}) == [{**up, "op": "unsubscribe"}]
+    register = {"op": "register", "vehicle_id": "a", "topics": [x]}
+    assert router.ops_for(sonar, produces={x}) == [register]
+    router.register(sonar, [x])
+    assert router.ops_for(script, produces={x}) == []
+    router.register(script, [x])
+    assert router.ops_for(sonar, produces=set()) == []
+    router.drop(sonar)
+    assert router.ops_for(script, produces=set(), consumes={}) == [
+        {**up, "op": "unsubscribe"},
+        {**register, "op": "unregister"},
+    ]
+
+
 def test_units_write_only_their_own_vehicle_topics() -> None:
     assert write_refusal("a", "vehicle/a/sonar") is None
     assert "vehicle/a/" in (write_refusal("a", "vehicle/b/sonar") or "")
