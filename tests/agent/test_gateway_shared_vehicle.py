@@ -6,6 +6,8 @@ the consumers of a topic the operator registered."""
 
 from __future__ import annotations
 
+import asyncio
+import json
 from collections.abc import Callable
 from typing import Any
 
@@ -13,6 +15,7 @@ import pytest
 import websockets
 
 from fleet_protocol.links import CLOSE_FORBIDDEN, CLOSE_REPLACED
+from fleet_protocol.ws import RoutesPush
 from server.settings import Settings
 from tests.agent.test_gateway_media import (
     Frame,
@@ -230,3 +233,42 @@ async def test_a_unit_name_must_be_an_identifier_and_its_vehicle_listed(
             assert (await ack(ua, "register", "r", topics=[f"vehicle/{w.a}/x"]))["ok"] is True
         async with w.unit("usv-not-ours", "sonar") as stranger:
             assert await closed_with(stranger) == CLOSE_FORBIDDEN
+
+
+async def test_a_named_unit_back_while_its_former_connection_is_taken_out_is_served(
+    make_settings: Callable[..., Settings],
+) -> None:
+    """The former connection's leaving waits for its vehicle's turn (here, another unit's
+    register waiting for its routes push). The unit connecting again meanwhile used to
+    have its new subscriptions dropped under it once that leaving went through."""
+    async with gateway(make_settings) as w:
+        plan = f"user/{w.operator}/plan/{w.a}"
+        async with await w.operator_ws() as op, w.unit(w.a) as sibling:
+            assert (await ack(sibling, "subscribe", "warm", topics=[f"vehicle/{w.b}/x"]))["ok"]
+            told = w.units.link.on_routes
+            assert told is not None
+            arrived = asyncio.Event()
+            loop = asyncio.get_running_loop()
+
+            def later(push: RoutesPush) -> None:  # the register holds its turn a second
+                if push.unit == f"vehicle:{w.a}":
+                    arrived.set()
+                loop.call_later(1.0, told, push)
+
+            w.units.link.on_routes = later
+            async with w.unit(w.a, "sonar") as sonar:
+                assert (await ack(sonar, "subscribe", "s", topics=[plan]))["ok"] is True
+                register = {"op": "register", "id": "r", "topics": [f"vehicle/{w.a}/new"]}
+                await sibling.send(json.dumps(register))
+                async with asyncio.timeout(5):
+                    await arrived.wait()
+
+            async def sonar_left() -> bool:
+                return w.units.describe().startswith("1 connected")
+
+            await eventually(sonar_left)
+            async with w.unit(w.a, "sonar") as back:
+                assert (await ack(back, "subscribe", "s", topics=[plan]))["ok"] is True
+                w.units.link.on_routes = told
+                assert (await ack(op, "publish", "p", topic=plan, data=1))["ok"] is True
+                assert (await next_json(back, event_on(plan)))["data"] == 1

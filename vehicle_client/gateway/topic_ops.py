@@ -58,6 +58,13 @@ class TopicOps:
         async with self._turns[unit.vehicle_id]:
             return await self._take_op(unit, op)
 
+    async def join(self, unit: LocalUnit) -> None:
+        """A unit connected. In its vehicle's turn: a named unit whose former
+        connection is still being taken out (``gone``) starts afresh once that is
+        through, rather than have what it takes on dropped under it."""
+        async with self._turns[unit.vehicle_id]:
+            self.router.add(unit)
+
     async def before_publish(self, unit: LocalUnit, topic: str) -> None:
         """A topic the unit's vehicle publishes on unregistered: registered above first."""
         async with self._turns[unit.vehicle_id]:

@@ -169,7 +169,7 @@ class UnitServer:
         if former is not None:
             await former.close()
             await former.conn.close(CLOSE_REPLACED, f"another connection took unit {name}")
-        self.router.add(unit)
+        await self.topic_ops.join(unit)
         log.info("local unit %s connected", unit)
         try:
             async for frame in conn:
