@@ -1,5 +1,5 @@
 """A gateway's units' registrations sent up, each unit told once the server's ``routes``
-push shows them.
+push for its vehicle shows them.
 
 The server answers a ``register`` before it pushes the routes that follow from it,
 and the gateway forwards a unit's publish up only when that push says someone
