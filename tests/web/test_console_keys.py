@@ -197,7 +197,8 @@ def test_the_replay_window_is_up_to_date_when_its_tab_opens(
         got = page.evaluate(
             """() => [document.getElementById("replay-from").value,
                       document.getElementById("replay-to").value, Date.now()]
-                .map((x) => (typeof x === "number" ? x : new Date(x).getTime()))"""
+                .map((x) => (typeof x === "number" ? x
+                    : new Date(x.replace(" ", "T")).getTime()))"""
         )
         return got[0], got[1], got[2]
 
@@ -217,7 +218,7 @@ def test_the_replay_window_is_up_to_date_when_its_tab_opens(
     typed = page.evaluate(
         """() => {
             const local = (t) => new Date(t - new Date(t).getTimezoneOffset() * 60000)
-                .toISOString().slice(0, 19);
+                .toISOString().slice(0, 19).replace("T", " ");
             return [local(Date.now() - 4 * 3600000), local(Date.now() - 3 * 3600000)];
         }"""
     )
@@ -244,7 +245,7 @@ def test_a_refused_window_leaves_no_earlier_answer_under_the_form(
     typed = page.evaluate(
         """() => {  // an hour that ended three hours before now (before the server started)
             const local = (t) => new Date(t - new Date(t).getTimezoneOffset() * 60000)
-                .toISOString().slice(0, 19);
+                .toISOString().slice(0, 19).replace("T", " ");
             return [local(Date.now() - 4 * 3600000), local(Date.now() - 3 * 3600000)];
         }"""
     )

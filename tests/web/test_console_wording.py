@@ -104,7 +104,7 @@ def test_what_is_said_is_said_once_and_an_empty_window_says_so(
     page.evaluate(
         """() => {  // an hour that ended an hour before this server started
             const local = (t) => new Date(t - new Date(t).getTimezoneOffset() * 60000)
-                .toISOString().slice(0, 19);
+                .toISOString().slice(0, 19).replace("T", " ");
             document.getElementById("replay-from").value = local(Date.now() - 3 * 3600000);
             document.getElementById("replay-to").value = local(Date.now() - 2 * 3600000);
         }"""

@@ -103,9 +103,10 @@ export class Replay {
 
   async load() {
     const ids = this.choice.chosen();
-    const { start, end } = this.choice.window();
+    const { start, end, error } = this.choice.window();
     // a form refused: said under it, in place of what an earlier replay said there
     if (!ids.length) return this.refuse("choose at least one vehicle");
+    if (error) return this.refuse(error);
     if (!(start < end)) return this.refuse("the window must start before it ends");
     this.pause();
     this.info.textContent = "loading…";

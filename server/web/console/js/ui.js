@@ -26,10 +26,23 @@ export function clock(ts) {
   return new Date(t).toLocaleTimeString([], { hour12: false });
 }
 
+/** A local time as "2026-11-26 14:05:00": 24-hour, year first, whatever the browser's
+ * language (an English one wrote "11/26/2026, 2:05:00 PM"). The replay's window is typed
+ * in this form (replayform.js). */
+export function localStamp(t) {
+  const d = new Date(t);
+  const two = (n) => String(n).padStart(2, "0");
+  return `${String(d.getFullYear()).padStart(4, "0")}-${two(d.getMonth() + 1)}-${two(d.getDate())} ` +
+    `${two(d.getHours())}:${two(d.getMinutes())}:${two(d.getSeconds())}`;
+}
+
+/** A full date with its zone: "2026-11-26 14:05:00 GMT+1". */
 export function dateTime(ts) {
   const t = typeof ts === "number" ? ts : Date.parse(ts);
   if (!Number.isFinite(t)) return "–";
-  return new Date(t).toLocaleString([], { hour12: false, timeZoneName: "short" });
+  const zone = new Intl.DateTimeFormat([], { timeZoneName: "short" }).formatToParts(new Date(t))
+    .find((p) => p.type === "timeZoneName");
+  return `${localStamp(t)}${zone ? ` ${zone.value}` : ""}`;
 }
 
 /** The zone this browser shows times in: "UTC+01:00 (Europe/Zagreb)", or "UTC". */

@@ -1,0 +1,101 @@
+"""What a field manager's test of the console found, in a real browser (as
+test_console_watch): the replay's window shown in AM/PM by an English browser, raw command
+ids in "superseded by ...", no word of who holds control of the selected boat on a
+phone's map, and exports that named each track by the vehicle's id alone. A world of its
+own (the module's): ana holds every vehicle; the last test adds a vehicle."""
+
+from __future__ import annotations
+
+import re
+from datetime import datetime, timedelta
+from typing import Any
+from zoneinfo import ZoneInfo
+
+import pytest
+from playwright.sync_api import expect
+
+from tests.web.conftest import Shots, World
+from tests.web.console_helpers import log_in
+
+pytestmark = [pytest.mark.slow, pytest.mark.browser]
+
+STAMP = "%Y-%m-%d %H:%M:%S"
+
+
+def replay_up(page: Any) -> None:
+    """Until the replay's module is loaded (after the page: its form is not yet handled)."""
+    page.wait_for_function("() => Boolean(window.fleetConsole && fleetConsole.replay)")
+
+
+def type_into(page: Any, field: Any, text: str) -> None:
+    """What a person does: into the field, everything in it selected, typed over."""
+    field.focus()
+    page.keyboard.press("ControlOrMeta+A")
+    page.keyboard.type(text)
+
+
+def test_the_replay_window_is_typed_and_read_in_24_hour_local_time(
+    world: World, open_console: Any, shots: Shots
+) -> None:
+    """An English browser showed the window's pickers as "02:05:00 PM". The window reads
+    and is typed as "2026-11-26 14:05:00" in the browser's local time, said beside it,
+    from the keyboard (Up and Down step the part under the caret); anything else is
+    refused in words."""
+    zone = ZoneInfo("America/New_York")
+    page, _ = open_console(locale="en-US", timezone_id="America/New_York")
+    log_in(page, "ana")
+    replay_up(page)
+    page.click('[data-tab="replay"]')
+    frm, to = page.locator("#replay-from"), page.locator("#replay-to")
+    expect(page.locator("#replay-zone")).to_contain_text(
+        re.compile(r"24-hour local time, UTC-0[45]:00 \(America/New_York\)")
+    )
+    # the window offered (the last 15 min) reads in that form
+    expect(frm).to_have_value(re.compile(r"^\d{4}-\d\d-\d\d \d\d:\d\d:\d\d$"))
+    expect(to).to_have_value(re.compile(r"^\d{4}-\d\d-\d\d \d\d:\d\d:\d\d$"))
+
+    now = datetime.now(zone).replace(microsecond=0)
+    start, end = now - timedelta(minutes=3), now + timedelta(minutes=2)
+    type_into(page, frm, start.strftime(STAMP))
+    page.keyboard.press("Tab")  # on to "to"
+    expect(to).to_be_focused()
+    page.keyboard.press("ControlOrMeta+A")
+    page.keyboard.type(end.strftime("%Y-%m-%d %H:%M"))  # the seconds left out
+    page.keyboard.press("Tab")
+    expect(frm).to_have_value(start.strftime(STAMP))
+    expect(to).to_have_value(end.strftime("%Y-%m-%d %H:%M:00"))  # written back whole
+    shots(page, "typed-24-hour")
+
+    # Up and Down: the minutes (the caret in them) one more, one less
+    frm.focus()
+    frm.evaluate("el => el.setSelectionRange(15, 15)")
+    page.keyboard.press("ArrowUp")
+    expect(frm).to_have_value((start + timedelta(minutes=1)).strftime(STAMP))
+    page.keyboard.press("ArrowDown")
+    expect(frm).to_have_value(start.strftime(STAMP))
+
+    # the window replayed is the one typed, in the browser's zone
+    page.keyboard.press("Enter")  # submits the form, as Replay does
+    expect(page.locator("#replay-bar")).to_be_visible()
+    got = page.evaluate("[fleetConsole.replay.start, fleetConsole.replay.end]")
+    assert got == [start.timestamp() * 1000, end.replace(second=0).timestamp() * 1000]
+    expect(page.locator("#replay-time")).to_have_text(
+        re.compile(r"^\d{4}-\d\d-\d\d \d\d:\d\d:\d\d \S+$")  # 24-hour, its zone after it
+    )
+    expect(page.locator("#replay-time")).not_to_contain_text(re.compile("AM|PM"))
+    page.click("#replay-exit")
+
+    # what is not such a time is refused in words, and nothing is read
+    info = page.locator("#replay-info")
+    for typed, said in (
+        ("11/26/2026 2:05 PM", "is not a time this form reads: write it as 2026-11-26 14:05:00"),
+        ("2026-02-30 10:00:00", "that month has days 1 to 28"),
+        ("2026-03-08 02:30:00", "there is no such time here (the clocks went forward then)"),
+    ):
+        type_into(page, frm, typed)
+        page.click("#replay-load")
+        expect(info).to_contain_text(f"from: “{typed}”")
+        expect(info).to_contain_text(said)
+        expect(info).to_contain_text("nothing read")
+        expect(frm).to_have_attribute("aria-invalid", "true")
+    shots(page, "refused-time")
