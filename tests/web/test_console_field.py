@@ -15,7 +15,7 @@ import pytest
 from playwright.sync_api import expect
 
 from tests.web.conftest import Shots, World
-from tests.web.console_helpers import log_in
+from tests.web.console_helpers import command_item, log_in, marker
 
 pytestmark = [pytest.mark.slow, pytest.mark.browser]
 
@@ -99,3 +99,52 @@ def test_the_replay_window_is_typed_and_read_in_24_hour_local_time(
         expect(info).to_contain_text("nothing read")
         expect(frm).to_have_attribute("aria-invalid", "true")
     shots(page, "refused-time")
+
+
+def test_a_superseded_command_names_the_newer_one_not_its_id(
+    world: World, open_console: Any, shots: Shots
+) -> None:
+    """A command the boat replaced by a newer one read "superseded by keep_station
+    c-5f0e…": the newer command is named by its type, who sent it and when, as the
+    command list says it; its id only in a title."""
+    vehicle = "demo-usv-1"
+    page, _ = open_console(timezone_id="UTC")
+    log_in(page, "ana")
+    replay_up(page)
+    marker(page, vehicle).click()
+    page.click('[data-tab="vehicle"]')
+    older = world.fleet.submit(world.tokens["ana"], world.instances[vehicle], "keep_station", {})
+    expect(command_item(page, older)).to_have_attribute("data-stage", "executing")
+    newer = world.fleet.submit(world.tokens["ana"], world.instances[vehicle], "keep_station", {})
+    expect(command_item(page, older)).to_have_attribute("data-stage", "superseded")
+    # the newer one's own line says when it was sent and by whom: the older one names it so
+    sent = command_item(page, newer).locator("small")
+    expect(sent).to_contain_text(re.compile(r"^\d\d:\d\d:\d\d by ana"))
+    at = sent.inner_text()[:8]
+    said = f"superseded by the keep_station ana sent at {at}"
+    expect(command_item(page, older)).to_contain_text(said)
+    expect(command_item(page, older).locator(".superseded-by")).to_have_attribute(
+        "title", f"command {newer}"
+    )
+    # and so does the line of its end among the recent events
+    ended = page.locator("#vehicle-pane ol.events li", has_text="keep_station superseded")
+    expect(ended).to_contain_text(f"(by the keep_station ana sent at {at})")
+    expect(ended).to_have_attribute("title", f"superseded by command {newer}")
+    expect(page.locator("#vehicle-pane")).not_to_contain_text(newer)
+    shots(page, "superseded-named")
+
+    # the replay's list of what happened names it by the events it read
+    page.click('[data-tab="replay"]')
+    page.click('#replay-form [data-minutes="5"]')
+    for vehicle_id in ("demo-usv-1", "demo-usv-2", "demo-usv-3"):
+        page.locator(f'#replay-vehicles input[value="{vehicle_id}"]').set_checked(
+            vehicle_id == vehicle
+        )
+    page.click("#replay-load")
+    expect(page.locator("#replay-bar")).to_be_visible()
+    line = page.locator("#replay-events li", has_text="keep_station superseded")
+    expect(line).to_contain_text(re.compile(r"\(by the keep_station ana sent at \d\d:\d\d:\d\d\)"))
+    expect(line).to_have_attribute("title", f"superseded by command {newer}")
+    expect(page.locator("#replay-events")).not_to_contain_text(newer)
+    shots(page, "superseded-in-replay")
+    page.click("#replay-exit")

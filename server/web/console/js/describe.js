@@ -13,14 +13,42 @@ function sinceText(e) {
   return ` (on the vehicle since ${clock(since)})`;
 }
 
-export function describeEvent(e) {
+/** The newer command a superseded one names in its detail (the server's "superseded_by
+ * keep_station c-9", an older server's "superseded by keep_station c-9"): ``{type, id}``;
+ * null for any other detail (a stop's "superseded_by_stop" too). */
+export function supersededBy(detail) {
+  const m = /^superseded[_ ]by (\S+) (\S+)$/.exec(detail || "");
+  return m ? { type: m[1], id: m[2] } : null;
+}
+
+/** The newer command as a person reads it, not its id: "the keep_station ana sent at
+ * 10:02:15" (``known``: {issued_by, issued_at}, as the console knows it), or "a newer
+ * keep_station" when the console does not know it. The id goes in a title. */
+export function newerCommand(by, known) {
+  if (!known || !Number.isFinite(Date.parse(known.issued_at))) return `a newer ${by.type}`;
+  const who = known.issued_by === "system" ? " the server" : known.issued_by ? ` ${known.issued_by}` : "";
+  return `the ${by.type}${who} sent at ${clock(known.issued_at)}`;
+}
+
+/** The title of an event's line: the newer command's id, for one superseded ("the id
+ * only as a secondary detail"); null for any other. */
+export function eventTitle(e) {
+  const by = e.kind === "command" ? supersededBy((e.data || {}).detail) : null;
+  return by ? `superseded by command ${by.id}` : null;
+}
+
+/** An event in words. ``known(commandId)``: a command as the console knows it (who sent
+ * it and when), to name a superseding command by more than its id. */
+export function describeEvent(e, known = () => null) {
   const d = e.data || {};
   if (e.kind === "command") {
     const stage = d.status ? stageOf(d.status, d.detail) : "";
     const who = e.actor ? e.actor.replace(/^user:/, "") : null;
+    const by = supersededBy(d.detail);
     // a cancel's detail is "by <who>": said once, not "(by ana) by ana"
-    const detail = d.detail && d.detail !== "superseded_by_stop" && d.detail !== `by ${who}`
-      ? ` (${d.detail.replace(/^superseded_by /, "by ")})` : "";
+    const detail = by ? ` (by ${newerCommand(by, known(by.id))})`
+      : d.detail && d.detail !== "superseded_by_stop" && d.detail !== `by ${who}`
+        ? ` (${d.detail})` : "";
     return `${d.type || ""} ${stage}${detail}` + (who ? ` by ${who}` : "");
   }
   if (e.kind === "control_mode") {

@@ -67,6 +67,21 @@ function ms(ts) {
   return ts ? Date.parse(ts) : NaN;
 }
 
+/** A command as its events tell it (the earliest names who sent it, and when): null when
+ * none of ``events`` is of it. */
+export function commandFromEvents(events, commandId) {
+  let first = null;
+  for (const e of events) {
+    const d = e.data || {};
+    if (e.kind !== "command" || d.command_id !== commandId) continue;
+    if (!first || Date.parse(e.at) < Date.parse(first.at)) first = e;
+  }
+  if (!first) return null;
+  const d = first.data;
+  const by = d.issued_by || (first.actor ? first.actor.replace(/^user:/, "") : null);
+  return { type: d.type, issued_by: by, issued_at: first.at };
+}
+
 export class Fleet extends EventTarget {
   constructor() {
     super();
@@ -242,6 +257,14 @@ export class Fleet extends EventTarget {
     const v = this.vehicles.get(id);
     if (!v) return [];
     return [...v.commands.values()].sort((a, b) => ms(b.issued_at) - ms(a.issued_at));
+  }
+
+  /** A command of the vehicle as this console knows it, from its commands or else its
+   * events ({type, issued_by, issued_at}); null when it knows neither. */
+  command(id, commandId) {
+    const v = this.vehicles.get(id);
+    if (!v) return null;
+    return v.commands.get(commandId) || commandFromEvents(v.events, commandId);
   }
 
   /** The command to show beside the vehicle: the newest one. */

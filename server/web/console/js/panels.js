@@ -3,7 +3,9 @@
 // to say an event or a lease. Each redraws from the Fleet state when it changes.
 
 import { alarmBadges, alarmList } from "./alarms.js";
-import { describeEvent, describeFailsafe, kindName } from "./describe.js";
+import {
+  describeEvent, describeFailsafe, eventTitle, kindName, newerCommand, supersededBy,
+} from "./describe.js";
 import { isFinal, lastKnown, stageLabel } from "./fleet.js";
 import { controlOffer } from "./grants.js";
 import { patchChildren } from "./patch.js";
@@ -49,11 +51,15 @@ export function courseText(trail) {
   return `${Math.round((Math.atan2(east, north) / rad + 360) % 360) % 360} °`;
 }
 
-/** A command's detail as people read it ("superseded_by go_to c-1": "superseded by go_to
- * c-1"; "superseded_by_stop": "superseded by a stop"). */
-function readableDetail(detail) {
+/** A command's detail as people read it: "superseded_by go_to c-1" is "superseded by the
+ * go_to ana sent at 10:02:15" (``known``: a command as the console knows it), the id only
+ * in its title; "superseded_by_stop" is "superseded by a stop". */
+function readableDetail(detail, known) {
   if (detail === "superseded_by_stop") return "superseded by a stop";
-  return String(detail).replace(/^superseded_by /, "superseded by ");
+  const by = supersededBy(detail);
+  if (!by) return String(detail);
+  return h("span.superseded-by", { title: `command ${by.id}` },
+    `superseded by ${newerCommand(by, known(by.id))}`);
 }
 
 /** The vehicle's link as the server measures it (docs/live.md, "Latency per hop"). */
@@ -209,6 +215,7 @@ export class VehiclePanel {
     const view = v.view;
     const p = view.position || {};
     const num = (x, unit, digits = 1) => (x == null ? "–" : `${Number(x).toFixed(digits)} ${unit}`);
+    const known = (commandId) => fleet.command(v.id, commandId); // a superseding command
     const contact = fleet.lastContact(v.id);
     const control = v.control;
     const mine = control && control.holder === me.username;
@@ -264,8 +271,9 @@ export class VehiclePanel {
       h("h3", {}, "Recent commands"),
       this.commandList(v),
       h("h3", {}, "Recent events"),
-      h("ol.events", {}, ...[...v.events].reverse().slice(0, 20).map((e) => h("li", {},
-        h("time", {}, clock(e.at)), " ", h("b", {}, kindName(e.kind)), " ", describeEvent(e)))),
+      h("ol.events", {}, ...[...v.events].reverse().slice(0, 20).map((e) => h("li", {
+        title: eventTitle(e),
+      }, h("time", {}, clock(e.at)), " ", h("b", {}, kindName(e.kind)), " ", describeEvent(e, known)))),
     ]);
   }
 
@@ -289,7 +297,7 @@ export class VehiclePanel {
       c.progress != null && !isFinal(c.status) ? ` ${Math.round(c.progress * 100)} %` : "",
       h("br"),
       h("small", {}, `${clock(c.issued_at)}${c.issued_by ? ` by ${c.issued_by}` : ""}`,
-        c.detail ? ` · ${readableDetail(c.detail)}` : ""),
+        c.detail ? [" · ", readableDetail(c.detail, (id) => this.ctx.fleet.command(v.id, id))] : ""),
       !isFinal(c.status) && this.mayCancel(v, c)
         ? h("button.quiet", {
           ...sends(`cancel/${c.command_id}`),

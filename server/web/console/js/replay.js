@@ -4,7 +4,8 @@
 
 import { drawTrack, gapBands, offlinePeriods, offlineText, periodAt } from "./gaps.js";
 import { L, colourOf, escapeHtml } from "./map.js";
-import { describeEvent, kindName } from "./describe.js";
+import { describeEvent, eventTitle, kindName } from "./describe.js";
+import { commandFromEvents } from "./fleet.js";
 import { ReplayForm } from "./replayform.js";
 import { clock, dateTime, h, sending, toast } from "./ui.js";
 
@@ -216,18 +217,20 @@ export class Replay {
 
   drawTimeline() {
     const span = this.end - this.start;
+    const known = (id) => commandFromEvents(this.events, id); // a superseding command, by its events
     this.ticks.replaceChildren(...this.events.map((e, i) => h(`span.tick.k-${e.kind.split("_")[0]}`, {
       style: `left:${((e.t - this.start) / span) * 100}%`,
-      title: `${clock(e.t)} ${this.nameOf(e.vehicle)} ${kindName(e.kind)} ${describeEvent(e)}`,
+      title: `${clock(e.t)} ${this.nameOf(e.vehicle)} ${kindName(e.kind)} ${describeEvent(e, known)}`,
       dataset: { index: i },
     })));
     this.gaps.replaceChildren(...gapBands(this.offline, this.start, this.end, (id) => this.nameOf(id)));
     this.list.replaceChildren(...this.events.map((e, i) => h("li", {
       dataset: { index: i, kind: e.kind },
+      title: eventTitle(e),
       onclick: () => this.seek(e.t),
     },
     h("time", {}, clock(e.t)), " ", h("b", {}, this.nameOf(e.vehicle)), " ",
-    kindName(e.kind), " ", describeEvent(e))));
+    kindName(e.kind), " ", describeEvent(e, known))));
   }
 
   /** Move the cursor to ``t``: every chosen vehicle where its track puts it then. */
