@@ -31,7 +31,7 @@ class Console {
     $("who").textContent = `${me.username} · ${me.role}`;
     // Every time shown is this browser's local time: say in which zone, once.
     $("tz").textContent = `times in ${zoneText()}`;
-    $("replay-zone").textContent = `24-hour local time, ${zoneText()}: as 2026-11-26 14:05:00`;
+    $("replay-zone").textContent = `24-hour, local time ${zoneText()}, e.g. 2026-11-26 14:05:00`;
     this.map = new MapView($("map"), config, this.fleet, {
       onPick: (id, additive) => this.pick(id, additive),
       onMapClick: (latlng) => this.tools.mapClicked(latlng),
