@@ -148,3 +148,69 @@ def test_a_superseded_command_names_the_newer_one_not_its_id(
     expect(page.locator("#replay-events")).not_to_contain_text(newer)
     shots(page, "superseded-in-replay")
     page.click("#replay-exit")
+
+
+def test_a_phone_s_map_says_who_holds_control_of_the_selected_boat(
+    world: World, open_console: Any, shots: Shots
+) -> None:
+    """On a phone the map said nothing of who held control of the boat selected (the
+    vehicle panel beside the map says it on a wider screen): it says it over the map, in
+    the panel's words, as control changes, and names each boat when several are chosen."""
+    vehicle, other = "demo-usv-2", "demo-usv-1"
+    operator, _ = open_console(viewport=(390, 844))
+    log_in(operator, "ana")  # she holds every boat (the world's grants)
+    marker(operator, vehicle).click()
+    said = operator.locator("#map-holder")
+    expect(said).to_be_visible()
+    expect(said).to_have_text(re.compile(r"^you hold control until \d\d:\d\d:\d\d \(in \d+ min\)$"))
+    # the panel's words: what the Vehicle tab says of it begins so
+    line = said.inner_text().split(" (")[0]
+    operator.click('[data-tab="vehicle"]')
+    expect(operator.locator("#vehicle-pane .control-line")).to_contain_text(line)
+    operator.click('[data-tab="map"]')
+    shots(operator, "phone-holder-mine")
+
+    watcher, _ = open_console(viewport=(390, 844))
+    log_in(watcher, "ben")
+    marker(watcher, vehicle).click()
+    said = watcher.locator("#map-holder")
+    expect(said).to_have_text(
+        re.compile(r"^ana holds control until \d\d:\d\d:\d\d \(in \d+ min\)$")
+    )
+    # clear of the map's buttons, and nothing scrolls sideways
+    box = said.bounding_box()
+    for button in (".leaflet-control-zoom", ".leaflet-control-layers", ".fit-all"):
+        b = watcher.locator(button).bounding_box()
+        assert (
+            box["x"] + box["width"] <= b["x"]
+            or b["x"] + b["width"] <= box["x"]
+            or (box["y"] + box["height"] <= b["y"] or b["y"] + b["height"] <= box["y"])
+        ), (button, box, b)
+    assert watcher.evaluate("document.documentElement.scrollWidth") <= 390
+    shots(watcher, "phone-holder-other")
+
+    # control released: said at once, from the socket
+    world.as_user(
+        "ana", "POST", "/client/release_control", json={"instance_id": world.instances[vehicle]}
+    )
+    expect(said).to_have_text("nobody holds control")
+    # several boats ticked: each line names its boat
+    watcher.click('[data-tab="fleet"]')
+    watcher.locator(f'input[aria-label="select {other}"]').check()
+    watcher.click('[data-tab="map"]')
+    expect(said.locator(".holder-line")).to_have_count(2)
+    expect(said.locator(f'.holder-line[data-vehicle="{vehicle}"]')).to_have_text(
+        "H2OmniX Bravo: nobody holds control"
+    )
+    expect(said.locator(f'.holder-line[data-vehicle="{other}"]')).to_contain_text(
+        "H2OmniX Alpha: ana holds control until"
+    )
+    shots(watcher, "phone-holder-several")
+    world.fleet.grant(world.instances[vehicle], "ana")  # as the world was
+
+    # a wider screen has the panel beside the map: no line over it
+    desktop, _ = open_console()
+    log_in(desktop, "ben")
+    marker(desktop, vehicle).click()
+    expect(desktop.locator("#vehicle-pane .control-line")).to_contain_text("ana holds control")
+    expect(desktop.locator("#map-holder")).to_be_hidden()

@@ -6,6 +6,7 @@ import { alarmText } from "./alarms.js";
 import { Commands } from "./commands.js";
 import { ControlPanel } from "./control.js";
 import { Fleet, TRAIL_MINUTES, isFinal, topicsOf } from "./fleet.js";
+import { MapHolder } from "./holder.js";
 import { LiveLink } from "./live.js";
 import { FleetTable, VehiclePanel } from "./panels.js";
 import { endSession, logOut, startSession } from "./session.js";
@@ -42,6 +43,7 @@ class Console {
     this.tabs = new Tabs(this);
     this.commands = new Commands(this); // sent from the bar, the panels and the toasts
     this.tools = new Tools(this); // the bar over the map
+    this.holder = new MapHolder(this); // who holds the selected boats, on a phone's map
     $("logout").addEventListener("click", () => sending("logout", () => this.logOut()));
     $("messages").addEventListener("click", openLog); // a toast gone can be read again
     // Replay pressed before its module (loaded below) took the form: not a page reload.
@@ -270,11 +272,13 @@ class Console {
     this.selectionChanged();
   }
 
-  /** The selection changed: the map, the table and the bar over the map say it. */
+  /** The selection changed: the map, the table and the bar over the map say it (and, on
+   * a phone, who holds control of it). */
   selectionChanged() {
     this.map.setSelected(this.selection);
     this.table.render();
     this.tools.showFor(this.selection);
+    this.holder.render();
   }
 }
 

@@ -74,6 +74,15 @@ export function holderText(control, me) {
   return control.holder === me.username ? "you" : control.holder;
 }
 
+/** Who holds control, in the vehicle panel's words (the phone's map says it so too,
+ * holder.js): "ana holds control until 14:05:10", "you hold ...", "nobody holds control". */
+export function controlSaid(control, me) {
+  if (!control) return ["nobody holds control"];
+  const mine = control.holder === me.username;
+  return [h("b", {}, holderText(control, me)),
+    ` ${mine ? "hold" : "holds"} control until ${clock(control.expires_at)}`];
+}
+
 /** Redraw at most once a frame, however many changes come in. */
 export function throttled(fn) {
   let pending = false;
@@ -222,12 +231,11 @@ export class VehiclePanel {
     const controlRow = h(
       "div.control-line",
       {},
+      controlSaid(control, me),
       control
-        ? [h("b", {}, holderText(control, me)),
-          ` ${mine ? "hold" : "holds"} control until ${clock(control.expires_at)} `,
-          h("small.until", { dataset: { until: control.expires_at } }, `(${until(control.expires_at)})`),
+        ? [" ", h("small.until", { dataset: { until: control.expires_at } }, `(${until(control.expires_at)})`),
           control.granted_by ? h("small", {}, ` granted by ${control.granted_by}`) : null]
-        : "nobody holds control",
+        : null,
       control && !mine && this.ctx.controlPanel.managed(v.id)
         ? h("button", {
           ...sends(`revoke/${v.id}`), onclick: () => this.ctx.controlPanel.revoke(v),
