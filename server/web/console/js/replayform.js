@@ -69,9 +69,10 @@ export class ReplayForm {
     if (!this.typed) this.setWindow();
   }
 
-  /** The last ``this.minutes`` minutes, up to now. */
+  /** The last ``this.minutes`` minutes, up to now: to the next whole second, as the
+   * fields show no fraction (to the last one, what came within the second was left out). */
   setWindow() {
-    const now = Date.now();
+    const now = Math.ceil(Date.now() / 1000) * 1000;
     $("replay-from").value = localStamp(now - this.minutes * 60000);
     $("replay-to").value = localStamp(now);
     for (const field of this.fields()) this.check(field, false);
