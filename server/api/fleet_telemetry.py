@@ -12,7 +12,7 @@ and ``X-Track-Next-From`` in headers.
 from __future__ import annotations
 
 from datetime import timedelta
-from typing import Annotated, Literal
+from typing import Annotated, Any, Literal
 
 from fastapi import APIRouter, Depends, Path, Query
 from fastapi.responses import Response
@@ -30,15 +30,20 @@ MAX_PAGE = 10_000
 DEFAULT_WINDOW = timedelta(hours=24)
 
 
-async def _visible_vehicle(
+async def _visible_record(
     vehicle_id: Annotated[str, Path(min_length=1, max_length=64)],
     user: Viewer,
     s: ServicesDep,
-) -> str:
-    await s.views.visible_vehicle(user, vehicle_id)  # 404: unknown, or not for this caller
-    return vehicle_id
+) -> dict[str, Any]:
+    # 404: unknown, or not for this caller
+    return await s.views.visible_vehicle(user, vehicle_id)
 
 
+async def _visible_vehicle(vehicle: Annotated[dict[str, Any], Depends(_visible_record)]) -> str:
+    return str(vehicle["vehicle_id"])
+
+
+VisibleRecord = Annotated[dict[str, Any], Depends(_visible_record)]
 VisibleVehicle = Annotated[str, Depends(_visible_vehicle)]
 From = Annotated[Timestamp | None, Query(alias="from")]
 To = Annotated[Timestamp | None, Query(alias="to")]
@@ -46,21 +51,24 @@ To = Annotated[Timestamp | None, Query(alias="to")]
 
 @router.get("/api/vehicles/{vehicle_id}/track", response_model=Track)
 async def track(
-    vehicle_id: VisibleVehicle,
+    vehicle: VisibleRecord,
     s: ServicesDep,
     start: From = None,
     end: To = None,
     max_points: Annotated[int | None, Query(ge=2, le=TRACK_PAGE_CAP)] = None,
     fmt: Annotated[Literal["json", "geojson", "gpx", "csv"], Query(alias="format")] = "json",
 ) -> Response:
+    vehicle_id = vehicle["vehicle_id"]
     start, end = window(start, end, s.clock(), DEFAULT_WINDOW)
     result = await s.telemetry.track(vehicle_id, start, end, max_points)
     headers = track_formats.paging_headers(result)
     media = track_formats.MEDIA_TYPES.get(fmt)
+    name = track_formats.track_name(vehicle)  # "H2OmniX Alpha (demo-usv-1)"
     if fmt == "geojson":
-        return SafeJSONResponse(track_formats.geojson(result), media_type=media, headers=headers)
+        body = track_formats.geojson(result, name)
+        return SafeJSONResponse(body, media_type=media, headers=headers)
     if fmt == "gpx":
-        return Response(track_formats.gpx(result), media_type=media, headers=headers)
+        return Response(track_formats.gpx(result, name), media_type=media, headers=headers)
     if fmt == "csv":
         return Response(track_formats.csv_text(result), media_type=media, headers=headers)
     body = Track.model_construct(  # from the store: checked when it came in

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import io
+from collections.abc import Mapping
 from decimal import Decimal
 from typing import Any
 from xml.sax.saxutils import escape
@@ -23,14 +24,24 @@ def json_points(track: TrackResult) -> list[dict[str, Any]]:
     return [{**p, "ts": format_ts(p["ts"])} for p in track.points]
 
 
-def geojson(track: TrackResult) -> dict[str, Any]:
-    """One Feature with a LineString (``[lon, lat]``); times and paging in its properties.
-    A LineString has two positions at least (RFC 7946): one point is a Point, none a null
-    geometry, so every answer is valid GeoJSON."""
+def track_name(vehicle: Mapping[str, Any]) -> str:
+    """A track's name as people read it: the vehicle's name and, as two vehicles may
+    share one, its id: ``H2OmniX Alpha (demo-usv-1)``; the id alone for a vehicle with no
+    name (or named by its id)."""
+    vehicle_id = str(vehicle["vehicle_id"])
+    name = str(vehicle.get("name") or "").strip()
+    return f"{name} ({vehicle_id})" if name and name != vehicle_id else vehicle_id
+
+
+def geojson(track: TrackResult, name: str) -> dict[str, Any]:
+    """One Feature with a LineString (``[lon, lat]``); its ``name`` (:func:`track_name`),
+    times and paging in its properties. A LineString has two positions at least (RFC
+    7946): one point is a Point, none a null geometry, so every answer is valid GeoJSON."""
     return {
         "type": "Feature",
         "geometry": track_geometry([[p["lon"], p["lat"]] for p in track.points]),
         "properties": {
+            "name": name,
             "vehicle_id": track.vehicle_id,
             "times": [format_ts(p["ts"]) for p in track.points],
             "seqs": [p["seq"] for p in track.points],
@@ -40,12 +51,13 @@ def geojson(track: TrackResult) -> dict[str, Any]:
     }
 
 
-def gpx(track: TrackResult) -> str:
-    """GPX 1.1: one ``trk`` with one ``trkseg``; depth as negative elevation."""
+def gpx(track: TrackResult, name: str) -> str:
+    """GPX 1.1: one ``trk`` named ``name`` (:func:`track_name`) with one ``trkseg``; depth
+    as negative elevation."""
     out = [
         '<?xml version="1.0" encoding="UTF-8"?>',
         '<gpx version="1.1" creator="fleet-cloud" xmlns="http://www.topografix.com/GPX/1/1">',
-        f"<trk><name>{escape(track.vehicle_id)}</name><trkseg>",
+        f"<trk><name>{escape(name)}</name><trkseg>",
     ]
     for p in track.points:
         ele = f"<ele>{_decimal(-p['depth_m'])}</ele>" if "depth_m" in p else ""

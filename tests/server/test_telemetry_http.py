@@ -11,7 +11,7 @@ from typing import Any
 import httpx
 import pytest
 
-from tests.factories import ADMIN, make_user, make_vehicle, sample, start_instance
+from tests.factories import ADMIN, bearer, make_user, make_vehicle, sample, start_instance, unique
 
 # Each test runs on the embedded store and on FerretDB (the real MongoDB driver).
 pytestmark = pytest.mark.usefixtures("store_backend")
@@ -129,6 +129,33 @@ async def test_track_gpx(client: httpx.AsyncClient) -> None:
     [point] = ET.fromstring(r.content).findall(".//g:trkpt", ns)
     assert (point.get("lon"), point.findtext("g:ele", namespaces=ns)) == ("0.00005", "-0.00001")
     assert "e-" not in r.text
+
+
+async def test_a_track_is_named_by_its_vehicle_s_name_and_id(client: httpx.AsyncClient) -> None:
+    """A GPX track and a GeoJSON Feature were named by the vehicle's id alone: they carry
+    its name and, as two vehicles may share one, its id; the id alone without a name."""
+    ns = {"g": "http://www.topografix.com/GPX/1/1"}
+    names = {}
+    for name in ("Lady <Ann> & Co", ""):
+        vid = unique("usv")
+        body = {"vehicle_id": vid, "name": name, "vehicle_type": "usv"}
+        vh = bearer((await client.post("/api/vehicles", headers=ADMIN, json=body)).json()["token"])
+        iid = (await start_instance(client, vid, vh))["instance_id"]
+        samples = {"instance_id": iid, "samples": [sample(n) for n in range(1, 3)]}
+        assert (await client.post("/upper/update_param", headers=vh, json=samples)).is_success
+        url = f"/api/vehicles/{vid}/track"
+        gpx = await client.get(url, headers=ADMIN, params={**WINDOW, "format": "gpx"})
+        feature = await client.get(url, headers=ADMIN, params={**WINDOW, "format": "geojson"})
+        names[name] = (
+            vid,
+            ET.fromstring(gpx.content).findtext("g:trk/g:name", namespaces=ns),
+            feature.json()["properties"]["name"],
+            feature.json()["properties"]["vehicle_id"],
+        )
+    vid, in_gpx, in_geojson, feature_id = names["Lady <Ann> & Co"]
+    assert in_gpx == in_geojson == f"Lady <Ann> & Co ({vid})" and feature_id == vid
+    vid, in_gpx, in_geojson, _ = names[""]
+    assert in_gpx == in_geojson == vid
 
 
 async def test_track_csv(client: httpx.AsyncClient) -> None:
