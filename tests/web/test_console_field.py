@@ -6,15 +6,18 @@ own (the module's): ana holds every vehicle; the last test adds a vehicle."""
 
 from __future__ import annotations
 
+import json
 import re
+import xml.etree.ElementTree as ET
 from datetime import datetime, timedelta
+from pathlib import Path
 from typing import Any
 from zoneinfo import ZoneInfo
 
 import pytest
 from playwright.sync_api import expect
 
-from tests.web.conftest import Shots, World
+from tests.web.conftest import PASSWORD, Shots, World
 from tests.web.console_helpers import command_item, log_in, marker
 
 pytestmark = [pytest.mark.slow, pytest.mark.browser]
@@ -214,3 +217,72 @@ def test_a_phone_s_map_says_who_holds_control_of_the_selected_boat(
     marker(desktop, vehicle).click()
     expect(desktop.locator("#vehicle-pane .control-line")).to_contain_text("ana holds control")
     expect(desktop.locator("#map-holder")).to_be_hidden()
+
+
+def test_an_export_names_its_file_and_tracks_by_the_vehicles(
+    world: World, open_console: Any, shots: Shots
+) -> None:
+    """An export was "fleet-replay-2026-11-25T004351Z.gpx" with tracks named "demo-usv-1":
+    the file is named by the vehicles' names (the id after one that another vehicle shares,
+    whatever a name holds made safe for a file system) and each track by its vehicle's name
+    and id. Two vehicles are added, without agents: one named as Alpha, one named with
+    characters no file name may hold."""
+    ns = {"g": "http://www.topografix.com/GPX/1/1"}
+    added = {"demo-usv-9": "H2OmniX Alpha", "demo-usv-8": 'Tug "North/South": 2?'}
+    for vehicle_id, name in added.items():
+        body = {"vehicle_id": vehicle_id, "name": name, "vehicle_type": "usv"}
+        world.fleet.call("POST", "/api/vehicles", json=body)
+    sees = ["demo-usv-1", "demo-usv-2", *added]
+    body = {"username": "fay", "role": "viewer", "vehicles": sees, "password": PASSWORD}
+    world.fleet.call("POST", "/api/users", json=body)
+    page, _ = open_console()
+    page.goto("/")
+    page.fill("#login-user", "fay")
+    page.fill("#login-password", PASSWORD)
+    page.click("#login-form button[type=submit]")
+    expect(page.locator("#link")).to_have_attribute("data-state", "live")
+    replay_up(page)
+    page.click('[data-tab="replay"]')
+    expect(page.locator("#replay-vehicles input")).to_have_count(4)
+
+    def export(chosen: list[str], format: str) -> tuple[str, Any]:
+        for vehicle_id in sees:
+            page.locator(f'#replay-vehicles input[value="{vehicle_id}"]').set_checked(
+                vehicle_id in chosen
+            )
+        page.click('#replay-form [data-minutes="5"]')
+        page.click("#replay-load")
+        expect(page.locator("#replay-bar")).to_be_visible()
+        with page.expect_download() as got:
+            page.click(f'#replay-export button[data-format="{format}"]')
+        page.click("#replay-exit")
+        return got.value.suggested_filename, got.value.path()
+
+    name, path = export(["demo-usv-1", "demo-usv-8", "demo-usv-9"], "gpx")
+    stamp = r"-\d{4}-\d\d-\d\dT\d{6}Z"
+    assert re.fullmatch(
+        r"fleet-replay-H2OmniX-Alpha-demo-usv-1_Tug-North-South-2_H2OmniX-Alpha-demo-usv-9"
+        + stamp
+        + r"\.gpx",
+        name,
+    ), name
+    tracks = ET.parse(path).getroot().findall("g:trk", ns)
+    assert [t.findtext("g:name", namespaces=ns) for t in tracks] == [
+        "H2OmniX Alpha (demo-usv-1)",
+        'Tug "North/South": 2? (demo-usv-8)',
+        "H2OmniX Alpha (demo-usv-9)",
+    ]
+    name, path = export(["demo-usv-1", "demo-usv-9"], "geojson")
+    assert re.fullmatch(
+        r"fleet-replay-H2OmniX-Alpha-demo-usv-1_H2OmniX-Alpha-demo-usv-9" + stamp + r"\.geojson",
+        name,
+    ), name
+    features = json.loads(Path(path).read_text())["features"]
+    assert [f["properties"]["name"] for f in features] == [
+        "H2OmniX Alpha (demo-usv-1)",
+        "H2OmniX Alpha (demo-usv-9)",
+    ]
+    # a name no other vehicle has: the name alone
+    name, _ = export(["demo-usv-2"], "gpx")
+    assert re.fullmatch(r"fleet-replay-H2OmniX-Bravo" + stamp + r"\.gpx", name), name
+    shots(page, "exported")

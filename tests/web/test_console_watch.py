@@ -186,16 +186,19 @@ def test_replay_puts_each_marker_where_the_store_has_it(
     # export the window: one file, both vehicles, every stored point
     with page.expect_download() as got:
         page.click('#replay-export button[data-format="gpx"]')
-    assert re.fullmatch(r"fleet-replay-\d{4}-\d\d-\d\dT\d{6}Z\.gpx", got.value.suggested_filename)
+    assert re.fullmatch(
+        r"fleet-replay-H2OmniX-Bravo_H2OmniX-Charlie-\d{4}-\d\d-\d\dT\d{6}Z\.gpx",
+        got.value.suggested_filename,
+    )
     gpx = ET.parse(got.value.path())
     ns = {"g": "http://www.topografix.com/GPX/1/1"}
     tracks = gpx.getroot().findall("g:trk", ns)
     assert sorted(t.findtext("g:name", namespaces=ns) for t in tracks) == [
-        "demo-usv-2", "demo-usv-3",
+        "H2OmniX Bravo (demo-usv-2)", "H2OmniX Charlie (demo-usv-3)",
     ]  # fmt: skip
     for t in tracks:
-        name = t.findtext("g:name", namespaces=ns)
-        assert len(t.findall(".//g:trkpt", ns)) == len(stored[name])
+        vehicle_id = t.findtext("g:name", namespaces=ns).split("(")[1].rstrip(")")
+        assert len(t.findall(".//g:trkpt", ns)) == len(stored[vehicle_id])
     with page.expect_download() as got:
         page.click('#replay-export button[data-format="geojson"]')
     collection = json.loads(Path(got.value.path()).read_text())

@@ -1,7 +1,8 @@
 // Replay: the stored tracks of the chosen vehicles over a window, played in sync on a
 // timeline that also holds their commands, grants and events (each lights up as the
-// cursor passes it); the window exports as GPX or GeoJSON.
+// cursor passes it); the window exports as GPX or GeoJSON (export.js).
 
+import { exportWindow } from "./export.js";
 import { drawTrack, gapBands, offlinePeriods, offlineText, periodAt } from "./gaps.js";
 import { L, colourOf, escapeHtml } from "./map.js";
 import { describeEvent, eventTitle, kindName } from "./describe.js";
@@ -83,7 +84,9 @@ export class Replay {
     this.playButton.addEventListener("click", () => (this.playing ? this.pause() : this.play()));
     document.getElementById("replay-exit").addEventListener("click", () => this.exit());
     for (const b of this.exportBox.querySelectorAll("[data-format]")) {
-      b.addEventListener("click", () => sending(`export/${b.dataset.format}`, () => this.export(b.dataset.format)));
+      const format = b.dataset.format;
+      b.addEventListener("click", () => sending(`export/${format}`,
+        () => exportWindow(this.ctx, this.ids, this.start, this.end, format)));
     }
   }
 
@@ -321,48 +324,4 @@ export class Replay {
     this.playButton.textContent = "Play";
     this.playButton.setAttribute("aria-label", "play");
   }
-
-  /** The window as shown, every chosen vehicle in one file. */
-  async export(format) {
-    const from = new Date(this.start).toISOString();
-    const to = new Date(this.end).toISOString();
-    try {
-      const texts = await Promise.all(this.ids.map((id) => this.ctx.api.request(
-        "GET", `/api/vehicles/${encodeURIComponent(id)}/track`,
-        { query: { from, to, format }, raw: true },
-      )));
-      let body;
-      let type;
-      if (format === "geojson") {
-        const features = texts.map((t) => JSON.parse(t));
-        body = JSON.stringify({ type: "FeatureCollection", features, properties: { from, to } }, null, 1);
-        type = "application/geo+json";
-      } else {
-        body = mergeGpx(texts);
-        type = "application/gpx+xml";
-      }
-      const stamp = `${from.slice(0, 19).replace(/:/g, "")}Z`; // 2026-11-25T004351Z: UTC, said
-      const a = h("a", {
-        href: URL.createObjectURL(new Blob([body], { type })),
-        download: `fleet-replay-${stamp}.${format}`,
-      });
-      document.body.append(a);
-      a.click();
-      a.remove();
-    } catch (e) {
-      toast(`export: ${e.message}`, "error");
-    }
-  }
-}
-
-/** One GPX document with every vehicle's track (the server gives one per vehicle). */
-function mergeGpx(texts) {
-  const parser = new DOMParser();
-  const docs = texts.map((t) => parser.parseFromString(t, "application/xml"));
-  const [first, ...rest] = docs;
-  const root = first.documentElement;
-  for (const doc of rest) {
-    for (const trk of doc.getElementsByTagName("trk")) root.append(first.importNode(trk, true));
-  }
-  return new XMLSerializer().serializeToString(first);
 }
