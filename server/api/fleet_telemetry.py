@@ -58,15 +58,15 @@ async def track(
     max_points: Annotated[int | None, Query(ge=2, le=TRACK_PAGE_CAP)] = None,
     fmt: Annotated[Literal["json", "geojson", "gpx", "csv"], Query(alias="format")] = "json",
 ) -> Response:
-    vehicle_id = vehicle["vehicle_id"]
+    vehicle_id = str(vehicle["vehicle_id"])
     start, end = window(start, end, s.clock(), DEFAULT_WINDOW)
     result = await s.telemetry.track(vehicle_id, start, end, max_points)
     headers = track_formats.paging_headers(result)
     media = track_formats.MEDIA_TYPES.get(fmt)
     name = track_formats.track_name(vehicle)  # "H2OmniX Alpha (demo-usv-1)"
     if fmt == "geojson":
-        body = track_formats.geojson(result, name)
-        return SafeJSONResponse(body, media_type=media, headers=headers)
+        feature = track_formats.geojson(result, name)
+        return SafeJSONResponse(feature, media_type=media, headers=headers)
     if fmt == "gpx":
         return Response(track_formats.gpx(result, name), media_type=media, headers=headers)
     if fmt == "csv":
