@@ -69,10 +69,9 @@ export class ReplayForm {
     if (!this.typed) this.setWindow();
   }
 
-  /** The last ``this.minutes`` minutes, up to now: to the next whole second, as the
-   * fields show no fraction (to the last one, what came within the second was left out). */
+  /** The last ``this.minutes`` minutes, up to now. */
   setWindow() {
-    const now = Math.ceil(Date.now() / 1000) * 1000;
+    const now = Date.now();
     $("replay-from").value = localStamp(now - this.minutes * 60000);
     $("replay-to").value = localStamp(now);
     for (const field of this.fields()) this.check(field, false);
