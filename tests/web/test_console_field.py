@@ -136,9 +136,12 @@ def test_a_superseded_command_names_the_newer_one_not_its_id(
     expect(page.locator("#vehicle-pane")).not_to_contain_text(newer)
     shots(page, "superseded-named")
 
-    # the replay's list of what happened names it by the events it read
+    # the replay's list of what happened names it by the events it read (the window's end
+    # typed a minute on: one set to now ends at the last whole second, maybe before them)
     page.click('[data-tab="replay"]')
     page.click('#replay-form [data-minutes="5"]')
+    later = datetime.now(ZoneInfo("UTC")) + timedelta(minutes=1)
+    type_into(page, page.locator("#replay-to"), later.strftime(STAMP))
     for vehicle_id in ("demo-usv-1", "demo-usv-2", "demo-usv-3"):
         page.locator(f'#replay-vehicles input[value="{vehicle_id}"]').set_checked(
             vehicle_id == vehicle
