@@ -63,7 +63,7 @@ async def track(
     result = await s.telemetry.track(vehicle_id, start, end, max_points)
     headers = track_formats.paging_headers(result)
     media = track_formats.MEDIA_TYPES.get(fmt)
-    name = track_formats.track_name(vehicle)  # "H2OmniX Alpha (demo-usv-1)"
+    name = track_formats.track_name(vehicle_id, await s.views.shown_name(vehicle))
     if fmt == "geojson":
         feature = track_formats.geojson(result, name)
         return SafeJSONResponse(feature, media_type=media, headers=headers)

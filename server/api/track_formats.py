@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import csv
 import io
-from collections.abc import Mapping
 from decimal import Decimal
 from typing import Any
 from xml.sax.saxutils import escape
@@ -24,12 +23,11 @@ def json_points(track: TrackResult) -> list[dict[str, Any]]:
     return [{**p, "ts": format_ts(p["ts"])} for p in track.points]
 
 
-def track_name(vehicle: Mapping[str, Any]) -> str:
-    """A track's name as people read it: the vehicle's name and, as two vehicles may
-    share one, its id: ``H2OmniX Alpha (demo-usv-1)``; the id alone for a vehicle with no
-    name (or named by its id)."""
-    vehicle_id = str(vehicle["vehicle_id"])
-    name = str(vehicle.get("name") or "").strip()
+def track_name(vehicle_id: str, name: str) -> str:
+    """A track's name as people read it: the vehicle's name (as the fleet shows it) and,
+    as two vehicles may share one, its id: ``H2OmniX Alpha (demo-usv-1)``; the id alone
+    for a vehicle with no name (or named by its id)."""
+    name = name.strip()
     return f"{name} ({vehicle_id})" if name and name != vehicle_id else vehicle_id
 
 

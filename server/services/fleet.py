@@ -86,6 +86,12 @@ class FleetViews:
             raise NotFound(f"no vehicle {vehicle_id}")
         return meta
 
+    async def shown_name(self, meta: dict[str, Any]) -> str:
+        """The vehicle's name as the fleet shows it: its instance's (the name its start
+        announced), else the registered one."""
+        state = await self.instances.current_or_latest(meta["vehicle_id"])
+        return state.name if state is not None else str(meta.get("name") or "")
+
     def _vehicle_view(
         self,
         meta: dict[str, Any],

@@ -133,14 +133,15 @@ async def test_track_gpx(client: httpx.AsyncClient) -> None:
 
 async def test_a_track_is_named_by_its_vehicle_s_name_and_id(client: httpx.AsyncClient) -> None:
     """A GPX track and a GeoJSON Feature were named by the vehicle's id alone: they carry
-    its name and, as two vehicles may share one, its id; the id alone without a name."""
+    its name as the fleet shows it (the one its start announced, else the registered one)
+    and, as two vehicles may share one, its id; the id alone without a name."""
     ns = {"g": "http://www.topografix.com/GPX/1/1"}
     names = {}
-    for name in ("Lady <Ann> & Co", ""):
+    for name, announced in (("Lady <Ann> & Co", ""), ("", ""), ("Registered", "At sea")):
         vid = unique("usv")
         body = {"vehicle_id": vid, "name": name, "vehicle_type": "usv"}
         vh = bearer((await client.post("/api/vehicles", headers=ADMIN, json=body)).json()["token"])
-        iid = (await start_instance(client, vid, vh))["instance_id"]
+        iid = (await start_instance(client, vid, vh, name=announced))["instance_id"]
         samples = {"instance_id": iid, "samples": [sample(n) for n in range(1, 3)]}
         assert (await client.post("/upper/update_param", headers=vh, json=samples)).is_success
         url = f"/api/vehicles/{vid}/track"
@@ -156,6 +157,8 @@ async def test_a_track_is_named_by_its_vehicle_s_name_and_id(client: httpx.Async
     assert in_gpx == in_geojson == f"Lady <Ann> & Co ({vid})" and feature_id == vid
     vid, in_gpx, in_geojson, _ = names[""]
     assert in_gpx == in_geojson == vid
+    vid, in_gpx, in_geojson, _ = names["Registered"]
+    assert in_gpx == in_geojson == f"At sea ({vid})"  # as the console and fleetctl show it
 
 
 async def test_track_csv(client: httpx.AsyncClient) -> None:
