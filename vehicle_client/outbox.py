@@ -8,8 +8,15 @@ One SQLite file (``--outbox``) holds three tables:
 - ``seen``: every ``command_id`` the agent has seen and its last status, so
   that a command delivered again, even after a restart, is not carried out
   twice.
-- ``meta``: the next ``seq``, whether it was matched with the server's
-  ``last_seq`` yet, and how many samples were dropped and refused.
+- ``meta``: the vehicle it belongs to, the next ``seq``, whether it was
+  matched with the server's ``last_seq`` yet, and how many samples were
+  dropped and refused.
+
+An outbox is one vehicle's: its ``seq`` numbering and its samples are that
+vehicle's. The first vehicle to open it owns it (an outbox an older version
+wrote, with no owner yet, goes to the first that opens it now), and any other
+is refused (:class:`OutboxTaken`): two agents started in one folder without
+``--outbox`` would otherwise send each other's positions as their own.
 
 A sample is checked with the wire model (``fleet_protocol.Sample``, under
 the ``seq`` it gets) before it is stored: one the server would refuse (a
@@ -46,6 +53,7 @@ from pydantic import ValidationError
 
 from fleet_protocol import Sample
 from fleet_protocol.ws_frames import field_errors
+from vehicle_client.errors import FatalError
 
 log = logging.getLogger(__name__)
 
@@ -74,13 +82,28 @@ def _private_file(path: Path) -> None:
         os.close(fd)
 
 
+class OutboxTaken(FatalError):
+    """The outbox belongs to another vehicle."""
+
+    def __init__(self, path: Path, owner: str, vehicle_id: str) -> None:
+        super().__init__(
+            f"the outbox {path} holds vehicle {owner}'s samples: give vehicle {vehicle_id} "
+            "its own (--outbox, or outbox in its config file)"
+        )
+        self.owner = owner
+
+
 class Outbox:
     def __init__(
         self,
         path: str | Path,
         max_samples: int = DEFAULT_MAX_SAMPLES,
         max_seen: int = DEFAULT_MAX_SEEN,
+        *,
+        vehicle_id: str | None = None,
     ) -> None:
+        """``vehicle_id``: the vehicle it is for (:class:`OutboxTaken` if another owns it;
+        None: not checked, as in tests of the outbox alone)."""
         if max_samples < 1 or max_seen < 1:
             raise ValueError("max_samples and max_seen must be at least 1")
         self.path = Path(path)
@@ -93,8 +116,21 @@ class Outbox:
         self._db.execute("PRAGMA journal_mode=WAL")
         self._db.execute("PRAGMA synchronous=NORMAL")
         self._db.executescript(_SCHEMA)
+        if vehicle_id is not None:
+            self._claim(vehicle_id)
         self._count = self._db.execute("SELECT COUNT(*) FROM samples").fetchone()[0]
         self.seen = SeenCommands(self)
+
+    def _claim(self, vehicle_id: str) -> None:
+        """Own the outbox for ``vehicle_id`` unless another vehicle does (one statement:
+        of two agents opening it at once, one owns it)."""
+        self._db.execute(
+            "INSERT OR IGNORE INTO meta (key, value) VALUES ('vehicle_id', ?)", (vehicle_id,)
+        )
+        owner = self._db.execute("SELECT value FROM meta WHERE key = 'vehicle_id'").fetchone()[0]
+        if owner != vehicle_id:
+            self._db.close()
+            raise OutboxTaken(self.path, owner, vehicle_id)
 
     def close(self) -> None:
         with self._lock:

@@ -90,7 +90,9 @@ async def run_agents(
                 poll_wait_s=link.poll_wait_s,
             )
             adapter = build_adapter(options, link.time_scale)
-            outbox = Outbox(outbox_path, max_samples=link.max_samples)
+            outbox = Outbox(
+                outbox_path, max_samples=link.max_samples, vehicle_id=options.vehicle_id
+            )
             agent = VehicleAgent(config, adapter, transport, outbox)
             if ws is not None:
                 ws.vehicle(options.vehicle_id).on_control = agent.helm.on_control

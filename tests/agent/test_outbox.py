@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from vehicle_client.outbox import Outbox
+from vehicle_client.outbox import Outbox, OutboxTaken
 
 
 def make_sample(i: int = 0) -> dict:
@@ -114,3 +114,21 @@ def test_the_outbox_is_its_owners_alone_whatever_the_umask(tmp_path: Path) -> No
         assert stat.S_IMODE(path.stat().st_mode) == 0o600, path
     for journal in (tmp_path / "new").glob("o.db-*"):
         assert stat.S_IMODE(journal.stat().st_mode) & 0o077 == 0, journal
+
+
+def test_an_outbox_is_one_vehicles(tmp_path: Path) -> None:
+    """The first vehicle to open it owns it, one an older version wrote (no owner) too;
+    another vehicle is refused, and nothing of the outbox changes for it."""
+    path = tmp_path / "o.db"
+    legacy = Outbox(path)  # an older version's: no owner
+    fill(legacy, 3)
+    legacy.close()
+    owned = Outbox(path, vehicle_id="usv-1")
+    assert owned.pending == 3
+    owned.close()
+    with pytest.raises(OutboxTaken) as refused:
+        Outbox(path, vehicle_id="usv-2")
+    assert refused.value.owner == "usv-1" and "usv-2 its own" in str(refused.value)
+    again = Outbox(path, vehicle_id="usv-1")
+    assert [s["seq"] for s in again.batch()] == [1, 2, 3]
+    again.close()
