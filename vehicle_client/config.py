@@ -9,6 +9,8 @@ of the file and one ``[[vehicles]]`` table per vehicle (see
 
 from __future__ import annotations
 
+import difflib
+import tomllib
 from pathlib import Path
 from typing import Any, Literal
 
@@ -146,8 +148,29 @@ def load(cls: type[BaseSettings], config: Path | None, **options: Any) -> Any:
         raise FatalError(f"config file {config} not found")
     given = {k: v for k, v in options.items() if v is not None}
     try:
+        if config is not None:
+            _known_keys_only(cls, config)
         return _with_file(cls, config)(**given)
     except ValidationError as exc:
         raise FatalError(f"bad configuration: {_describe(exc)}") from None
     except (OSError, ValueError) as exc:
         raise FatalError(f"bad configuration: {exc}") from None
+
+
+def _known_keys_only(cls: type[BaseSettings], config: Path) -> None:
+    """``FatalError`` naming each key of the file that is no setting (a typo such as
+    ``outbx`` would otherwise leave the default in force, unsaid)."""
+    with config.open("rb") as f:
+        data = tomllib.load(f)
+    unknown = [(key, key, cls.model_fields) for key in data if key not in cls.model_fields]
+    vehicles = data.get("vehicles") if "vehicles" in cls.model_fields else None
+    for i, vehicle in enumerate(vehicles if isinstance(vehicles, list) else []):
+        if isinstance(vehicle, dict):
+            fields = VehicleOptions.model_fields
+            unknown += [(f"vehicles.{i}.{k}", k, fields) for k in vehicle if k not in fields]
+    if unknown:
+        said = []
+        for where, key, fields in unknown:
+            close = difflib.get_close_matches(key, list(fields), n=1)
+            said.append(f"{where}" + (f" (did you mean {close[0]}?)" if close else ""))
+        raise FatalError(f"bad configuration: {config} has no such setting: {', '.join(said)}")

@@ -10,6 +10,7 @@ from typer.testing import CliRunner
 from vehicle_client.cli import app
 from vehicle_client.config import AgentSettings, GatewaySettings, load
 from vehicle_client.errors import FatalError
+from vehicle_client.outbox import Outbox
 
 EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "gateway.toml"
 runner = CliRunner()
@@ -84,3 +85,29 @@ def test_a_gateway_without_vehicles_is_refused(tmp_path: Path) -> None:
     config.write_text('server = "http://127.0.0.1:1"\n')
     with pytest.raises(FatalError, match="vehicles"):
         load(GatewaySettings, config)
+
+
+def test_a_key_of_the_config_file_that_is_no_setting_is_refused(tmp_path: Path) -> None:
+    """A typo (``outbx``) left the default outbox in force, unsaid."""
+    config = tmp_path / "agent.toml"
+    config.write_text('vehicle_id = "usv-1"\ntoken = "t"\noutbx = "x.db"\n')
+    result = runner.invoke(app, ["run", "--config", str(config)])
+    assert result.exit_code == 2, result.output
+    assert "no such setting: outbx (did you mean outbox?)" in result.output
+    gateway = tmp_path / "gw.toml"
+    gateway.write_text('token = "t"\n[[vehicles]]\nvehicle_id = "a"\nstrat = "43.9,15.4"\n')
+    result = runner.invoke(app, ["gateway", "--config", str(gateway)])
+    assert result.exit_code == 2, result.output
+    assert "vehicles.0.strat (did you mean start?)" in result.output
+
+
+def test_an_outbox_of_another_vehicle_is_refused(tmp_path: Path) -> None:
+    """Two agents in one folder shared ./fleet-agent-outbox.db and sent each other's
+    positions as their own: an outbox is its first vehicle's."""
+    path = tmp_path / "fleet-agent-outbox.db"
+    Outbox(path, vehicle_id="usv-7").close()
+    args = ["run", "--vehicle-id", "usv-8", "--token", "t", "--server", "http://127.0.0.1:9"]
+    result = runner.invoke(app, [*args, "--outbox", str(path)])
+    assert result.exit_code == 2, result.output
+    assert f"the outbox {path} holds vehicle usv-7's samples" in " ".join(result.output.split())
+    Outbox(path, vehicle_id="usv-7").close()  # its own vehicle opens it again
