@@ -9,6 +9,9 @@ from pydantic import ValidationError
 
 from fleet_protocol import field_errors
 
+#: What a refused token's message asks (the token comes from either).
+CHECK_TOKEN = "check the token (FLEET_AGENT_TOKEN or --token)"
+
 
 class AgentError(Exception):
     """Base of the agent's errors."""

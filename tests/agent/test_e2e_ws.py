@@ -249,3 +249,18 @@ def test_gateway_forwards_its_units_topics_on_demand(
         asyncio.run(scenario())
     finally:
         agent.stop()
+
+
+def test_a_refused_token_ends_the_agent_with_one_clear_message(
+    server: ServerProcess, tmp_path: Path
+) -> None:
+    """Exit 2 with the refusal said once: no asyncio 'Future exception was never retrieved'
+    (the close failed an op's waiter while its own send failed too), in runs 5 of 6 before."""
+    for run in range(3):
+        agent = AgentProcess(server, "fct_not-a-token", "usv-x", tmp_path / f"o{run}.db")
+        agent.start()
+        assert agent.proc is not None
+        assert agent.proc.wait(timeout=60) == 2
+        log = agent.log.read_text()
+        assert "refused the token" in log and "FLEET_AGENT_TOKEN" in log
+        assert "never retrieved" not in log, log

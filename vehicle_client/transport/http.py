@@ -20,6 +20,7 @@ from fleet_protocol import (
     UpdateParamResult,
 )
 from vehicle_client.errors import (
+    CHECK_TOKEN,
     FatalError,
     Refused,
     RetryableError,
@@ -118,7 +119,7 @@ class HttpTransport:
         code, message = _error_text(response)
         text = f"{path}: {status} {code}: {message}".rstrip(": ")
         if status == 401:
-            raise FatalError(f"the server refused the token ({text}); check --token")
+            raise FatalError(f"the server refused the token ({text}); " + CHECK_TOKEN)
         if status == 403:
             raise FatalError(f"the token may not act for this vehicle ({text})")
         if status == 404 or (status == 409 and code == "instance_finished"):

@@ -19,7 +19,14 @@ from fleet_protocol.links import (
     websocket_url,
 )
 from fleet_protocol.ws import MAX_BATCH_OPS, AckPush, Push
-from vehicle_client.errors import FatalError, Refused, RetryableError, SessionLost, refused_fields
+from vehicle_client.errors import (
+    CHECK_TOKEN,
+    FatalError,
+    Refused,
+    RetryableError,
+    SessionLost,
+    refused_fields,
+)
 
 __all__ = [
     "AnyPush",
@@ -93,7 +100,7 @@ def close_error(code: int | None, reason: str | None) -> RetryableError | FatalE
     """What a closed socket means for the agent: fatal for 4401/4403/4409, else retry."""
     why = f" ({reason})" if reason else ""
     if code == CLOSE_UNAUTHORIZED:
-        return FatalError(f"the server refused the token{why}; check --token")
+        return FatalError(f"the server refused the token{why}; " + CHECK_TOKEN)
     if code == CLOSE_FORBIDDEN:
         return FatalError(f"the token may not act for this vehicle{why}")
     if code == CLOSE_REPLACED:
@@ -110,7 +117,7 @@ def ack_error(ack: AckPush, what: str) -> RetryableError | FatalError:
     code = error.code if error is not None else ""
     text = f"{what}: {code}: {error.message if error else 'refused'}"
     if code == "unauthorized":
-        return FatalError(f"the server refused the token ({text}); check --token")
+        return FatalError(f"the server refused the token ({text}); " + CHECK_TOKEN)
     if code == "forbidden":
         return FatalError(f"the token may not act for this vehicle ({text})")
     if code in ("not_found", "instance_finished"):

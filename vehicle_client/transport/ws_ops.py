@@ -84,6 +84,8 @@ class OpChannel:
             raise error from None
         finally:
             self._pending.pop(op["id"], None)
+            if fut.done() and not fut.cancelled():
+                fut.exception()  # a close set it while the send failed: told once, by that
         if check and not ack.ok:
             raise ack_error(ack, what or op["op"])
         return ack
