@@ -165,6 +165,13 @@ def test_falls_back_to_http_when_the_upgrade_is_refused_and_returns_to_the_webso
             target = latlon(10.0, 5.0)
             command = final_command(fleet, fleet.submit(operator, instance_id, "go_to", target))
             assert command["status"] == "done", command  # the long poll carried it
+            tried = proxy.refused
+            wait_until(lambda: proxy.refused >= tried + 2, "the WebSocket tried again twice")
+            events = fleet.call(
+                "GET", "/api/events", params={"vehicle_id": "usv-fallback", "kind": "instance"}
+            )["events"]
+            # Tried from within the session on HTTP: no new start, no "resumed" each time.
+            assert [e["data"]["action"] for e in events] == ["started"], events
 
             proxy.refuse_upgrades = False  # the proxy lets WebSockets through now
             wait_until(lambda: ws_connections(server) == 1, "the agent back on the WebSocket")

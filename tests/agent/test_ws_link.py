@@ -322,3 +322,19 @@ async def test_a_refused_upgrade_is_websocket_unavailable() -> None:
     finally:
         await link.aclose()
         server.close()
+
+
+def test_a_refusal_followed_by_http_failing_too_is_taken_back() -> None:
+    """The server away (both ways fail) says nothing of its WebSocket: the next session
+    tries it first, not after a wait doubled through the outage."""
+    now = [100.0]
+    choice = LinkChoice(retry_ws_s=60, clock=lambda: now[0])
+    choice.refused("403")  # a real refusal: HTTP worked after it
+    for _ in range(4):  # then an outage: the WebSocket refused, HTTP failing as well
+        now[0] += choice.wait_s
+        assert choice.use_ws()
+        choice.refused("502")
+        choice.unheard()
+    assert choice.refusals == 1 and choice.wait_s == 5
+    choice.unheard()
+    assert choice.mode == "ws" and choice.use_ws()

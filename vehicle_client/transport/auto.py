@@ -6,11 +6,16 @@ that will not upgrade, a path that answers 404, a server restarting behind a
 proxy); then over HTTP. The while is 5 s after the first refusal, doubling
 with each refusal in a row up to ``retry_ws_s``: a server back from a restart
 has its WebSocket again within seconds (a gateway's topics travel only on
-it), a proxy that never upgrades is asked seldom. A session on HTTP ends
-itself once the retry time has come (``get_control`` raises
-``RetryableError``), so the next one tries the WebSocket again. Anything else
-(refused connection, 401...) is the same error on both and goes to the agent
-as it is.
+it), a proxy that never upgrades is asked seldom. A session on HTTP tries to
+open the WebSocket once the retry time has come (in ``get_control``): refused
+again, it goes on over HTTP as it was (no new ``start_instance``, no
+"resumed" in the event log each minute); open, the session ends itself
+(``RetryableError``) and the next one starts over the WebSocket. A refusal
+followed by HTTP failing too says nothing of the WebSocket (the server
+itself is away, or a proxy before it restarting): it is taken back, so the
+WebSocket is tried first again once the server answers, not a minute later.
+Anything else (refused connection, 401...) is the same error on both and goes
+to the agent as it is.
 """
 
 from __future__ import annotations
@@ -84,6 +89,13 @@ class LinkChoice:
         )
         self.refused_at, self.reason = self.clock(), reason
 
+    def unheard(self) -> None:
+        """The last refusal was followed by HTTP failing too: take it back (the server was
+        away, not its WebSocket), so that the next session tries the WebSocket first."""
+        self.refusals = max(0, self.refusals - 1)
+        if self.refusals == 0:
+            self.refused_at, self.reason = None, ""
+
     def opened(self) -> None:
         if self.refused_at is not None:
             log.warning("the WebSocket is open again: leaving HTTP long-poll")
@@ -104,17 +116,36 @@ class AutoTransport:
         return "ws" if self._now is self.ws else "http"
 
     async def start_instance(self, body: StartInstance) -> StartInstanceResult:
+        refused = False
         if self.choice.use_ws():
             try:
                 res = await self.ws.start_instance(body)
             except WsUnavailable as exc:
                 self.choice.refused(str(exc))
+                refused = True
             else:
                 self.choice.opened()
                 self._now = self.ws
                 return res
         self._now = self.http
-        return await self.http.start_instance(body)
+        try:
+            return await self.http.start_instance(body)
+        except RetryableError:
+            if refused:
+                self.choice.unheard()
+            raise
+
+    async def _websocket_opens(self) -> bool:
+        """On HTTP, the retry time come: whether the WebSocket opens now (refused: the
+        wait grows, and the session goes on over HTTP)."""
+        try:
+            await self.ws.link.open()
+        except WsUnavailable as exc:
+            self.choice.refused(str(exc))
+            return False
+        except RetryableError:
+            return False  # the server away: the long poll says so, and the session ends
+        return True
 
     async def finish_instance(self, instance_id: str) -> None:
         await self._now.finish_instance(instance_id)
@@ -129,8 +160,8 @@ class AutoTransport:
         return await self._now.update_fbmessage(body)
 
     async def get_control(self, instance_id: str, wait_s: float) -> GetControlResult:
-        if self._now is self.http and self.choice.use_ws():
-            raise RetryableError("time to try the WebSocket again")
+        if self._now is self.http and self.choice.use_ws() and await self._websocket_opens():
+            raise RetryableError("the WebSocket opens again: the session moves to it")
         if self._now is self.http:
             # The long poll ends no later than the WebSocket's retry time.
             left = self.choice.wait_s - (self.choice.clock() - (self.choice.refused_at or 0))

@@ -120,6 +120,11 @@ class WsLink:
         return self._vehicles.setdefault(vehicle_id, WsTransport(self, vehicle_id))
 
     # -- connection -----------------------------------------------------------
+    async def open(self) -> None:
+        """Open the socket now if it is not (``WsUnavailable``: no WebSocket here;
+        ``RetryableError``: the server cannot be reached)."""
+        await self._open()
+
     async def _open(self) -> Socket:
         if self._fatal is not None:
             raise self._fatal
