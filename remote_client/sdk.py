@@ -18,12 +18,15 @@ from __future__ import annotations
 
 from collections.abc import AsyncGenerator, Sequence
 from dataclasses import dataclass
+from datetime import UTC, datetime
 
+from fleet_protocol.common import format_ts
 from remote_client.names import AmbiguousName, UnknownVehicle, pick_named, pick_vehicle
 from remote_client.sdk_admin import AdminCalls
 from remote_client.sdk_control import ControlCalls
 from remote_client.sdk_live import LiveCalls
 from remote_client.sdk_session import Body, FleetApiError, given
+from remote_client.times import when_text
 
 __all__ = [
     "AmbiguousName",
@@ -150,15 +153,14 @@ class FleetClient(ControlCalls, LiveCalls, AdminCalls):
         self,
         vehicle_id: str,
         *,
-        since: str | None = None,
-        until: str | None = None,
+        since: When | None = None,
+        until: When | None = None,
         page: int = 10_000,
         after: int = 0,
     ) -> AsyncGenerator[list[Body], None]:
         """Every stored sample of a vehicle in ``seq`` order (those after ``after``),
-        ``page`` samples at a time."""
-        query: Body = {"limit": page, "after_seq": after}
-        query.update({k: v for k, v in (("from", since), ("to", until)) if v})
+        ``page`` samples at a time; ``since``/``until`` as :data:`When`."""
+        query: Body = {"limit": page, "after_seq": after, **_window(since, until)}
         while True:
             body = await self.call("GET", f"/api/vehicles/{vehicle_id}/telemetry", params=query)
             yield body["samples"]
@@ -170,8 +172,8 @@ class FleetClient(ControlCalls, LiveCalls, AdminCalls):
         self,
         vehicle_id: str,
         *,
-        since: str,
-        until: str,
+        since: When,
+        until: When,
         fmt: str = "json",
         max_points: int | None = None,
     ) -> AsyncGenerator[TrackPage, None]:
@@ -179,7 +181,7 @@ class FleetClient(ControlCalls, LiveCalls, AdminCalls):
         (``json``, ``geojson``, ``gpx``, ``csv``), one server page at a time: each page
         starts where the one before was cut (``next_from``). With ``max_points``, one
         page downsampled to that many points."""
-        query: Body = {"from": since, "to": until, "format": fmt}
+        query: Body = {**_window(since, until), "format": fmt}
         if max_points is not None:
             query["max_points"] = max_points
         while True:
@@ -204,15 +206,16 @@ class FleetClient(ControlCalls, LiveCalls, AdminCalls):
         *,
         vehicle_id: str | None = None,
         kind: str | None = None,
-        since: str | None = None,
-        until: str | None = None,
+        since: When | None = None,
+        until: When | None = None,
         limit: int = 1000,
         after: str | None = None,
     ) -> Body:
         """``GET /api/events``: ``{"events": [...], "next_after": cursor | None}``, oldest
-        first; ``after``: the ``next_after`` of the page before."""
+        first; ``after``: the ``next_after`` of the page before; ``since``/``until`` as
+        :data:`When` (``since="1h"``: the last hour)."""
         query = given(vehicle_id=vehicle_id, kind=kind, limit=limit, after=after)
-        query.update({k: v for k, v in (("from", since), ("to", until)) if v})
+        query.update(_window(since, until))
         body: Body = await self.call("GET", "/api/events", params=query)
         return body
 
@@ -327,3 +330,20 @@ def _instances(kind: str, given_ids: str | Sequence[str]) -> list[str]:
     if not ids:
         raise ValueError(f"{kind}: no instance given")
     return ids
+
+
+#: A point in time as the SDK takes it: an aware ``datetime`` (naive: UTC), ISO 8601
+#: text, or a time as people type it, ``10m`` (ten minutes ago), ``2h``, ``now``
+#: (``remote_client.times``; ``BadTime``, a ``ValueError``, for anything else).
+When = datetime | str
+
+
+def _window(since: When | None, until: When | None) -> Body:
+    """The ``from`` and ``to`` query parameters of the times given, as the wire spells them."""
+    out: Body = {}
+    for key, when in (("from", since), ("to", until)):
+        if isinstance(when, datetime):
+            out[key] = format_ts(when if when.tzinfo else when.replace(tzinfo=UTC))
+        elif when:
+            out[key] = when_text(when)
+    return out
