@@ -107,3 +107,17 @@ def box_of(locator: Any) -> dict[str, float]:
     """Where it is on the page (a panel drawn again on every sample replaces its buttons:
     one may be gone between finding and measuring it)."""
     return wait_until(locator.bounding_box, "it to be shown", 15)
+
+
+def local_times(page: Any, *hours_ago: float) -> list[str]:
+    """The page's local times ``hours_ago`` hours before its now, as the replay's fields are
+    typed: ``2026-11-26 14:05:00`` (24-hour, the browser's zone)."""
+    texts: list[str] = page.evaluate(
+        """(hours) => hours.map((h) => {
+            const t = Date.now() - h * 3600000;
+            return new Date(t - new Date(t).getTimezoneOffset() * 60000)
+                .toISOString().slice(0, 19).replace("T", " ");
+        })""",
+        list(hours_ago),
+    )
+    return texts

@@ -215,13 +215,7 @@ def test_the_replay_window_is_up_to_date_when_its_tab_opens(
     start, end, now = window()
     assert now - 5000 < end <= now and end - start == 3600000  # the last hour, up to now
 
-    typed = page.evaluate(
-        """() => {
-            const local = (t) => new Date(t - new Date(t).getTimezoneOffset() * 60000)
-                .toISOString().slice(0, 19).replace("T", " ");
-            return [local(Date.now() - 4 * 3600000), local(Date.now() - 3 * 3600000)];
-        }"""
-    )
+    typed = console.local_times(page, 4, 3)
     frm.fill(typed[0])
     to.fill(typed[1])
     page.click('[data-tab="fleet"]')
@@ -242,13 +236,8 @@ def test_a_refused_window_leaves_no_earlier_answer_under_the_form(
     replay_up(page)
     page.click('[data-tab="replay"]')
     frm, to = page.locator("#replay-from"), page.locator("#replay-to")
-    typed = page.evaluate(
-        """() => {  // an hour that ended three hours before now (before the server started)
-            const local = (t) => new Date(t - new Date(t).getTimezoneOffset() * 60000)
-                .toISOString().slice(0, 19).replace("T", " ");
-            return [local(Date.now() - 4 * 3600000), local(Date.now() - 3 * 3600000)];
-        }"""
-    )
+    # an hour that ended three hours before now (before the server started)
+    typed = console.local_times(page, 4, 3)
     frm.fill(typed[0])
     to.fill(typed[1])
     info = page.locator("#replay-info")

@@ -101,14 +101,9 @@ def test_what_is_said_is_said_once_and_an_empty_window_says_so(
     expect(line).to_contain_text("control released by ana")
     expect(line).not_to_contain_text("(by ana)")
     page.click('[data-tab="replay"]')
-    page.evaluate(
-        """() => {  // an hour that ended an hour before this server started
-            const local = (t) => new Date(t - new Date(t).getTimezoneOffset() * 60000)
-                .toISOString().slice(0, 19).replace("T", " ");
-            document.getElementById("replay-from").value = local(Date.now() - 3 * 3600000);
-            document.getElementById("replay-to").value = local(Date.now() - 2 * 3600000);
-        }"""
-    )
+    start, end = console.local_times(page, 3, 2)  # ended an hour before this server started
+    page.locator("#replay-from").fill(start)
+    page.locator("#replay-to").fill(end)
     page.click("#replay-load")
     expect(page.locator("#replay-info")).to_contain_text(
         re.compile(r"^Nothing was recorded for these vehicles from .+ to .+: no position, no event")
