@@ -19,6 +19,9 @@ class Lane:
         self.active: dict[str, Command] = {}
         #: Commands handed out that ended cancelled or expired: told in the next ``abort``.
         self.aborts: list[str] = []
+        #: Commands this replica ended whose end the store may not hold yet: a read of
+        #: the store in between still lists them as active, and must not bring them back.
+        self._ending: set[str] = set()
         self.polls = 0
         self._wake = asyncio.Event()
 
@@ -35,6 +38,7 @@ class Lane:
 
     def retire(self, cmd: Command) -> None:
         """An active command ended: the vehicle is told to abort it if it had it."""
+        self._ending.add(cmd.command_id)
         if self.active.pop(cmd.command_id, None) is None:
             return
         if cmd.deliveries and ended_by_server(cmd):
@@ -46,11 +50,14 @@ class Lane:
         listed = set()
         for fresh in stored:
             listed.add(fresh.command_id)
+            if fresh.command_id in self._ending:
+                continue  # ended here; its end is on its way to the store
             mine = self.active.get(fresh.command_id)
             if mine is None:
                 self.active[fresh.command_id] = fresh
             else:
                 mine.catch_up(fresh)
+        self._ending &= listed  # the store holds those ends now
         return [c for c in self.active.values() if c.command_id not in listed]
 
     def take_aborts(self) -> list[str]:

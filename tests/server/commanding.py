@@ -99,6 +99,21 @@ class World:
         commands: list[dict[str, Any]] = (await self.poll_answer(vehicle, wait_s))["commands"]
         return commands
 
+    def long_poll(self, vehicle: Vehicle, wait_s: float = 30) -> asyncio.Task[dict[str, Any]]:
+        """A long ``get_control`` opened in the background; await :meth:`poll_open` before
+        acting on what it is to hear."""
+        return asyncio.create_task(self.poll_answer(vehicle, wait_s))
+
+    async def poll_open(self, vehicle: Vehicle) -> None:
+        """Wait until the server holds a long poll of ``vehicle`` open."""
+        state = self.services.instances.current(vehicle.vehicle_id)
+        assert state is not None
+
+        async def polling() -> bool:
+            return bool(state.polling)
+
+        await eventually(polling)
+
     async def poll_answer(self, vehicle: Vehicle, wait_s: float = 0) -> dict[str, Any]:
         """``get_control``'s whole answer (``commands``, ``abort``, ``failsafe``)."""
         r = await self.http.get(

@@ -146,13 +146,8 @@ async def test_a_long_poll_with_nothing_to_hand_out_ends_empty(w: World) -> None
 async def test_open_long_polls_per_vehicle_are_bounded(w: World) -> None:
     v = await w.vehicle()
     op = await w.person("operator", v)
-    first = asyncio.create_task(w.poll(v, wait_s=30))
-    state = w.services.instances.current(v.vehicle_id)
-
-    async def polling() -> bool:
-        return bool(state.polling)
-
-    await eventually(polling)
+    first = w.long_poll(v)
+    await w.poll_open(v)
     r = await w.http.get(
         "/upper/get_control", headers=v.headers, params={"instance_id": v.instance_id, "wait_s": 5}
     )
@@ -160,7 +155,7 @@ async def test_open_long_polls_per_vehicle_are_bounded(w: World) -> None:
     assert r.json()["error"]["code"] == "rate_limited"
     assert "retry-after" in r.headers
     await w.queued(op, v, STOP)
-    assert len(await asyncio.wait_for(first, 10)) == 1
+    assert len((await asyncio.wait_for(first, 10))["commands"]) == 1
 
 
 async def test_get_control_refusals(w: World) -> None:
@@ -249,14 +244,30 @@ async def test_a_long_poll_returns_at_once_with_a_running_command_cancelled(w: W
     cid = await w.queued(op, v, GO_TO)
     await w.poll(v)
     await w.ack(v, (cid, "accepted"), (cid, "executing"))
-    polling = asyncio.create_task(w.poll_answer(v, wait_s=30))
-    await asyncio.sleep(0)  # the poll is waiting
+    polling = w.long_poll(v)
+    await w.poll_open(v)
     r = await w.http.post("/client/cancel_command", headers=op.headers, json={"command_id": cid})
     assert r.status_code == 200 and r.json()["status"] == "cancelled", r.text
     answer = await asyncio.wait_for(polling, 10)  # well before its 30 s
     assert answer["abort"] == [cid] and answer["commands"] == []
     assert (await w.poll_answer(v))["abort"] == []
     assert (await w.ack(v))["abort"] == []
+
+
+async def test_a_cancel_racing_a_poll_is_told_once(w: World) -> None:
+    """Polls that read the commands while a cancel is being written (the store still
+    listing the command as active) neither hand it back nor tell its abort twice."""
+    v = await w.vehicle()
+    op = await w.operator_in_control(v)
+    cid = await w.queued(op, v, GO_TO)
+    await w.poll(v)
+    await w.ack(v, (cid, "executing"))
+    cancel = w.http.post("/client/cancel_command", headers=op.headers, json={"command_id": cid})
+    r, *answers = await asyncio.gather(cancel, *(w.poll_answer(v) for _ in range(8)))
+    assert r.status_code == 200 and r.json()["status"] == "cancelled", r.text
+    answers += [await w.poll_answer(v), await w.ack(v)]
+    assert all(a.get("commands", []) == [] for a in answers)
+    assert [c for a in answers for c in a["abort"]] == [cid]
 
 
 async def test_cancelling_a_final_command_leaves_it_as_it_is(w: World) -> None:

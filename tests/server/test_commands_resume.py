@@ -68,8 +68,8 @@ async def test_a_dropped_command_still_carried_out_elsewhere_is_aborted(w: World
     or by its next ack."""
     v = await w.vehicle()
     cid = await _executing(w, v, GO_TO)
-    polling = asyncio.create_task(w.poll_answer(v, wait_s=30))
-    await asyncio.sleep(0)
+    polling = w.long_poll(v)
+    await w.poll_open(v)
     r = await _restart(w, v, [])
     assert r.status_code == 200 and (await w.command(cid))["status"] == "failed"
     assert (await asyncio.wait_for(polling, 10))["abort"] == [cid]
