@@ -50,6 +50,27 @@ async def _vehicle_with_samples(
     return vid, iid, vh, first
 
 
+def _within(
+    points: list[dict[str, Any]],
+    every: list[dict[str, Any]],
+    read: tuple[datetime, datetime],
+    since: float,
+    until: float = 0,
+) -> None:
+    """``points`` are those of ``every`` in the window ``[now - since, now - until)``, for a
+    ``now`` read between ``read[0]`` and ``read[1]``: none outside its widest reading, none
+    of its narrowest reading missing."""
+    before, after = read
+
+    def seqs(low: datetime, high: datetime) -> set[int]:
+        return {p["seq"] for p in every if low <= datetime.fromisoformat(p["ts"]) < high}
+
+    got = {p["seq"] for p in points}
+    narrowest = seqs(after - timedelta(seconds=since), before - timedelta(seconds=until))
+    assert narrowest and narrowest <= got
+    assert got <= seqs(before - timedelta(seconds=since), after - timedelta(seconds=until))
+
+
 async def test_track_in_every_format_over_a_relative_window(
     make_settings: Callable[..., Settings], tmp_path: Path
 ) -> None:
@@ -60,13 +81,18 @@ async def test_track_in_every_format_over_a_relative_window(
         assert whole.exit_code == 0, whole.output
         track = json.loads(whole.stdout)
         assert len(track["points"]) == 1200 and track["truncated"] is False
+        # The last ten minutes of twenty; then 20 to 15 minutes ago. "Now" is read by
+        # fleetctl somewhere between ``before`` and ``after``.
+        before = datetime.now(UTC)
         recent = await fleetctl(base, ADMIN_TOKEN, "track", "Osprey", "--since", "10m")
-        points = json.loads(recent.stdout)["points"]
-        assert 590 <= len(points) <= 601  # the last ten minutes of twenty
+        read = (before, datetime.now(UTC))
+        _within(json.loads(recent.stdout)["points"], track["points"], read, since=600)
+        before = datetime.now(UTC)
         older = await fleetctl(
             base, ADMIN_TOKEN, "track", vid, "--since", "1h", "--until", "15m", "--format", "json"
         )
-        assert 290 <= len(json.loads(older.stdout)["points"]) <= 301  # 20 to 15 minutes ago
+        read = (before, datetime.now(UTC))
+        _within(json.loads(older.stdout)["points"], track["points"], read, 3600, until=900)
 
         gpx = tmp_path / "osprey.gpx"
         written = await fleetctl(
