@@ -43,6 +43,7 @@ class IngestResult(Protocol):
     stored: list[Sample]
     replayed: list[bool]
     latest_doc: dict[str, Any] | None
+    current: Sample | None
 
 
 class Telemetry(Protocol):
@@ -260,7 +261,9 @@ class VehicleLink:
                 state.drift_held = False
                 self.commands.ready(state.instance_id)  # its drift can be judged now
         if result.stored:
-            self.messages.emit_now(SamplesStored(state.vehicle_id, result.stored, result.replayed))
+            self.messages.emit_now(
+                SamplesStored(state.vehicle_id, result.stored, result.replayed, result.current)
+            )
         return {
             "accepted": result.accepted,
             "duplicates": result.duplicates,

@@ -124,11 +124,11 @@ class SafetyService(FailsafePolicies):
 
     # ---- the watch --------------------------------------------------------------------
     def on_samples(self, event: SamplesStored) -> Awaitable[None] | None:
-        """Hold the newest position of the batch against the zones and the battery."""
-        sample = None
-        for s, late in zip(event.samples, event.replayed, strict=True):
-            if not late and (sample is None or s.ts >= sample.ts):
-                sample = s
+        """Hold the batch's sample that became the vehicle's latest position against the
+        zones and the battery: none when it came late, or is dated too far ahead to be
+        the position (a clock glitch), which would otherwise raise alarms and act on a
+        place and a reading the vehicle does not report now."""
+        sample = event.current
         if sample is None:
             return None
         state = self.instances.current(event.vehicle_id)

@@ -9,9 +9,11 @@ yet written (the open bucket), the latest position and the durable mark.
   stored. Batches of one vehicle run one at a time (a lock per vehicle).
 - ``acked_through_seq`` is the high-water mark (in memory or stored);
   ``durable_through_seq`` is the writer's durable mark.
-- The latest position is the sample with the greatest ``ts``. A sample older
-  than the latest position, or older than ``offline_after_s`` when it
-  arrives, is flagged ``replayed`` (it came late, from an outbox).
+- The latest position is the sample with the greatest ``ts``, but never one dated
+  more than five minutes ahead (a clock glitch). A sample older than the latest
+  position, or older than ``offline_after_s`` when it arrives, is flagged
+  ``replayed`` (it came late, from an outbox). The latest position, when it came in
+  time, is the batch's ``current`` sample: the only one anything judging "now" reads.
 - Reads show each ``seq`` once (:func:`distinct_samples`): with several
   replicas a vehicle that moves between them may have a sample stored twice.
   On ``start_instance`` the high-water mark is read from the store again
@@ -61,6 +63,9 @@ class IngestResult:
     replayed: list[bool] = field(default_factory=list)
     #: ``latest`` in its stored form (a dict shared with the open bucket: read, never change).
     latest_doc: Doc | None = None
+    #: ``latest`` when it also came in time (not late): what the vehicle reports now, the
+    #: one sample of the batch that the watch on zones and battery judges (None: none).
+    current: Sample | None = None
 
 
 #: How far ahead of the server's clock a sample's ``ts`` may be and still become the
@@ -215,10 +220,12 @@ class TelemetryService(TelemetryWriter, TelemetryViews):
             pending.append(doc)
             added += sample_size(doc) if "data" in doc else SAMPLE_BYTES
             ts = sample.ts
-            replayed.append((latest_ts is not None and ts < latest_ts) or ts < stale_before)
+            late = (latest_ts is not None and ts < latest_ts) or ts < stale_before
+            replayed.append(late)
             if (latest_ts is None or ts >= latest_ts) and ts <= ahead:
                 latest, latest_ts = doc, ts
                 result.latest, result.latest_doc = sample, doc
+                result.current = None if late else sample
         state.pending_bytes += added
         state.latest = latest
         return result

@@ -97,7 +97,9 @@ async def test_a_sample_dated_ahead_of_the_server_dates_its_alarm_now(w: World) 
         f"/api/vehicles/{me.vehicle_id}/failsafe", headers=ADMIN, json={"low_battery_pct": 20.0}
     )
     assert put.status_code == 200, put.text
-    await report(w, me, 1, w.clock() + timedelta(minutes=10), battery=15.0)  # a clock ahead
+    # A clock ahead, within the five minutes that still make the sample the position
+    # (one further ahead judges nothing: test_watch_now).
+    await report(w, me, 1, w.clock() + timedelta(minutes=4), battery=15.0)
     [low] = await until_alarms(w, me, lambda a: bool(a))
     assert low["since"] == format_ts(w.clock())  # never in the future
 
