@@ -104,6 +104,7 @@ EventKind = Literal[
     "zone_cleared",
     "low_battery",
     "battery_recovered",
+    "low_battery_cleared",
     "collision_risk",
 ]
 

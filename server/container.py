@@ -38,6 +38,7 @@ from server.domain.events import (
     StateWritten,
     TokensRevoked,
     UserChanged,
+    ZonesChanged,
 )
 from server.metrics import Metrics
 from server.services.audit import AuditLog
@@ -144,7 +145,7 @@ async def build(
         settings, ControlRepo(store), instances, auth, events, messages, dead_letters, clock
     )
     obstacles = ObstacleService(settings, ObstaclesRepo(store), clock)
-    zones = ZoneService(settings, ZonesRepo(store), auth, events, clock)
+    zones = ZoneService(settings, ZonesRepo(store), auth, events, messages, clock)
     commands = CommandService(
         settings,
         CommandsRepo(store),
@@ -212,6 +213,9 @@ async def build(
     messages.register(FailsafeChanged, hub.on_failsafe_changed)
     messages.register(FailsafeChanged, commands.on_failsafe_changed)
     messages.register(FailsafeChanged, replicas.on_failsafe_changed)
+    messages.register(FailsafeChanged, safety.on_failsafe_changed)
+    messages.register(ZonesChanged, safety.on_zones_changed)
+    messages.register(ZonesChanged, replicas.on_zones_changed)
     messages.register(SamplesStored, lambda e: metrics.samples.add(len(e.samples)))
     messages.register(CommandsReady, hub.on_commands_ready)
     messages.register(TokensRevoked, hub.on_tokens_revoked)

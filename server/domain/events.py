@@ -16,7 +16,7 @@ from server.domain.arbitration import Lease
 from server.domain.presence import Presence
 
 #: The parts of an instance's state another replica may keep a copy of.
-StatePart = Literal["instance", "lease", "commands"]
+StatePart = Literal["instance", "lease", "commands", "watch"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -127,6 +127,14 @@ class FailsafeChanged:
 
     vehicle_id: str
     policy: dict[str, Any]
+
+
+@dataclass(frozen=True, slots=True)
+class ZonesChanged:
+    """A zone was drawn, changed or deleted: the set's ``version`` now (the vehicles'
+    watch judges their latest positions again)."""
+
+    version: int
 
 
 @dataclass(frozen=True, slots=True)

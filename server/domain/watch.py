@@ -11,15 +11,21 @@ reading that wavers round the threshold raises one event, not one a second.
 Each breach and a low battery carry since when (``since``, the time of the sample that
 raised them): dated when the state moves (:func:`dated`), kept while they last. Two
 states are equal by what they hold, not by their dates.
+
+The rules change too: a zone drawn, changed or deleted, a threshold set or lifted. The
+latest position is then judged again by the new rules, and what ends so is told for
+what it is: a zone that no longer applies (:func:`cleared_data`), a low battery whose
+threshold moved (``low_battery_cleared``, :func:`battery_event`), not a recovery.
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from datetime import datetime
 from typing import Any
 
+from fleet_protocol import EventKind
 from server.domain.zones import LatLon, ZoneSet, breaches
 
 #: Points above the threshold the battery must come back to before it is no longer low.
@@ -115,3 +121,41 @@ def breach_data(zones: ZoneSet, vehicle_id: str, zone_id: str, *, entered: bool)
         "zone_kind": "no_go",
         "message": f"{'entered' if entered else 'left'} no-go zone {name}",
     }
+
+
+def _has(zones: ZoneSet, vehicle_id: str, zone_id: str) -> bool:
+    """Whether the set holds the zone for the vehicle (``area:``: any area of its own)."""
+    no_go, areas = zones.of(vehicle_id)
+    if zone_id.startswith("area:"):
+        return bool(areas)
+    return any(a.zone_id == zone_id for a in no_go)
+
+
+def cleared_data(sets: Sequence[ZoneSet], vehicle_id: str, zone_id: str) -> dict[str, Any]:
+    """How a zone the vehicle is no longer in breach of is named in its ``zone_cleared``.
+    ``sets``: the set now first, then those judged by before, newest first. A zone the set
+    now still holds for the vehicle: it left it (:func:`breach_data`); one it no longer
+    holds (deleted, or no longer the vehicle's) is named by the newest set that did, and
+    the message says that it no longer applies."""
+    now = sets[0]
+    if _has(now, vehicle_id, zone_id):
+        return breach_data(now, vehicle_id, zone_id, entered=False)
+    named_by = next((z for z in sets[1:] if _has(z, vehicle_id, zone_id)), now)
+    data = breach_data(named_by, vehicle_id, zone_id, entered=False)
+    what = "its operating area" if data["zone_kind"] == "operating_area" else "no-go zone"
+    data["message"] = " ".join(p for p in (what, data["zone"], "no longer applies") if p)
+    return data
+
+
+def battery_event(
+    moved: str, reading: float | None, threshold: float | None, *, rule: bool
+) -> EventKind:
+    """The event kind of a battery watch that ``moved`` (``low``, ``recovered``): a low
+    battery ends as ``battery_recovered`` only when the reading came back above the
+    threshold; ended by the threshold itself (lifted, or moved: ``rule``), it is
+    ``low_battery_cleared``."""
+    if moved == "low":
+        return "low_battery"
+    if rule or threshold is None or reading is None:
+        return "low_battery_cleared"
+    return "battery_recovered"

@@ -33,7 +33,14 @@ from server.services.instances import InstanceService, InstanceState
 RECENT_EVENTS = 20
 #: Events after which a vehicle's alarms (``VehicleView.alarms``) are not what they were.
 _ALARM_EVENTS = frozenset(
-    {"zone_breach", "zone_cleared", "low_battery", "battery_recovered", "control_mode"}
+    {
+        "zone_breach",
+        "zone_cleared",
+        "low_battery",
+        "battery_recovered",
+        "low_battery_cleared",
+        "control_mode",
+    }
 )
 
 

@@ -2,10 +2,14 @@
 
 Whoever writes a part of an instance's state to the store (its record, its
 lease, its commands) emits :class:`~server.domain.events.StateWritten`; this
-sends it on the bus topic ``_state`` (``{origin, instance_id, part}``); a vehicle's
-failsafe policy set goes on ``_policy`` (``{origin, vehicle_id}``). A
-replica that hears another's announcement reads that part back from the
-store, if it keeps a copy of it. Revoked tokens travel the same way on
+sends it on the bus topic ``_state`` (``{origin, instance_id, part}``; part
+``watch``: its watch state, which a replica drops, to read it again); a vehicle's
+failsafe policy set goes on ``_policy`` (``{origin, vehicle_id}``), a change of the
+zones on ``_zones`` (``{origin, version}``). A replica that hears another's
+announcement reads that part back from the store, if it keeps a copy of it; on a
+policy or the zones, it reads them and judges the vehicles' alarms again
+(:meth:`~server.services.safety.SafetyService.judge_again`, as the replica that made
+the change did). Revoked tokens travel the same way on
 ``_auth`` (``{origin, digests, token_ids, revoked}``; ``revoked`` false: their
 user's rights changed): every replica drops them from its cache and closes the
 sockets it holds for them.
@@ -29,7 +33,7 @@ import secrets
 from typing import Any
 
 from server.bus import Bus, Message, Subscription
-from server.domain.events import FailsafeChanged, StateWritten, TokensRevoked
+from server.domain.events import FailsafeChanged, StateWritten, TokensRevoked, ZonesChanged
 from server.services.auth import AuthService
 from server.services.commands import CommandService
 from server.services.control import ControlService
@@ -43,7 +47,8 @@ log = logging.getLogger("fleet.replicas")
 STATE_TOPIC = "_state"
 AUTH_TOPIC = "_auth"
 POLICY_TOPIC = "_policy"
-PARTS = ("instance", "lease", "commands")
+ZONES_TOPIC = "_zones"
+PARTS = ("instance", "lease", "commands", "watch")
 #: How often the sync looks whether the bus came back (then it reads everything back).
 HEALTH_CHECK_S = 0.5
 
@@ -81,6 +86,7 @@ class ReplicaSync:
             await self.bus.subscribe(STATE_TOPIC, self._on_state),
             await self.bus.subscribe(AUTH_TOPIC, self._on_auth),
             await self.bus.subscribe(POLICY_TOPIC, self._on_policy),
+            await self.bus.subscribe(ZONES_TOPIC, self._on_zones),
         ]
         self._worker = asyncio.create_task(self._run(), name="replica-sync")
 
@@ -109,6 +115,9 @@ class ReplicaSync:
 
     def on_failsafe_changed(self, event: FailsafeChanged) -> None:
         self._send(POLICY_TOPIC, {"vehicle_id": event.vehicle_id})
+
+    def on_zones_changed(self, event: ZonesChanged) -> None:
+        self._send(ZONES_TOPIC, {"version": event.version})
 
     def _send(self, topic: str, body: dict[str, Any]) -> None:
         if self._stopped:
@@ -141,19 +150,41 @@ class ReplicaSync:
         if not isinstance(message, dict) or message.get("origin") == self.origin:
             return
         vehicle_id = message.get("vehicle_id")
-        state = self.instances.current(vehicle_id) if isinstance(vehicle_id, str) else None
-        if state is not None:
-            task = asyncio.ensure_future(self._policy_again(state.vehicle_id, state.instance_id))
-            self._tasks.add(task)
-            task.add_done_callback(self._tasks.discard)
+        if not isinstance(vehicle_id, str):
+            return
+        state = self.instances.current(vehicle_id)
+        instance_id = state.instance_id if state is not None else None
+        self._spawn(self._policy_again(vehicle_id, instance_id))
 
-    async def _policy_again(self, vehicle_id: str, instance_id: str) -> None:
+    async def _policy_again(self, vehicle_id: str, instance_id: str | None) -> None:
+        """The policy read again; the vehicle judged again by it (a vehicle this replica
+        keeps no copy of too: the store has its instance), and its open polls here told."""
         try:
             await self.safety.policy(vehicle_id)
+            await self.safety.judge_again()
         except Exception as exc:  # the store away: the safety tick reads it later
-            await self.dead_letters.set_aside("replicas", instance_id, exc, ["policy"])
+            await self.dead_letters.set_aside(
+                "replicas", instance_id or vehicle_id, exc, ["policy"]
+            )
+        if instance_id is not None:
+            self.commands.wake(instance_id)
+
+    def _on_zones(self, _topic: str, message: Message) -> None:
+        """The zones changed on another replica: read them, judge the vehicles again."""
+        if not isinstance(message, dict) or message.get("origin") == self.origin:
             return
-        self.commands.wake(instance_id)
+        self._spawn(self._zones_again())
+
+    async def _zones_again(self) -> None:
+        try:
+            await self.safety.rules_again()
+        except Exception as exc:  # the store away: the safety tick reads them later
+            await self.dead_letters.set_aside("replicas", "zones", exc, ["zones"])
+
+    def _spawn(self, work: Any) -> None:
+        task = asyncio.ensure_future(work)
+        self._tasks.add(task)
+        task.add_done_callback(self._tasks.discard)
 
     async def _run(self) -> None:
         healthy = self.bus.healthy
@@ -189,6 +220,8 @@ class ReplicaSync:
             await self.control.refresh(instance_id)
         if "commands" in parts:
             await self.commands.refresh(instance_id)
+        if "watch" in parts:
+            self.safety.forget_watch(instance_id)
 
 
 def _strings(value: Any) -> frozenset[str]:

@@ -14,19 +14,41 @@ service's base.
 
 The check on the hot path reads nothing: the zones and the policies are read again
 every ``tick`` (a second), the instance's watch state once when first needed.
+
+Alarms say what is wrong now, so a change of the rules is judged at once too: when the
+zones or a vehicle's battery threshold moved since the watch last judged by them
+(:meth:`SafetyService.judge_again`: a zone changed here or a policy set here, another
+replica's change heard on the bus, or the tick's reading), each unfinished instance they
+touch is judged again against its latest position as the store and this replica have
+it, a vehicle that stopped reporting too. The same compare and set records what changed,
+once of all replicas (``reason`` in the event's data: ``zones_changed`` or
+``failsafe_changed``); each write of a watch state is announced
+(:class:`~server.domain.events.StateWritten`, part ``watch``), so that a replica that
+kept a copy of it reads it again.
 """
 
 from __future__ import annotations
 
+import asyncio
 from collections.abc import Awaitable
+from datetime import datetime
 from typing import Any, NamedTuple
 
 from fleet_protocol import Alarm, EventKind, FailsafePolicy
 from server.domain.alarms import alarms_of
 from server.domain.clock import Clock, said_time
-from server.domain.events import SamplesStored
+from server.domain.events import FailsafeChanged, SamplesStored, StateWritten, ZonesChanged
 from server.domain.failsafe import breach_command
-from server.domain.watch import WatchState, breach_data, change, dated, next_state
+from server.domain.watch import (
+    WatchState,
+    battery_event,
+    breach_data,
+    change,
+    cleared_data,
+    dated,
+    next_state,
+)
+from server.domain.zones import ZoneSet
 from server.services.auth import AuthService
 from server.services.commands import CommandService
 from server.services.events import EventService
@@ -43,6 +65,26 @@ class StoredWatch(NamedTuple):
 
     state: WatchState
     acked_version: int | None
+
+
+class Judged(NamedTuple):
+    """What one judgement of the watch was made on: the position, its battery reading, the
+    time a new alarm is dated by, and whether the rules moved (``rules``; else a new
+    sample came)."""
+
+    lat: float
+    lon: float
+    battery_pct: float | None
+    at: datetime
+    rules: bool = False
+
+
+class Rules(NamedTuple):
+    """What the watch judges by: the zones, and each vehicle's battery threshold (those
+    with a policy of their own; the others have the default's)."""
+
+    zones: ZoneSet
+    thresholds: dict[str, float | None]
 
 
 class SafetyService(FailsafePolicies):
@@ -79,6 +121,11 @@ class SafetyService(FailsafePolicies):
         #: instance id -> its watch state, and its home
         self._watch: dict[str, WatchState] = {}
         self._home: dict[str, tuple[float, float]] = {}
+        #: The rules the watch last judged every instance by, and those before (a zone
+        #: gone since is named by them); None until first read.
+        self._rules: Rules | None = None
+        self._former: ZoneSet = ZoneSet()
+        self._judging = asyncio.Lock()
 
     # ---- what is wrong with a vehicle now ----------------------------------------------
     def alarms(self, state: InstanceState, watch: WatchState | None = None) -> list[Alarm]:
@@ -138,7 +185,9 @@ class SafetyService(FailsafePolicies):
         if was is None:
             return self._first(state, sample)
         now = self._next(state, was, sample)
-        return None if now is was or now == was else self._record(state, sample, now)
+        if now is was or now == was:
+            return None
+        return self._record(state, self._judged(state, sample), now)
 
     def _next(self, state: InstanceState, was: WatchState, sample: Any) -> WatchState:
         threshold = self.known_policy(state.vehicle_id).low_battery_pct
@@ -146,6 +195,10 @@ class SafetyService(FailsafePolicies):
         return next_state(
             was, self.zones.known(), state.vehicle_id, point, sample.battery_pct, threshold
         )
+
+    def _judged(self, state: InstanceState, sample: Any) -> Judged:
+        at = said_time(sample.ts, self.clock(), state.started_at)
+        return Judged(float(sample.lat), float(sample.lon), sample.battery_pct, at)
 
     async def _first(self, state: InstanceState, sample: Any) -> None:
         """The instance's watch state, read (or begun, with its home) once."""
@@ -162,44 +215,48 @@ class SafetyService(FailsafePolicies):
             self._acked[state.instance_id] = int(doc["failsafe_version"])
         now = self._next(state, was, sample)
         if now != was:
-            await self._record(state, sample, now)
+            await self._record(state, self._judged(state, sample), now)
 
-    async def _record(self, state: InstanceState, sample: Any, now: WatchState) -> None:
+    async def _record(
+        self, state: InstanceState, judged: Judged, now: WatchState, *, keep: bool = True
+    ) -> None:
         """Write the new state if it is still news (compare and set), each new alarm dated
-        by the sample that raised it; record what changed."""
-        at = said_time(sample.ts, self.clock(), state.started_at)
+        ``judged.at``; record what changed. ``keep``: this replica keeps the state as its
+        copy (it takes the instance's samples)."""
         for _ in range(CAS_TRIES):
             doc = await self.repo.watch_of(state.instance_id)
             stored = watch_state(doc)
             moved = change(stored, now)
             if not moved:
-                self._watch[state.instance_id] = stored  # another replica recorded it
+                if keep or state.instance_id in self._watch:
+                    self._watch[state.instance_id] = stored  # another replica recorded it
                 return
-            now = dated(stored, now, at)
+            now = dated(stored, now, judged.at)
             rev = int(doc["rev"]) if doc is not None else None
             if await self.repo.move_watch(state.instance_id, state.vehicle_id, rev, now):
                 break
         else:
             return
-        self._watch[state.instance_id] = now
-        where = {"lat": float(sample.lat), "lon": float(sample.lon)}
+        if keep or state.instance_id in self._watch:
+            self._watch[state.instance_id] = now
+        self.messages.emit_now(StateWritten(state.instance_id, "watch"))
+        zones = self.zones.known()
+        where: dict[str, Any] = {"lat": judged.lat, "lon": judged.lon}
+        zone_where = {**where, "reason": "zones_changed"} if judged.rules else where
         for zone_id in sorted(moved.entered):
-            data = {
-                **breach_data(self.zones.known(), state.vehicle_id, zone_id, entered=True),
-                **where,
-            }
+            data = {**breach_data(zones, state.vehicle_id, zone_id, entered=True), **zone_where}
             action = await self._act_on_breach(state, zone_id, data)
             await self._event("zone_breach", state, {**data, **action})
+        named_by = [zones, *(r.zones for r in (self._rules,) if r is not None), self._former]
         for zone_id in sorted(moved.left):
-            data = {
-                **breach_data(self.zones.known(), state.vehicle_id, zone_id, entered=False),
-                **where,
-            }
+            data = {**cleared_data(named_by, state.vehicle_id, zone_id), **zone_where}
             await self._event("zone_cleared", state, data)
         if moved.battery is not None:
-            kind: EventKind = "low_battery" if moved.battery == "low" else "battery_recovered"
             threshold = self.known_policy(state.vehicle_id).low_battery_pct
-            data = {"battery_pct": sample.battery_pct, "threshold_pct": threshold, **where}
+            kind = battery_event(moved.battery, judged.battery_pct, threshold, rule=judged.rules)
+            data = {"battery_pct": judged.battery_pct, "threshold_pct": threshold, **where}
+            if judged.rules:
+                data["reason"] = "failsafe_changed"
             await self._event(kind, state, data)
 
     async def _act_on_breach(
@@ -225,6 +282,80 @@ class SafetyService(FailsafePolicies):
         await self.events.record(
             kind, vehicle_id=state.vehicle_id, instance_id=state.instance_id, data=data
         )
+
+    # ---- the rules moved: judge again -------------------------------------------------
+    async def tick(self) -> None:
+        """The zones and the policies read again; judged again when they moved."""
+        await super().tick()
+        await self.judge_again()
+
+    def _rules_now(self) -> Rules:
+        thresholds = {v: p.low_battery_pct for v, p in self._policies.items()}
+        return Rules(self.zones.known(), thresholds)
+
+    def _threshold(self, rules: Rules, vehicle_id: str) -> float | None:
+        return rules.thresholds.get(vehicle_id, self._default.low_battery_pct)
+
+    def on_zones_changed(self, _event: ZonesChanged) -> Awaitable[None]:
+        """A zone changed here (the set read again already): judge again."""
+        return self.judge_again()
+
+    def on_failsafe_changed(self, event: FailsafeChanged) -> Awaitable[None]:
+        """A policy set here (kept already): judge again."""
+        return self.judge_again()
+
+    async def rules_again(self) -> None:
+        """Another replica changed the zones: read them, and judge again."""
+        await self.zones.current()
+        await self.judge_again()
+
+    async def judge_again(self) -> None:
+        """Judge each unfinished instance whose rules moved since the watch last judged by
+        them (the zones: every one; a threshold: its vehicle's) against its latest
+        position, as the store and this replica have it. The first call only notes the
+        rules (nothing was judged before)."""
+        async with self._judging:
+            rules, was = self._rules_now(), self._rules
+            zones_moved = was is not None and rules.zones.version != was.zones.version
+            vehicles = set()
+            if was is not None:
+                vehicles = {
+                    v
+                    for v in rules.thresholds.keys() | was.thresholds.keys()
+                    if self._threshold(rules, v) != self._threshold(was, v)
+                }
+            if zones_moved or vehicles:
+                # A failure (the store away) leaves the rules as they were: the next tick
+                # judges again. Meanwhile a zone gone is named by ``self._rules``.
+                for state in await self.instances.everyone():
+                    if zones_moved or state.vehicle_id in vehicles:
+                        await self._again(state)
+            if was is not None and zones_moved:
+                self._former = was.zones
+            self._rules = rules
+
+    async def _again(self, state: InstanceState) -> None:
+        """One instance judged again by the rules now (see :meth:`judge_again`)."""
+        position = state.position
+        if position is None:
+            return  # no position: nothing was judged, nothing is
+        was = watch_state(await self.repo.watch_of(state.instance_id))
+        pct = position.get("battery_pct")
+        reading = float(pct) if isinstance(pct, int | float) else None
+        point = (float(position["lat"]), float(position["lon"]))
+        threshold = self.known_policy(state.vehicle_id).low_battery_pct
+        now = next_state(was, self.zones.known(), state.vehicle_id, point, reading, threshold)
+        if now == was:
+            if state.instance_id in self._watch:
+                self._watch[state.instance_id] = was
+            return
+        judged = Judged(point[0], point[1], reading, self.clock(), rules=True)
+        await self._record(state, judged, now, keep=False)
+
+    def forget_watch(self, instance_id: str) -> None:
+        """Another replica wrote the instance's watch state: the copy here is read again
+        at its next sample."""
+        self._watch.pop(instance_id, None)
 
     def forget(self, instance_id: str) -> None:
         """Its watch state and home too (read again at its next sample)."""

@@ -4,7 +4,9 @@ in every vehicle's telemetry.
 The set has a version, raised by each change (an event says so): a command records the
 version it was checked against, and one checked against an older version is checked
 again before it is handed out (:mod:`server.services.commands`). This replica keeps the
-set it last read and reads it again when the stored version moves.
+set it last read and reads it again when the stored version moves. A change made here
+is told as :class:`~server.domain.events.ZonesChanged` (the watch judges the vehicles
+again; the other replicas hear of it on the bus).
 """
 
 from __future__ import annotations
@@ -14,10 +16,12 @@ from typing import Any
 
 from fleet_protocol import CreateZone, PatchZone
 from server.domain.clock import Clock
+from server.domain.events import ZonesChanged
 from server.domain.zones import Area, ZoneSet, zone_changes
 from server.errors import Invalid, NotFound
 from server.services.auth import AuthService
 from server.services.events import EventService
+from server.services.messagebus import MessageBus
 from server.services.obstacles import check_polygon
 from server.settings import Settings
 from server.storage.backends import Doc
@@ -46,12 +50,14 @@ class ZoneService:
         repo: ZonesRepo,
         auth: AuthService,
         events: EventService,
+        messages: MessageBus,
         clock: Clock,
     ) -> None:
         self.settings = settings
         self.repo = repo
         self.auth = auth
         self.events = events
+        self.messages = messages
         self.clock = clock
         self._set = ZoneSet()
 
@@ -157,3 +163,4 @@ class ZoneService:
         await self.events.record("zones_changed", actor=actor, data=data)
         for vehicle_id in doc.get("vehicles") or ():
             await self.events.record("zones_changed", vehicle_id=vehicle_id, actor=actor, data=data)
+        await self.messages.emit(ZonesChanged(int(doc["version"])))

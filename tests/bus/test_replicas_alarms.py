@@ -16,6 +16,8 @@ from server.settings import Settings
 from tests.bus.conftest import RedisServer
 from tests.bus.test_replicas_shared_store import _until, two_replicas
 from tests.factories import ADMIN, make_vehicle, sample
+from tests.server.test_obstacles import at, polygon
+from tests.server.test_watch_now import AREA
 
 pytestmark = pytest.mark.usefixtures("store_backend")
 
@@ -142,3 +144,77 @@ async def _battery_reading_seen(api: httpx.AsyncClient, vehicle_id: str, seq: in
     """Whether the replica holds the vehicle's sample ``seq`` as its latest position."""
     r = await api.get(f"/api/vehicles/{vehicle_id}", headers=ADMIN)
     return bool((r.json().get("position") or {}).get("seq") == seq)
+
+
+async def test_a_rule_changed_on_one_replica_judges_the_vehicle_again_on_both(
+    make_settings: Callable[..., Settings], redis_server: RedisServer
+) -> None:
+    """The vehicle reports to A; its area is deleted and its battery threshold lifted on
+    B. Each alarm ends once, with the reason, and both replicas say so; A's next sample
+    finds nothing more to tell."""
+    async with two_replicas(make_settings, redis_server) as (api_a, api_b, _):
+        vid, vh = await make_vehicle(api_a)
+        area = {
+            "name": "area9",
+            "kind": "operating_area",
+            "polygon": polygon(AREA),
+            "vehicles": [vid],
+        }
+        made = await api_a.post("/api/zones", headers=ADMIN, json=area)
+        assert made.status_code == 201, made.text
+        zone_id = made.json()["zone_id"]
+        put = await api_a.put(
+            f"/api/vehicles/{vid}/failsafe", headers=ADMIN, json={"low_battery_pct": 50.0}
+        )
+        assert put.status_code == 200, put.text
+        for api in (api_a, api_b):
+            await _until(lambda api=api: _policy_is(api, vid, 50.0), 10)
+        body = {"vehicle_id": vid, "capabilities": ["stop"]}
+        started = await api_a.post("/upper/start_instance", headers=vh, json=body)
+        iid = started.json()["instance_id"]
+        seq = 0
+
+        async def report() -> None:
+            nonlocal seq
+            seq += 1
+            lat, lon = at(500.0, 0).values()  # out of the area
+            s = sample(seq, ts=datetime.now(UTC), lat=lat, lon=lon, battery_pct=30.0)
+            sent = {"instance_id": iid, "samples": [s]}
+            assert (await api_a.post("/upper/update_param", headers=vh, json=sent)).is_success
+
+        async def alarms_everywhere(want: list[str]) -> bool:
+            for api in (api_a, api_b):
+                view = (await api.get(f"/api/vehicles/{vid}", headers=ADMIN)).json()
+                if [a["kind"] for a in view["alarms"]] != want:
+                    return False
+            return True
+
+        async def events(kind: str) -> list[dict[str, Any]]:
+            r = await api_b.get(
+                "/api/events", headers=ADMIN, params={"vehicle_id": vid, "kind": kind}
+            )
+            found: list[dict[str, Any]] = r.json()["events"]
+            return found
+
+        await report()
+        await _until(lambda: alarms_everywhere(["outside_area", "low_battery"]), 10)
+
+        gone = await api_b.delete(f"/api/zones/{zone_id}", headers=ADMIN)
+        assert gone.status_code == 200, gone.text
+        await _until(lambda: alarms_everywhere(["low_battery"]), 10)
+        lifted = await api_b.put(f"/api/vehicles/{vid}/failsafe", headers=ADMIN, json={})
+        assert lifted.status_code == 200, lifted.text
+        await _until(lambda: alarms_everywhere([]), 10)
+        await _until(lambda: _policy_is(api_a, vid, None), 10)
+
+        [cleared] = await events("zone_cleared")
+        assert cleared["data"]["zone_id"] == zone_id and cleared["data"]["zone"] == "area9"
+        assert cleared["data"]["reason"] == "zones_changed"
+        [ended] = await events("low_battery_cleared")
+        assert ended["data"]["reason"] == "failsafe_changed"
+
+        await report()  # A judges its next sample by what the store says now
+        await _until(lambda: _battery_reading_seen(api_b, vid, seq), 10)
+        assert await alarms_everywhere([])
+        assert len(await events("zone_cleared")) == 1
+        assert await events("battery_recovered") == []

@@ -10,7 +10,14 @@ from hypothesis import strategies as st
 
 from server.domain.geo import from_local, to_local
 from server.domain.planning import NoPath, corridor, plan_path
-from server.domain.watch import WatchState, battery_low, change, next_state
+from server.domain.watch import (
+    WatchState,
+    battery_event,
+    battery_low,
+    change,
+    cleared_data,
+    next_state,
+)
 from server.domain.zones import (
     Area,
     ZoneSet,
@@ -107,6 +114,29 @@ def test_the_watch_reports_entering_leaving_and_a_low_battery_once() -> None:
     back = next_state(wavering, ZONES, "v1", ORIGIN, 23.0, 20.0)
     assert change(wavering, back).battery == "recovered"
     assert battery_low(False, None, 20.0) is False
+
+
+def test_a_zone_cleared_because_it_no_longer_applies_is_named_by_the_set_that_had_it() -> None:
+    no_bay = ZoneSet((area("pier", PIER),), 4)
+    no_zones = ZoneSet((), 5)
+    gone = cleared_data([no_bay, ZONES], "v1", "area:v1")
+    assert gone["zone"] == "bay" and gone["zone_id"] == "bay"
+    assert gone["message"] == "its operating area bay no longer applies"
+    assert cleared_data([no_zones, no_bay, ZONES], "v1", "pier")["message"] == (
+        "no-go zone pier no longer applies"
+    )
+    left = cleared_data([ZONES], "v1", "pier")  # still there: the vehicle left it
+    assert left["message"] == "left no-go zone pier"
+    assert cleared_data([no_zones], "v1", "area:v1")["message"] == (
+        "its operating area no longer applies"  # named by no set: said plainly
+    )
+
+
+def test_a_low_battery_ended_by_its_threshold_is_no_recovery() -> None:
+    assert battery_event("low", 10.0, 20.0, rule=False) == "low_battery"
+    assert battery_event("recovered", 23.0, 20.0, rule=False) == "battery_recovered"
+    assert battery_event("recovered", 10.0, None, rule=False) == "low_battery_cleared"
+    assert battery_event("recovered", 23.0, 20.0, rule=True) == "low_battery_cleared"
 
 
 def test_closest_routes_finds_two_paths_too_close() -> None:

@@ -65,9 +65,16 @@ export function describeEvent(e, known = () => null) {
     return `with ${d.other_vehicle_id || "another vehicle"} in ${n(d.in_s)} s: ` +
       `closest ${n(d.closest_m)} m (${n(d.distance_now_m)} m apart now)`;
   }
+  if (e.kind === "low_battery_cleared") {
+    const pct = d.battery_pct == null ? "?" : Number(d.battery_pct).toFixed(0);
+    const rule = d.threshold_pct == null ? "no battery alarm now"
+      : `alarm below ${d.threshold_pct} % now`;
+    return `${pct} % (${rule}: the failsafe changed)`;
+  }
   if (e.kind === "low_battery" || e.kind === "battery_recovered") {
     const pct = d.battery_pct == null ? "?" : Number(d.battery_pct).toFixed(0);
-    return `${pct} % (alarm below ${d.threshold_pct ?? "?"} %)`;
+    const why = d.reason === "failsafe_changed" ? ": the failsafe changed" : "";
+    return `${pct} % (alarm below ${d.threshold_pct ?? "?"} %${why})`;
   }
   if (e.kind === "failsafe_entered" || e.kind === "failsafe_left") {
     return `${d.was || "?"} → ${d.control_mode || "?"}${sinceText(e)}`;
@@ -99,6 +106,7 @@ const KIND_NAMES = {
   failsafe_acked: "failsafe applied by the vehicle", failsafe_changed: "failsafe set",
   control_request: "control requested", control_deny: "control request declined",
   hold_station: "holds station", instance: "instance",
+  low_battery_cleared: "battery alarm lifted",
 };
 
 export function kindName(kind) {
