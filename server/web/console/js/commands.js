@@ -4,8 +4,8 @@
 // confirmed first, a refusal said with what to do about it; control requested or
 // released, a command cancelled.
 
-import { holdText, takeControl } from "./grants.js";
-import { confirmAction, metresBetween, sending, toast } from "./ui.js";
+import { holdAfter, holdText, takeControl } from "./grants.js";
+import { confirmAction, counted, metresBetween, sending, toast } from "./ui.js";
 
 const FAR_M = 5000; // a target farther than this from its vehicle is confirmed first
 const TTL_S = 120; // how long a mission waits for its vehicle
@@ -149,7 +149,7 @@ export class Commands {
         const v = running.find((x) => x.view.instance_id === c.instance_id);
         if (v) fleet.noteSubmitted(v.id, c.command_id, "stop", {}, me.username);
       }
-      toast(`stop sent to ${made.length} vehicle(s)`, "ok");
+      toast(`stop sent to ${counted(made.length, "vehicle")}`, "ok");
       for (const warning of warnings) toast(`note: ${warning}`, "warn");
     } catch (e) {
       toast(notSent("stop", e), "error");
@@ -187,8 +187,10 @@ export class Commands {
     });
     if (!ok) return;
     try {
+      this.ctx.controlPanel.ending(id); // its hold_station event is said here, once
       await this.ctx.api.post("/client/release_control", { instance_id: v.view.instance_id });
-      toast(`control of ${v.view.name || id} released`, "ok");
+      toast(`control of ${name} released; ${holdAfter(name, v.view.presence)}`,
+        v.view.presence === "online" ? "ok" : "warn");
     } catch (e) {
       toast(`release refused: ${e.explain()}`, "error");
     }

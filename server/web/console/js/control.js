@@ -1,7 +1,7 @@
 // The control panel: a field manager's requests, grants and leases, and an operator's
 // own; "What happened" (the control and safety events). Redraws from the Fleet state.
 
-import { controlOffer, grantForm, holdText, mayTakeOver } from "./grants.js";
+import { controlOffer, grantForm, holdAfter, holdText, mayTakeOver } from "./grants.js";
 import { ControlLapses } from "./lapses.js";
 import { describeEvent, holderText, presenceBadge, throttled } from "./panels.js";
 import { clock, confirmAction, dateTime, h, sending, sends, toast, until } from "./ui.js";
@@ -16,11 +16,13 @@ const KIND_LABELS = {
   control_request: "control requested", control_grant: "control granted to",
   control_revoke: "control revoked from", control_release: "control released by",
   control_expired: "control expired for", control_deny: "request declined for",
-  hold_station: "holds station:",
+  hold_station: "told to hold station:",
   control_mode: "control mode",
   presence: "is now",
   command: "command",
 };
+// How long after this console ended a lease its hold_station event is taken as said.
+const ENDED_HERE_MS = 15000;
 const SAFETY_EVENTS = new Set([
   "hold_station", "failsafe_entered", "failsafe_left", "failsafe_changed", "zone_breach",
   "zone_cleared", "collision_risk", "low_battery",
@@ -62,8 +64,10 @@ export class ControlPanel {
         this.loadRequests();
         this.lapses.told(id);
       }
-      if (event.kind === "hold_station" && this.managed(id)) {
-        toast(`${this.nameOf(id)} holds station: ${describeEvent(event)}`, "warn");
+      // a hold this console caused (a revoke, a release, a grant over a holder) was said
+      // with it, once: not again in other words
+      if (event.kind === "hold_station" && this.managed(id) && !this.endedHere(id)) {
+        toast(this.holdSaid(id, event), "warn");
       }
       this.tellStops(id, event);
       this.tellMine(id, event);
@@ -93,6 +97,28 @@ export class ControlPanel {
     }, 500);
   }
 
+  /** A lease this console is ending (a revoke, a release, a grant to another): the
+   * hold_station event that follows is not said again. */
+  ending(id) {
+    this.ended = this.ended || new Map();
+    this.ended.set(id, Date.now());
+  }
+
+  endedHere(id) {
+    return Date.now() - ((this.ended && this.ended.get(id)) || 0) < ENDED_HERE_MS;
+  }
+
+  /** A hold at a lease's end as a toast: "Bravo: ana's control ended (revoked); it holds
+   * station", or, out of contact, that the hold is only queued. */
+  holdSaid(id, event) {
+    const d = event.data || {};
+    const name = this.nameOf(id);
+    const v = this.ctx.fleet.vehicles.get(id);
+    const why = String(d.reason || "ended").replace(/_/g, " ");
+    const whose = d.holder ? `${d.holder}'s control` : "control";
+    return `${name}: ${whose} ended (${why}); ${holdAfter(name, v && v.view.presence)}`;
+  }
+
   nameOf(id) {
     const v = this.ctx.fleet.vehicles.get(id);
     return v ? v.view.name || id : id;
@@ -106,6 +132,8 @@ export class ControlPanel {
     const by = (event.actor || "").replace(/^user:/, "");
     const name = this.nameOf(id);
     const v = this.ctx.fleet.vehicles.get(id);
+    // out of contact the hold at a lease's end is only queued: never "it holds station"
+    const hold = holdAfter(name, v && v.view.presence);
     if (v && ["control_grant", "control_deny"].includes(event.kind)
       && (d.holder === me || d.user === me)) {
       v.requested = null; // answered
@@ -113,16 +141,16 @@ export class ControlPanel {
     if (event.kind === "control_request" && this.managed(id) && by !== me) {
       toast(`${by} asks for control of ${name}: see Control`, "info");
     } else if (event.kind === "control_grant" && d.replaces === me && d.holder !== me && by !== me) {
-      toast(`control of ${name} passed to ${d.holder} (granted by ${by}); it holds station`, "error");
+      toast(`control of ${name} passed to ${d.holder} (granted by ${by}); ${hold}`, "error");
     } else if (event.kind === "control_grant" && d.holder === me && by !== me) {
       toast(`you now hold control of ${name} (granted by ${by})`, "ok");
     } else if (event.kind === "control_deny" && d.user === me) {
       toast(`${by} declined your request for ${name}${d.reason ? `: ${d.reason}` : ""}`, "error");
     } else if (event.kind === "control_revoke" && d.holder === me && by !== me) {
-      toast(`your control of ${name} was revoked by ${by || "the server"}; it holds station`, "error");
+      toast(`your control of ${name} was revoked by ${by || "the server"}; ${hold}`, "error");
     } else if (event.kind === "control_expired" && d.holder === me) {
       const why = d.reason === "operator_silent" ? "this console was silent too long" : "its time ran out";
-      toast(`your control of ${name} ended (${why}); it holds station`, "error");
+      toast(`your control of ${name} ended (${why}); ${hold}`, "error");
     }
   }
 
@@ -383,10 +411,10 @@ export class ControlPanel {
     });
     if (!ok) return;
     try {
+      this.ending(v.id); // its hold_station event is said here, once
       await this.ctx.api.post("/client/revoke_control", { instance_id: v.view.instance_id });
       const online = v.view.presence === "online";
-      toast(`control of ${name} revoked${online ? "" : `; ${holdText(name, v.view.presence)}`}`,
-        online ? "ok" : "warn");
+      toast(`control of ${name} revoked; ${holdAfter(name, v.view.presence)}`, online ? "ok" : "warn");
     } catch (e) {
       toast(`revoke refused: ${e.message}`, "error");
     }

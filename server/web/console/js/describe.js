@@ -91,9 +91,11 @@ export function describeEvent(e, known = () => null) {
       `${by && by !== who ? ` (by ${by})` : ""}`;
   }
   if (e.kind === "hold_station") {
+    // after "told to hold station": why, not "keeps station" said a second time (the
+    // hold reaches a boat out of contact only when it is back)
     const why = String(d.reason || "ended").replace(/_/g, " ");
-    return `${d.holder ? `${d.holder}'s control ended` : "control ended"} (${why}); ` +
-      `${d.type === "stop" ? "stopped" : "keeps station where it is"}`;
+    return `${d.holder ? `${d.holder}'s control ended` : "control ended"} (${why})` +
+      `${d.type === "stop" ? "; it is told to stop (it cannot keep station)" : ""}`;
   }
   if (e.kind === "presence") return d.presence || "";
   if (e.kind === "instance") return d.action || "";
@@ -105,7 +107,7 @@ export function describeEvent(e, known = () => null) {
 const KIND_NAMES = {
   failsafe_acked: "failsafe applied by the vehicle", failsafe_changed: "failsafe set",
   control_request: "control requested", control_deny: "control request declined",
-  hold_station: "holds station", instance: "instance",
+  hold_station: "told to hold station:", instance: "instance",
   low_battery_cleared: "battery alarm lifted",
 };
 

@@ -199,3 +199,10 @@ export function holdText(name, presence) {
       "contact (if it is not back in time the hold expires, and only its own link-loss " +
       "failsafe acts)";
 }
+
+/** What becomes of a boat whose control ended, after a sentence that names it: "it holds
+ * station" when online; out of contact, that the hold is only queued (holdText). */
+export function holdAfter(name, presence) {
+  return presence === "online" || presence === undefined ? "it holds station"
+    : holdText(name, presence);
+}

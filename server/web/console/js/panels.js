@@ -206,7 +206,7 @@ export class VehiclePanel {
     try {
       const got = await this.ctx.api.get("/client/get_param", { instance_id: v.view.instance_id });
       if (id !== this.id) return;
-      this.params = got;
+      this.params = { ...got, readAt: Date.now() }; // said: a refresh shows it read them
       this.render();
     } catch (e) {
       this.params = { error: e.message };
@@ -275,6 +275,7 @@ export class VehiclePanel {
       h("h3", {}, "Parameters ", h("button.quiet", {
         ...sends(`params/${v.id}`), onclick: () => sending(`params/${v.id}`, () => this.loadParams()),
       }, "refresh")),
+      this.paramsNote(view.presence),
       this.paramsTable(),
       h("h3", {}, "Recent commands"),
       this.commandList(v),
@@ -283,6 +284,16 @@ export class VehiclePanel {
         title: eventTitle(e),
       }, h("time", {}, clock(e.at)), " ", h("b", {}, kindName(e.kind)), " ", describeEvent(e, known)))),
     ]);
+  }
+
+  /** How old the parameters are: "as of 20:37:13" (when the vehicle last reported them;
+   * "the vehicle is offline" when it is not online) and when this panel read them. */
+  paramsNote(presence) {
+    const got = this.params;
+    if (!got || got.error || !got.readAt) return null;
+    const away = presence && presence !== "online" ? `: the vehicle is ${presence}` : "";
+    const asOf = got.updated_at ? `as of ${clock(got.updated_at)}${away}; ` : "";
+    return h("p.params-note", {}, `${asOf}read at ${clock(got.readAt)}`);
   }
 
   paramsTable() {

@@ -8,7 +8,7 @@ import { L, colourOf, escapeHtml } from "./map.js";
 import { describeEvent, eventTitle, kindName } from "./describe.js";
 import { commandFromEvents } from "./fleet.js";
 import { ReplayForm } from "./replayform.js";
-import { clock, dateTime, h, sending, toast } from "./ui.js";
+import { clock, counted, dateTime, h, sending, toast } from "./ui.js";
 
 const MAX_EVENTS_PER_VEHICLE = 100000;
 const MAX_POINTS_PER_VEHICLE = 50000; // five pages of the track route
@@ -73,6 +73,7 @@ export class Replay {
     this.layer = L.featureGroup();
     this.tracks = new Map();
     this.events = [];
+    this.missing = [];
     this.playing = false;
     this.cursor = 0;
 
@@ -112,7 +113,9 @@ export class Replay {
     if (!ids.length) return this.refuse("choose at least one vehicle");
     if (error) return this.refuse(error);
     if (!(start < end)) return this.refuse("the window must start before it ends");
-    this.pause();
+    // a new replay asked: the one before leaves the map, its events and its export (an
+    // empty answer left them, and Export saved the old window)
+    this.clear();
     this.info.textContent = "loading…";
     let got;
     try {
@@ -134,9 +137,45 @@ export class Replay {
     this.tracks = new Map(got.map((g) => [g.id, g.points]));
     this.events = got.flatMap((g) => g.events).sort((a, b) => a.t - b.t);
     this.offline = new Map(got.map((g) => [g.id, offlinePeriods(g.events, g.points, start, end)]));
-    this.info.textContent = `${ids.length} vehicle(s), ${total} stored positions, ` +
-      `${this.events.length} events, ${dateTime(start)} to ${dateTime(end)}`;
+    // a boat ticked with no position in the window: said, not left off the map unsaid
+    this.missing = got.filter((g) => !g.points.length).map((g) => this.noPositions(g.id, start));
+    this.info.replaceChildren(
+      `${counted(ids.length, "vehicle")}, ${counted(total, "stored position")}, ` +
+        `${counted(this.events.length, "event")}, ${dateTime(start)} to ${dateTime(end)}`,
+      ...this.missing.map((text) => h("div.no-positions", {}, text)),
+    );
     this.enter();
+  }
+
+  /** "H2OmniX Bravo: no positions in this window (offline since 20:46:11)": a vehicle
+   * ticked that has none, with when it was last heard if that was before the window. */
+  noPositions(id, start) {
+    const v = this.ctx.fleet.vehicles.get(id);
+    const heard = this.ctx.fleet.lastContact(id);
+    const presence = v ? v.view.presence : null;
+    let when = "";
+    if (Number.isFinite(heard) && heard < start) {
+      const at = start - heard < 86400000 ? clock(heard) : dateTime(heard);
+      when = presence && presence !== "online" ? ` (${presence} since ${at})` : ` (last heard ${at})`;
+    }
+    return `${this.nameOf(id)}: no positions in this window${when}`;
+  }
+
+  /** The replay shown before, gone: its layers, events, timeline and export. */
+  clear() {
+    this.pause();
+    if (this.ctx.app.dataset.replay === "on") this.exit();
+    this.layer.clearLayers();
+    this.markers = new Map();
+    this.tracks = new Map();
+    this.events = [];
+    this.offline = new Map();
+    this.missing = [];
+    this.ids = null;
+    this.list.replaceChildren();
+    this.ticks.replaceChildren();
+    this.gaps.replaceChildren();
+    this.exportBox.hidden = true;
   }
 
   refuse(why) {
@@ -269,8 +308,9 @@ export class Replay {
         el.querySelector("path").setAttribute("transform", `rotate(${at.heading_deg ?? 0})`);
       }
     }
-    this.statusOut.value = away.join("; ");
-    this.statusOut.hidden = !away.length;
+    const said = [...this.missing, ...away];
+    this.statusOut.value = said.join("; ");
+    this.statusOut.hidden = !said.length;
     this.markEvents(before, this.cursor);
   }
 

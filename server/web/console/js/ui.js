@@ -56,6 +56,11 @@ export function zoneText(at = new Date()) {
   return `UTC${sign}${hh}:${mm}${name ? ` (${name})` : ""}`;
 }
 
+/** "1 vehicle", "3 vehicles" (not "3 vehicle(s)"). */
+export function counted(n, what) {
+  return `${n} ${what}${n === 1 ? "" : "s"}`;
+}
+
 /** "4 s ago", "3 min ago", "2 h ago". */
 export function ago(t, now = Date.now()) {
   if (!Number.isFinite(t)) return "never";
