@@ -9,11 +9,17 @@ const VISIBLE = 3;
 const LOG_KEPT = 100;
 const log = []; // {at, message, kind}, newest last
 
-/** A toast; ``action`` ({label, run, sends}) adds a button to it. */
+/** A toast; ``action`` ({label, run, sends}) adds a button to it. The same message again
+ * while its toast is up is counted on it ("×5"), which becomes the newest and starts its
+ * time again: five refusals in a row are one toast, not three and "+2 more". */
 export function toast(message, kind = "info", action = null) {
   const box = document.getElementById("toasts");
-  const item = h(`div.toast.${kind}`, { role: kind === "error" ? "alert" : "status" },
-    h("span.msg", { title: message }, message));
+  const same = [...box.querySelectorAll(".toast")]
+    .find((el) => el.dataset.message === message && el.dataset.kind === kind);
+  if (same) return again(box, same);
+  const item = h(`div.toast.${kind}`, {
+    role: kind === "error" ? "alert" : "status", dataset: { message, kind, count: 1 },
+  }, h("span.msg", { title: message }, message), h("span.count", { hidden: true }));
   if (action) {
     item.append(h("button", { ...(action.sends ? sends(action.sends) : {}), onclick: action.run },
       action.label));
@@ -23,11 +29,40 @@ export function toast(message, kind = "info", action = null) {
     arrange(box);
   };
   item.append(h("button.quiet.close", { onclick: remove, "aria-label": "close" }, "×"));
+  item.dismiss = remove;
   box.append(item);
-  log.push({ at: Date.now(), message, kind });
+  log.push({ at: Date.now(), message, kind, count: 1 });
   if (log.length > LOG_KEPT) log.shift();
   arrange(box);
-  setTimeout(remove, kind === "error" || kind === "warn" ? 12000 : 5000);
+  item.timer = setTimeout(remove, lasts(kind));
+  return item;
+}
+
+function lasts(kind) {
+  return kind === "error" || kind === "warn" ? 12000 : 5000;
+}
+
+/** A message said again while its toast is up: counted there, the newest again, its
+ * time started again; in the log, its line counted too when it is the newest. */
+function again(box, item) {
+  const n = +item.dataset.count + 1;
+  item.dataset.count = n;
+  const count = item.querySelector(".count");
+  count.hidden = false;
+  count.textContent = `×${n}`;
+  count.setAttribute("aria-label", `said ${n} times`);
+  box.append(item); // the newest
+  clearTimeout(item.timer);
+  item.timer = setTimeout(item.dismiss, lasts(item.dataset.kind));
+  const last = log[log.length - 1];
+  if (last && last.message === item.dataset.message && last.kind === item.dataset.kind) {
+    last.count += 1;
+    last.at = Date.now();
+  } else {
+    log.push({ at: Date.now(), message: item.dataset.message, kind: item.dataset.kind, count: 1 });
+    if (log.length > LOG_KEPT) log.shift();
+  }
+  arrange(box);
   return item;
 }
 
@@ -55,6 +90,6 @@ export function openLog() {
   const dialog = document.getElementById("toast-log");
   const list = document.getElementById("toast-log-list");
   list.replaceChildren(...log.slice().reverse().map((m) => h(`li.${m.kind}`, {},
-    h("time", {}, clock(m.at)), " ", m.message)));
+    h("time", {}, clock(m.at)), " ", m.message, m.count > 1 ? ` (×${m.count})` : "")));
   if (!dialog.open) dialog.showModal();
 }
