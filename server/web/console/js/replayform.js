@@ -1,4 +1,5 @@
-// The replay's form: which vehicles (the selected ones ticked first) and the window. The
+// The replay's form: which vehicles (the selected ones ticked, each time the tab opens
+// after the selection changed) and the window. The
 // window is "the last N minutes" (15, or the shortcut last pressed) up to the moment the
 // Replay tab opens, every time it opens, until the person types a time: a window set when
 // the page loaded went stale (at 16:09 it still ended at 16:03).
@@ -42,6 +43,7 @@ export class ReplayForm {
   constructor(ctx) {
     this.ctx = ctx;
     this.minutes = 15;
+    this.ticksFor = ""; // the selection the boxes were last ticked for (none: every vehicle)
     this.typed = false; // a time typed: kept as it is
     for (const b of document.querySelectorAll("#replay-form [data-minutes]")) {
       b.addEventListener("click", () => {
@@ -66,7 +68,20 @@ export class ReplayForm {
    * unless the person typed it. */
   opened() {
     this.drawChoices();
+    const selected = [...this.ctx.selection].sort().join(" ");
+    if (selected !== this.ticksFor) this.tickSelection(); // it changed since: ticked anew
     if (!this.typed) this.setWindow();
+  }
+
+  /** The selected vehicles ticked (every one when none is): the boxes follow the
+   * selection each time the tab opens after it changed; ticks made by hand meanwhile stay
+   * while it does not. */
+  tickSelection() {
+    const selection = this.ctx.selection;
+    for (const box of $("replay-vehicles").querySelectorAll("input")) {
+      box.checked = selection.size ? selection.has(box.value) : true;
+    }
+    this.ticksFor = [...selection].sort().join(" ");
   }
 
   /** The last ``this.minutes`` minutes, up to now. */
