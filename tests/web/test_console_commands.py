@@ -61,7 +61,7 @@ def test_select_a_vehicle_and_send_go_to_by_clicking_the_map(
     steps = item.locator(".steps").inner_text()
     assert steps.split(" → ")[:2] == ["queued", "delivered"], steps
     assert steps.endswith("done") and "acked" in steps, steps
-    expect(console.marker(page, "demo-usv-1").locator(".chip")).to_have_text("go_to · done")
+    expect(console.marker(page, "demo-usv-1").locator(".chip")).to_have_text("go to · done")
     assert world.fleet.command(sent["command_id"])["status"] == "done"
     shots(page, "go-to-done")
 

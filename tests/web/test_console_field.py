@@ -124,14 +124,14 @@ def test_a_superseded_command_names_the_newer_one_not_its_id(
     sent = command_item(page, newer).locator("small")
     expect(sent).to_contain_text(re.compile(r"^\d\d:\d\d:\d\d by ana"))
     at = sent.inner_text()[:8]
-    said = f"superseded by the keep_station ana sent at {at}"
+    said = f"superseded by the keep station ana sent at {at}"
     expect(command_item(page, older)).to_contain_text(said)
     expect(command_item(page, older).locator(".superseded-by")).to_have_attribute(
         "title", f"command {newer}"
     )
     # and so does the line of its end among the recent events
-    ended = page.locator("#vehicle-pane ol.events li", has_text="keep_station superseded")
-    expect(ended).to_contain_text(f"(by the keep_station ana sent at {at})")
+    ended = page.locator("#vehicle-pane ol.events li", has_text="keep station superseded")
+    expect(ended).to_contain_text(f"(by the keep station ana sent at {at})")
     expect(ended).to_have_attribute("title", f"superseded by command {newer}")
     expect(page.locator("#vehicle-pane")).not_to_contain_text(newer)
     shots(page, "superseded-named")
@@ -148,8 +148,8 @@ def test_a_superseded_command_names_the_newer_one_not_its_id(
         )
     page.click("#replay-load")
     expect(page.locator("#replay-bar")).to_be_visible()
-    line = page.locator("#replay-events li", has_text="keep_station superseded")
-    expect(line).to_contain_text(re.compile(r"\(by the keep_station ana sent at \d\d:\d\d:\d\d\)"))
+    line = page.locator("#replay-events li", has_text="keep station superseded")
+    expect(line).to_contain_text(re.compile(r"\(by the keep station ana sent at \d\d:\d\d:\d\d\)"))
     expect(line).to_have_attribute("title", f"superseded by command {newer}")
     expect(page.locator("#replay-events")).not_to_contain_text(newer)
     shots(page, "superseded-in-replay")

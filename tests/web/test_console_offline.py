@@ -61,7 +61,8 @@ def test_a_revoke_of_a_boat_out_of_contact_says_once_that_the_hold_is_queued(
     ).click()
     manager.locator("dialog[open]").get_by_role("button", name="Revoke").click()
     # the hold the server queued is in the manager's log: every toast of it has come
-    held = manager.locator(f'section.safety-log li[data-kind="hold_station"][data-vehicle="{VEHICLE}"]')
+    log = manager.locator("section.safety-log")
+    held = log.locator(f'li[data-kind="hold_station"][data-vehicle="{VEHICLE}"]')
     expect(held).to_have_count(1)
     about = toasts(manager).filter(has_text="H2OmniX Bravo")
     expect(about).to_have_count(1)
@@ -123,11 +124,11 @@ def test_the_parameters_of_a_boat_offline_say_how_old_they_are(
     log_in(page, "ana")
     marker(page, VEHICLE).click()
     params = page.locator("#vehicle-pane .params-note")
-    expect(params).to_have_text(re.compile(rf"^as of {CLOCK}: the vehicle is offline; read at {CLOCK}$"))
+    dated = re.compile(rf"^as of {CLOCK}: the vehicle is offline; read at {CLOCK}$")
+    expect(params).to_have_text(dated)
     read = params.inner_text()
     wait_until(  # a second on: the next reading has another time
-        lambda: page.evaluate("new Date().toLocaleTimeString([], {hour12: false})")
-        != read[-8:],
+        lambda: page.evaluate("new Date().toLocaleTimeString([], {hour12: false})") != read[-8:],
         "the page's clock to tick",
         5,
     )

@@ -79,7 +79,7 @@ def test_what_is_said_is_said_once_and_an_empty_window_says_so(
     expect(page.locator("#path-plan")).to_be_disabled()
     page.mouse.click(*console.screen_point(page, *frame.to_latlon(0, 60)))  # in the reef
     page.click("#path-send")
-    refused = page.locator("#toasts .toast.error", has_text="follow_path NOT sent")
+    refused = page.locator("#toasts .toast.error", has_text="follow path NOT sent")
     expect(refused).to_contain_text(  # each boat by name, the reason once each
         re.compile(r"to any of them: H2OmniX Alpha: [^;]*reef[^;]*; H2OmniX Bravo: [^;]*reef")
     )
@@ -153,7 +153,7 @@ def test_a_vehicle_gone_offline_shows_its_stage_as_last_known(
     page, _ = open_console()
     console.log_in(page, "mia")
     label = console.marker(page, vehicle).locator(".chip")
-    expect(label).to_have_text("go_to · executing", timeout=30_000)
+    expect(label).to_have_text("go to · executing", timeout=30_000)
     row = page.locator(f'#fleet-table tr[data-vehicle="{vehicle}"]')
     console.marker(page, vehicle).click()
     page.click('[data-tab="fleet"]')
@@ -161,9 +161,9 @@ def test_a_vehicle_gone_offline_shows_its_stage_as_last_known(
     expect(console.marker(page, vehicle)).to_have_attribute(
         "data-presence", "offline", timeout=30_000
     )
-    expect(label).to_have_text("go_to · executing (last known)")
+    expect(label).to_have_text("go to · executing (last known)")
     expect(label).to_have_class(re.compile(r"\blast-known\b"))
-    expect(row.locator(".chip")).to_have_text("go_to · executing (last known)")
+    expect(row.locator(".chip")).to_have_text("go to · executing (last known)")
     expect(row.locator("td").nth(3)).to_have_class(re.compile(r"\bstale\b"))  # its battery
     shots(page, "offline-table")
     page.click('[data-tab="vehicle"]')

@@ -4,6 +4,7 @@
 // confirmed first, a refusal said with what to do about it; control requested or
 // released, a command cancelled.
 
+import { commandName } from "./fleet.js";
 import { holdAfter, holdText, takeControl } from "./grants.js";
 import { confirmAction, counted, metresBetween, sending, toast } from "./ui.js";
 
@@ -34,11 +35,32 @@ function farthest(vehicles, points) {
 /** Why a command did not go: refused by the server, or never sent (no connection), in
  * which case each vehicle's own failsafe is what acts, after its link-loss time. */
 function notSent(type, e) {
+  const name = commandName(type);
   if (e.code === "unreachable") {
-    return `${type} NOT sent: no connection to the server. Try again; a vehicle that ` +
+    return `${name} NOT sent: no connection to the server. Try again; a vehicle that ` +
       "hears nothing from it applies its failsafe after its link-loss time.";
   }
-  return `${type} refused: ${e.explain()}`;
+  return `${name} refused: ${e.explain()}`;
+}
+
+/** "A, B and C". */
+function names(vehicles) {
+  const all = vehicles.map((v) => v.view.name || v.id);
+  return all.length > 1 ? `${all.slice(0, -1).join(", ")} and ${all[all.length - 1]}` : all.join("");
+}
+
+/** A warning of the server (written for any client: "plan: true") as the console says
+ * it, in the words of its own controls: the console cannot plan one path for several
+ * boats, so "plan it" is no advice here. */
+function saidHere(warning, vehicles) {
+  const along = /^\d+ vehicles sent along one path, not planned: they will come within (\S+) m of each other/
+    .exec(warning);
+  if (along) {
+    return `${names(vehicles)} follow the same path and will come within ${along[1]} m of each ` +
+      "other; send each its own path to keep them apart";
+  }
+  return warning.replace("(a path planned with plan: true goes round it)",
+    "(a path sent with \u201cplan round obstacles\u201d ticked goes round it)");
 }
 
 export class Commands {
@@ -71,7 +93,7 @@ export class Commands {
         title: `Send ${far.name} ${km} km away?`,
         text: `The ${type === "follow_path" ? "path goes" : "target is"} ${km} km from where ` +
           `${far.name} is now: check the point (a click on a zoomed-out map lands far).`,
-        confirm: `Send ${type}`,
+        confirm: type === "follow_path" ? "Send the path" : `Send ${commandName(type)} there`,
       });
       if (!ok) return false;
     }
@@ -83,8 +105,8 @@ export class Commands {
         const v = vehicles.find((x) => x.view.instance_id === c.instance_id);
         if (v) fleet.noteSubmitted(v.id, c.command_id, type, args, me.username);
       }
-      toast(`${type} queued for ${vehicles.map((v) => v.view.name || v.id).join(", ")}`, "ok");
-      for (const warning of warnings) toast(`note: ${warning}`, "warn");
+      toast(`${commandName(type)} queued for ${vehicles.map((v) => v.view.name || v.id).join(", ")}`, "ok");
+      for (const warning of warnings) toast(`note: ${saidHere(warning, vehicles)}`, "warn");
       return true;
     } catch (e) {
       this.refused(type, e, vehicles);
@@ -100,7 +122,7 @@ export class Commands {
       // its manager takes control (a grant to itself); an operator asks for it
       const ctx = this.ctx;
       const take = ctx.controlPanel.managed(v.id);
-      toast(`${type} refused: you do not hold control of ${v.view.name || v.id}`, "error", take
+      toast(`${commandName(type)} refused: you do not hold control of ${v.view.name || v.id}`, "error", take
         ? { label: "Take control", run: () => takeControl(ctx, v), sends: `grant/${v.view.instance_id}` }
         : { label: "Request control", run: () => this.requestControl(v.id), sends: `request/${v.id}` });
     } else if (vehicles.length > 1 && Array.isArray(e.details) && e.details.some((d) => d.instance_id)) {
@@ -109,7 +131,7 @@ export class Commands {
         const v = vehicles.find((x) => x.view.instance_id === d.instance_id);
         return `${v ? v.view.name || v.id : d.instance_id}: ${d.message}`;
       });
-      toast(`${type} NOT sent to any of them: ${said.join("; ")}`, "error");
+      toast(`${commandName(type)} NOT sent to any of them: ${said.join("; ")}`, "error");
     } else {
       toast(notSent(type, e), "error");
     }

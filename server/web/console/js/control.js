@@ -3,20 +3,17 @@
 
 import { controlOffer, grantForm, holdAfter, holdText, mayTakeOver } from "./grants.js";
 import { ControlLapses } from "./lapses.js";
-import { describeEvent, holderText, presenceBadge, throttled } from "./panels.js";
+import { commandName } from "./fleet.js";
+import { describeEvent, holderText, kindName, presenceBadge, throttled } from "./panels.js";
 import { clock, confirmAction, dateTime, h, sending, sends, toast, until } from "./ui.js";
 
 const DURATIONS = [
   [300, "5 min"], [900, "15 min"], [1800, "30 min"], [3600, "1 h"], [7200, "2 h"],
   [14400, "4 h"], [28800, "8 h"], [86400, "24 h"],
 ];
-// Events the control panel's log shows beside control_*.
-// How "What happened" names an event's kind, so that a line reads as a sentence.
+// How "What happened" names an event's kind, so that a line reads as a sentence beside
+// the vehicle's name; the others as everywhere (describe.js, kindName).
 const KIND_LABELS = {
-  control_request: "control requested", control_grant: "control granted to",
-  control_revoke: "control revoked from", control_release: "control released by",
-  control_expired: "control expired for", control_deny: "request declined for",
-  hold_station: "told to hold station:",
   control_mode: "control mode",
   presence: "is now",
   command: "command",
@@ -203,7 +200,8 @@ export class ControlPanel {
     return h("select", {
       name, "aria-label": "lapse when the operator's client is silent for",
       title: "lapse when the operator's client is silent for",
-    }, ...LIVENESS.map(([s, label]) => h("option", { value: s }, s ? `silent ${label}` : `lapse: ${label}`)));
+    }, ...LIVENESS.map(([s, label]) => h("option", { value: s },
+      s ? `lapses after ${label} silent` : "never lapses")));
   }
 
   draw() {
@@ -308,7 +306,7 @@ export class ControlPanel {
             ? h("div", {}, h("b", {}, holderText(c, me)), ` until ${clock(c.expires_at)} `,
               h("small.until", { dataset: { until: c.expires_at } }, `(${until(c.expires_at)})`),
               h("p.allows", {},
-                `allows ${holderText(c, me)} to send ${caps.length ? caps.join(", ") : "its missions"}` +
+                `allows ${holderText(c, me)} to send ${caps.length ? caps.map(commandName).join(", ") : "its missions"}` +
                 ` to ${v.view.name || v.id} until ${dateTime(c.expires_at)}; ` +
                 "any operator or manager who sees the vehicle may still stop it." +
                 (c.operator_timeout_s
@@ -344,7 +342,7 @@ export class ControlPanel {
     items.sort((a, b) => (a[1].at < b[1].at ? 1 : -1));
     const rows = items.slice(0, 30).map(([v, e]) => h("li", { dataset: { kind: e.kind, vehicle: v.id } },
       h("time", {}, clock(e.at)), " ", h("b", {}, v.view.name || v.id), " ",
-      h("span.kind", {}, KIND_LABELS[e.kind] || e.kind.replace(/_/g, " ")), " ", describeEvent(e)));
+      h("span.kind", {}, KIND_LABELS[e.kind] || kindName(e.kind)), " ", describeEvent(e)));
     return h("section.safety-log", {}, h("h3", {}, "What happened"),
       rows.length ? h("ol.events", {}, ...rows) : h("p.hint", {}, "nothing yet"));
   }

@@ -2,7 +2,7 @@
 // vehicle panel's "Recent events", the control panel's "What happened" and the replay's
 // timeline read each event through ``describeEvent``.
 
-import { stageOf } from "./fleet.js";
+import { commandName, stageOf } from "./fleet.js";
 import { clock } from "./ui.js";
 
 /** " (on the vehicle since 10:02:11)": when the vehicle says a mode began, if it is not
@@ -25,9 +25,10 @@ export function supersededBy(detail) {
  * 10:02:15" (``known``: {issued_by, issued_at}, as the console knows it), or "a newer
  * keep_station" when the console does not know it. The id goes in a title. */
 export function newerCommand(by, known) {
-  if (!known || !Number.isFinite(Date.parse(known.issued_at))) return `a newer ${by.type}`;
+  const type = commandName(by.type);
+  if (!known || !Number.isFinite(Date.parse(known.issued_at))) return `a newer ${type}`;
   const who = known.issued_by === "system" ? " the server" : known.issued_by ? ` ${known.issued_by}` : "";
-  return `the ${by.type}${who} sent at ${clock(known.issued_at)}`;
+  return `the ${type}${who} sent at ${clock(known.issued_at)}`;
 }
 
 /** The title of an event's line: the newer command's id, for one superseded ("the id
@@ -48,8 +49,9 @@ export function describeEvent(e, known = () => null) {
     // a cancel's detail is "by <who>": said once, not "(by ana) by ana"
     const detail = by ? ` (by ${newerCommand(by, known(by.id))})`
       : d.detail && d.detail !== "superseded_by_stop" && d.detail !== `by ${who}`
-        ? ` (${d.detail})` : "";
-    return `${d.type || ""} ${stage}${detail}` + (who ? ` by ${who}` : "");
+        ? ` (${String(d.detail).replace(/_/g, " ")})` : "";
+    return `${commandName(d.type)} ${stage}${detail}` +
+      (who ? ` by ${who === "system" ? "the server" : who}` : "");
   }
   if (e.kind === "control_mode") {
     return `${d.was ? `${d.was} → ` : ""}${d.control_mode || "?"}${sinceText(e)}`;
@@ -86,7 +88,8 @@ export function describeEvent(e, known = () => null) {
       ? ` until ${clock(d.expires_at)}` +
         (d.operator_timeout_s ? `, lapses after ${d.operator_timeout_s} s of silence` : "")
       : "";
-    // "released by ben", not "released by ben (by ben)"
+    // "released by ben", not "released by ben (by ben)"; a request by whom asked
+    if (e.kind === "control_request") return by ? `by ${by}` : "";
     return `${who}${terms}${d.reason ? `: ${String(d.reason).replace(/_/g, " ")}` : ""}` +
       `${by && by !== who ? ` (by ${by})` : ""}`;
   }
@@ -99,14 +102,22 @@ export function describeEvent(e, known = () => null) {
   }
   if (e.kind === "presence") return d.presence || "";
   if (e.kind === "instance") return d.action || "";
-  if (e.kind === "failsafe_acked") return d.version != null ? `version ${d.version}` : "";
+  if (e.kind === "failsafe_acked") {
+    if (d.version == null) return "";
+    return d.version ? `(version ${d.version})` : "(the server's default)";
+  }
   return describeData(d);
 }
 
-// An event's kind as a person reads it ("failsafe applied", not failsafe_acked).
+// An event's kind as a person reads it ("failsafe applied", not failsafe_acked); what
+// describeEvent says follows it, so that a line reads as a sentence ("control granted to
+// ana until 14:05:10 (by mia)"), the same in the vehicle panel, "What happened" and the
+// replay.
 const KIND_NAMES = {
-  failsafe_acked: "failsafe applied by the vehicle", failsafe_changed: "failsafe set",
-  control_request: "control requested", control_deny: "control request declined",
+  failsafe_acked: "failsafe policy applied by the vehicle", failsafe_changed: "failsafe set",
+  control_request: "control requested", control_grant: "control granted to",
+  control_revoke: "control revoked from", control_release: "control released by",
+  control_expired: "control expired for", control_deny: "request declined for",
   hold_station: "told to hold station:", instance: "instance",
   low_battery_cleared: "battery alarm lifted",
 };

@@ -41,10 +41,21 @@ export function lastKnown(cmd, presence) {
   return Boolean(cmd) && presence !== "online" && ON_THE_VEHICLE.has(cmd.stage);
 }
 
-/** A command as the console labels it: "go_to · executing", and "(last known)" after it
+// How a person reads each command type: "go to", not go_to.
+const COMMAND_NAMES = {
+  go_to: "go to", keep_station: "keep station", follow_path: "follow path", stop: "stop",
+};
+
+/** A command type as people read it ("go to", "keep station"; another type with its
+ * underscores as spaces). */
+export function commandName(type) {
+  return COMMAND_NAMES[type] || String(type || "").replace(/_/g, " ");
+}
+
+/** A command as the console labels it: "go to · executing", and "(last known)" after it
  * when that is all it knows. */
 export function stageLabel(cmd, presence) {
-  return `${cmd.type} · ${cmd.stage}${lastKnown(cmd, presence) ? " (last known)" : ""}`;
+  return `${commandName(cmd.type)} · ${cmd.stage}${lastKnown(cmd, presence) ? " (last known)" : ""}`;
 }
 
 /** The stages a command went through, from its history (each status once, in order). */

@@ -168,7 +168,7 @@ export function grantForm(panel) {
       ...[...known].map(([name, note]) => h("option", { value: name, label: `${name}: ${note}` }))),
     check ? h("p.field-error", { id: "grant-user-check", role: "alert" }, check.message) : null,
     h("label", {}, "for ", panel.durationSelect("duration")),
-    h("label", {}, "lapse when their client is ", panel.livenessSelect("liveness")),
+    h("label", {}, "if their client falls silent: ", panel.livenessSelect("liveness")),
     h("button.primary", { type: "submit", ...sends("grant/form") },
       check && check.mayResend ? `Grant to ${check.user} anyway` : "Grant")));
 }

@@ -6,7 +6,7 @@ import { alarmBadges, alarmList } from "./alarms.js";
 import {
   describeEvent, describeFailsafe, eventTitle, kindName, newerCommand, supersededBy,
 } from "./describe.js";
-import { isFinal, lastKnown, stageLabel } from "./fleet.js";
+import { commandName, isFinal, lastKnown, stageLabel } from "./fleet.js";
 import { controlOffer } from "./grants.js";
 import { patchChildren } from "./patch.js";
 import { ago, clock, h, sending, sends, until } from "./ui.js";
@@ -57,16 +57,28 @@ export function courseText(trail) {
 function readableDetail(detail, known) {
   if (detail === "superseded_by_stop") return "superseded by a stop";
   const by = supersededBy(detail);
-  if (!by) return String(detail);
+  if (/^by \S+$/.test(detail || "")) return `cancelled ${detail}`; // "by mia": who cancelled it
+  if (!by) return String(detail).replace(/_/g, " ");
   return h("span.superseded-by", { title: `command ${by.id}` },
     `superseded by ${newerCommand(by, known(by.id))}`);
 }
 
-/** The vehicle's link as the server measures it (docs/live.md, "Latency per hop"). */
+/** The vehicle's link as the server measures it (docs/live.md, "Latency per hop"): the
+ * round trip when it is known (timed on one clock, the vehicle's), and the one-way delay
+ * (which leans on the vehicle's estimate of the server's clock) only where it cannot
+ * read as more than the round trip: "19 ms one way · 13 ms round trip" said the clocks
+ * disagreed, not the link. */
 function linkText(view) {
-  if (view.link_delay_ms == null) return null;
-  const rtt = view.link_rtt_ms != null ? ` · ${millis(view.link_rtt_ms)} round trip` : "";
-  return `${millis(view.link_delay_ms)} one way${rtt}`;
+  const { link_delay_ms: oneWay, link_rtt_ms: rtt } = view;
+  if (rtt == null) return oneWay == null ? null : `${millis(oneWay)} one way`;
+  return `${millis(rtt)} round trip${oneWay != null && oneWay <= rtt ? ` · ${millis(oneWay)} one way` : ""}`;
+}
+
+/** The table's figure for the link: the round trip when known, else the one-way delay. */
+function linkFigure(view) {
+  if (view.link_rtt_ms != null) return { ms: view.link_rtt_ms, what: "round trip to the server" };
+  if (view.link_delay_ms != null) return { ms: view.link_delay_ms, what: "one-way delay to the server" };
+  return null;
 }
 
 export function holderText(control, me) {
@@ -130,7 +142,7 @@ export class FleetTable {
     const cmd = fleet.latestCommand(v.id);
     return {
       selected: this.ctx.selection.has(v.id), name: view.name || v.id, alarms: view.alarms || [],
-      presence: view.presence, contact: fleet.lastContact(v.id), delay: view.link_delay_ms,
+      presence: view.presence, contact: fleet.lastContact(v.id), link: linkFigure(view),
       battery: p ? p.battery_pct : null, asOf: p ? p.ts : null, holder: holderText(v.control, me),
       cmd: cmd && { stage: cmd.stage, label: stageLabel(cmd, view.presence),
         last: lastKnown(cmd, view.presence) },
@@ -160,9 +172,8 @@ export class FleetTable {
         alarmed ? h("div.alarms", {}, ...alarmBadges({ alarms: d.alarms })) : null),
       h("td", {}, presenceBadge(d.presence), h("br"),
         h("small.ago", { dataset: { since: d.contact } }, ago(d.contact)),
-        d.delay != null
-          ? [h("br"), h("small.link-delay", { title: "one-way delay to the server" },
-            `link ${millis(d.delay)}`)]
+        d.link
+          ? [h("br"), h("small.link-delay", { title: d.link.what }, `link ${millis(d.link.ms)}`)]
           : null),
       // a reading of a vehicle not online is greyed and dated, as in its panel
       d.presence === "online"
@@ -311,12 +322,13 @@ export class VehiclePanel {
     return h("ol.commands", {}, ...cmds.map((c) => h(
       lastKnown(c, v.view.presence) ? "li.last-known" : "li",
       { dataset: { command: c.command_id, stage: c.stage } },
-      h("b", {}, c.type), " ", h("span.steps", {}, c.stages.join(" → "),
+      h("b", {}, commandName(c.type)), " ", h("span.steps", {}, c.stages.join(" → "),
         lastKnown(c, v.view.presence) ? " (last known)" : ""),
       c.progress != null && !isFinal(c.status) ? ` ${Math.round(c.progress * 100)} %` : "",
       h("br"),
-      h("small", {}, `${clock(c.issued_at)}${c.issued_by ? ` by ${c.issued_by}` : ""}`,
-        c.detail ? [" · ", readableDetail(c.detail, (id) => this.ctx.fleet.command(v.id, id))] : ""),
+      h("small", {}, `${clock(c.issued_at)}${c.issued_by ? ` by ${c.issued_by === "system" ? "the server" : c.issued_by}` : ""}`,
+        c.detail && c.detail !== `by ${c.issued_by}` // cancelled by its sender: said once
+          ? [" · ", readableDetail(c.detail, (id) => this.ctx.fleet.command(v.id, id))] : ""),
       !isFinal(c.status) && this.mayCancel(v, c)
         ? h("button.quiet", {
           ...sends(`cancel/${c.command_id}`),

@@ -1,0 +1,233 @@
+"""What a field manager's and her operators' test of the console found in what it says and
+keeps, in a real browser (as test_console_wording): an empty replay left the old one on
+the map (and Export saved the old window), identical refusals piled up, the server's
+advice for one path sent to several boats could not be followed in the console, the
+Replay tab ticked every boat whatever was selected, raw command types and event codes in
+what people read, and link figures that contradicted each other. A world of its own (the
+module's), in file order: ana holds every vehicle."""
+
+from __future__ import annotations
+
+import re
+from typing import Any
+
+import pytest
+from playwright.sync_api import expect
+
+from tests.web import console_helpers as console
+from tests.web.conftest import Shots, World
+from vehicle_client.geo import LocalFrame
+
+pytestmark = [pytest.mark.slow, pytest.mark.browser]
+
+CLOCK = r"\d\d:\d\d:\d\d"
+TIMES = "\u00d7"  # the multiplication sign a count is written with ("5 times")
+
+
+def replay_up(page: Any) -> None:
+    """Until the replay's module is loaded (after the page: its form is not yet handled)."""
+    page.wait_for_function("() => Boolean(window.fleetConsole && fleetConsole.replay)")
+
+
+def ticked(page: Any) -> list[str]:
+    return [
+        box.get_attribute("value")
+        for box in page.locator("#replay-vehicles input").all()
+        if box.is_checked()
+    ]
+
+
+def test_a_replay_that_finds_nothing_clears_the_one_before(
+    world: World, open_console: Any, shots: Shots
+) -> None:
+    """A replay of the last 5 minutes, then one of a window with nothing in it: "Nothing was
+    recorded..." under the form, and the old replay still on the map with its events and
+    its Export buttons (which saved the old window)."""
+    page, _ = open_console()
+    console.log_in(page, "ana")
+    replay_up(page)
+    page.click('[data-tab="replay"]')
+    page.click('#replay-form [data-minutes="5"]')
+    page.click("#replay-load")
+    expect(page.locator("#replay-bar")).to_be_visible()
+    expect(page.locator(".vicon.replay")).to_have_count(3)
+    expect(page.locator("#replay-export")).to_be_visible()
+    shots(page, "first-replay")
+    start, end = console.local_times(page, 4, 3)  # before this server started
+    page.locator("#replay-from").fill(start)
+    page.locator("#replay-to").fill(end)
+    page.click("#replay-load")
+    expect(page.locator("#replay-info")).to_contain_text("Nothing was recorded")
+    expect(page.locator("#replay-bar")).to_be_hidden()
+    expect(page.locator(".vicon.replay")).to_have_count(0)
+    expect(page.locator("path.replay-track")).to_have_count(0)
+    expect(page.locator("#replay-events li")).to_have_count(0)
+    expect(page.locator("#replay-export")).to_be_hidden()
+    for vehicle_id in console.ALL:  # the map is live again
+        expect(console.marker(page, vehicle_id)).to_be_visible()
+    shots(page, "old-replay-gone")
+
+
+def test_the_same_refusal_again_is_counted_on_one_toast(
+    world: World, open_console: Any, shots: Shots
+) -> None:
+    """ "Hold here" five times on a boat ben does not hold: three identical refusals and
+    "+2 more". One toast now, counted: "x5" (a multiplication sign)."""
+    page, _ = open_console()
+    console.log_in(page, "ben")
+    console.marker(page, "demo-usv-1").click()
+    refused = page.locator("#toasts .toast", has_text="you do not hold control of H2OmniX Alpha")
+    for n in range(1, 6):
+        page.click("#hold")
+        if n > 1:
+            expect(refused.locator(".count")).to_have_text(f"{TIMES}{n}")
+    expect(refused).to_have_count(1)
+    expect(refused.locator(".msg")).to_have_text(
+        "keep station refused: you do not hold control of H2OmniX Alpha"
+    )
+    expect(page.locator("#toasts .toast-more")).to_have_count(0)
+    shots(page, "counted")
+    page.click("#messages")  # the log says it once, counted too
+    said = page.locator("#toast-log-list li", has_text="you do not hold control")
+    expect(said).to_have_count(1)
+    expect(said).to_contain_text(f"({TIMES}5)")
+    page.keyboard.press("Escape")
+
+
+def test_one_path_for_several_boats_is_told_in_the_console_s_words(
+    world: World, open_console: Any, shots: Shots
+) -> None:
+    """ "note: 2 vehicles sent along one path, not planned: ...; plan it (plan: true) or give
+    each its own": the console cannot plan one path for several boats."""
+    page, _ = open_console()
+    console.log_in(page, "ana")
+    here = console.position(world, "demo-usv-1")
+    frame = LocalFrame(here["lat"], here["lon"])
+    console.centre_on(page, here["lat"], here["lon"], 17)
+    console.marker(page, "demo-usv-1").click()
+    console.marker(page, "demo-usv-3").click(modifiers=["Shift"])
+    expect(page.locator("#selection")).to_have_text("2 selected: H2OmniX Alpha, H2OmniX Charlie")
+    page.click('#actions [data-tool="path"]')
+    for east, north in ((-40.0, -40.0), (-60.0, -40.0)):
+        page.mouse.click(*console.screen_point(page, *frame.to_latlon(east, north)))
+    expect(page.locator("#path-count")).to_have_text("2 waypoints")
+    page.click("#path-send")
+    note = page.locator("#toasts .toast.warn .msg")
+    expect(note).to_have_text(
+        re.compile(
+            r"^note: H2OmniX Alpha and H2OmniX Charlie follow the same path and will come within "
+            r"\d+ m of each other; send each its own path to keep them apart$"
+        )
+    )
+    expect(page.locator("#toasts .toast.ok")).to_contain_text(
+        "follow path queued for H2OmniX Alpha, H2OmniX Charlie"
+    )
+    shots(page, "path-note")
+
+
+def test_the_replay_ticks_the_selected_boats_when_its_tab_opens(
+    world: World, open_console: Any, shots: Shots
+) -> None:
+    """Every boat was ticked, whatever was selected: the boxes were drawn when the page
+    loaded and never followed the selection."""
+    page, _ = open_console()
+    console.log_in(page, "ana")
+    replay_up(page)
+    console.marker(page, "demo-usv-2").click()
+    page.click('[data-tab="replay"]')
+    assert ticked(page) == ["demo-usv-2"]
+    console.marker(page, "demo-usv-1").click()
+    console.marker(page, "demo-usv-3").click(modifiers=["Shift"])
+    page.click('[data-tab="replay"]')
+    assert ticked(page) == ["demo-usv-1", "demo-usv-3"]
+    page.locator('#replay-vehicles input[value="demo-usv-3"]').uncheck()  # by hand
+    page.click('[data-tab="fleet"]')
+    page.click('[data-tab="replay"]')
+    assert ticked(page) == ["demo-usv-1"]  # kept while the selection is the same
+    shots(page, "ticked-as-selected")
+
+
+def test_commands_and_events_read_as_words(world: World, open_console: Any, shots: Shots) -> None:
+    """ "allows ana to send follow_path, go_to, keep_station", "control grant ben until …",
+    "failsafe applied by the vehicle version 0", "lapse when their client is [lapse:
+    never]", a cancelled command's "by ana · by ana"."""
+    vehicle, instance = "demo-usv-2", world.instances["demo-usv-2"]
+    page, _ = open_console()
+    console.log_in(page, "ana")
+    page.click('[data-tab="control"]')
+    allows = page.locator(f'li.lease[data-vehicle="{vehicle}"] .allows')
+    expect(allows).to_contain_text(re.compile(r"allows you to send [a-z ,]*go to"))
+    expect(allows).not_to_contain_text("_")
+
+    body = {"instance_id": instance, "user": "ben", "duration_s": 600}
+    world.as_user("mia", "POST", "/client/grant_control", json=body)
+    world.fleet.grant(instance, "ana")  # back to her
+    world.fleet.call("PUT", f"/api/vehicles/{vehicle}/failsafe", json={"after_s": 40.0})
+    here = console.position(world, vehicle)
+    far = LocalFrame(here["lat"], here["lon"]).to_latlon(0.0, 500.0)
+    cid = world.fleet.submit(world.tokens["ana"], instance, "go_to", {"lat": far[0], "lon": far[1]})
+    world.as_user("ana", "POST", "/client/cancel_command", json={"command_id": cid})
+
+    console.marker(page, vehicle).click()
+    events = page.locator("#vehicle-pane ol.events")
+    expect(events).to_contain_text(re.compile(rf"control granted to ben until {CLOCK} \(by mia\)"))
+    expect(events).to_contain_text(re.compile(r"control revoked from ben|control granted to ana"))
+    expect(events).to_contain_text(
+        re.compile(r"failsafe policy applied by the vehicle \(version \d+\)"), timeout=20_000
+    )
+    expect(events).not_to_contain_text(re.compile(r"control_|control grant |failsafe_"))
+    item = console.command_item(page, cid)
+    expect(item).to_have_attribute("data-stage", "cancelled")
+    expect(item.locator("b")).to_have_text("go to")
+    expect(item.locator("small")).to_have_text(re.compile(rf"^{CLOCK} by ana$"))
+    shots(page, "panel-in-words")
+
+    page.click('[data-tab="replay"]')
+    page.click('#replay-form [data-minutes="5"]')
+    page.click("#replay-load")
+    expect(page.locator("#replay-bar")).to_be_visible()
+    lines = page.locator("#replay-events")
+    granted = re.compile(rf"H2OmniX Bravo control granted to ben until {CLOCK}")
+    expect(lines).to_contain_text(granted)
+    expect(lines).to_contain_text("go to cancelled")
+    expect(lines).not_to_contain_text(re.compile(r"control grant |go_to|keep_station"))
+    page.click("#replay-exit")
+    world.fleet.call("PUT", f"/api/vehicles/{vehicle}/failsafe", json={})
+
+    manager, _ = open_console()
+    console.log_in(manager, "mia")
+    manager.click('[data-tab="control"]')
+    grant = manager.locator("details.grant")
+    grant.locator("summary").click()
+    lapse = grant.locator("label", has=manager.locator("select[name=liveness]"))
+    expect(lapse).to_contain_text("if their client falls silent:")
+    expect(lapse.locator("option").first).to_have_text("never lapses")
+    expect(lapse.locator("option").nth(2)).to_have_text("lapses after 30 s silent")
+    shots(manager, "grant-form-words")
+
+
+def test_the_link_s_figures_never_contradict_each_other(
+    world: World, open_console: Any, shots: Shots
+) -> None:
+    """A panel said "19 ms one way · 13 ms round trip". The view is handed to the page as
+    the fleet topic would (the simulated boats on loopback measure well under a
+    millisecond, and their figures are told again only when they move by 5 ms)."""
+    page, _ = open_console()
+    console.log_in(page, "ana")
+    console.marker(page, "demo-usv-3").click()
+    link = page.locator("#vehicle-pane dd.link-delay")
+
+    def view(one_way: float, rtt: float) -> None:
+        page.evaluate(
+            """([one, rtt]) => fleetConsole.fleet.applyFleet({vehicles: [{
+                vehicle_id: "demo-usv-3", link_delay_ms: one, link_rtt_ms: rtt}]}, false)""",
+            [one_way, rtt],
+        )
+
+    view(19.0, 13.0)  # the vehicle's clock estimate off by more than the delay
+    expect(link).to_have_text("13 ms round trip")
+    cell = page.locator('#fleet-table tr[data-vehicle="demo-usv-3"] .link-delay')
+    expect(cell).to_have_text("link 13 ms")
+    view(5.0, 13.0)
+    expect(link).to_have_text("13 ms round trip · 5.0 ms one way")
+    shots(page, "link-figures")
