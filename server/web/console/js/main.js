@@ -13,7 +13,7 @@ import { endSession, logOut, startSession } from "./session.js";
 import { PHONE, Tabs } from "./tabs.js";
 import { openLog } from "./toasts.js";
 import { Tools } from "./tools.js";
-import { ago, clock, confirmAction, sending, toast, until, zoneText } from "./ui.js";
+import { ago, clock, confirmAction, h, sending, toast, until, zoneText } from "./ui.js";
 
 const $ = (id) => document.getElementById(id);
 
@@ -29,7 +29,8 @@ class Console {
     this.focused = null;
     window.fleetConsole = this;
 
-    $("who").textContent = `${me.username} · ${me.role}`;
+    // the role gives way on a phone; the name stays whole
+    $("who").replaceChildren(me.username, h("span.role", {}, ` · ${me.role}`));
     // Every time shown is this browser's local time: say in which zone, once.
     $("tz").textContent = `times in ${zoneText()}`;
     $("replay-zone").textContent = `24-hour, local time ${zoneText()}, e.g. 2026-11-26 14:05:00`;

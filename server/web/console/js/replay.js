@@ -4,6 +4,7 @@
 
 import { exportWindow } from "./export.js";
 import { drawTrack, gapBands, offlinePeriods, offlineText, periodAt } from "./gaps.js";
+import { placeLabels } from "./labels.js";
 import { L, colourOf, escapeHtml } from "./map.js";
 import { describeEvent, eventTitle, kindName } from "./describe.js";
 import { commandFromEvents } from "./fleet.js";
@@ -82,6 +83,9 @@ export class Replay {
       sending("replay", () => this.load());
     });
     this.slider.addEventListener("input", () => this.seek(this.start + +this.slider.value));
+    this.map.map.on("zoomend moveend resize", () => {
+      if (this.ctx.app.dataset.replay === "on") this.placeLabels();
+    });
     this.playButton.addEventListener("click", () => (this.playing ? this.pause() : this.play()));
     document.getElementById("replay-exit").addEventListener("click", () => this.exit());
     for (const b of this.exportBox.querySelectorAll("[data-format]")) {
@@ -312,6 +316,27 @@ export class Replay {
     this.statusOut.value = said.join("; ");
     this.statusOut.hidden = !said.length;
     this.markEvents(before, this.cursor);
+    this.placeLabels();
+  }
+
+  /** The replay's labels placed as the live ones are (labels.js): each on the side of its
+   * marker that is free and on the map (on a phone they ran off its right edge). */
+  placeLabels() {
+    const anchors = [];
+    const labels = new Map();
+    for (const [id, marker] of this.markers || []) {
+      const el = this.layer.hasLayer(marker) && marker.getElement();
+      const label = el && el.querySelector(".vlabel");
+      if (!label || !label.offsetWidth) continue;
+      const pt = this.map.map.latLngToContainerPoint(marker.getLatLng());
+      anchors.push({ id, x: pt.x, y: pt.y, w: label.offsetWidth, h: label.offsetHeight });
+      labels.set(id, label);
+    }
+    const size = this.map.map.getSize();
+    for (const [id, { dx, dy }] of placeLabels(anchors, 13, { w: size.x, h: size.y })) {
+      labels.get(id).style.left = `${13 + dx}px`;
+      labels.get(id).style.top = `${13 + dy}px`;
+    }
   }
 
   /** Events up to the cursor are passed; those the cursor just went over light up. */

@@ -1,0 +1,165 @@
+"""Where things are on the page, as a field manager's and her operators' test of the console
+found them, in a real browser (as test_console_toasts): on a phone the red "LINK LOST"
+banner hid behind the replay's, which covered the zoom and layers buttons, the header read
+"l…" and "ben · ope…", and the replay's labels ran off the map; on a desktop the toasts
+covered the map's controls and swallowed clicks on the map between them, and a tab under
+the pointer looked selected. A world of its own (the module's): ana holds every vehicle."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import pytest
+from playwright.sync_api import expect
+
+from tests.web import console_helpers as console
+from tests.web.conftest import Shots, World
+
+pytestmark = [pytest.mark.slow, pytest.mark.browser]
+
+PHONE = (390, 844)
+MAP_CONTROLS = (".leaflet-control-zoom", ".leaflet-control-layers", ".fit-all")
+
+#: The map's banners (the map pane's ::before and ::after) as boxes on the page, with
+#: their text and whether it fits whole (its width measured in the banner's font).
+BANNERS = """() => {
+    const pane = document.getElementById("map-pane");
+    const r = pane.getBoundingClientRect();
+    const ctx = document.createElement("canvas").getContext("2d");
+    return ["::before", "::after"].map((which) => {
+        const s = getComputedStyle(pane, which);
+        if (s.content === "none" || s.display === "none") return null;
+        const text = JSON.parse(s.content);
+        ctx.font = `${s.fontWeight} ${s.fontSize} ${s.fontFamily}`;
+        const width = parseFloat(s.width);
+        return {
+            text, fits: ctx.measureText(text).width <= width + 0.5,
+            x: r.left + parseFloat(s.left) + parseFloat(s.marginLeft),
+            y: r.top + parseFloat(s.top),
+            width: width + parseFloat(s.paddingLeft) + parseFloat(s.paddingRight),
+            height: parseFloat(s.height),
+        };
+    }).filter(Boolean);
+}"""
+
+
+def replay_last_minutes(page: Any) -> None:
+    page.wait_for_function("() => Boolean(window.fleetConsole && fleetConsole.replay)")
+    page.click('[data-tab="replay"]')
+    page.click('#replay-form [data-minutes="5"]')
+    page.click("#replay-load")
+    page.wait_for_function("() => document.getElementById('app').dataset.replay === 'on'")
+
+
+def whole(page: Any, selector: str) -> bool:
+    """Whether the element's text shows whole (nothing cut off or turned into "…")."""
+    return bool(page.locator(selector).evaluate("el => el.scrollWidth <= el.clientWidth"))
+
+
+def test_a_phone_s_banners_stack_clear_of_the_map_s_buttons_and_its_header_reads(
+    world: World, open_console: Any, shots: Shots
+) -> None:
+    page, _ = open_console(viewport=PHONE)
+    console.log_in(page, "ben")
+    link, who = page.locator("#link"), page.locator("#who")
+    replay_last_minutes(page)
+    page.click('[data-tab="map"]')
+    page.context.set_offline(True)  # a phone out of signal: found within 25 s
+    expect(link).to_have_attribute("data-state", "lost", timeout=35_000)
+    shots(page, "phone-lost-in-replay")
+
+    # read while the link is lost (between two tries to reconnect it is "connecting")
+    banners = page.wait_for_function(
+        f"() => document.getElementById('app').dataset.link === 'lost' && ({BANNERS})()"
+    ).json_value()
+    assert [b["text"] for b in banners] == [
+        "LINK LOST: positions may be old",
+        "REPLAY: recorded positions, not live",
+    ]
+    lost, replay = banners
+    assert all(b["fits"] for b in banners), banners
+    assert not console.boxes_overlap(lost, replay), banners
+    assert lost["y"] < replay["y"]  # the link's first
+    for selector in MAP_CONTROLS:
+        control = console.box_of(page.locator(selector))
+        for banner in banners:
+            assert not console.boxes_overlap(banner, control), (selector, banner, control)
+
+    # the header says the link's state and who is logged in whole, lost or live
+    expect(link).to_contain_text("link lost")
+    assert whole(page, "#link") and whole(page, "#who"), (link.inner_text(), who.inner_text())
+    assert who.inner_text() == "ben"  # the role gives way, the name stays whole
+    assert page.evaluate("document.documentElement.scrollWidth") <= PHONE[0]
+    page.context.set_offline(False)
+    expect(link).to_have_attribute("data-state", "live", timeout=30_000)
+    expect(link).to_have_text("live")
+    assert whole(page, "#link") and whole(page, "#who"), (link.inner_text(), who.inner_text())
+    shots(page, "phone-live-header")
+
+
+def test_a_phone_s_replay_labels_stay_on_the_map(
+    world: World, open_console: Any, shots: Shots
+) -> None:
+    """Live labels switch sides at the map's edge; the replay's ran off it."""
+    page, _ = open_console(viewport=PHONE)
+    console.log_in(page, "ana")
+    replay_last_minutes(page)
+    page.click('[data-tab="map"]')
+    label = page.locator('.vicon.replay[data-vehicle="demo-usv-1"] .vlabel')
+    expect(label).to_be_visible()
+    view = console.box_of(page.locator("#map"))
+    icon = console.box_of(page.locator('.vicon.replay[data-vehicle="demo-usv-1"]'))
+    to_edge = view["x"] + view["width"] - 30 - (icon["x"] + icon["width"] / 2)
+    page.evaluate(  # the marker 30 px from the map's right edge
+        "(dx) => fleetConsole.map.map.panBy([-dx, 0], {animate: false})", to_edge
+    )
+    console.next_frames(page)
+    box = console.box_of(label)
+    shots(page, "replay-label-at-the-edge")
+    assert box["x"] >= view["x"] and box["x"] + box["width"] <= view["x"] + view["width"], (
+        box,
+        view,
+    )
+
+
+def test_toasts_leave_the_map_s_controls_and_clicks_to_it(
+    world: World, open_console: Any, shots: Shots
+) -> None:
+    """On a desktop the toasts' column covered All boats and the scale and grid's note, and
+    a click on the map beside or between toasts was lost (a path's waypoint missed)."""
+    page, _ = open_console()
+    console.log_in(page, "mia")
+    console.marker(page, "demo-usv-1").click()
+    page.click('#actions [data-tool="path"]')
+    for vehicle_id in console.ALL:  # three toasts for the manager
+        body = {"instance_id": world.instances[vehicle_id]}
+        world.as_user("ben", "POST", "/client/request_control", json=body)
+    shown = page.locator("#toasts .toast")
+    expect(shown).to_have_count(3)
+    shots(page, "three-toasts")
+    area = console.box_of(page.locator("#toasts"))
+    for control in page.locator(".leaflet-control").all():
+        if control.is_visible():
+            box = console.box_of(control)
+            assert not console.boxes_overlap(area, box), (control.inner_text(), area, box)
+    # a click on the map between two toasts is a click on the map: a waypoint
+    first, second = console.box_of(shown.nth(0)), console.box_of(shown.nth(1))
+    x = first["x"] + first["width"] / 2
+    y = (first["y"] + first["height"] + second["y"]) / 2
+    page.mouse.click(x, y)
+    expect(page.locator("#path-count")).to_have_text("1 waypoint")
+    page.click("#path-cancel")
+
+
+def test_a_tab_under_the_pointer_does_not_look_selected(
+    world: World, open_console: Any, shots: Shots
+) -> None:
+    page, _ = open_console()
+    console.log_in(page, "ana")
+    selected = page.locator('.tabs [aria-selected="true"]')
+    other = page.locator('.tabs [data-tab="control"]')
+    expect(other).to_have_attribute("aria-selected", "false")
+    other.hover()
+    shots(page, "tab-hovered")
+    underline = "el => getComputedStyle(el).borderBottomColor"
+    assert other.evaluate(underline) != selected.evaluate(underline)
