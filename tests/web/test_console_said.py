@@ -231,3 +231,25 @@ def test_the_link_s_figures_never_contradict_each_other(
     view(5.0, 13.0)
     expect(link).to_have_text("13 ms round trip · 5.0 ms one way")
     shots(page, "link-figures")
+
+
+def test_a_speed_above_a_boat_s_top_speed_is_said(
+    world: World, open_console: Any, shots: Shots
+) -> None:
+    """A go to at 3 m/s was queued without a word; the boat reports a top speed of 0.5
+    m/s (its max_speed_mps parameter) and went at that."""
+    page, _ = open_console()
+    console.log_in(page, "ana")
+    here = console.position(world, "demo-usv-3")
+    console.centre_on(page, here["lat"], here["lon"], 17)
+    console.marker(page, "demo-usv-3").click()
+    page.fill("#opt-speed", "3")
+    page.click('#actions [data-tool="go_to"]')
+    there = LocalFrame(here["lat"], here["lon"]).to_latlon(30.0, -30.0)
+    page.mouse.click(*console.screen_point(page, *there))
+    expect(page.locator("#toasts .toast.warn .msg")).to_have_text(
+        "note: H2OmniX Charlie's top speed is 0.5 m/s: it will go at that, not 3 m/s"
+    )
+    expect(page.locator("#toasts .toast.ok")).to_contain_text("go to queued for H2OmniX Charlie")
+    shots(page, "top-speed")
+    page.fill("#opt-speed", "")

@@ -107,10 +107,29 @@ export class Commands {
       }
       toast(`${commandName(type)} queued for ${vehicles.map((v) => v.view.name || v.id).join(", ")}`, "ok");
       for (const warning of warnings) toast(`note: ${saidHere(warning, vehicles)}`, "warn");
+      if (args.speed_mps != null) this.topSpeeds(vehicles, args.speed_mps); // not awaited
       return true;
     } catch (e) {
       this.refused(type, e, vehicles);
       return false;
+    }
+  }
+
+  /** A speed asked above a vehicle's top speed (its ``max_speed_mps`` parameter, when it
+   * reports one): said, as the server queues it as asked and the vehicle goes at its top. */
+  async topSpeeds(vehicles, speed) {
+    for (const v of vehicles) {
+      try {
+        const got = await this.ctx.api.get("/client/get_param",
+          { instance_id: v.view.instance_id, names: "max_speed_mps" });
+        const top = Number((got.params || {}).max_speed_mps);
+        if (Number.isFinite(top) && top > 0 && speed > top) {
+          toast(`note: ${v.view.name || v.id}'s top speed is ${top} m/s: it will go at that, ` +
+            `not ${speed} m/s`, "warn");
+        }
+      } catch {
+        // its parameters unread: nothing to say of its top speed
+      }
     }
   }
 
