@@ -16,6 +16,7 @@ import { Tools } from "./tools.js";
 import { ago, clock, confirmAction, h, sending, toast, until, zoneText } from "./ui.js";
 
 const $ = (id) => document.getElementById(id);
+const REPLAY_RETRY_MS = 3000; // the replay's module not loaded: tried again after this
 
 /** The console once logged in: ``me`` (from /api/me) decides what it offers. */
 class Console {
@@ -81,10 +82,19 @@ class Console {
     this.controlPanel.loadRequests();
     this.controlPanel.draw();
     setInterval(() => this.tick(), 1000);
-    import("./replay.js").then(({ Replay }) => {
+    this.loadReplay();
+  }
+
+  /** The replay's module, loaded after the page; a load that failed (the network gone at
+   * that moment: an uncaught error, and no replay for the tab's life) is tried again. */
+  loadReplay(attempt = 0) {
+    import(attempt ? `./replay.js?attempt=${attempt}` : "./replay.js").then(({ Replay }) => {
       this.replay = new Replay(this);
       this.replay.drawChoices();
       this.fleet.addEventListener("added", () => this.replay.drawChoices());
+    }).catch((e) => {
+      console.warn("replay:", e.message);
+      setTimeout(() => this.loadReplay(attempt + 1), REPLAY_RETRY_MS);
     });
   }
 
