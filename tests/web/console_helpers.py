@@ -42,6 +42,21 @@ def screen_point(page: Any, lat: float, lon: float) -> tuple[float, float]:
     return x, y
 
 
+def click_map(page: Any, lat: float, lon: float) -> None:
+    """Click the map at (lat, lon) as a user would, closing first any toast over that point
+    (a click on a toast is the toast's, not the map's)."""
+    x, y = screen_point(page, lat, lon)
+    for close in page.locator("#toasts .toast .close").all():
+        box = close.locator("xpath=..").bounding_box()
+        if (
+            box
+            and box["x"] <= x <= box["x"] + box["width"]
+            and box["y"] <= y <= box["y"] + box["height"]
+        ):
+            close.click()
+    page.mouse.click(x, y)
+
+
 def next_frames(page: Any) -> None:
     """Until the page has drawn twice (the labels are placed in an animation frame)."""
     page.evaluate("new Promise(r => requestAnimationFrame(() => requestAnimationFrame(r)))")
