@@ -13,7 +13,6 @@ from typing import Any
 
 import typer
 from rich.table import Table
-from rich.text import Text
 
 from remote_client.cli_common import (
     GroupTokenOpt,
@@ -27,7 +26,7 @@ from remote_client.cli_common import (
     say,
 )
 from remote_client.lines import alarms_text, position_text
-from remote_client.output import console, errors
+from remote_client.output import answer_line, console, errors
 from remote_client.sdk import FleetClient
 
 vehicles_app = typer.Typer(
@@ -96,7 +95,7 @@ def _list_vehicles(server: str, token: str, as_json: bool) -> None:
     for v in data["vehicles"]:  # what is wrong now, a line each, under the table
         if v.get("alarms"):
             said = f"ALARM {v['name']} ({v['vehicle_id']}): {alarms_text(v)}"
-            console.print(Text(said, style="bold red"), soft_wrap=True)
+            console.print(said, style="bold red", soft_wrap=True)
 
 
 @vehicles_app.command("add")
@@ -362,7 +361,7 @@ def _new_token(data: dict[str, Any], as_json: bool, what: str, variable: str) ->
         markup=False,
         highlight=False,
     )
-    print(data["token"])
+    answer_line(data["token"])
 
 
 def _user_said(data: dict[str, Any], as_json: bool) -> None:

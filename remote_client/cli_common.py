@@ -22,7 +22,7 @@ import typer
 from typer.core import TyperGroup
 
 from remote_client import streams
-from remote_client.output import OutputClosed, console, errors, quiet_stdout
+from remote_client.output import OutputClosed, answer_line, console, errors, quiet_stdout
 from remote_client.sdk import AmbiguousName, FleetApiError, FleetClient
 from remote_client.times import BadTime, when_text
 
@@ -230,11 +230,15 @@ def window(
 
 
 def say(data: Any, as_json: bool, text: str) -> None:
-    """The answer: its JSON for scripts, else ``text`` for people."""
-    print(json.dumps(data, indent=2) if as_json else text)
+    """The answer: its JSON for scripts, else ``text`` for people (shown escaped)."""
+    if as_json:
+        dump(data)
+    else:
+        answer_line(text)
 
 
 def dump(data: Any) -> None:
+    """JSON for scripts, as ``json`` writes it: ASCII, control characters escaped."""
     print(json.dumps(data, indent=2))
 
 

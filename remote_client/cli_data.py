@@ -39,7 +39,7 @@ from remote_client.cli_common import (
 )
 from remote_client.lines import event_text, position_text
 from remote_client.localcopy import LocalCopy, SyncResult, sync_vehicle
-from remote_client.output import console, errors
+from remote_client.output import answer_line, console, errors
 from remote_client.sdk import FleetClient
 from remote_client.tracks import FORMATS, TrackJoiner, plot_png
 
@@ -117,7 +117,7 @@ def events(
         dump(data)
         return
     for event in data["events"]:
-        print(f"{event['at']} {event.get('vehicle_id') or '-'} {event_text(event)}")
+        answer_line(f"{event['at']} {event.get('vehicle_id') or '-'} {event_text(event)}")
     if data["next_after"] is not None:
         errors.print(
             f"more events: the same command with --after {data['next_after']} (or --all)",
@@ -283,7 +283,7 @@ def sync(
         return
     for r in results:
         held = f"{r.total} in {db} (through seq {r.through_seq})"
-        print(f"{r.vehicle_id}: {r.added} new sample{'' if r.added == 1 else 's'}; {held}")
+        answer_line(f"{r.vehicle_id}: {r.added} new sample{'' if r.added == 1 else 's'}; {held}")
 
 
 def _fraction(start: str, reached: str, end: str) -> float:

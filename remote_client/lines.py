@@ -3,6 +3,10 @@
 A line is ``TIME TOPIC WHAT``: ``TIME`` the server's time of the event (UTC, to the
 second), or ``current`` for the state a subscription starts with. The ``fleet``
 topic's current state lists every vehicle: a line per vehicle.
+
+The lines hold what vehicles and people wrote as they wrote it (free-form data as
+compact JSON); printing them escapes what a terminal would obey
+(``remote_client.output.shown``).
 """
 
 from __future__ import annotations
@@ -10,7 +14,6 @@ from __future__ import annotations
 import json
 from typing import Any
 
-from fleet_protocol import BIDI_CONTROLS
 from remote_client.sdk import shown_status
 
 __all__ = ["alarms_text", "event_lines", "position_text"]
@@ -52,7 +55,7 @@ def alarms_text(view: dict[str, Any]) -> str:
         + (f" since {_clock(a['since'])}" if a.get("since") else "")
         for a in view.get("alarms") or []
     )
-    return "; ".join(_unbidi(text) for text in said)
+    return "; ".join(said)
 
 
 def _clock(ts: Any) -> str:
@@ -145,15 +148,10 @@ def event_text(event: dict[str, Any]) -> str:
 
 
 def _compact(data: Any) -> str:
-    """Free-form data on one line: JSON (control characters escaped by it), and the
-    characters that would reorder a terminal's line escaped too (``\\u202e``)."""
-    text = _unbidi(json.dumps(data, separators=(",", ":"), ensure_ascii=False))
+    """Free-form data on one line: compact JSON (line breaks and other control
+    characters escaped by it)."""
+    text = json.dumps(data, separators=(",", ":"), ensure_ascii=False)
     return text if len(text) <= MAX_DATA_CHARS else text[: MAX_DATA_CHARS - 1] + "…"
-
-
-def _unbidi(text: str) -> str:
-    """The characters that would reorder a terminal's line, escaped (``\\u202e``)."""
-    return BIDI_CONTROLS.sub(lambda m: f"\\u{ord(m.group()):04x}", text)
 
 
 _KINDS = {

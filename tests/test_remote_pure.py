@@ -14,6 +14,7 @@ import httpx
 import pytest
 
 from remote_client.lines import event_lines
+from remote_client.output import shown
 from remote_client.sdk import (
     AmbiguousName,
     FleetApiError,
@@ -143,7 +144,7 @@ def test_events_read_as_one_line_each() -> None:
                         {"kind": "no_go_zone", "message": "inside no-go zone \u202eXY"}]},
         ]},
     }  # fmt: skip
-    assert event_lines(fleet) == [
+    assert [shown(line) for line in event_lines(fleet)] == [
         "current fleet usv-1 online 1.00000,2.00000 control=ana",
         "current fleet usv-2 offline - control=-",
         "current fleet usv-3 stale - control=- ALARM in failsafe: stop; "
@@ -253,5 +254,13 @@ def test_data_that_would_reorder_a_terminal_line_is_shown_escaped() -> None:
     push = {"op": "event", "topic": "user/ana/notes", "ts": "2026-11-22T10:00:00.000Z",
             "data": {"reason": "line1\nline2\u0000\u202e evil"}}  # fmt: skip
     [line] = event_lines(push)
-    assert "\u202e" not in line and "\n" not in line and "\x00" not in line
-    assert "\\u202e evil" in line
+    assert "\n" not in line and "\x00" not in line  # JSON escapes them
+    printed = shown(line)
+    assert "\u202e" not in printed and "\\u202e evil" in printed
+
+
+def test_text_is_shown_with_what_a_terminal_obeys_escaped() -> None:
+    assert shown("\x1b]0;pwned\x07\x1b[2Jk") == "\\x1b]0;pwned\\x07\\x1b[2Jk"
+    assert shown("abc\u202edef\u2066") == "abc\\u202edef\\u2066"
+    assert shown("a\nb\tc\x7f\x9b") == "a\\x0ab\\x09c\\x7f\\x9b"
+    assert shown("pier 3 — ok [/x] :smile:") == "pier 3 — ok [/x] :smile:"
