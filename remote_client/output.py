@@ -13,8 +13,12 @@ escaped by JSON itself; a token alone on its line; ``track``'s file formats.
 
 from __future__ import annotations
 
+import asyncio
+import contextlib
 import os
+import stat
 import sys
+from collections.abc import Iterator
 from typing import Any
 
 from rich.console import Console
@@ -28,6 +32,7 @@ __all__ = [
     "console",
     "errors",
     "quiet_stdout",
+    "reader_watched",
     "shown",
 ]
 
@@ -77,6 +82,54 @@ def answer_line(text: str) -> None:
         print(shown(text), flush=True)
     except BrokenPipeError:
         raise OutputClosed from None
+
+
+@contextlib.contextmanager
+def reader_watched() -> Iterator[None]:
+    """Inside a running task: the block ends with :class:`OutputClosed` as soon as
+    stdout's reader has gone, even while nothing is being written (``fleetctl watch |
+    head -1`` on a quiet fleet would otherwise wait for the next change to find out).
+
+    When stdout is a pipe, on Linux: the event loop watches it, and the kernel reports an
+    error on a pipe's write end once its last reader has closed it (``EPOLLERR``). The
+    task is then cancelled, and the cancellation becomes :class:`OutputClosed` here.
+    Elsewhere (a terminal, a file, another system) the next line written finds out."""
+    fd = _pipe_out()
+    task = asyncio.current_task()
+    if fd is None or task is None:
+        yield
+        return
+    loop = asyncio.get_running_loop()
+    gone = False
+
+    def reader_gone() -> None:
+        nonlocal gone
+        loop.remove_reader(fd)
+        gone = True
+        task.cancel()
+
+    loop.add_reader(fd, reader_gone)  # a pipe's write end is never readable: its error is
+    try:
+        yield
+    except asyncio.CancelledError:
+        if not gone:
+            raise
+        task.uncancel()
+        raise OutputClosed from None
+    finally:
+        if not gone:
+            loop.remove_reader(fd)
+
+
+def _pipe_out() -> int | None:
+    """stdout's descriptor when it is a pipe, on Linux (:func:`reader_watched`)."""
+    if not sys.platform.startswith("linux"):
+        return None
+    try:
+        fd = sys.stdout.fileno()
+        return fd if stat.S_ISFIFO(os.fstat(fd).st_mode) else None
+    except (AttributeError, OSError, ValueError):
+        return None  # not a file (a test's capture)
 
 
 def quiet_stdout() -> None:

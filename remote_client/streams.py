@@ -17,7 +17,7 @@ import websockets
 from rich.progress import Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
 
 from remote_client.lines import event_lines
-from remote_client.output import answer_line, errors
+from remote_client.output import answer_line, errors, reader_watched
 from remote_client.sdk import FleetApiError, FleetClient
 
 log = logging.getLogger(__name__)
@@ -79,39 +79,44 @@ async def watch(fleet: FleetClient, follow: Follow) -> None:
     link is taken up again and each topic's current state comes first again (the changes
     while the link was down are not replayed: ``export`` has every sample); a refusal is
     exit 1, a server not reachable at the start exit 3; stdout closed (OutputClosed) ends
-    it, not taken for a lost link. While it runs, the leases the caller holds are kept
-    alive (``FleetClient.keep_leases_alive``)."""
-    seen = failures = 0
+    it, not taken for a lost link, and so does its reader going away while nothing is
+    printed (``output.reader_watched``). While it runs, the leases the caller holds are
+    kept alive (``FleetClient.keep_leases_alive``)."""
     try:
-        async with fleet, asyncio.timeout(follow.seconds), _leases_kept(fleet):
-            while True:
-                try:
-                    async for push in fleet.events(follow.topics, throttle_ms=follow.throttle_ms):
-                        if push["op"] == "lagging":
-                            errors.print(f"{push.get('dropped')} events dropped (too slow)")
-                            continue
-                        print_event(push, follow.as_json)
-                        seen += 1
-                        if follow.count is not None and seen >= follow.count:
-                            return
-                    failures = 0  # it ran: the next loss starts the waits again
-                    reason = "the server closed the connection"
-                except FleetApiError as exc:
-                    print_refusal(exc)
-                    raise typer.Exit(1) from None
-                except (OSError, TimeoutError, websockets.InvalidHandshake) as exc:
-                    if seen == 0 and failures == 0:
-                        errors.print(
-                            f"cannot reach {fleet.server}: {exc}", style="red", markup=False
-                        )
-                        raise typer.Exit(3) from None
-                    reason = f"{type(exc).__name__}: {exc}"
-                wait = RECONNECT_S[min(failures, len(RECONNECT_S) - 1)]
-                failures += 1
-                errors.print(f"link lost ({reason}); again in {wait:g} s", markup=False)
-                await asyncio.sleep(wait)
+        with reader_watched():
+            await _follow(fleet, follow)
     except TimeoutError:
         return  # --seconds is over
+
+
+async def _follow(fleet: FleetClient, follow: Follow) -> None:
+    """:func:`watch`'s loop; TimeoutError when ``--seconds`` is over."""
+    seen = failures = 0
+    async with fleet, asyncio.timeout(follow.seconds), _leases_kept(fleet):
+        while True:
+            try:
+                async for push in fleet.events(follow.topics, throttle_ms=follow.throttle_ms):
+                    if push["op"] == "lagging":
+                        errors.print(f"{push.get('dropped')} events dropped (too slow)")
+                        continue
+                    print_event(push, follow.as_json)
+                    seen += 1
+                    if follow.count is not None and seen >= follow.count:
+                        return
+                failures = 0  # it ran: the next loss starts the waits again
+                reason = "the server closed the connection"
+            except FleetApiError as exc:
+                print_refusal(exc)
+                raise typer.Exit(1) from None
+            except (OSError, TimeoutError, websockets.InvalidHandshake) as exc:
+                if seen == 0 and failures == 0:
+                    errors.print(f"cannot reach {fleet.server}: {exc}", style="red", markup=False)
+                    raise typer.Exit(3) from None
+                reason = f"{type(exc).__name__}: {exc}"
+            wait = RECONNECT_S[min(failures, len(RECONNECT_S) - 1)]
+            failures += 1
+            errors.print(f"link lost ({reason}); again in {wait:g} s", markup=False)
+            await asyncio.sleep(wait)
 
 
 @contextlib.asynccontextmanager

@@ -127,6 +127,38 @@ async def test_watch_stops_quietly_when_its_output_is_closed(
     assert stderr == ""  # neither "link lost" nor a traceback
 
 
+async def test_watch_ends_when_its_reader_goes_though_nothing_more_comes(
+    make_settings: Callable[..., Settings],
+) -> None:
+    """``fleetctl watch ... | head -1`` on a quiet fleet: head has gone after the first
+    line and no event follows; the watch notices all the same, within seconds, and ends
+    quietly with exit 141 (it used to wait for the next change, for ever if none came)."""
+    async with served_vehicle(make_settings()) as (base, c, vid, vh, iid):
+        body = {"instance_id": iid, "samples": [sample(1)]}
+        assert (await c.post("/upper/update_param", headers=vh, json=body)).is_success
+        read_end, write_end = os.pipe()
+        env = {**os.environ, "FLEET_SERVER": base, "FLEET_TOKEN": ADMIN_TOKEN}
+        watcher = await asyncio.create_subprocess_exec(
+            sys.executable, "-m", "remote_client.cli", "watch", f"vehicle/{vid}/telemetry",
+            env=env, stdout=write_end, stderr=asyncio.subprocess.PIPE,
+        )  # fmt: skip
+        os.close(write_end)
+        try:
+            with os.fdopen(read_end, "rb") as head:  # head -1: a line, then gone
+                first = await asyncio.to_thread(head.readline)
+            async with asyncio.timeout(10):  # and nothing is sent any more
+                await watcher.wait()
+        finally:
+            if watcher.returncode is None:
+                watcher.kill()
+                await watcher.wait()
+        assert watcher.stderr is not None
+        stderr = (await watcher.stderr.read()).decode()
+    assert first.startswith(b"current ") and vid.encode() in first
+    assert watcher.returncode == 141, stderr
+    assert stderr == ""
+
+
 async def test_watch_prints_a_readable_line_per_event_and_takes_names(
     make_settings: Callable[..., Settings],
 ) -> None:
