@@ -5,7 +5,9 @@ It runs anywhere with a user token, subscribes to a vehicle's camera topic
 frame (Otsu threshold: the bright foreground against the water), and
 publishes the result under ``user/<its username>/segmentation/<vehicle>``,
 where the vehicle (or an operator) subscribes to it. The result carries the
-frame's ``ts`` so the vehicle can measure the round trip.
+frame's ``ts`` so the vehicle can measure the round trip. A frame it cannot read
+(not a PGM, truncated) is refused: logged, counted, the latest few kept aside
+(:class:`Tally`), and the worker goes on with the next.
 
     python examples/segmentation_worker.py --server http://127.0.0.1:8000 \\
         --token "$WORKER_TOKEN" --user worker --vehicle usv-1
@@ -17,6 +19,8 @@ import argparse
 import asyncio
 import json
 import logging
+from collections import deque
+from dataclasses import dataclass, field
 from typing import Any
 
 import websockets
@@ -25,25 +29,40 @@ from fleet_protocol.media import decode_media_frame
 
 log = logging.getLogger("segmentation-worker")
 
+#: How many of the latest refused frames the worker keeps aside for a look.
+SET_ASIDE = 16
+
 
 def parse_pgm(data: bytes) -> tuple[int, int, bytes]:
-    """Width, height and pixels of a binary PGM (P5, 8 bit)."""
+    """Width, height and pixels of a binary PGM (P5, 8 bit); ValueError for anything
+    else, a truncated or malformed frame among them (each step of the header is bounded
+    by the frame's end)."""
     fields: list[bytes] = []
-    pos = 0
+    pos, size = 0, len(data)
     while len(fields) < 4:
-        while data[pos : pos + 1].isspace():
+        while pos < size and data[pos : pos + 1].isspace():
             pos += 1
-        if data[pos : pos + 1] == b"#":
-            pos = data.index(b"\n", pos) + 1
+        if pos == size:
+            raise ValueError("the PGM header is truncated")
+        if data[pos : pos + 1] == b"#":  # a comment, to the end of its line
+            pos = data.find(b"\n", pos)
+            if pos < 0:
+                raise ValueError("the PGM header is truncated")
+            pos += 1
             continue
         end = pos
-        while not data[end : end + 1].isspace():
+        while end < size and not data[end : end + 1].isspace():
             end += 1
         fields.append(data[pos:end])
         pos = end
-    magic, width, height, maxval = fields[0], int(fields[1]), int(fields[2]), int(fields[3])
-    if magic != b"P5" or maxval > 255:
+    magic, numbers = fields[0], fields[1:]
+    if magic != b"P5" or not all(n.isdigit() for n in numbers):
         raise ValueError("only 8-bit binary PGM (P5) frames are segmented")
+    width, height, maxval = (int(n) for n in numbers)
+    if not 1 <= maxval <= 255:
+        raise ValueError("only 8-bit binary PGM (P5) frames are segmented")
+    if width == 0 or height == 0:
+        raise ValueError("the PGM frame has no pixels")
     pixels = data[pos + 1 : pos + 1 + width * height]
     if len(pixels) != width * height:
         raise ValueError("the PGM frame is truncated")
@@ -95,9 +114,39 @@ def segment(frame: bytes) -> dict[str, Any]:
     }
 
 
+@dataclass
+class Tally:
+    """What the worker did with the frames: how many it segmented, how many it refused,
+    and the latest refused ones (why, and the frame's bytes), kept aside."""
+
+    segmented: int = 0
+    refused: int = 0
+    set_aside: deque[tuple[str, bytes]] = field(default_factory=lambda: deque(maxlen=SET_ASIDE))
+
+
+def take(frame: bytes, tally: Tally) -> dict[str, Any] | None:
+    """The result to publish for one binary frame, or None when the frame is refused
+    (logged, counted and kept aside in ``tally``): one bad frame never stops the worker."""
+    when = "?"
+    try:
+        header, image = decode_media_frame(frame)
+        when = header.ts.isoformat().replace("+00:00", "Z")
+        result = segment(image)
+    except Exception as exc:  # whatever a frame holds, the next one is taken
+        tally.refused += 1
+        tally.set_aside.append((str(exc), frame))
+        log.warning("frame of %s refused (%d so far): %s", when, tally.refused, exc)
+        return None
+    tally.segmented += 1
+    result["frame_ts"] = when
+    return result
+
+
 async def run(
     server: str, token: str, user: str, vehicle: str, stop: asyncio.Event | None = None
-) -> None:
+) -> Tally:
+    """Segment the vehicle's frames until ``stop`` is set; what it did with them."""
+    tally = Tally()
     url = server.replace("http", "ws", 1).rstrip("/") + "/ws/client"
     source = f"vehicle/{vehicle}/camera"
     target = f"user/{user}/segmentation/{vehicle}"
@@ -120,14 +169,10 @@ async def run(
                 if message.get("op") in ("error", "ack") and message.get("ok") is False:
                     log.error("server refused: %s", message)
                 continue
-            header, image = decode_media_frame(frame)
-            try:
-                result = segment(image)
-            except ValueError as exc:
-                log.warning("frame skipped: %s", exc)
-                continue
-            result["frame_ts"] = header.ts.isoformat().replace("+00:00", "Z")
-            await ws.send(json.dumps({"op": "publish", "topic": target, "data": result}))
+            result = take(frame, tally)
+            if result is not None:
+                await ws.send(json.dumps({"op": "publish", "topic": target, "data": result}))
+    return tally
 
 
 def main() -> None:
