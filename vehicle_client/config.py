@@ -10,11 +10,12 @@ of the file and one ``[[vehicles]]`` table per vehicle (see
 from __future__ import annotations
 
 import difflib
+import math
 import tomllib
 from pathlib import Path
 from typing import Any, Literal
 
-from pydantic import BaseModel, Field, SecretStr, ValidationError, field_validator
+from pydantic import BaseModel, ConfigDict, Field, SecretStr, ValidationError, field_validator
 from pydantic_settings import (
     BaseSettings,
     PydanticBaseSettingsSource,
@@ -35,11 +36,16 @@ def parse_pair(text: str, what: str) -> tuple[float, float]:
         a, b = (float(x) for x in text.split(","))
     except ValueError:
         raise ValueError(f"{what} must be two numbers separated by a comma, got {text!r}") from None
+    if not (math.isfinite(a) and math.isfinite(b)):
+        raise ValueError(f"{what} must be two finite numbers, got {text!r}")
     return a, b
 
 
 class VehicleOptions(BaseModel):
     """What differs per vehicle (one in ``run``, several in a gateway)."""
+
+    #: No setting is NaN or infinite: "a finite number", before any range is checked.
+    model_config = ConfigDict(allow_inf_nan=False)
 
     vehicle_id: str = Field(pattern=ID_PATTERN)
     name: str = ""
@@ -80,7 +86,10 @@ class VehicleOptions(BaseModel):
 class LinkOptions(BaseSettings):
     """What the agent (or gateway) shares: the server link and the pace."""
 
-    model_config = SettingsConfigDict(env_prefix="FLEET_AGENT_", extra="ignore")
+    #: No setting is NaN or infinite: "a finite number", before any range is checked.
+    model_config = SettingsConfigDict(
+        env_prefix="FLEET_AGENT_", extra="ignore", allow_inf_nan=False
+    )
 
     server: str = "http://127.0.0.1:8000"
     token: SecretStr = SecretStr("")

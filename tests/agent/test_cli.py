@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
+from pydantic import BaseModel
 from typer.testing import CliRunner
 
 from vehicle_client.cli import app
@@ -68,6 +69,44 @@ def test_bad_configuration_exits_2_with_a_clear_message(args: list[str], message
     assert result.exit_code == 2, result.output
     assert "fleet-agent: error:" in result.output
     assert message in result.output
+
+
+def _float_settings(cls: type[BaseModel]) -> list[str]:
+    return [name for name, f in cls.model_fields.items() if f.annotation in (float, float | None)]
+
+
+@pytest.mark.parametrize("value", ["nan", "inf", "-inf"])
+def test_a_float_setting_that_is_not_finite_is_said_to_need_a_finite_number(
+    value: str, monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    """``--rate-hz nan`` was refused as "less than or equal to 100", an infinite one
+    likewise: every float setting of the agent and the gateway, from the environment or
+    a file, a simulator's ``start`` and ``current`` among them, says a finite number."""
+    floats = _float_settings(AgentSettings)
+    assert {"rate_hz", "max_speed_mps", "time_scale", "poll_wait_s"} <= set(floats)
+    for name in floats:
+        monkeypatch.setenv(f"FLEET_AGENT_{name.upper()}", value)
+        result = runner.invoke(app, ["run", "--vehicle-id", "usv-1", "--token", "t"])
+        assert result.exit_code == 2, result.output
+        assert f"{name}: Input should be a finite number" in result.output
+        monkeypatch.delenv(f"FLEET_AGENT_{name.upper()}")
+    for pair in ("start", "current"):
+        result = runner.invoke(app, ["run", "--vehicle-id", "usv-1", f"--{pair}", f"0,{value}"])
+        assert result.exit_code == 2, result.output
+        assert f"{pair} must be two finite numbers" in result.output
+
+    toml = {"nan": "nan", "inf": "inf", "-inf": "-inf"}[value]
+    for name in _float_settings(GatewaySettings):
+        config = tmp_path / f"{name}.toml"
+        config.write_text(f'token = "t"\n{name} = {toml}\n[[vehicles]]\nvehicle_id = "a"\n')
+        result = runner.invoke(app, ["gateway", "--config", str(config)])
+        assert result.exit_code == 2, result.output
+        assert f"{name}: Input should be a finite number" in result.output
+    config = tmp_path / "vehicle.toml"
+    config.write_text(f'token = "t"\n[[vehicles]]\nvehicle_id = "a"\nmax_speed_mps = {toml}\n')
+    result = runner.invoke(app, ["gateway", "--config", str(config)])
+    assert result.exit_code == 2, result.output
+    assert "vehicles.0.max_speed_mps: Input should be a finite number" in result.output
 
 
 def test_a_gateway_with_a_vehicle_twice_is_refused(tmp_path: Path) -> None:
