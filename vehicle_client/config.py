@@ -106,6 +106,7 @@ class LinkOptions(BaseSettings):
 
 
 class AgentSettings(LinkOptions, VehicleOptions):
+    model_config = LinkOptions.model_config  # both bases say no NaN, no infinity
     vehicle_id: str = Field(default="", pattern=r"^$|" + ID_PATTERN)
     outbox: Path = Path("fleet-agent-outbox.db")
 
