@@ -35,6 +35,8 @@ def watch(
     (VEHICLE: an id or a name), or any topic a unit publishes. Ctrl-C stops.
     """
     wanted = list(topics or ["fleet"])
+    for topic in wanted:  # all but a vehicle's name (any text), before any look-up
+        _checked(topic, _vehicle_as_id(topic))
     if any(_names_a_vehicle(t) for t in wanted):
         wanted = run(server, token, lambda fleet: _vehicle_topics(fleet, wanted))
     for topic in wanted:
@@ -49,6 +51,15 @@ def _names_a_vehicle(topic: str) -> bool:
     return len(parts) >= 3 and parts[0] == "vehicle"
 
 
+def _vehicle_as_id(topic: str) -> str:
+    """``topic`` with the vehicle it names (an id or a name) as an id would be: what is
+    left to check before the name is looked up."""
+    if not _names_a_vehicle(topic):
+        return topic
+    head, _, rest = topic.split("/", 2)
+    return f"{head}/v/{rest}"
+
+
 async def _vehicle_topics(fleet: FleetClient, topics: list[str]) -> list[str]:
     """``vehicle/<id or name>/...`` with the vehicle's id (one look-up for all). A segment
     that names no vehicle the caller sees is left for the server to judge."""
@@ -60,6 +71,11 @@ async def _vehicle_topics(fleet: FleetClient, topics: list[str]) -> list[str]:
             try:
                 ref = pick_vehicle(ref, fleet_now)["vehicle_id"]
             except UnknownVehicle:
+                try:  # no vehicle goes by that name: is it an id one could register?
+                    validate_topic(topic)
+                except ValueError as exc:
+                    fail(f"not a topic: {topic!r}: no vehicle you can see goes by {ref!r}, "
+                         f"and as a vehicle id: {exc}")  # fmt: skip
                 errors.print(  # an admin's watch would otherwise wait in silence
                     f"warning: no vehicle {ref!r} among those you can see: {topic} has "
                     "nothing to show until one registers under that id",
@@ -100,10 +116,11 @@ def publish(
     say(run(server, token, act), as_json, f"published on {topic}")
 
 
-def _checked(topic: str) -> None:
-    """As the server checks a topic: a bad one is a bad argument (exit 2)."""
+def _checked(topic: str, checked: str | None = None) -> None:
+    """As the server checks a topic (``checked``, when given, stands for it): a bad one is
+    a bad argument (exit 2)."""
     try:
-        validate_topic(topic)
+        validate_topic(topic if checked is None else checked)
     except ValueError as exc:
         fail(f"not a topic: {topic!r}: {exc}")
 

@@ -187,3 +187,24 @@ async def test_watch_prints_a_readable_line_per_event_and_takes_names(
         nothing = await fleetctl(base, ADMIN_TOKEN, "watch", "vehicle/nosuch/telemetry",
                                   "--seconds", "0.5")  # fmt: skip
         assert nothing.exit_code == 0 and "no vehicle 'nosuch'" in nothing.stderr
+
+
+async def test_a_vehicle_segment_that_is_neither_a_name_nor_an_id_is_refused_unwarned(
+    make_settings: Callable[..., Settings],
+) -> None:
+    """``vehicle/Bad/telemetry``: no vehicle goes by ``Bad``, and no id can hold an
+    uppercase letter. It is refused (exit 2) without first being warned of as a vehicle
+    that may register later; a bad part past the vehicle is refused before any look-up."""
+    async with served_vehicle(make_settings(), name="Kestrel") as (base, _, vid, _, _):
+        bad = await fleetctl(base, ADMIN_TOKEN, "watch", "vehicle/Bad/telemetry", "--seconds", "1")
+        assert bad.exit_code == 2, bad.output
+        assert "warning" not in bad.stderr and "registers" not in bad.stderr
+        assert "no vehicle you can see goes by 'Bad'" in bad.stderr
+        assert "may hold only a-z" in bad.stderr and bad.stdout == ""
+        kestrel = await fleetctl(
+            base, ADMIN_TOKEN, "watch", f"vehicle/{vid}/Tele", "--seconds", "1"
+        )
+        assert kestrel.exit_code == 2 and "segment 'Tele'" in kestrel.stderr, kestrel.output
+    nowhere = "http://127.0.0.1:9"  # nothing is asked of a server: refused all the same
+    named = await fleetctl(nowhere, ADMIN_TOKEN, "watch", "vehicle/Kestrel/Tele", "--seconds", "1")
+    assert named.exit_code == 2 and "segment 'Tele'" in named.stderr, named.output
