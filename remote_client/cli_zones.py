@@ -4,6 +4,7 @@ clear of. A zone or an obstacle is named by its id or its name."""
 from __future__ import annotations
 
 import json
+from collections import Counter
 from typing import Any
 
 import typer
@@ -38,14 +39,51 @@ ObstacleArg = typer.Argument(..., help="the obstacle's id or name (fleetctl obst
 ClearanceOpt = typer.Option(None, callback=finite, help="metres a planned path keeps from it")
 
 
+#: What a file of ``zones add``, ``zones edit --polygon`` and ``obstacles add`` may hold.
+POLYGON_FILE = (
+    "a GeoJSON Polygon, a Feature whose geometry is one, or a FeatureCollection of "
+    "exactly one such Feature"
+)
+
+
 def _polygon(path: str) -> Any:
-    """The GeoJSON Polygon in the file (a Feature's geometry); unreadable: exit 2."""
+    """The GeoJSON Polygon in the file (:data:`POLYGON_FILE`); unreadable, or holding
+    no Polygon or several: exit 2, before anything is sent."""
     try:
         with open(path, encoding="utf-8") as f:
             shape = json.load(f)
     except (OSError, ValueError) as exc:
         fail(f"cannot read {path}: {exc}")
-    return shape.get("geometry", shape) if isinstance(shape, dict) else shape
+    if not isinstance(shape, dict):
+        fail(f"{path} holds no GeoJSON object: give {POLYGON_FILE}")
+    if shape.get("type") == "FeatureCollection":
+        features = shape.get("features")
+        features = features if isinstance(features, list) else []
+        held = [_geometry_type(f) for f in features]
+        if held != ["Polygon"]:
+            kinds = Counter(held)
+            what = ", ".join(f"{n} {kind}" for kind, n in sorted(kinds.items()))
+            fail(
+                f"{path} holds a FeatureCollection of {len(held)} "
+                f"feature{'' if len(held) == 1 else 's'}{f' ({what})' if what else ''}: a zone "
+                f"or an obstacle is one Polygon; give {POLYGON_FILE} (one file each)"
+            )
+        shape = features[0]
+    polygon = shape.get("geometry", shape) if shape.get("type") == "Feature" else shape
+    if not isinstance(polygon, dict) or polygon.get("type") != "Polygon":
+        fail(f"{path} holds a {_geometry_type(shape)}, not a Polygon: give {POLYGON_FILE}")
+    return polygon
+
+
+def _geometry_type(value: Any) -> str:
+    """``Polygon``, ``Point``..., a Feature's geometry's (``no geometry``: a Feature
+    without one; ``no GeoJSON``: not an object)."""
+    if not isinstance(value, dict):
+        return "no GeoJSON"
+    if value.get("type") == "Feature":
+        geometry = value.get("geometry")
+        return str(geometry.get("type")) if isinstance(geometry, dict) else "no geometry"
+    return str(value.get("type"))
 
 
 # ---- zones ------------------------------------------------------------------------------
@@ -80,7 +118,9 @@ def _zone_line(data: dict[str, Any]) -> str:
 @zones_app.command("add")
 def zones_add(
     name: str = typer.Argument(..., help="what the zone is called"),
-    geojson: str = typer.Argument(..., help="a file holding a GeoJSON Polygon (or a Feature)"),
+    geojson: str = typer.Argument(
+        ..., help="a file holding a GeoJSON Polygon (or a Feature, or a FeatureCollection of one)"
+    ),
     kind: str = typer.Option("no_go", help="no_go or operating_area"),
     vehicle: list[str] = typer.Option(
         None, "--vehicle", "-v", help="a vehicle it applies to; repeat (an area needs one)"
@@ -107,7 +147,10 @@ def zones_add(
 def zones_edit(
     zone: str = ZoneArg,
     name: str | None = typer.Option(None, help="a new name"),
-    polygon: str | None = typer.Option(None, help="a file with the new GeoJSON Polygon"),
+    polygon: str | None = typer.Option(
+        None,
+        help="a file with the new GeoJSON Polygon (or a Feature, or a FeatureCollection of one)",
+    ),
     vehicle: list[str] = typer.Option(
         None, "--vehicle", "-v", help="the vehicles it applies to from now on; repeat"
     ),
@@ -189,7 +232,9 @@ def _list_obstacles(server: str, token: str, as_json: bool) -> None:
 @obstacles_app.command("add")
 def obstacles_add(
     name: str = typer.Argument(..., help="what the obstacle is called"),
-    geojson: str = typer.Argument(..., help="a file holding a GeoJSON Polygon (or a Feature)"),
+    geojson: str = typer.Argument(
+        ..., help="a file holding a GeoJSON Polygon (or a Feature, or a FeatureCollection of one)"
+    ),
     clearance: float | None = ClearanceOpt,
     server: str = ServerOpt,
     token: str = TokenOpt,

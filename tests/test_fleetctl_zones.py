@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import httpx
 import pytest
@@ -107,3 +108,53 @@ async def test_obstacles_listed_added_and_removed(
         assert (await c.get("/api/obstacles", headers=ADMIN)).json()["obstacles"] == []
         gone = await fleetctl(base, ADMIN_TOKEN, "obstacles", "remove", "rock")
         assert gone.exit_code == 1 and "no obstacle with the id or name 'rock'" in gone.stderr
+
+
+async def test_a_feature_collection_of_one_polygon_draws_a_zone_and_others_are_refused(
+    make_settings: Callable[..., Settings], tmp_path: Path
+) -> None:
+    """A FeatureCollection (what most tools export) holding one Polygon feature is taken;
+    one of several features, or none, or a file with no Polygon, is refused by fleetctl
+    saying what to give, exit 2, nothing sent (it was the server's 422 on
+    ``polygon.type``)."""
+    ring = [[15.40, 43.90], [15.41, 43.90], [15.41, 43.91], [15.40, 43.90]]
+    polygon = {"type": "Polygon", "coordinates": [ring]}
+    point = {"type": "Point", "coordinates": [15.4, 43.9]}
+
+    def collection(name: str, *geometries: dict[str, Any]) -> str:
+        features = [{"type": "Feature", "properties": {}, "geometry": g} for g in geometries]
+        path = tmp_path / name
+        path.write_text(json.dumps({"type": "FeatureCollection", "features": features}))
+        return str(path)
+
+    async with serve(make_settings()) as base, httpx.AsyncClient(base_url=base) as c:
+        one = collection("one.geojson", polygon)
+        added = await fleetctl(base, ADMIN_TOKEN, "zones", "add", "pier2", one, "--json")
+        assert added.exit_code == 0, added.output
+        assert json.loads(added.stdout)["polygon"] == polygon
+        rock = await fleetctl(base, ADMIN_TOKEN, "obstacles", "add", "rock", one, "--json")
+        assert rock.exit_code == 0 and json.loads(rock.stdout)["polygon"] == polygon, rock.output
+
+        two = collection("two.geojson", polygon, polygon)
+        several = await fleetctl(base, ADMIN_TOKEN, "zones", "add", "pier3", two)
+        assert several.exit_code == 2, several.output
+        assert f"{two} holds a FeatureCollection of 2 features (2 Polygon)" in several.stderr
+        assert "exactly one such Feature" in several.stderr
+        empty = collection("none.geojson")
+        none = await fleetctl(base, ADMIN_TOKEN, "zones", "edit", "pier2", "--polygon", empty)
+        assert none.exit_code == 2, none.output
+        assert "a FeatureCollection of 0 features: a zone or an obstacle is one Polygon" in (
+            none.stderr
+        )
+        mixed = collection("mixed.geojson", point)
+        pointed = await fleetctl(base, ADMIN_TOKEN, "obstacles", "add", "buoy", mixed)
+        assert pointed.exit_code == 2 and "1 feature (1 Point)" in pointed.stderr, pointed.output
+        feature = tmp_path / "point.geojson"
+        feature.write_text(json.dumps({"type": "Feature", "geometry": point}))
+        a_point = await fleetctl(base, ADMIN_TOKEN, "zones", "add", "buoy", str(feature))
+        assert a_point.exit_code == 2 and "holds a Point, not a Polygon" in a_point.stderr
+
+        zones = (await c.get("/api/zones", headers=ADMIN)).json()["zones"]
+        assert [(z["name"], z["polygon"]) for z in zones] == [("pier2", polygon)]  # unchanged
+        obstacles = (await c.get("/api/obstacles", headers=ADMIN)).json()["obstacles"]
+        assert [o["name"] for o in obstacles] == ["rock"]
