@@ -118,7 +118,9 @@ class StartInstance(WireModel):
     name: Label = Field(default="", max_length=128)
     #: None: the type it has (as registered, or as its last start gave it).
     vehicle_type: Label | None = Field(default=None, min_length=1, max_length=32)
-    capabilities: list[CommandType] = Field(default_factory=list, max_length=16)
+    #: None (left out): the ones it has (as its last start gave them; none at its first);
+    #: ``[]``: none.
+    capabilities: list[CommandType] | None = Field(default=None, max_length=16)
     params: Params = Field(default_factory=dict)
     #: The commands the vehicle still carries out or has an ack to send for. Given (even
     #: empty), every other command of the instance it had acknowledged (``accepted``,

@@ -79,7 +79,8 @@ class InstanceService(InstanceCopies):
                 state.name = body.name
             if body.vehicle_type:
                 state.vehicle_type = body.vehicle_type
-            state.capabilities = list(body.capabilities)
+            if body.capabilities is not None:
+                state.capabilities = list(body.capabilities)
             self.merge_params(state, body.params, starting=True)
             await self._write(state, time.monotonic(), whole=True)
         await self.events.record(
@@ -105,8 +106,9 @@ class InstanceService(InstanceCopies):
                     return self._adopt(doc), False
                 await self.repo.release(vehicle_id, current)  # a claim left by a crash
                 continue
-            # A new instance goes on from the vehicle's last one: the name and type its
-            # last start gave (else the registered ones), and its latest position.
+            # A new instance goes on from the vehicle's last one: the name, type and
+            # capabilities its last start gave (else the registered name and type, and
+            # no capabilities), and its latest position.
             last = await self.repo.latest_for_vehicle(vehicle_id) or {}
             now = self.clock()
             state = InstanceState(
@@ -119,7 +121,11 @@ class InstanceService(InstanceCopies):
                     or meta.get("vehicle_type")
                     or "usv"
                 ),
-                capabilities=list(body.capabilities),
+                capabilities=list(
+                    body.capabilities
+                    if body.capabilities is not None
+                    else last.get("capabilities") or []
+                ),
                 started_at=now,
                 params=dict(body.params),
                 params_updated_at=now if body.params else None,

@@ -305,3 +305,36 @@ async def test_a_new_instance_takes_up_the_name_type_and_position_the_last_one_h
         "/client/get_param", headers=ADMIN, params={"instance_id": r.json()["instance_id"]}
     )
     assert got.json()["position"]["depth_m"] == 1.5
+
+
+async def test_a_start_without_capabilities_keeps_the_ones_the_vehicle_gave(
+    client: httpx.AsyncClient,
+) -> None:
+    """A resume (then a new instance) that leaves ``capabilities`` out keeps those the last
+    start gave, as it keeps the name and type; an explicit ``[]`` still means none."""
+    vid, vh = await make_vehicle(client)
+    caps = ["stop", "go_to", "keep_station", "follow_path"]
+    first = await start_instance(client, vid, vh, capabilities=caps)
+
+    async def shown(iid: str) -> list[str]:
+        r = await client.post("/client/connect_instance", headers=ADMIN, json={"instance_id": iid})
+        assert r.status_code == 200, r.text
+        return list(r.json()["instance"]["capabilities"])
+
+    r = await client.post("/upper/start_instance", headers=vh, json={"vehicle_id": vid})
+    assert r.status_code == 200 and r.json()["resumed"] is True, r.text
+    assert await shown(first["instance_id"]) == caps
+    await client.post(
+        "/upper/finish_instance", headers=vh, json={"instance_id": first["instance_id"]}
+    )
+    r = await client.post(
+        "/upper/start_instance", headers=vh, json={"vehicle_id": vid, "capabilities": None}
+    )
+    assert r.status_code == 200 and r.json()["resumed"] is False, r.text
+    fresh = r.json()["instance_id"]
+    assert await shown(fresh) == caps
+    r = await client.post(
+        "/upper/start_instance", headers=vh, json={"vehicle_id": vid, "capabilities": []}
+    )
+    assert r.status_code == 200 and r.json()["resumed"] is True, r.text
+    assert await shown(fresh) == []

@@ -151,6 +151,30 @@ async def test_stop_jumps_the_queue_on_the_socket(base: str, api: httpx.AsyncCli
         assert pushed["type"] == "stop" and pushed["instance_id"] == iid
 
 
+async def test_a_resume_over_the_socket_without_capabilities_keeps_them(
+    base: str, api: httpx.AsyncClient
+) -> None:
+    """``start_instance`` with no ``capabilities`` resumes with those the vehicle gave: a
+    ``go_to`` is still taken (not 422 ``capability_missing``)."""
+    vid, vh = await make_vehicle(api)
+    async with await connect(base, "/ws/vehicle", token_of(vh)) as ws:
+        iid = await _start(ws, vid)
+        ack = await call(ws, "start_instance", "s2", vehicle_id=vid)
+        assert ack["ok"] is True and ack["resumed"] is True and ack["instance_id"] == iid
+    r = await api.post("/client/connect_instance", headers=ADMIN, json={"instance_id": iid})
+    assert r.json()["instance"]["capabilities"] == CAPS
+    lease = await _lease(api, vid, iid)
+    r = await api.post(
+        "/client/submit_control",
+        headers=lease,
+        json={
+            "instance_ids": [iid],
+            "command": {"type": "go_to", "args": {"lat": 43.9, "lon": 15.4}},
+        },
+    )
+    assert r.status_code == 202, r.text
+
+
 async def test_telemetry_over_the_socket_is_stored(base: str, api: httpx.AsyncClient) -> None:
     vid, vh = await make_vehicle(api)
     async with await connect(base, "/ws/vehicle", token_of(vh)) as ws:
