@@ -9,7 +9,7 @@ from pydantic import Field, StrictInt, ValidationInfo, field_validator, model_va
 from fleet_protocol.commands import CommandObject, CommandSpec
 from fleet_protocol.common import Identifier, Sample, Timestamp, WireModel
 from fleet_protocol.served import ServedObject
-from fleet_protocol.text import Text
+from fleet_protocol.text import Note, Text
 from fleet_protocol.upper import ControlInfo, ControlMode, InstanceRef
 
 __all__ = [
@@ -140,7 +140,7 @@ class DenyControl(InstanceRef):
     """A field manager declines a pending request for control."""
 
     user: Identifier
-    reason: Text | None = Field(default=None, max_length=200)
+    reason: Note | None = Field(default=None, max_length=200)
 
 
 class OperatorHeartbeat(WireModel):

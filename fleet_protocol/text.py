@@ -5,7 +5,8 @@ which neither UTF-8 nor BSON can hold, yet Python's ``json`` decodes
 ``"\\ud800"`` into one (pydantic's plain ``str`` lets it through). A name
 people read on a console or a terminal is :data:`Label`: ``Text`` without
 control characters, nor characters that reorder the text around them
-(``docs/limits.md``).
+(``docs/limits.md``); other text typed for people to read (a reason) is
+:data:`Note`, under the same rule (:func:`screen_rule`).
 
 The other way, text quoted in a message: :func:`shown_text` replaces lone
 surrogates, :func:`escape_controls` shows control characters as escapes.
@@ -17,6 +18,7 @@ and keys with the same rule: :mod:`fleet_protocol.values`.
 from __future__ import annotations
 
 import re
+from collections.abc import Callable
 from typing import Annotated
 
 from pydantic import BeforeValidator
@@ -26,9 +28,11 @@ __all__ = [
     "BIDI_CONTROLS",
     "SURROGATE",
     "Label",
+    "Note",
     "Text",
     "check_text",
     "escape_controls",
+    "screen_rule",
     "shown_text",
 ]
 
@@ -68,18 +72,31 @@ _CONTROL = re.compile("[\x00-\x1f\x7f-\x9f]")
 BIDI_CONTROLS = re.compile("[\u202a-\u202e\u2066-\u2069]")
 
 
-def check_label(value: object) -> object:
-    if isinstance(value, str) and _CONTROL.search(value) is not None:
-        raise PydanticCustomError(
-            "string_control", "a name is shown on screens: no control characters"
-        )
-    if isinstance(value, str) and BIDI_CONTROLS.search(value) is not None:
-        raise PydanticCustomError(
-            "string_bidi",
-            "a name is shown on screens: no characters that reorder the text "
-            "(U+202A to U+202E, U+2066 to U+2069)",
-        )
-    return value
+def screen_rule(what: str) -> Callable[[object], object]:
+    """The one rule for text people read on a console or a terminal (``what``: how the
+    refusal names it, "a name"): no control characters, nor characters that reorder the
+    text around them. Anything but a string is left for the ``str`` schema to refuse."""
+
+    def check(value: object) -> object:
+        if not isinstance(value, str):
+            return value
+        if _CONTROL.search(value) is not None:
+            raise PydanticCustomError(
+                "string_control", f"{what} is shown on screens: no control characters"
+            )
+        if BIDI_CONTROLS.search(value) is not None:
+            raise PydanticCustomError(
+                "string_bidi",
+                f"{what} is shown on screens: no characters that reorder the text "
+                "(U+202A to U+202E, U+2066 to U+2069)",
+            )
+        return value
+
+    return check
+
+
+check_label = screen_rule("a name")
+check_note = screen_rule("this text")
 
 
 def escape_controls(text: str) -> str:
@@ -88,6 +105,11 @@ def escape_controls(text: str) -> str:
     return _CONTROL.sub(lambda m: f"\\x{ord(m.group()):02x}", text)
 
 
-#: A name people read on a console or a terminal (a vehicle's, an obstacle's): ``Text``
-#: without control characters (NUL, escape sequences, line breaks).
+#: A name people read on a console or a terminal (a vehicle's, a zone's, an obstacle's):
+#: ``Text`` without control characters (NUL, escape sequences, line breaks) nor characters
+#: that reorder the text.
 Label = Annotated[str, BeforeValidator(check_text), BeforeValidator(check_label)]
+
+#: Other text a person types for others to read (a reason given with a refusal): the
+#: same rule as :data:`Label`, its refusal naming it "this text".
+Note = Annotated[str, BeforeValidator(check_text), BeforeValidator(check_note)]

@@ -17,7 +17,7 @@ from pydantic import Field, StrictFloat
 
 from fleet_protocol.common import Identifier, Timestamp, WireModel
 from fleet_protocol.obstacles import PolygonGeometry
-from fleet_protocol.text import Text
+from fleet_protocol.text import Label, Text
 
 __all__ = ["CreateZone", "PatchZone", "ZoneKind", "ZoneList", "ZoneView"]
 
@@ -25,7 +25,7 @@ ZoneKind = Literal["no_go", "operating_area"]
 
 
 class CreateZone(WireModel):
-    name: Text = Field(min_length=1, max_length=128)
+    name: Label = Field(min_length=1, max_length=128)
     kind: ZoneKind
     polygon: PolygonGeometry
     #: The vehicles it applies to; empty: every vehicle (a no-go zone only: an operating
@@ -51,7 +51,7 @@ class PatchZone(WireModel):
         description="the zone's own kind, or left out: a zone's kind cannot change "
         "(delete it and create another); another kind is a 422",
     )
-    name: Text | None = Field(default=None, min_length=1, max_length=128)
+    name: Label | None = Field(default=None, min_length=1, max_length=128)
     polygon: PolygonGeometry | None = None
     vehicles: list[Identifier] | None = Field(default=None, max_length=1000)
     clearance_m: StrictFloat | None = Field(default=None, ge=0, le=10_000, allow_inf_nan=False)

@@ -86,6 +86,17 @@ async def test_a_manager_declines_a_request_and_the_requester_hears_why(w: World
     assert (await post(w, "request_control", op.headers, instance_id=v.instance_id)).is_success
     r = await post(w, "deny_control", boss.headers, instance_id=v.instance_id, user="Not An Id")
     assert r.status_code == 422
+    # a reason is shown to people: no control characters, nor ones that reorder the text
+    for reason in ["\x1b[2Jgo away", "two\nlines", "ok\u202etxet"]:
+        r = await post(
+            w, "deny_control", boss.headers,
+            instance_id=v.instance_id, user=op.username, reason=reason,
+        )  # fmt: skip
+        assert r.status_code == 422, r.text
+        assert [d["field"] for d in r.json()["error"]["details"]] == ["reason"], r.text
+        assert "shown on screens" in r.json()["error"]["details"][0]["message"]
+    r = await w.http.get("/client/control_requests", headers=boss.headers)
+    assert [q["username"] for q in r.json()["requests"]] == [op.username]  # still pending
 
 
 async def test_pending_requests_are_bounded(w: World) -> None:

@@ -164,6 +164,24 @@ async def test_only_admins_draw_and_bad_zones_are_422(w: World) -> None:
     assert r.status_code == 422 and "clearance_m" in r.text
 
 
+@pytest.mark.parametrize("name", ["z\x1b[2Jx\u202e", "two\nlines", "a\x00b", "Alpha\u2066x"])
+async def test_a_zone_name_with_control_or_reordering_characters_is_422(
+    w: World, name: str
+) -> None:
+    """A zone's name is shown on screens as an obstacle's is: refused on create and on a
+    patch alike, naming ``name``, and the zone kept as it was."""
+    r = await w.http.post("/api/zones", headers=ADMIN, json=no_go(name))
+    assert r.status_code == 422, r.text
+    assert [d["field"] for d in r.json()["error"]["details"]] == ["name"]
+    assert "shown on screens" in r.json()["error"]["details"][0]["message"]
+    made = await zone(w, no_go())
+    r = await w.http.patch(f"/api/zones/{made['zone_id']}", headers=ADMIN, json={"name": name})
+    assert r.status_code == 422, r.text
+    assert [d["field"] for d in r.json()["error"]["details"]] == ["name"]
+    got = await w.http.get(f"/api/zones/{made['zone_id']}", headers=ADMIN)
+    assert got.json()["name"] == "pier 3" and got.json()["version"] == made["version"]
+
+
 async def test_a_go_to_into_a_no_go_zone_is_refused_naming_it(w: World) -> None:
     made = await zone(w, no_go())
     me = await w.vehicle()
