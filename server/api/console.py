@@ -24,6 +24,8 @@ from fastapi import APIRouter, FastAPI
 from fastapi.openapi.docs import get_swagger_ui_html
 from fastapi.responses import HTMLResponse
 from fastapi.staticfiles import StaticFiles
+from starlette.exceptions import HTTPException
+from starlette.responses import Response
 from starlette.routing import BaseRoute, Match, Mount
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
@@ -103,10 +105,29 @@ def install(app: FastAPI, settings: Settings) -> None:
         )
     for prefix, package in VENDOR.items():
         if (modules / package).is_dir():
-            app.mount(prefix, _Headed(StaticFiles(directory=modules / package), _DOCS_HEADERS))
+            app.mount(prefix, _Headed(_Files(directory=modules / package), _DOCS_HEADERS))
     if CONSOLE_DIR.is_dir():
-        files = StaticFiles(directory=CONSOLE_DIR, html=True)
+        files = _Files(directory=CONSOLE_DIR, html=True)
         app.router.routes.append(_Console(app.router.routes, _Headed(files, _CONSOLE_HEADERS)))
+
+
+class _Files(StaticFiles):
+    """Static files, of which a path that is none is 404 whatever the method: asked with
+    another method than GET or HEAD, a file there is 405 (``Allow: GET, HEAD``), a path
+    with no file 404 (Starlette's answer 405 to any path: ``POST /api/nonexistent`` read
+    as a call the API had)."""
+
+    async def get_response(self, path: str, scope: Scope) -> Response:
+        if scope["method"] in ("GET", "HEAD"):
+            return await super().get_response(path, scope)
+        found = await super().get_response(path, {**scope, "method": "HEAD"})  # 404: raised
+        if found.status_code == 404:  # a 404.html page
+            raise HTTPException(status_code=404)
+        raise HTTPException(
+            405,
+            f"{scope['method']} is not allowed here; a file takes GET, HEAD",
+            {"Allow": "GET, HEAD"},
+        )
 
 
 class _Headed:

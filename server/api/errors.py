@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import logging
 import re
+from collections.abc import Sequence
 from typing import Any
 
 from fastapi import FastAPI, Request
@@ -11,6 +12,8 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.requests import ClientDisconnect
+from starlette.routing import BaseRoute, Match, Mount
+from starlette.types import Scope
 
 from fleet_protocol.errors import error_text, unreadable_json
 from fleet_protocol.text import escape_controls, shown_text
@@ -97,6 +100,24 @@ def _not_read_as_json(errors: list[dict[str, Any]], content_type: str | None) ->
     )
 
 
+#: The methods a path may take (what a 405's ``Allow`` may list).
+_METHODS = ("DELETE", "GET", "HEAD", "PATCH", "POST", "PUT")
+
+
+def path_methods(routes: Sequence[BaseRoute], scope: Scope) -> list[str]:
+    """The methods the routes (not the mounted files) take at a request's path, together:
+    a path may have a route per method, and Starlette's 405 names only the first one's."""
+    return [
+        method
+        for method in _METHODS
+        if any(
+            not isinstance(route, Mount)
+            and route.matches({**scope, "method": method})[0] is Match.FULL
+            for route in routes
+        )
+    ]
+
+
 def install(app: FastAPI) -> None:
     @app.exception_handler(FleetError)
     async def _fleet(_: Request, exc: FleetError) -> JSONResponse:
@@ -123,7 +144,7 @@ def install(app: FastAPI) -> None:
         return envelope(422, "invalid", f"invalid input: {fields}", details)
 
     @app.exception_handler(StarletteHTTPException)
-    async def _http(_: Request, exc: StarletteHTTPException) -> JSONResponse:
+    async def _http(request: Request, exc: StarletteHTTPException) -> JSONResponse:
         cause = exc.__cause__
         if exc.status_code == 400 and isinstance(cause, ValueError | RecursionError):
             # FastAPI's "error parsing the body": a body Python's json could not read
@@ -132,7 +153,15 @@ def install(app: FastAPI) -> None:
             return envelope(422, "invalid", message, [{"field": "body", "message": message}])
         code = _HTTP_CODES.get(exc.status_code, "error")
         message = exc.detail if isinstance(exc.detail, str) else code.replace("_", " ")
-        return envelope(exc.status_code, code, message, headers=getattr(exc, "headers", None))
+        headers = getattr(exc, "headers", None)
+        if exc.status_code == 405:
+            allowed = path_methods(request.app.router.routes, request.scope)
+            if allowed:  # a route's: the methods of every route of the path, not its own
+                headers = {**(headers or {}), "Allow": ", ".join(allowed)}
+                message = (
+                    f"{request.method} is not allowed here; this path takes {', '.join(allowed)}"
+                )
+        return envelope(exc.status_code, code, message, headers=headers)
 
     @app.exception_handler(ClientDisconnect)
     async def _gone(_: Request, exc: ClientDisconnect) -> JSONResponse:

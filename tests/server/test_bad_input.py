@@ -151,6 +151,40 @@ async def test_unknown_route_and_method_are_enveloped(client: httpx.AsyncClient)
     assert (await client.get("/")).status_code == 200  # the console itself
 
 
+@pytest.mark.parametrize("method", ["POST", "PUT", "PATCH", "DELETE", "GET"])
+@pytest.mark.parametrize(
+    "path", ["/api/nonexistent", "/upper/nope", "/client/nope", "/nope", "/api/vehicles/tv-1/nope"]
+)
+async def test_a_path_the_api_does_not_have_is_404_whatever_the_method(
+    client: httpx.AsyncClient, method: str, path: str
+) -> None:
+    r = await client.request(method, path, headers=ADMIN)
+    assert r.status_code == 404, (method, path, r.status_code, r.headers.get("allow"))
+    assert r.json()["error"]["code"] == "not_found" and "allow" not in r.headers
+
+
+@pytest.mark.parametrize(
+    ("method", "path", "allow"),
+    [
+        ("PUT", "/api/zones", "GET, POST"),
+        ("DELETE", "/api/vehicles", "GET, POST"),
+        ("PUT", "/api/zones/z-1", "DELETE, GET, PATCH"),
+        ("GET", "/upper/heartbeat", "POST"),
+        ("POST", "/console/config.json", "GET"),
+    ],
+)
+async def test_a_405_allows_every_method_of_the_path(
+    client: httpx.AsyncClient, method: str, path: str, allow: str
+) -> None:
+    """A path with a route per method: the Allow of a method it lacks lists them all
+    (Starlette's named the first route's alone)."""
+    r = await client.request(method, path, headers=ADMIN)
+    assert r.status_code == 405, r.text
+    assert r.headers["allow"] == allow
+    error = r.json()["error"]
+    assert error["code"] == "method_not_allowed" and allow in error["message"]
+
+
 @pytest.mark.parametrize("seed", [1, 2])
 async def test_garbage_at_every_route_never_500(client: httpx.AsyncClient, seed: int) -> None:
     vid, vh = await make_vehicle(client)

@@ -62,6 +62,22 @@ async def test_nothing_else_of_the_web_folder(web: httpx.AsyncClient) -> None:
         assert (await web.get(path)).status_code == 404, path
 
 
+async def test_another_method_on_a_file_is_405_and_on_no_file_404(web: httpx.AsyncClient) -> None:
+    """The console's files take GET and HEAD: another method is 405 where a file is (or
+    the console's page), 404 where none is, as any path the server does not have."""
+    for path in ("/", "/index.html", "/js/main.js", "/vendor/leaflet/leaflet.css"):
+        r = await web.post(path)
+        assert r.status_code == 405, path
+        assert (
+            r.headers["allow"] == "GET, HEAD" and r.json()["error"]["code"] == "method_not_allowed"
+        )
+        assert (await web.head(path)).status_code == 200, path
+    for path in ("/nope", "/js/nope.js", "/vendor/leaflet/nope.js", "/vendor/nope"):
+        r = await web.delete(path)
+        assert r.status_code == 404, path
+        assert r.json()["error"]["code"] == "not_found"
+
+
 async def test_no_page_here_may_be_framed_and_the_console_runs_only_its_own_scripts(
     web: httpx.AsyncClient,
 ) -> None:
