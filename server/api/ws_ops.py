@@ -33,6 +33,7 @@ from server.api.live_conn import Connection
 from server.api.live_hub import LiveHub
 from server.domain.topics import UnitRef, check_read, check_write, gateways_named, unit_for
 from server.errors import FleetError, Invalid, RateLimited
+from server.services.instance_state import InstanceState
 from server.services.registry import Services
 
 _INSTANCE_OPS = frozenset({FinishInstanceOp, UpdateParamOp, UpdateFbMessageOp, HeartbeatOp})
@@ -68,12 +69,13 @@ class OpRunner:
             raise RateLimited(f"more than {rate:g} ops per second on this connection")
         self._allowance -= 1
 
-    def _reply(self, op_id: str | None, error: ErrorBody) -> None:
+    def _reply(self, op_id: str | None, error: ErrorBody, *, critical: bool = False) -> None:
         push = AckPush.failure(op_id, error) if op_id else ErrorPush(error=error)
-        self.conn.outbox.put(push.frame())
+        self.conn.outbox.put(push.frame(), critical=critical)
 
-    def _refuse(self, op_id: str | None, exc: FleetError) -> None:
-        self._reply(op_id, ErrorBody(code=exc.code, message=exc.message, details=exc.details))
+    def _refuse(self, op_id: str | None, exc: FleetError, *, critical: bool = False) -> None:
+        error = ErrorBody(code=exc.code, message=exc.message, details=exc.details)
+        self._reply(op_id, error, critical=critical)
 
     def text_now(self, frame: str, *, contact: bool = False) -> Coroutine[Any, Any, None] | None:
         """Handle a text frame within this call where nothing has to wait: a refusal, or
@@ -176,20 +178,27 @@ class OpRunner:
         if kind is BatchOp:
             await self._run_batch(op)
             return
+        taking: InstanceState | None = None
         try:
+            taking = await self._taken_up(op)
             result = await self.dispatch(op)
         except FleetError as exc:
-            self._refuse(op.id, exc)
+            self._refuse(op.id, exc, critical=taking is not None)
             self.hub.flush_routes()
+            if taking is not None:
+                await self.hub.attach_instance(self.conn, taking)
             return
+        if kind is StartInstanceOp:
+            taking = self.s.instances.current(op.vehicle_id)
         if op.id:
-            self.conn.outbox.put(AckPush.success_frame(op.id, result))
+            # Critical when the socket takes an instance up: then the ack goes before
+            # what that sends (control, the queued commands: a ``stop`` is critical too).
+            ack = AckPush.success_frame(op.id, result)
+            self.conn.outbox.put(ack, critical=taking is not None)
         # After the ack: the pushes the op set off.
         self.hub.flush_routes()
-        if kind is StartInstanceOp:
-            state = self.s.instances.current(op.vehicle_id)
-            if state is not None:
-                await self.hub.attach_instance(self.conn, state)
+        if taking is not None:
+            await self.hub.attach_instance(self.conn, taking)
         elif kind is SubscribeOp:
             await self.hub.start_streams(self.conn, op.topics)
 
@@ -235,19 +244,23 @@ class OpRunner:
                 self.conn.outbox.put(AckPush.success_frame(op.id, None))
         self.hub.flush_routes()
 
+    async def _taken_up(self, op: Any) -> InstanceState | None:
+        """The instance an op names that this socket does not serve yet and takes up once
+        the op is answered (its ``control`` push and queued commands come after the ack);
+        None: none. An instance the caller may not act for is refused here (404)."""
+        if type(op) not in _INSTANCE_OPS or op.instance_id in self.conn.instances:
+            return None
+        state = await self.s.instances.for_vehicle_caller(self.conn.principal, op.instance_id)
+        # A vehicle's own new socket takes the instance over (the former is closed,
+        # 4409); a gateway's routine op does not take it from the vehicle's own live
+        # socket (they took it from each other at every heartbeat): its start does.
+        taken = self.conn.principal.kind == "gateway" and self.hub.served_elsewhere(
+            state.instance_id, self.conn
+        )
+        return None if type(op) is FinishInstanceOp or taken else state
+
     async def dispatch(self, op: Any) -> BaseModel | dict[str, Any] | None:
-        kind = type(op)
-        if kind in _INSTANCE_OPS and op.instance_id not in self.conn.instances:
-            state = await self.s.instances.for_vehicle_caller(self.conn.principal, op.instance_id)
-            # A vehicle's own new socket takes the instance over (the former is closed,
-            # 4409); a gateway's routine op does not take it from the vehicle's own live
-            # socket (they took it from each other at every heartbeat): its start does.
-            taken = self.conn.principal.kind == "gateway" and self.hub.served_elsewhere(
-                state.instance_id, self.conn
-            )
-            if kind is not FinishInstanceOp and not taken:
-                await self.hub.attach_instance(self.conn, state)
-        handler = _HANDLERS.get(kind)
+        handler = _HANDLERS.get(type(op))
         if handler is None:
             raise Invalid(f"op {getattr(op, 'op', '?')} is not handled here")
         return await handler(self, op)

@@ -11,8 +11,8 @@ import pytest
 import websockets
 
 from server.settings import Settings
-from tests.factories import ADMIN, ADMIN_TOKEN, make_user, make_vehicle, sample
-from tests.live import call, connect, recv_until, serve, ws_url
+from tests.factories import ADMIN, ADMIN_TOKEN, make_user, make_vehicle, sample, start_instance
+from tests.live import call, connect, recv_json, recv_until, serve, ws_url
 
 # Each test runs on the embedded store and on FerretDB (the real MongoDB driver).
 pytestmark = pytest.mark.usefixtures("store_backend")
@@ -173,6 +173,52 @@ async def test_a_resume_over_the_socket_without_capabilities_keeps_them(
         },
     )
     assert r.status_code == 202, r.text
+
+
+GO = {"type": "go_to", "args": {"lat": 43.9, "lon": 15.4}}
+
+
+@pytest.mark.parametrize(
+    ("op", "fields"),
+    [
+        ("heartbeat", {}),
+        ("update_param", {"params": {"mode": "survey"}}),
+        ("update_fbmessage", {"control_mode": "remote"}),
+    ],
+)
+@pytest.mark.parametrize(
+    ("queued", "pushed"),
+    [([GO, GO, GO], ["go_to"] * 3), ([GO, {"type": "stop"}], ["stop"])],
+    ids=["three-go_to", "stop"],
+)
+async def test_the_first_op_of_a_socket_is_acked_before_what_it_takes_up(
+    base: str,
+    api: httpx.AsyncClient,
+    op: str,
+    fields: dict[str, object],
+    queued: list[dict[str, object]],
+    pushed: list[str],
+) -> None:
+    """A socket whose first op names the instance (no start on it) takes the instance up:
+    the op's ack comes first, then the ``control`` push and the queued commands (a
+    ``stop``, which jumps every other waiting frame, does not jump the ack either; it
+    cancels the moves queued before it)."""
+    vid, vh = await make_vehicle(api)
+    iid = (await start_instance(api, vid, vh, capabilities=CAPS))["instance_id"]
+    lease = await _lease(api, vid, iid)
+    for command in queued:
+        r = await api.post(
+            "/client/submit_control",
+            headers=lease,
+            json={"instance_ids": [iid], "command": command, "ttl_s": 600},
+        )
+        assert r.status_code == 202, r.text
+    async with await connect(base, "/ws/vehicle", token_of(vh)) as ws:
+        await ws.send(json.dumps({"op": op, "id": "x", "instance_id": iid, **fields}))
+        frames = [await recv_json(ws) for _ in range(2 + len(pushed))]
+    assert [f["op"] for f in frames] == ["ack", "control"] + ["command"] * len(pushed), frames
+    assert frames[0]["id"] == "x" and frames[0]["ok"] is True, frames[0]
+    assert [f["type"] for f in frames[2:]] == pushed
 
 
 async def test_telemetry_over_the_socket_is_stored(base: str, api: httpx.AsyncClient) -> None:
