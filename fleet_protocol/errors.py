@@ -6,14 +6,26 @@
 
 from __future__ import annotations
 
+import json
+import sys
 from collections.abc import Mapping
 from typing import Any
 
 from pydantic import BaseModel
 
-from fleet_protocol.values import MAX_JSON_DEPTH
+from fleet_protocol.values import MAX_INT, MAX_JSON_DEPTH, MIN_INT
 
-__all__ = ["ErrorBody", "ErrorEnvelope", "FieldError", "error_text", "unreadable_json"]
+__all__ = [
+    "NOT_READ",
+    "ErrorBody",
+    "ErrorEnvelope",
+    "FieldError",
+    "LongInteger",
+    "error_text",
+    "long_integers",
+    "read_leniently",
+    "unreadable_json",
+]
 
 
 class FieldError(BaseModel):
@@ -51,6 +63,66 @@ def error_text(err: Mapping[str, Any]) -> str:
     return str(err.get("msg", "invalid value")).removeprefix("Value error, ")
 
 
+class LongInteger:
+    """An integer written with more digits than Python reads (``sys.get_int_max_str_digits``,
+    4,300 by default), as :func:`read_leniently` reads it: far outside 64-bit anyway."""
+
+    __slots__ = ("digits",)
+
+    def __init__(self, digits: int) -> None:
+        self.digits = digits
+
+
+def _integer(literal: str) -> int | LongInteger:
+    try:
+        return int(literal)
+    except ValueError:  # past Python's digit limit: left unread (reading it is quadratic)
+        return LongInteger(len(literal.lstrip("-")))
+
+
+#: What :func:`read_leniently` answers for a text that is not JSON at all.
+NOT_READ: Any = object()
+
+
+def read_leniently(text: str | bytes) -> Any:
+    """``text`` read as Python's ``json`` reads it, but an integer too long for Python to
+    read is a :class:`LongInteger` where the reader would refuse the whole text (so the
+    refusal can name its field); :data:`NOT_READ` when it is not JSON all the same.
+    Slower than ``json.loads``: for a text already refused."""
+    try:
+        return json.loads(text)
+    except RecursionError:
+        return NOT_READ
+    except ValueError as exc:
+        if "integer string conversion" not in str(exc):
+            return NOT_READ
+    try:
+        return json.loads(text, parse_int=_integer)
+    except (ValueError, RecursionError):
+        return NOT_READ
+
+
+def long_integers(value: Any) -> list[FieldError]:
+    """The field (``params.x``, ``ops.0.samples.3.seq``) of each :class:`LongInteger` in
+    a value :func:`read_leniently` read, with the rule it breaks."""
+    found: list[FieldError] = []
+    todo: list[tuple[str, Any]] = [("", value)]
+    while todo:
+        path, item = todo.pop()
+        if isinstance(item, LongInteger):
+            message = (
+                f"an integer must lie within signed 64-bit ({MIN_INT} to {MAX_INT}); "
+                f"this one has {item.digits:,} digits"
+            )
+            found.append(FieldError(field=path or "body", message=message))
+        elif isinstance(item, dict):
+            todo.extend((f"{path}.{k}" if path else str(k), v) for k, v in item.items())
+        elif isinstance(item, list):
+            todo.extend((f"{path}.{i}" if path else str(i), v) for i, v in enumerate(item))
+    found.reverse()  # in the order written
+    return found
+
+
 def unreadable_json(error: object, raw: object = None) -> str:
     """Why a text a JSON reader refused cannot be read, to follow "the body is" or "the
     frame is": nested too deep, not valid UTF-8, or not valid JSON. ``error`` is the
@@ -67,4 +139,9 @@ def unreadable_json(error: object, raw: object = None) -> str:
         return _TOO_DEEP_MSG
     if isinstance(error, UnicodeDecodeError) or "invalid unicode code point" in text:
         return "not valid UTF-8"
+    if "integer string conversion" in text:  # Python's json, past its digit limit
+        return (
+            f"not read: it holds an integer of more than {sys.get_int_max_str_digits():,} "
+            "digits (an integer lies within signed 64-bit: docs/limits.md)"
+        )
     return "not valid JSON"

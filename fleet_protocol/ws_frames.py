@@ -13,7 +13,15 @@ from typing import Any, Literal, get_args
 
 from pydantic import Field, TypeAdapter, ValidationError
 
-from fleet_protocol.errors import ErrorBody, FieldError, error_text, unreadable_json
+from fleet_protocol.errors import (
+    NOT_READ,
+    ErrorBody,
+    FieldError,
+    error_text,
+    long_integers,
+    read_leniently,
+    unreadable_json,
+)
 from fleet_protocol.text import shown_text
 from fleet_protocol.ws import (
     MAX_BATCH_OPS,
@@ -123,18 +131,21 @@ def _parse(adapter: TypeAdapter[Any], frame: str | bytes) -> Any:
         return adapter.validator.validate_json(frame)
     except ValidationError as exc:
         error = exc
-    if error.errors(include_url=False)[0]["type"] == "json_invalid":
-        error = _python_errors(adapter, frame) or error
-    raise FrameError(error_body(error), _salvage_id(frame))
+    if error.errors(include_url=False)[0]["type"] != "json_invalid":
+        raise FrameError(error_body(error), _salvage_id(frame))
+    value = read_leniently(frame)
+    if value is NOT_READ:
+        raise FrameError(error_body(error), None)
+    if long := long_integers(value):  # past what Python's json reads: named all the same
+        summary = "; ".join(f"{d.field}: {d.message}" for d in long[:3])
+        body = ErrorBody(code="invalid", message=f"invalid op ({summary})", details=long)
+        raise FrameError(body, _id_of(value))
+    raise FrameError(error_body(_python_errors(adapter, value) or error), _id_of(value))
 
 
-def _python_errors(adapter: TypeAdapter[Any], frame: str | bytes) -> ValidationError | None:
+def _python_errors(adapter: TypeAdapter[Any], value: Any) -> ValidationError | None:
     """The errors with their fields for a frame the JSON parser refused but Python's
     ``json`` reads (a lone surrogate in a string: ``"\\ud800"``), as HTTP sees them."""
-    try:
-        value = json.loads(frame)
-    except (ValueError, RecursionError):
-        return None
     try:
         adapter.validator.validate_python(value)
     except ValidationError as exc:
@@ -187,10 +198,12 @@ def _join(path: str, name: str) -> str:
 
 def _salvage_id(frame: str | bytes) -> str | None:
     """The frame's ``id``, when it has a usable one, so a failure can be acked."""
-    try:
-        value = json.loads(frame)
-    except (ValueError, RecursionError):  # RecursionError: nested past the stack
-        return None
+    value = read_leniently(frame)
+    return None if value is NOT_READ else _id_of(value)
+
+
+def _id_of(value: Any) -> str | None:
+    """The ``id`` of a frame read (:func:`read_leniently`), when it is a usable one."""
     op_id = value.get("id") if isinstance(value, dict) else None
     if isinstance(op_id, str) and 0 < len(op_id) <= MAX_OP_ID_CHARS and shown_text(op_id) == op_id:
         return op_id

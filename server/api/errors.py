@@ -15,8 +15,16 @@ from starlette.requests import ClientDisconnect
 from starlette.routing import BaseRoute, Match, Mount
 from starlette.types import Scope
 
-from fleet_protocol.errors import error_text, unreadable_json
+from fleet_protocol.errors import (
+    NOT_READ,
+    FieldError,
+    error_text,
+    long_integers,
+    read_leniently,
+    unreadable_json,
+)
 from fleet_protocol.text import escape_controls, shown_text
+from server.api.limits import body_kept
 from server.api.responses import SafeJSONResponse
 from server.errors import FleetError, RateLimited, Unavailable
 
@@ -118,6 +126,18 @@ def path_methods(routes: Sequence[BaseRoute], scope: Scope) -> list[str]:
     ]
 
 
+def _long_integers(body: object) -> list[FieldError]:
+    """The fields of the integers too long for Python's json to read in a JSON body; []
+    when it has none, or is not known (None)."""
+    value = read_leniently(body) if isinstance(body, bytes | str) else NOT_READ
+    return [] if value is NOT_READ else long_integers(value)
+
+
+def _named(long: list[FieldError]) -> JSONResponse:
+    fields = ", ".join(d.field for d in long)
+    return envelope(422, "invalid", f"invalid input: {fields}", [d.model_dump() for d in long])
+
+
 def install(app: FastAPI) -> None:
     @app.exception_handler(FleetError)
     async def _fleet(_: Request, exc: FleetError) -> JSONResponse:
@@ -130,6 +150,8 @@ def install(app: FastAPI) -> None:
     async def _invalid(request: Request, exc: RequestValidationError) -> JSONResponse:
         errors = list(exc.errors())
         if errors and errors[0].get("type") == "json_invalid":  # the body was not read
+            if long := _long_integers(exc.body):  # pydantic's parser: the login's body
+                return _named(long)
             why = unreadable_json(errors[0].get("ctx", {}).get("error", ""), exc.body)
             message = f"the body is {why}"
             return envelope(422, "invalid", message, [{"field": "body", "message": message}])
@@ -148,7 +170,10 @@ def install(app: FastAPI) -> None:
         cause = exc.__cause__
         if exc.status_code == 400 and isinstance(cause, ValueError | RecursionError):
             # FastAPI's "error parsing the body": a body Python's json could not read
-            # (not UTF-8, nested past its recursion limit), as any other unreadable body.
+            # (not UTF-8, nested past its recursion limit, an integer past its digit
+            # limit), as any other unreadable body; such an integer's field is named.
+            if long := _long_integers(body_kept(request.scope)):  # BodyLimit kept it
+                return _named(long)
             message = "the body is " + unreadable_json(cause)
             return envelope(422, "invalid", message, [{"field": "body", "message": message}])
         code = _HTTP_CODES.get(exc.status_code, "error")

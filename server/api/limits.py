@@ -1,7 +1,9 @@
 """Request limits as pure ASGI middleware, before anything is parsed: 413 for a body over
 the bound; 422 for a JSON body that is not UTF-8 though Python's JSON reader would take
 it, and for a query parameter given more than once (no parameter of this API takes a
-list: Starlette would keep the last value, and a filter named twice would drop one)."""
+list: Starlette would keep the last value, and a filter named twice would drop one).
+A JSON body's chunks are kept in the scope as read (:func:`body_kept`), for a refusal
+that must name a field of a body Python's JSON reader could not read."""
 
 from __future__ import annotations
 
@@ -10,6 +12,16 @@ from typing import Any
 from urllib.parse import unquote_plus
 
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
+
+#: The scope's key for a JSON body's chunks as read (the same bytes objects, not copies):
+#: a refusal of a body Python's reader could not read names the field from them.
+BODY_KEPT = "fleet.body"
+
+
+def body_kept(scope: Scope) -> bytes | None:
+    """The JSON body of the request as read so far (None: not a JSON body)."""
+    kept = scope.get(BODY_KEPT)
+    return None if kept is None else b"".join(kept)
 
 
 def _envelope(limit: int) -> bytes:
@@ -106,20 +118,26 @@ class BodyLimit:
                 if _wide(first.get("body", b"")):
                     await self._refuse_wide(send)
                     return
-            await self.app(scope, self._counted(receive, first), send)
+                scope[BODY_KEPT] = []
+            await self.app(scope, self._counted(receive, first, scope.get(BODY_KEPT)), send)
             return
         gathered = await self._gather(receive)
         if gathered is None:
             await self._reject(send)
             return
-        if _wide(gathered[0].get("body", b"")) and _json_body(scope):
-            await self._refuse_wide(send)
-            return
+        if _json_body(scope):
+            if _wide(gathered[0].get("body", b"")):
+                await self._refuse_wide(send)
+                return
+            scope[BODY_KEPT] = [m.get("body", b"") for m in gathered]
         await self.app(scope, replay(gathered, receive), send)
 
-    def _counted(self, receive: Receive, first: Message | None) -> Receive:
+    def _counted(
+        self, receive: Receive, first: Message | None, kept: list[bytes] | None
+    ) -> Receive:
         """A body that lies about its length is cut off at the bound all the same.
-        ``first``: the request's first message, read already."""
+        ``first``: the request's first message, read already; ``kept``: where a JSON
+        body's chunks are kept (:data:`BODY_KEPT`)."""
         seen = 0
 
         async def limited() -> Message:
@@ -129,6 +147,8 @@ class BodyLimit:
             else:
                 message = await receive()
             if message["type"] == "http.request":
+                if kept is not None:
+                    kept.append(message.get("body", b""))
                 seen += len(message.get("body", b""))
                 if seen > self.max_bytes:
                     return {"type": "http.disconnect"}

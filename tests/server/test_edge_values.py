@@ -177,6 +177,9 @@ RULES = [  # (id, the raw data, the field named)
     ("dot-key", '{"a": {"b.c": 1}}', "samples.0.data.a.b.c"),
     ("nul-key", '{"a\\u0000b": 1}', "samples.0.data.a\x00b"),
     ("too-deep", '{"x": ' + DEEP + "}", "samples.0.data.x" + ".0" * (MAX_JSON_DEPTH - 1)),
+    # past the 4,300 digits Python's json reads: named as any other, not "not valid JSON"
+    ("int-4301-digits", '{"x": ' + "1" * 4301 + "}", "samples.0.data.x"),
+    ("int-minus-100k-digits", '{"x": [0, -' + "9" * 100_000 + "]}", "samples.0.data.x.1"),
 ]
 
 
@@ -202,6 +205,49 @@ async def test_each_rule_over_the_socket(base: str, raw: str, field: str) -> Non
         assert (nack["op"], nack["ok"]) == ("ack", False), nack
         assert fields_of(nack) == [field]
         assert (await call(ws, "heartbeat", "h", instance_id=start["instance_id"]))["ok"]
+
+
+async def test_an_integer_too_long_to_read_is_named_wherever_it_is(
+    client: httpx.AsyncClient,
+) -> None:
+    """An integer past Python's 4,300 digits, in a parameter, a route's own field, a body
+    sent chunked: 422 naming it and saying why, as a shorter one (not "not valid JSON")."""
+    vid, vh = await make_vehicle(client)
+    iid = (await start_instance(client, vid, vh))["instance_id"]
+    for digits in (4300, 4301, 50_000):
+        content = json.dumps({"instance_id": iid, "params": {"x": "@"}}).replace(
+            '"@"', "1" * digits
+        )
+        r = await post_update(client, vh, content)
+        assert r.status_code == 422, r.text
+        assert fields_of(r.json()) == ["params.x"], r.text
+        assert "within signed 64-bit" in r.json()["error"]["details"][0]["message"]
+    big = "9" * 5000
+    r = await client.post(
+        "/api/zones",
+        headers={**ADMIN, "content-type": "application/json"},
+        content=json.dumps({"name": "a", "kind": "no_go", "clearance_m": "@"}).replace('"@"', big),
+    )
+    assert r.status_code == 422 and fields_of(r.json()) == ["clearance_m"], r.text
+    r = await client.post(  # read by pydantic's parser, not Python's json
+        "/auth/token",
+        headers={"content-type": "application/json"},
+        content=json.dumps({"username": "a", "password": "@"}).replace('"@"', big),
+    )
+    assert r.status_code == 422 and fields_of(r.json()) == ["password"], r.text
+
+    async def chunked() -> AsyncIterator[bytes]:
+        yield b'{"instance_id": "%s", "samples": [{"seq": ' % iid.encode()
+        yield big.encode() + b"}]}"
+
+    r = await client.post(
+        "/upper/update_param", headers={**vh, "content-type": "application/json"}, content=chunked()
+    )
+    assert r.status_code == 422 and fields_of(r.json()) == ["samples.0.seq"], r.text
+    r = await post_update(client, vh, json.dumps({"instance_id": iid})[:-1] + ', "x": ' + big)
+    assert r.status_code == 422, r.text  # not JSON either way, and its number too long
+    assert fields_of(r.json()) == ["body"]
+    assert "an integer of more than 4,300 digits" in r.json()["error"]["message"]
 
 
 async def test_a_year_1_timestamp_in_a_sample_is_422(client: httpx.AsyncClient) -> None:
