@@ -38,6 +38,7 @@ __all__ = [
     "Latitude",
     "Longitude",
     "Sample",
+    "TimeBound",
     "Timestamp",
     "WireModel",
     "format_ts",
@@ -103,34 +104,57 @@ def parse_ts(text: str) -> datetime:
 _RANGE_CTX = {"low": format_ts(MIN_TIMESTAMP), "high": format_ts(MAX_TIMESTAMP)}
 
 
-def _timestamp_schema(_source: Any, _handler: Any) -> core_schema.CoreSchema:
-    """A datetime within ``MIN_TIMESTAMP`` and ``MAX_TIMESTAMP``, always aware in UTC.
+def _time_schema(upper: str, message: str) -> Any:
+    """The schema of a datetime from ``MIN_TIMESTAMP`` on and under (``upper`` ``lt``) or
+    up to (``le``) ``MAX_TIMESTAMP``, always aware in UTC.
 
     pydantic checks the bounds itself (a naive time counts as UTC). A time in UTC
     already (``Z``, ``+00:00``: what clients send) is taken as pydantic reads it, with
     no Python call; any other (naive, or another offset) is then converted to UTC.
-    Every failure (not a time, out of range) is the one error ``timestamp``.
+    Every failure (not a time, out of range) is the one error ``timestamp``: ``message``.
     """
-    bounds: dict[str, Any] = {"ge": MIN_TIMESTAMP, "le": MAX_TIMESTAMP}
-    in_utc = core_schema.datetime_schema(tz_constraint=0, **bounds)
-    other = core_schema.no_info_after_validator_function(
-        _as_utc, core_schema.datetime_schema(**bounds)
-    )
-    return core_schema.custom_error_schema(
-        core_schema.union_schema([in_utc, other], mode="left_to_right"),
-        custom_error_type="timestamp",
-        custom_error_message=(
-            f"a timestamp is ISO 8601 from {_RANGE_CTX['low']} to {_RANGE_CTX['high']}"
-        ),
-    )
+
+    def schema(_source: Any, _handler: Any) -> core_schema.CoreSchema:
+        bounds: dict[str, Any] = {"ge": MIN_TIMESTAMP, upper: MAX_TIMESTAMP}
+        in_utc = core_schema.datetime_schema(tz_constraint=0, **bounds)
+        other = core_schema.no_info_after_validator_function(
+            _as_utc, core_schema.datetime_schema(**bounds)
+        )
+        return core_schema.custom_error_schema(
+            core_schema.union_schema([in_utc, other], mode="left_to_right"),
+            custom_error_type="timestamp",
+            custom_error_message=message,
+        )
+
+    return schema
 
 
-#: A point in time: ISO 8601 in, ``format_ts`` out; between 1970-01-01 and 2100-01-01
-#: (``fleet_protocol.values.MIN_TIMESTAMP`` / ``MAX_TIMESTAMP``, both included). Its
-#: value has an offset of zero (its tzinfo ``UTC`` or pydantic's own zero offset).
+_POINT_MSG = f"a timestamp is ISO 8601 from {_RANGE_CTX['low']} to before {_RANGE_CTX['high']}"
+_BOUND_MSG = f"a time bound is ISO 8601 from {_RANGE_CTX['low']} to {_RANGE_CTX['high']}"
+
+#: A point in time: ISO 8601 in, ``format_ts`` out; from 1970-01-01 (included) to
+#: 2100-01-01 (excluded: ``fleet_protocol.values.MIN_TIMESTAMP`` / ``MAX_TIMESTAMP``).
+#: Its value has an offset of zero (its tzinfo ``UTC`` or pydantic's own zero offset).
 Timestamp = Annotated[
     datetime,
-    GetPydanticSchema(_timestamp_schema),
+    GetPydanticSchema(_time_schema("lt", _POINT_MSG)),
+    PlainSerializer(format_ts, return_type=str, when_used="json"),
+    WithJsonSchema(
+        {
+            "type": "string",
+            "format": "date-time",
+            "description": (
+                f"ISO 8601, UTC; from {_RANGE_CTX['low']} to before {_RANGE_CTX['high']}"
+            ),
+        }
+    ),
+]
+
+#: A bound of a time window (``from``, ``to``): as :data:`Timestamp`, but 2100-01-01
+#: itself included, so that a window (``to`` excluded) can hold every point in time.
+TimeBound = Annotated[
+    datetime,
+    GetPydanticSchema(_time_schema("le", _BOUND_MSG)),
     PlainSerializer(format_ts, return_type=str, when_used="json"),
     WithJsonSchema(
         {

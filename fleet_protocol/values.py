@@ -20,8 +20,9 @@ free-form value in one walk that stops at the first bad value and names it:
 ``data.reading.0`` under the field, so ``samples.3.data.reading.0`` in the
 422. A ``str`` field is :data:`fleet_protocol.text.Text`, without lone
 surrogates (:mod:`fleet_protocol.text`, which also holds ``Label``). The
-timestamp range is :data:`MIN_TIMESTAMP` to :data:`MAX_TIMESTAMP`
-(:data:`fleet_protocol.common.Timestamp`).
+timestamp range is :data:`MIN_TIMESTAMP` to :data:`MAX_TIMESTAMP`, the latter
+excluded for a point in time (:data:`fleet_protocol.common.Timestamp`) and
+included for a window's bound (:data:`fleet_protocol.common.TimeBound`).
 
 The other direction, a value stored before a rule existed made safe to send,
 is :mod:`fleet_protocol.served`; the words of a refusal (a 422's message, a
@@ -81,9 +82,11 @@ MAX_SAMPLE_DATA_BYTES = 8192
 #: mast or aerial, 12 km below it past the deepest trench (10.9 km).
 MIN_DEPTH_M = -1_000.0
 MAX_DEPTH_M = 12_000.0
-#: Timestamps, both ends included. A vehicle without a GPS fix may send the
-#: epoch (1970); 2100 is far past any real clock. Every ``Timestamp`` field and
-#: the ``from``/``to`` query parameters keep to it.
+#: Timestamps: a point in time (every ``Timestamp`` field: a sample's ``ts``...) lies
+#: from ``MIN_TIMESTAMP`` included to ``MAX_TIMESTAMP`` excluded; a window's bound (the
+#: ``from``/``to`` query parameters, ``TimeBound``) from one to the other, both included,
+#: so the widest window, whose ``to`` is excluded, holds every point. A vehicle without
+#: a GPS fix may send the epoch (1970); 2100 is far past any real clock.
 MIN_TIMESTAMP = datetime(1970, 1, 1, tzinfo=UTC)
 MAX_TIMESTAMP = datetime(2100, 1, 1, tzinfo=UTC)
 

@@ -12,7 +12,7 @@ from fleet_protocol import (
     EventKind,
     EventList,
     GetParamResult,
-    Timestamp,
+    TimeBound,
     VehicleList,
     VehicleView,
 )
@@ -56,8 +56,8 @@ async def list_events(
     s: ServicesDep,
     vehicle_id: Annotated[str | None, Query(max_length=64)] = None,
     kind: EventKind | None = None,
-    start: Annotated[Timestamp | None, Query(alias="from")] = None,
-    end: Annotated[Timestamp | None, Query(alias="to")] = None,
+    start: Annotated[TimeBound | None, Query(alias="from")] = None,
+    end: Annotated[TimeBound | None, Query(alias="to")] = None,
     limit: Annotated[int, Query(ge=1, le=10_000)] = 1000,
     after: Annotated[str | None, Query(max_length=128)] = None,
 ) -> EventList:

@@ -17,7 +17,7 @@ from typing import Annotated, Any, Literal
 from fastapi import APIRouter, Depends, Path, Query
 from fastapi.responses import Response
 
-from fleet_protocol import TelemetryPage, Timestamp, Track, format_ts
+from fleet_protocol import TelemetryPage, TimeBound, Track, format_ts
 from server.api import track_formats
 from server.api.deps import ServicesDep, Viewer
 from server.api.responses import SafeJSONResponse
@@ -45,8 +45,8 @@ async def _visible_vehicle(vehicle: Annotated[dict[str, Any], Depends(_visible_r
 
 VisibleRecord = Annotated[dict[str, Any], Depends(_visible_record)]
 VisibleVehicle = Annotated[str, Depends(_visible_vehicle)]
-From = Annotated[Timestamp | None, Query(alias="from")]
-To = Annotated[Timestamp | None, Query(alias="to")]
+From = Annotated[TimeBound | None, Query(alias="from")]
+To = Annotated[TimeBound | None, Query(alias="to")]
 
 
 @router.get("/api/vehicles/{vehicle_id}/track", response_model=Track)

@@ -227,6 +227,7 @@ def test_deep_nesting_in_publish_data_is_refused() -> None:
         "0001-01-01T00:00:00Z",
         "1969-12-31T23:59:59.999Z",
         "2100-01-01T00:00:00.001Z",
+        "2100-01-01T00:00:00Z",  # the range's end, excluded: the widest window's to
         "9999-12-31T23:59:59-01:00",  # past year 9999 once in UTC
         "0001-01-01T00:30:00+01:00",  # before year 1 once in UTC
     ],
@@ -242,7 +243,7 @@ def test_a_timestamp_out_of_range_is_refused_naming_it(ts: str) -> None:
     ("ts", "utc"),
     [
         ("1970-01-01T00:00:00Z", datetime(1970, 1, 1, tzinfo=UTC)),  # no GPS fix: the epoch
-        ("2100-01-01T00:00:00Z", datetime(2100, 1, 1, tzinfo=UTC)),
+        ("2099-12-31T23:59:59.999Z", datetime(2099, 12, 31, 23, 59, 59, 999000, tzinfo=UTC)),
         ("1970-01-01T01:00:00+01:00", datetime(1970, 1, 1, tzinfo=UTC)),
         ("2026-11-22T10:00:00", datetime(2026, 11, 22, 10, tzinfo=UTC)),  # naive: UTC
     ],

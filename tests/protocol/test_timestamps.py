@@ -47,8 +47,36 @@ def test_a_timestamp_field_reads_every_offset_into_utc_within_its_range():
         assert value.utcoffset() == timedelta(0), text
         assert format_ts(value) == "2026-05-01T12:00:03.456Z", text
     assert read('"1970-01-01T00:00:00Z"') == datetime(1970, 1, 1, tzinfo=UTC)
-    assert read('"2100-01-01T00:00:00Z"') == datetime(2100, 1, 1, tzinfo=UTC)
-    assert read('"2100-01-01T01:00:00+01:00"') == datetime(2100, 1, 1, tzinfo=UTC)
+    last = datetime(2099, 12, 31, 23, 59, 59, 999999, tzinfo=UTC)
+    assert read('"2099-12-31T23:59:59.999999Z"') == last
+    assert read('"2100-01-01T00:59:59.999999+01:00"') == last
+
+
+def test_a_point_in_time_stops_short_of_2100_and_a_window_bound_reaches_it():
+    """Every point in time is in the widest window: 1970 included to 2100 excluded, as a
+    window's ``to`` is (a sample at 2100 itself was stored, and no window held it)."""
+    from pydantic import TypeAdapter, ValidationError
+
+    from fleet_protocol.common import TimeBound, Timestamp
+
+    point, bound = TypeAdapter(Timestamp).validate_json, TypeAdapter(TimeBound).validate_json
+    for text in ('"2100-01-01T00:00:00Z"', '"2100-01-01T01:00:00+01:00"'):
+        assert bound(text) == datetime(2100, 1, 1, tzinfo=UTC)
+        try:
+            point(text)
+        except ValidationError as exc:
+            (error,) = exc.errors()
+            assert "to before 2100-01-01T00:00:00.000Z" in error["msg"], text
+        else:
+            raise AssertionError(f"{text} was read as a point in time")
+    assert bound('"1970-01-01T00:00:00Z"') == datetime(1970, 1, 1, tzinfo=UTC)
+    for text in ('"2100-01-01T00:00:00.001Z"', '"1969-12-31T23:59:59.999Z"'):
+        try:
+            bound(text)
+        except ValidationError as exc:
+            assert exc.errors()[0]["type"] == "timestamp", text
+        else:
+            raise AssertionError(f"{text} was read as a bound")
 
 
 def test_a_timestamp_out_of_range_or_not_a_time_is_one_error_naming_the_range():

@@ -254,3 +254,40 @@ async def test_who_may_read(client: httpx.AsyncClient) -> None:
         assert (await client.get(url, headers=other)).status_code == 404  # as if none
         assert (await client.get(url, headers=vh)).status_code == 403  # a vehicle token
         assert (await client.get(url)).status_code == 401
+
+
+async def test_every_time_a_sample_may_have_is_in_the_widest_window(
+    client: httpx.AsyncClient,
+) -> None:
+    """A sample's ``ts`` lies from 1970 to before 2100, the widest window from 1970 to 2100
+    (``to`` excluded): the first and last times a sample may have are both in it; 2100
+    itself is refused as a sample's time and taken as a window's ``to``."""
+    vid, vh = await make_vehicle(client)
+    iid = (await start_instance(client, vid, vh))["instance_id"]
+    first, last = datetime(1970, 1, 1, tzinfo=UTC), datetime(2099, 12, 31, 23, 59, 59, 999000, UTC)
+    r = await client.post(
+        "/upper/update_param",
+        headers=vh,
+        json={"instance_id": iid, "samples": [sample(1, ts=first), sample(2, ts=last)]},
+    )
+    assert r.status_code == 200 and r.json()["accepted"] == 2, r.text
+    r = await client.post(
+        "/upper/update_param",
+        headers=vh,
+        json={"instance_id": iid, "samples": [{**sample(3), "ts": "2100-01-01T00:00:00Z"}]},
+    )
+    assert r.status_code == 422, r.text
+    assert [d["field"] for d in r.json()["error"]["details"]] == ["samples.0.ts"]
+    widest = {"from": "1970-01-01T00:00:00Z", "to": "2100-01-01T00:00:00Z"}
+    r = await client.get(f"/api/vehicles/{vid}/track", headers=ADMIN, params=widest)
+    assert r.status_code == 200, r.text
+    assert [(p["seq"], p["ts"]) for p in r.json()["points"]] == [
+        (1, "1970-01-01T00:00:00.000Z"),
+        (2, "2099-12-31T23:59:59.999Z"),
+    ]
+    r = await client.get("/api/events", headers=ADMIN, params=widest)
+    assert r.status_code == 200, r.text
+    for route in (f"/api/vehicles/{vid}/track", f"/api/vehicles/{vid}/telemetry", "/api/events"):
+        r = await client.get(route, headers=ADMIN, params={"to": "2100-01-01T00:00:00.001Z"})
+        assert r.status_code == 422, (route, r.text)
+        assert [d["field"] for d in r.json()["error"]["details"]] == ["to"], route
