@@ -35,8 +35,13 @@ ferretdb: $(FERRETDB_BIN)
 demo: $(STAMP) $(WEB_STAMP)
 	$(PY) -m server.demo
 
+# The suite runs on as many workers as the machine has cores, at most four, a test file
+# each at a time (its module fixtures built once): most of its time is spent waiting on
+# servers, agents and the browser. TEST_WORKERS=0 runs it in this one process.
+TEST_WORKERS ?= auto
 test: $(STAMP) $(FERRETDB_BIN) $(WEB_STAMP)
-	FLEET_FERRETDB_BIN=$(abspath $(FERRETDB_BIN)) $(PY) -m pytest -q $(PYTEST_ARGS)
+	FLEET_FERRETDB_BIN=$(abspath $(FERRETDB_BIN)) $(PY) -m pytest -q \
+	  -n $(TEST_WORKERS) --maxprocesses=4 --dist loadfile $(PYTEST_ARGS)
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check .
