@@ -56,6 +56,10 @@ class _Shown(Console):
 
     def __init__(self, **options: Any) -> None:
         super().__init__(markup=False, emoji=False, **options)
+        if "width" not in options:
+            # rich reads COLUMNS once, here, at import; read it (or the terminal's size)
+            # when printing instead, as a resized terminal or the caller's setting has it
+            self._width = None
 
     def render_str(self, text: str, **options: Any) -> Text:
         options.update(markup=False, emoji=False)
