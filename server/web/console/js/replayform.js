@@ -84,11 +84,9 @@ export class ReplayForm {
     this.ticksFor = [...selection].sort().join(" ");
   }
 
-  /** The last ``this.minutes`` minutes, up to now: the form holds whole seconds, so its
-   * end is the second after now (cut down to the second, it left out what had just
-   * happened, a cancel sent a moment before among it). */
+  /** The last ``this.minutes`` minutes, up to now. */
   setWindow() {
-    const now = Math.ceil(Date.now() / 1000) * 1000;
+    const now = Date.now();
     $("replay-from").value = localStamp(now - this.minutes * 60000);
     $("replay-to").value = localStamp(now);
     for (const field of this.fields()) this.check(field, false);
