@@ -9,6 +9,7 @@ module's), in file order: ana holds every vehicle."""
 from __future__ import annotations
 
 import re
+import time
 from typing import Any
 
 import pytest
@@ -183,6 +184,8 @@ def test_commands_and_events_read_as_words(world: World, open_console: Any, shot
     shots(page, "panel-in-words")
 
     page.click('[data-tab="replay"]')
+    # the form holds whole seconds: "the last 5 minutes" taken once the cancel's second is over
+    page.wait_for_function("t => Date.now() >= t", arg=(int(time.time()) + 1) * 1000)
     page.click('#replay-form [data-minutes="5"]')
     page.click("#replay-load")
     expect(page.locator("#replay-bar")).to_be_visible()
