@@ -11,7 +11,7 @@ from fastapi import APIRouter, FastAPI
 from fastapi.routing import APIRoute
 
 from fleet_protocol import utcnow
-from server import container
+from server import container, running
 from server.api import (
     admin,
     client,
@@ -102,11 +102,11 @@ def create_app(
         app.state.services = runtime.services
         app.state.hub = runtime.hub
         app.state.metrics = metrics
-        await container.start(runtime)
+        await running.start(runtime)
         try:
             yield
         finally:
-            await container.shutdown(runtime)
+            await running.shutdown(runtime)
 
     app = FleetApp(
         title="fleet-cloud",

@@ -21,6 +21,7 @@ LAYERS = {
     "server.cli": ("root", 5),
     "server.demo": ("root", 5),
     "server.container": ("root", 5),
+    "server.running": ("root", 5),
     "server.api": ("api", 4),
     "server.services": ("services", 3),
     "server.storage": ("storage", 2),

@@ -9,7 +9,9 @@ import json
 import os
 import re
 import sys
-from collections.abc import Callable
+from asyncio.subprocess import Process
+from collections.abc import AsyncIterator, Callable
+from contextlib import asynccontextmanager
 
 import httpx
 import pytest
@@ -90,6 +92,27 @@ async def test_watch_takes_a_lost_link_up_again(make_settings: Callable[..., Set
     assert "link lost" in (await watcher.stderr.read()).decode()
 
 
+@asynccontextmanager
+async def _watched_by_head(base: str, vid: str) -> AsyncIterator[tuple[Process, bytes]]:
+    """``fleetctl watch vehicle/<vid>/telemetry | head -1``: the watch, its stdout a pipe
+    whose reader has read one line and gone; and that line. Killed after, if still on."""
+    read_end, write_end = os.pipe()
+    env = {**os.environ, "FLEET_SERVER": base, "FLEET_TOKEN": ADMIN_TOKEN}
+    watcher = await asyncio.create_subprocess_exec(
+        sys.executable, "-m", "remote_client.cli", "watch", f"vehicle/{vid}/telemetry",
+        env=env, stdout=write_end, stderr=asyncio.subprocess.PIPE,
+    )  # fmt: skip
+    os.close(write_end)
+    try:
+        with os.fdopen(read_end, "rb") as head:  # head -1: a line, then gone
+            first = await asyncio.to_thread(head.readline)
+        yield watcher, first
+    finally:
+        if watcher.returncode is None:
+            watcher.kill()
+            await watcher.wait()
+
+
 async def test_watch_stops_quietly_when_its_output_is_closed(
     make_settings: Callable[..., Settings],
 ) -> None:
@@ -99,16 +122,7 @@ async def test_watch_stops_quietly_when_its_output_is_closed(
         seq = 1
         body = {"instance_id": iid, "samples": [sample(seq)]}
         assert (await c.post("/upper/update_param", headers=vh, json=body)).is_success
-        read_end, write_end = os.pipe()
-        env = {**os.environ, "FLEET_SERVER": base, "FLEET_TOKEN": ADMIN_TOKEN}
-        watcher = await asyncio.create_subprocess_exec(
-            sys.executable, "-m", "remote_client.cli", "watch", f"vehicle/{vid}/telemetry",
-            env=env, stdout=write_end, stderr=asyncio.subprocess.PIPE,
-        )  # fmt: skip
-        os.close(write_end)
-        try:
-            with os.fdopen(read_end, "rb") as head:  # head -1: a line, then gone
-                first = await asyncio.to_thread(head.readline)
+        async with _watched_by_head(base, vid) as (watcher, first):
             exited = asyncio.ensure_future(watcher.wait())
             async with asyncio.timeout(20):
                 while not exited.done():  # events until it notices
@@ -116,10 +130,6 @@ async def test_watch_stops_quietly_when_its_output_is_closed(
                     body = {"instance_id": iid, "samples": [sample(seq)]}
                     assert (await c.post("/upper/update_param", headers=vh, json=body)).is_success
                     await asyncio.wait({exited}, timeout=0.05)
-        finally:
-            if watcher.returncode is None:
-                watcher.kill()
-                await watcher.wait()
         assert watcher.stderr is not None
         stderr = (await watcher.stderr.read()).decode()
     assert first.startswith(b"current ") and vid.encode() in first
@@ -136,21 +146,8 @@ async def test_watch_ends_when_its_reader_goes_though_nothing_more_comes(
     async with served_vehicle(make_settings()) as (base, c, vid, vh, iid):
         body = {"instance_id": iid, "samples": [sample(1)]}
         assert (await c.post("/upper/update_param", headers=vh, json=body)).is_success
-        read_end, write_end = os.pipe()
-        env = {**os.environ, "FLEET_SERVER": base, "FLEET_TOKEN": ADMIN_TOKEN}
-        watcher = await asyncio.create_subprocess_exec(
-            sys.executable, "-m", "remote_client.cli", "watch", f"vehicle/{vid}/telemetry",
-            env=env, stdout=write_end, stderr=asyncio.subprocess.PIPE,
-        )  # fmt: skip
-        os.close(write_end)
-        try:
-            with os.fdopen(read_end, "rb") as head:  # head -1: a line, then gone
-                first = await asyncio.to_thread(head.readline)
+        async with _watched_by_head(base, vid) as (watcher, first):
             async with asyncio.timeout(10):  # and nothing is sent any more
-                await watcher.wait()
-        finally:
-            if watcher.returncode is None:
-                watcher.kill()
                 await watcher.wait()
         assert watcher.stderr is not None
         stderr = (await watcher.stderr.read()).decode()

@@ -92,6 +92,26 @@ async def _policy_is(api: httpx.AsyncClient, vehicle_id: str, pct: float | None)
     return bool(r.json()["failsafe"].get("low_battery_pct") == pct)
 
 
+async def _threshold_on_both(
+    apis: tuple[httpx.AsyncClient, httpx.AsyncClient], vehicle_id: str, pct: float
+) -> None:
+    """The vehicle's low battery threshold set on the first replica, and known to both."""
+    put = await apis[0].put(
+        f"/api/vehicles/{vehicle_id}/failsafe", headers=ADMIN, json={"low_battery_pct": pct}
+    )
+    assert put.status_code == 200, put.text
+    for api in apis:
+        await _until(lambda api=api: _policy_is(api, vehicle_id, pct), 10)
+
+
+async def _started(api: httpx.AsyncClient, vehicle_id: str, headers: dict[str, str]) -> str:
+    """The vehicle's instance, started on this replica: its id."""
+    body = {"vehicle_id": vehicle_id, "capabilities": ["stop"]}
+    started = await api.post("/upper/start_instance", headers=headers, json=body)
+    assert started.status_code == 200, started.text
+    return str(started.json()["instance_id"])
+
+
 async def test_both_replicas_say_the_same_since_for_each_alarm(
     make_settings: Callable[..., Settings], redis_server: RedisServer
 ) -> None:
@@ -100,15 +120,8 @@ async def test_both_replicas_say_the_same_since_for_each_alarm(
     vehicle talks to."""
     async with two_replicas(make_settings, redis_server) as (api_a, api_b, _):
         vid, vh = await make_vehicle(api_a)
-        put = await api_a.put(
-            f"/api/vehicles/{vid}/failsafe", headers=ADMIN, json={"low_battery_pct": 80.0}
-        )
-        assert put.status_code == 200, put.text
-        for api in (api_a, api_b):
-            await _until(lambda api=api: _policy_is(api, vid, 80.0), 10)
-        body = {"vehicle_id": vid, "capabilities": ["stop"]}
-        started = await api_a.post("/upper/start_instance", headers=vh, json=body)
-        iid = started.json()["instance_id"]
+        await _threshold_on_both((api_a, api_b), vid, 80.0)
+        iid = await _started(api_a, vid, vh)
         raised = datetime.now(UTC)  # after the start: no earlier than the instance began
 
         async def report(api: httpx.AsyncClient, seq: int, ts: datetime) -> None:
@@ -163,15 +176,8 @@ async def test_a_rule_changed_on_one_replica_judges_the_vehicle_again_on_both(
         made = await api_a.post("/api/zones", headers=ADMIN, json=area)
         assert made.status_code == 201, made.text
         zone_id = made.json()["zone_id"]
-        put = await api_a.put(
-            f"/api/vehicles/{vid}/failsafe", headers=ADMIN, json={"low_battery_pct": 50.0}
-        )
-        assert put.status_code == 200, put.text
-        for api in (api_a, api_b):
-            await _until(lambda api=api: _policy_is(api, vid, 50.0), 10)
-        body = {"vehicle_id": vid, "capabilities": ["stop"]}
-        started = await api_a.post("/upper/start_instance", headers=vh, json=body)
-        iid = started.json()["instance_id"]
+        await _threshold_on_both((api_a, api_b), vid, 50.0)
+        iid = await _started(api_a, vid, vh)
         seq = 0
 
         async def report() -> None:
