@@ -8,12 +8,13 @@ from __future__ import annotations
 
 import re
 import time
+from datetime import UTC, datetime
 from typing import Any
 
 from playwright.sync_api import expect
 
 from tests.agent.procs import wait_until
-from tests.web.conftest import Shots, World
+from tests.web.conftest import PASSWORD, Shots, World
 from tests.web.console_helpers import (
     assert_labels_apart,
     command_item,
@@ -257,14 +258,29 @@ def test_a_name_with_markup_is_shown_as_text_and_no_inline_script_runs(
 ) -> None:
     """A vehicle chooses its display name: markup in it is text in every label, and the
     page's policy would refuse an inline handler even if one slipped through."""
-    page, guard = open_console()
-    log_in(page, "mia")
     name = '<img src=x onerror="window.__pwned=1">'
-    page.evaluate(
-        "n => fleetConsole.fleet.applyFleet({vehicles: [{vehicle_id: 'demo-usv-3', name: n}]})",
-        name,
+    vehicle_id = "markup-usv"  # seen only by zoe: the other tests' people still see three
+    body = {"vehicle_id": vehicle_id, "name": name, "vehicle_type": "usv"}
+    token = world.fleet.call("POST", "/api/vehicles", json=body)["token"]
+    started = world.fleet.call(
+        "POST", "/upper/start_instance", token, json={**body, "capabilities": ["stop"]}
     )
-    expect(marker(page, "demo-usv-3").locator(".vlabel b")).to_have_text(name)
+    sample = {"seq": 1, "ts": datetime.now(UTC).isoformat(), "lat": 43.93, "lon": 15.44}
+    world.fleet.call(
+        "POST", "/upper/update_param", token,
+        json={"instance_id": started["instance_id"], "params": {}, "samples": [sample]},
+    )  # fmt: skip
+    user = {"username": "zoe", "role": "operator", "vehicles": [vehicle_id], "password": PASSWORD}
+    world.fleet.call("POST", "/api/users", json=user)
+    page, guard = open_console()
+    page.goto("/")
+    page.fill("#login-user", "zoe")
+    page.fill("#login-password", PASSWORD)
+    page.click("#login-form button[type=submit]")
+    expect(page.locator("#link")).to_have_attribute("data-state", "live")
+    expect(marker(page, vehicle_id).locator(".vlabel b")).to_have_text(name)
+    marker(page, vehicle_id).click()
+    expect(page.locator("#vehicle-pane")).to_contain_text(name)
     blocked = "Content Security Policy"
     with page.expect_console_message(lambda m: blocked in m.text):
         fired = page.evaluate(  # what an unescaped label would do
