@@ -1,8 +1,9 @@
 // The replay's form: which vehicles (the selected ones ticked, each time the tab opens
 // after the selection changed) and the window. The
-// window is "the last N minutes" (15, or the shortcut last pressed) up to the moment the
-// Replay tab opens, every time it opens, until the person types a time: a window set when
-// the page loaded went stale (at 16:09 it still ended at 16:03).
+// window is "the last N minutes" (15, or the shortcut last pressed) up to now: shown as
+// of the moment the Replay tab opens, every time it opens, and taken up to the moment the
+// replay is asked, until the person types a time (a window set when the page loaded went
+// stale: at 16:09 it still ended at 16:03).
 //
 // The window's two times are text in one form, "2026-11-26 14:05:00": 24-hour and local,
 // whatever the browser's language (a datetime-local picker in an English browser showed
@@ -84,9 +85,8 @@ export class ReplayForm {
     this.ticksFor = [...selection].sort().join(" ");
   }
 
-  /** The last ``this.minutes`` minutes, up to now. */
-  setWindow() {
-    const now = Date.now();
+  /** The last ``this.minutes`` minutes, up to ``now``. */
+  setWindow(now = Date.now()) {
     $("replay-from").value = localStamp(now - this.minutes * 60000);
     $("replay-to").value = localStamp(now);
     for (const field of this.fields()) this.check(field, false);
@@ -120,8 +120,16 @@ export class ReplayForm {
     this.check(field, false);
   }
 
-  /** The window as typed: ``{start, end}`` in ms, or ``{error}`` naming the field. */
+  /** The window asked: ``{start, end}`` in ms, or ``{error}`` naming the field. Unless a
+   * time was typed, "the last N minutes" up to this moment, to the millisecond (the form
+   * shows whole seconds: the window it held ended up to a second before its replay was
+   * asked, and left out what happened since the tab opened). */
   window() {
+    if (!this.typed) {
+      const now = Date.now();
+      this.setWindow(now);
+      return { start: now - this.minutes * 60000, end: now };
+    }
     const from = this.check($("replay-from"), true);
     const to = this.check($("replay-to"), true);
     if (from.error) return { error: `from: ${from.error}` };
