@@ -4,7 +4,8 @@
     each sample as it is taken) and ``GET /upper/get_control`` (``wait_s=0``)
     throughput as a ratio to a trivial route of the same app in
     the same process: a real uvicorn in a subprocess, loaded over keep-alive
-    connections from this process. Goal: ratio >= 0.6.
+    connections from this process, each kind in short windows taking turns with the
+    others. Goal: ratio >= 0.6.
 (b) Ingest through ``TelemetryService.ingest`` (batches of 10, 20 vehicles, the
     writer inserting and making durable meanwhile) with 1,000,000 samples already
     stored; the rate over the first and the last 50,000 samples of each 200,000
@@ -45,6 +46,8 @@ TITLE = "HTTP throughput ratios; ingest and track query at 1 M samples, embedded
 TOKEN = "fct_bench-admin-token-0123456789"
 CONNECTIONS = 8
 SECONDS = 3.0
+#: The short windows each kind's SECONDS are measured in, in turn with the other kinds.
+SLICES = 6
 VEHICLES = 20
 STORED = 1_000_000
 #: Samples stored before the side-by-side run on FerretDB (and the embedded store).
@@ -144,34 +147,40 @@ def _http(runs: int) -> list[Metric]:
                 """A vehicle at 1 Hz: each call carries the one sample taken since the last."""
                 return update_req(i, n, 1)
 
+            kinds = {
+                "trivial": lambda i, n: t_req,
+                "update": update_req,
+                "single": single_req,
+                "control": lambda i, n: c_req[i],
+                "floor": floor_req,
+            }
+
             async def measure() -> None:
-                await hammer(port, lambda i, n: t_req, connections=CONNECTIONS, seconds=1.0)
+                await hammer(port, kinds["trivial"], connections=CONNECTIONS, seconds=1.0)
                 for _ in range(runs):
-                    base, e0 = await hammer(
-                        port, lambda i, n: t_req, connections=CONNECTIONS, seconds=SECONDS
-                    )
-                    up, e1 = await hammer(
-                        port, update_req, connections=CONNECTIONS, seconds=SECONDS
-                    )
-                    one, e4 = await hammer(
-                        port, single_req, connections=CONNECTIONS, seconds=SECONDS
-                    )
-                    ctl, e2 = await hammer(
-                        port, lambda i, n: c_req[i], connections=CONNECTIONS, seconds=SECONDS
-                    )
-                    floor, e3 = await hammer(
-                        port, floor_req, connections=CONNECTIONS, seconds=SECONDS
-                    )
-                    if e0 or e1 or e2 or e3 or e4:
-                        raise RuntimeError(f"bench requests failed: {e0 + e1 + e2 + e3 + e4}")
-                    floor_ratio.values.append(floor / base)
+                    # Each kind's SECONDS in SLICES short windows, the kinds taking turns
+                    # (the order rotated each turn): the machine's speed, which drifts over
+                    # seconds here, weighs on every kind alike within a round.
+                    rates = dict.fromkeys(kinds, 0.0)
+                    order = list(kinds)
+                    for turn in range(SLICES):
+                        for name in order[turn % len(order) :] + order[: turn % len(order)]:
+                            rate, errors = await hammer(
+                                port, kinds[name], connections=CONNECTIONS,
+                                seconds=SECONDS / SLICES,
+                            )  # fmt: skip
+                            if errors:
+                                raise RuntimeError(f"bench requests failed ({name}): {errors}")
+                            rates[name] += rate / SLICES
+                    base = rates["trivial"]
                     trivial.values.append(base)
-                    update.values.append(up)
-                    control.values.append(ctl)
-                    update_ratio.values.append(up / base)
-                    single.values.append(one)
-                    single_ratio.values.append(one / base)
-                    control_ratio.values.append(ctl / base)
+                    update.values.append(rates["update"])
+                    single.values.append(rates["single"])
+                    control.values.append(rates["control"])
+                    update_ratio.values.append(rates["update"] / base)
+                    single_ratio.values.append(rates["single"] / base)
+                    control_ratio.values.append(rates["control"] / base)
+                    floor_ratio.values.append(rates["floor"] / base)
 
             asyncio.run(measure())
         finally:
