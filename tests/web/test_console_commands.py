@@ -96,7 +96,8 @@ def test_select_a_vehicle_and_send_go_to_by_clicking_the_map(
         expect(page.locator("#toasts")).to_contain_text("station radius is 1 to 500 m")
         page.fill("#opt-speed", "25")
         page.click('[data-tool="go_to"]')
-        console.click_map(page, *station)
+        # open water 20 m west of the boat (a click on its marker or label selects it)
+        console.click_map(page, *LocalFrame(*station).to_latlon(-20.0, -5.0))
         expect(page.locator("#toasts")).to_contain_text("speed is 0.1 to 20 m/s")
         page.keyboard.press("Escape")  # the tool put away
         expect(page.locator("#tool-hint")).to_be_hidden()
