@@ -84,7 +84,8 @@ class ServerProcess:
                 stdout=log,
                 stderr=subprocess.STDOUT,
             )
-        wait_until(self._healthy, "the server to answer /healthz")
+        # a minute: on a loaded machine (CI's two workers and their browsers) a start-up took 30 s
+        wait_until(self._healthy, "the server to answer /healthz", within_s=60)
 
     def _healthy(self) -> bool:
         if self.proc is not None and self.proc.poll() is not None:
