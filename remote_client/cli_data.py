@@ -154,10 +154,18 @@ def export(
     fmt = file_format(output, fmt, streams.EXPORT_FORMATS)
     start, end = window(since, until)
     _writable(output)
+    # A file is written beside the target and takes its place once every page is in: a
+    # refusal or a lost link half way leaves a former file as it was, and no new one. A
+    # pipe or a device (/dev/stdout) is written as it comes.
+    target = Path(output)
+    in_place = output == "-" or (target.exists() and not target.is_file())
+    part = None if in_place else target.with_name(f".{target.name}.part")
     with contextlib.ExitStack() as stack:
         try:
             out = (
-                sys.stdout if output == "-" else stack.enter_context(open(output, "w", newline=""))
+                sys.stdout
+                if output == "-"
+                else stack.enter_context(open(part or target, "w", newline=""))
             )
         except OSError as exc:
             fail(f"cannot write {output}: {exc.strerror or exc}")
@@ -167,7 +175,19 @@ def export(
             pages = fleet.telemetry_pages(vehicle_id, since=start, until=end, page=page)
             return await streams.export_samples(pages, fmt, out)
 
-        count = run(server, token, act)
+        try:
+            count = run(server, token, act)
+        except BaseException:
+            if part is not None:
+                stack.close()
+                part.unlink(missing_ok=True)
+            raise
+    if part is not None:
+        try:
+            part.replace(output)
+        except OSError as exc:
+            part.unlink(missing_ok=True)
+            fail(f"cannot write {output}: {exc.strerror or exc}")
     if output != "-":
         errors.print(f"{count} samples written to {output}", markup=False, highlight=False)
 

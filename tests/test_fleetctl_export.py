@@ -106,3 +106,26 @@ async def test_a_table_whose_reader_has_gone_ends_with_141_as_a_line_does(
             _, stderr = await proc.communicate()
     assert proc.returncode == 141, stderr
     assert stderr == b""
+
+
+async def test_a_refused_export_leaves_the_file_it_was_to_write_as_it_was(
+    make_settings: Callable[..., Settings], tmp_path: Path
+) -> None:
+    """A mistyped vehicle, a refusal or a lost server: the former file is kept, and no
+    empty one is made."""
+    async with served_vehicle(make_settings()) as (base, c, vid, vh, iid):
+        body = {"instance_id": iid, "samples": [sample(seq) for seq in range(1, 6)]}
+        assert (await c.post("/upper/update_param", headers=vh, json=body)).is_success
+        kept = tmp_path / "kept.csv"
+        assert (await fleetctl(base, ADMIN_TOKEN, "export", vid, "-o", str(kept))).exit_code == 0
+        before = kept.read_text()
+
+        typo = await fleetctl(base, ADMIN_TOKEN, "export", "no-such-vehicle", "-o", str(kept))
+        assert typo.exit_code == 1 and "404" in typo.stderr
+        assert kept.read_text() == before
+        fresh = tmp_path / "fresh.csv"
+        refused = await fleetctl(base, "fct_not-a-token", "export", vid, "-o", str(fresh))
+        assert refused.exit_code == 1 and "401" in refused.stderr
+        assert not fresh.exists()
+        assert not (tmp_path / ".kept.csv.part").exists()  # nothing left over
+        assert not (tmp_path / ".fresh.csv.part").exists()
