@@ -148,7 +148,7 @@ class VehicleAgent:
         body = StartInstance(
             vehicle_id=self.config.vehicle_id,
             name=self.config.name or "",  # empty: the server keeps the registered name
-            vehicle_type=self.adapter.vehicle_type,
+            vehicle_type=self.adapter.vehicle_type,  # None: the server keeps the registered one
             capabilities=sorted(helm.pilot.capabilities),
             params=self.adapter.describe(),
             active_commands=helm.active_commands(),

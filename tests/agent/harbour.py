@@ -103,8 +103,10 @@ class Harbour:
         current: Current | None = None,
         failsafe: dict[str, Any] | None = None,
         time_scale: float = 40.0,
+        vehicle_type: str | None = None,
     ) -> Boat:
-        token = (await self.call("POST", "/api/vehicles", json={"vehicle_id": vehicle_id}))["token"]
+        made = {"vehicle_id": vehicle_id} | ({"vehicle_type": vehicle_type} if vehicle_type else {})
+        token = (await self.call("POST", "/api/vehicles", json=made))["token"]
         if failsafe is not None:
             await self.call("PUT", f"/api/vehicles/{vehicle_id}/failsafe", json=failsafe)
         link = Link(httpx.ASGITransport(app=self.app))

@@ -10,7 +10,8 @@ from vehicle_client.sim.simulator import TaskReport
 class Adapter(Protocol):
     #: Command types the vehicle executes (``stop`` is always among them).
     capabilities: tuple[str, ...]
-    vehicle_type: str
+    #: The hull's type to announce (``usv``, ``auv``, ...); ``None``: the registered one.
+    vehicle_type: str | None
 
     def telemetry(self) -> dict[str, Any] | None:
         """The latest state as sample fields (``lat``, ``lon``, ...); ``None`` without a fix."""

@@ -13,7 +13,7 @@ STEP_HZ = 10.0
 
 
 class SimAdapter:
-    vehicle_type = "usv"
+    vehicle_type: str | None = None  # the registered type: a simulator drives any hull
     capabilities: tuple[str, ...] = CAPABILITIES
 
     def __init__(

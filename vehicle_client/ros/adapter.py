@@ -20,7 +20,7 @@ RECONNECT_S = 1.0
 
 
 class RosAdapter:
-    vehicle_type = "usv"
+    vehicle_type: str | None = None  # the registered type: the bridge does not say
     capabilities: tuple[str, ...] = ("stop", "go_to", "keep_station", "follow_path")
 
     def __init__(self, address: str) -> None:
