@@ -141,6 +141,17 @@ class CommandSpec(WireModel):
         theirs = SERVER_ARGS.get(self.type, {})
         refused = [f"args.{name}: {why}" for name, why in theirs.items() if name in self.args]
         model = ARGS_MODELS[self.type]
+        # An argument the type does not take is refused, not dropped: ``speed`` for
+        # ``speed_mps`` would run at the vehicle's own speed, unsaid. (A vehicle reading a
+        # command still ignores what it does not know: ARGS_MODELS stay lenient.)
+        takes = [name for name in model.model_fields if name not in theirs]
+        refused += [
+            f"args.{name}: {self.type} takes no {name!r} (it takes "
+            + (", ".join(takes) if takes else "no arguments")
+            + ")"
+            for name in self.args
+            if name not in model.model_fields
+        ]
         try:
             parsed = model.model_validate({k: v for k, v in self.args.items() if k not in theirs})
         except ValidationError as exc:

@@ -150,6 +150,33 @@ async def test_bad_input_is_422_naming_the_field(
     assert any(d["field"].startswith(field) for d in error["details"]), error
 
 
+@pytest.mark.parametrize(
+    ("command", "field"),
+    [
+        ({"type": "go_to", "args": {"lat": 1, "lon": 1, "speed": 0.3}}, "command.args.speed"),
+        ({"type": "keep_station", "args": {"radius": 50}}, "command.args.radius"),
+        ({"type": "follow_path", "args": {"waypoints": [{"lat": 1, "lon": 1}], "plann": True}},
+         "command.args.plann"),
+        ({"type": "stop", "args": {"now": True}}, "command.args.now"),
+    ],
+)  # fmt: skip
+async def test_a_misspelt_argument_is_422_naming_it_not_dropped(
+    w: World, command: dict[str, object], field: str
+) -> None:
+    """A go_to with ``speed`` for ``speed_mps`` ran at the vehicle's own speed, a
+    keep_station with ``radius`` held 2 m: the argument the operator meant was dropped
+    unsaid. Nothing is queued."""
+    v = await w.vehicle()
+    op = await w.operator_in_control(v)
+    r = await w.submit(op, [v], command)
+    assert r.status_code == 422, r.text
+    error = r.json()["error"]
+    assert error["code"] == "invalid"
+    assert [d["field"] for d in error["details"]] == [field], error
+    assert "takes" in error["details"][0]["message"], error
+    assert await w.poll(v) == []
+
+
 async def test_an_unknown_instance_is_404(w: World) -> None:
     op = await w.person("operator")
     r = await w.submit(op, ["i-nope"], STOP)
