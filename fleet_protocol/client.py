@@ -4,7 +4,14 @@ from __future__ import annotations
 
 from typing import Annotated, Literal
 
-from pydantic import Field, StrictInt, ValidationInfo, field_validator, model_validator
+from pydantic import (
+    ConfigDict,
+    Field,
+    StrictInt,
+    ValidationInfo,
+    field_validator,
+    model_validator,
+)
 
 from fleet_protocol.commands import CommandObject, CommandSpec
 from fleet_protocol.common import Identifier, Sample, Timestamp, WireModel
@@ -71,6 +78,9 @@ class GetParamResult(WireModel):
 
 
 class SubmitControl(WireModel):
+    # A field it does not know is a 422 naming it, not dropped (``ttl`` for ``ttl_s``).
+    model_config = ConfigDict(extra="forbid")
+
     #: An instance named twice is taken once (a stop sent to a vehicle by its id and its
     #: name is one stop, never refused for the repeat).
     instance_ids: list[Annotated[Text, Field(min_length=1, max_length=128)]] = Field(

@@ -6,7 +6,14 @@ import hashlib
 from collections.abc import Mapping, Sequence
 from typing import Literal, get_args
 
-from pydantic import Field, StrictBool, StrictFloat, ValidationError, model_validator
+from pydantic import (
+    ConfigDict,
+    Field,
+    StrictBool,
+    StrictFloat,
+    ValidationError,
+    model_validator,
+)
 
 from fleet_protocol.common import Latitude, LatLon, Longitude, Timestamp, WireModel
 from fleet_protocol.served import ServedObject
@@ -128,6 +135,10 @@ SERVER_ARGS: dict[str, dict[str, str]] = {
 
 class CommandSpec(WireModel):
     """What an operator asks for: ``{type, args, max_drift_m?}``."""
+
+    # A field it does not know is a 422 naming it, not dropped: ``max_drift`` for
+    # ``max_drift_m`` would send the command with no drift guard, unsaid.
+    model_config = ConfigDict(extra="forbid")
 
     type: CommandType
     #: Checked as a free-form object first, then by the type's model (``ARGS_MODELS``).

@@ -177,6 +177,29 @@ async def test_a_misspelt_argument_is_422_naming_it_not_dropped(
     assert await w.poll(v) == []
 
 
+@pytest.mark.parametrize(
+    ("extra", "field"),
+    [
+        ({"ttl": 600}, "ttl"),
+        ({"command": {"type": "keep_station", "args": {}, "max_drift": 5}}, "command.max_drift"),
+    ],
+)
+async def test_a_misspelt_submit_field_is_422_naming_it_not_dropped(
+    w: World, extra: dict[str, object], field: str
+) -> None:
+    """``ttl`` for ``ttl_s`` expired in 30 s, ``max_drift`` for ``max_drift_m`` sent the
+    command with no drift guard: both answered 202."""
+    v = await w.vehicle()
+    op = await w.operator_in_control(v)
+    payload = {"instance_ids": [v.instance_id], "command": STOP, **extra}
+    r = await w.http.post("/client/submit_control", headers=op.headers, json=payload)
+    assert r.status_code == 422, r.text
+    error = r.json()["error"]
+    assert error["code"] == "invalid"
+    assert [d["field"] for d in error["details"]] == [field], error
+    assert await w.poll(v) == []
+
+
 async def test_an_unknown_instance_is_404(w: World) -> None:
     op = await w.person("operator")
     r = await w.submit(op, ["i-nope"], STOP)
