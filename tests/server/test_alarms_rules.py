@@ -47,6 +47,19 @@ async def until_alarms(w: World, me: Vehicle, want: list[str]) -> None:
     await eventually(holds)
 
 
+async def until_events(w: World, me: Vehicle, kind: str, count: int) -> list[dict[str, Any]]:
+    """The vehicle's events of ``kind`` once there are ``count`` (an alarm's event is
+    recorded just after the alarm itself, which the view shows first)."""
+    found: list[dict[str, Any]] = []
+
+    async def holds() -> bool:
+        found[:] = await events(w, me, kind)
+        return len(found) >= count
+
+    await eventually(holds)
+    return found
+
+
 def area(me: Vehicle, name: str = "area9") -> dict[str, Any]:
     return {
         "name": name,
@@ -115,7 +128,7 @@ async def test_lifting_the_battery_threshold_ends_the_alarm_without_a_recovery(
 
     await failsafe(w, me)  # no threshold now
     await until_alarms(w, me, [])
-    [ended] = await events(w, me, "low_battery_cleared")
+    [ended] = await until_events(w, me, "low_battery_cleared", 1)
     assert ended["data"]["battery_pct"] == 30.0
     assert ended["data"]["threshold_pct"] is None
     assert ended["data"]["reason"] == "failsafe_changed"
@@ -126,7 +139,7 @@ async def test_lifting_the_battery_threshold_ends_the_alarm_without_a_recovery(
 
     await failsafe(w, me, low_battery_pct=40.0)  # a threshold above the reading: low again
     await until_alarms(w, me, ["low_battery"])
-    lows = await events(w, me, "low_battery")
+    lows = await until_events(w, me, "low_battery", 2)
     assert [e["data"].get("reason") for e in lows] == [None, "failsafe_changed"]
     assert lows[-1]["data"]["threshold_pct"] == 40.0
     [alarm] = (await view(w, me))["alarms"]
