@@ -212,7 +212,7 @@ class LiveHub(TopicFanout):
         if not (event.token_ids or event.digests):
             return
         code, reason = (
-            (CLOSE_UNAUTHORIZED, "the token was revoked")
+            (CLOSE_UNAUTHORIZED, "the token is no longer valid (revoked, or its user disabled)")
             if event.revoked
             else (CLOSE_RECONNECT, "your rights changed: connect again")
         )

@@ -219,7 +219,7 @@ class AuthService(Tokens):
         if body.password is not None or body.disabled:
             await self._end_sessions(username, keep=actor)
         if body.role is not None or body.vehicles is not None or body.disabled is not None:
-            await self._forget_subject("user", username)
+            await self._forget_subject("user", username, refused=bool(body.disabled))
             await self.messages.emit(UserChanged(username, actor))
         return await self.get_user(username)
 

@@ -222,9 +222,9 @@ class Tokens:
         """Revocations may have been missed (the bus was down): ask the store again."""
         self._cache.clear()
 
-    async def _forget_subject(self, kind: str, subject: str) -> None:
+    async def _forget_subject(self, kind: str, subject: str, *, refused: bool = False) -> None:
         """The subject changed (role, vehicles, disabled): every replica reads its tokens
-        again, and the sockets that hold them close (they reconnect with the new rights;
-        a token no longer good is refused then)."""
+        again, and the sockets that hold them close: to reconnect with the new rights, or,
+        ``refused`` (a user disabled), as for a revoked token (4401)."""
         docs = await self.repo.tokens_of(kind, subject)
-        self._forget({d["digest"] for d in docs}, {d["token_id"] for d in docs}, revoked=False)
+        self._forget({d["digest"] for d in docs}, {d["token_id"] for d in docs}, revoked=refused)

@@ -1,7 +1,7 @@
 """A user's sockets when an admin changes the user: a change of role or vehicles closes
 them with 4012 (connect again: the token still stands, the subscriptions were checked
-against the former rights), a change of nothing leaves them open, and a disabled user's
-reconnection is refused (4401)."""
+against the former rights), a change of nothing leaves them open, and disabling the user
+closes them with 4401 (its API token and its sessions alike), as its reconnection is."""
 
 from __future__ import annotations
 
@@ -60,7 +60,8 @@ async def test_new_rights_close_the_user_s_sockets_to_reconnect_with(
             assert _fleet_ids(snapshot) == {one, two}
             off = await c.patch(f"/api/users/{name}", headers=ADMIN, json={"disabled": True})
             assert off.status_code == 200, off.text
-            assert await _closed_with(ws) == CLOSE_RECONNECT
+            assert await _closed_with(ws) == 4401  # as a revoked token: not to reconnect
+            assert "its user disabled" in str(ws.close_reason)
 
         async with await connect(base, "/ws/client", token) as ws:
             assert await _closed_with(ws) == 4401  # disabled: the token no longer stands
