@@ -19,6 +19,7 @@ SERVER = Path(__file__).resolve().parent.parent / "server"
 LAYERS = {
     "server.app": ("root", 5),  # the composition root: the app, its command, the demo
     "server.cli": ("root", 5),
+    "server.__main__": ("root", 5),
     "server.demo": ("root", 5),
     "server.container": ("root", 5),
     "server.running": ("root", 5),
