@@ -2,4 +2,5 @@
 
 from vehicle_client.cli import main
 
-main()
+if __name__ == "__main__":  # imported (a walk of the package's modules): nothing runs
+    main()
