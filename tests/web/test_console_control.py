@@ -273,11 +273,7 @@ def test_a_name_with_markup_is_shown_as_text_and_no_inline_script_runs(
     user = {"username": "zoe", "role": "operator", "vehicles": [vehicle_id], "password": PASSWORD}
     world.fleet.call("POST", "/api/users", json=user)
     page, guard = open_console()
-    page.goto("/")
-    page.fill("#login-user", "zoe")
-    page.fill("#login-password", PASSWORD)
-    page.click("#login-form button[type=submit]")
-    expect(page.locator("#link")).to_have_attribute("data-state", "live")
+    log_in(page, "zoe", markers=1)
     expect(marker(page, vehicle_id).locator(".vlabel b")).to_have_text(name)
     marker(page, vehicle_id).click()
     expect(page.locator("#vehicle-pane")).to_contain_text(name)

@@ -239,11 +239,7 @@ def test_an_export_names_its_file_and_tracks_by_the_vehicles(
     body = {"username": "fay", "role": "viewer", "vehicles": sees, "password": PASSWORD}
     world.fleet.call("POST", "/api/users", json=body)
     page, _ = open_console()
-    page.goto("/")
-    page.fill("#login-user", "fay")
-    page.fill("#login-password", PASSWORD)
-    page.click("#login-form button[type=submit]")
-    expect(page.locator("#link")).to_have_attribute("data-state", "live")
+    log_in(page, "fay", markers=None)
     replay_up(page)
     page.click('[data-tab="replay"]')
     expect(page.locator("#replay-vehicles input")).to_have_count(4)

@@ -29,6 +29,16 @@ def replay_up(page: Any) -> None:
     page.wait_for_function("() => Boolean(window.fleetConsole && fleetConsole.replay)")
 
 
+def replay_the_last_5_minutes(page: Any) -> None:
+    """ana logs in and replays the last 5 minutes of every vehicle."""
+    console.log_in(page, "ana")
+    replay_up(page)
+    page.click('[data-tab="replay"]')
+    page.click('#replay-form [data-minutes="5"]')
+    page.click("#replay-load")
+    expect(page.locator("#replay-bar")).to_be_visible()
+
+
 def ticked(page: Any) -> list[str]:
     return [
         box.get_attribute("value")
@@ -44,12 +54,7 @@ def test_a_replay_that_finds_nothing_clears_the_one_before(
     recorded..." under the form, and the old replay still on the map with its events and
     its Export buttons (which saved the old window)."""
     page, _ = open_console()
-    console.log_in(page, "ana")
-    replay_up(page)
-    page.click('[data-tab="replay"]')
-    page.click('#replay-form [data-minutes="5"]')
-    page.click("#replay-load")
-    expect(page.locator("#replay-bar")).to_be_visible()
+    replay_the_last_5_minutes(page)
     expect(page.locator(".vicon.replay")).to_have_count(3)
     expect(page.locator("#replay-export")).to_be_visible()
     shots(page, "first-replay")
@@ -214,12 +219,7 @@ def test_the_last_minutes_take_in_what_happened_since_the_tab_opened(
     asked a moment later."""
     vehicle, instance = "demo-usv-1", world.instances["demo-usv-1"]
     page, _ = open_console()
-    console.log_in(page, "ana")
-    replay_up(page)
-    page.click('[data-tab="replay"]')
-    page.click('#replay-form [data-minutes="5"]')
-    page.click("#replay-load")
-    expect(page.locator("#replay-bar")).to_be_visible()
+    replay_the_last_5_minutes(page)
     cancelled = page.locator("#replay-events li", has_text="H2OmniX Alpha command go to cancelled")
     before = cancelled.count()
     shown_end = page.locator("#replay-to").input_value()
