@@ -316,3 +316,23 @@ def test_the_field_manager_revokes_from_the_vehicle_panel(world: World, open_con
     line = other.locator("#vehicle-pane .control-line")
     expect(line).to_contain_text("ben holds control")
     expect(line.locator("button", has_text="Revoke")).to_have_count(0)
+
+
+def test_a_press_on_the_control_panel_outlasts_its_redraw(world: World, open_console: Any) -> None:
+    """A Grant tapped on a phone did nothing now and then: the panel was drawn again (on
+    any vehicle's news) between the press and its end, and the button pressed was gone."""
+    page, _ = open_console()
+    log_in(page, "mia")
+    page.click('[data-tab="control"]')
+    revoke = page.locator("li.lease button", has_text="Revoke").first
+    box = revoke.bounding_box()
+    assert box is not None
+    page.mouse.move(box["x"] + box["width"] / 2, box["y"] + box["height"] / 2)
+    page.mouse.down()
+    page.evaluate(  # news of a vehicle while the button is held down
+        "fleetConsole.fleet.applyFleet({vehicles: [{vehicle_id: 'demo-usv-2', link_rtt_ms: 42}]})"
+    )
+    next_frames(page)
+    page.mouse.up()
+    expect(page.locator("#confirm-title")).to_contain_text("Revoke")
+    page.click("#confirm-cancel")

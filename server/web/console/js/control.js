@@ -20,6 +20,11 @@ const KIND_LABELS = {
 };
 // How long after this console ended a lease its hold_station event is taken as said.
 const ENDED_HERE_MS = 15000;
+// A press on the panel holds its redraws until it has become a click: a button replaced
+// under a finger mid-tap lost the tap (a Grant on a phone did nothing). Held this long
+// after the press ends, and never longer than PRESS_MAX_MS.
+const PRESS_AFTER_MS = 350;
+const PRESS_MAX_MS = 5000;
 const SAFETY_EVENTS = new Set([
   "hold_station", "failsafe_entered", "failsafe_left", "failsafe_changed", "zone_breach",
   "zone_cleared", "collision_risk", "low_battery",
@@ -50,6 +55,12 @@ export class ControlPanel {
     this.requests = [];
     this.caps = new Map();
     this.render = throttled(() => this.draw());
+    this.pressed = null; // the timer that ends a press, while one is under way
+    this.held = false; // a redraw asked during the press
+    this.el.addEventListener("pointerdown", () => this.press(PRESS_MAX_MS));
+    for (const kind of ["pointerup", "pointercancel"]) {
+      document.addEventListener(kind, () => { if (this.pressed) this.press(PRESS_AFTER_MS); }, true);
+    }
     this.lapses = new ControlLapses(ctx);
     ctx.fleet.addEventListener("change", (e) => {
       const what = e.detail.what;
@@ -204,7 +215,23 @@ export class ControlPanel {
       s ? `lapses after ${label} silent` : "never lapses")));
   }
 
+  /** A press under way, over in ``ms``: then the redraw it held, if any. */
+  press(ms) {
+    clearTimeout(this.pressed);
+    this.pressed = setTimeout(() => {
+      this.pressed = null;
+      if (this.held) {
+        this.held = false;
+        this.render();
+      }
+    }, ms);
+  }
+
   draw() {
+    if (this.pressed) {
+      this.held = true; // after the press (see PRESS_AFTER_MS)
+      return;
+    }
     const tab = document.querySelector('.tabs [data-tab="control"]');
     if (tab) tab.textContent = this.manages && this.requests.length ? `Control (${this.requests.length})` : "Control";
     const parts = [h("h2", {}, "Control")];
