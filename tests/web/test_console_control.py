@@ -321,13 +321,22 @@ def test_the_field_manager_revokes_from_the_vehicle_panel(world: World, open_con
 def test_a_press_on_the_control_panel_outlasts_its_redraw(world: World, open_console: Any) -> None:
     """A Grant tapped on a phone did nothing now and then: the panel was drawn again (on
     any vehicle's news) between the press and its end, and the button pressed was gone."""
+    world.fleet.grant(world.instances["demo-usv-1"], "ana")
     page, _ = open_console()
     log_in(page, "mia")
     page.click('[data-tab="control"]')
-    revoke = page.locator("li.lease button", has_text="Revoke").first
-    box = revoke.bounding_box()
-    assert box is not None
-    page.mouse.move(box["x"] + box["width"] / 2, box["y"] + box["height"] / 2)
+    lease = page.locator('li.lease[data-vehicle="demo-usv-1"]')
+    expect(lease.locator("button", has_text="Revoke")).to_be_visible()
+    x, y = page.evaluate(  # where the button is (the same place in every redraw)
+        """() => {
+            const b = [...document.querySelectorAll('li.lease[data-vehicle="demo-usv-1"] button')]
+                .find((e) => e.textContent.includes("Revoke"));
+            b.scrollIntoView({ block: "center" });
+            const r = b.getBoundingClientRect();
+            return [r.x + r.width / 2, r.y + r.height / 2];
+        }"""
+    )
+    page.mouse.move(x, y)
     page.mouse.down()
     page.evaluate(  # news of a vehicle while the button is held down
         "fleetConsole.fleet.applyFleet({vehicles: [{vehicle_id: 'demo-usv-2', link_rtt_ms: 42}]})"
