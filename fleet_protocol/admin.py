@@ -31,6 +31,7 @@ __all__ = [
     "LoginRequest",
     "LogoutResult",
     "PatchUser",
+    "PatchVehicle",
     "Role",
     "TokenResult",
     "UserCreated",
@@ -56,6 +57,17 @@ class CreateVehicle(WireModel):
     vehicle_id: Annotated[Identifier, AfterValidator(_not_a_server_id)]
     name: Label = Field(default="", max_length=128)
     vehicle_type: Label = Field(default="usv", min_length=1, max_length=32)
+
+
+class PatchVehicle(WireModel):
+    """A registered vehicle's name or type to change (**extension**: a vehicle registered
+    with a typo or the wrong type is put right, its history kept). A field this body
+    does not have is a 422 naming it, as for :class:`PatchUser`."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    name: Label | None = Field(default=None, min_length=1, max_length=128)
+    vehicle_type: Label | None = Field(default=None, min_length=1, max_length=32)
 
 
 class VehicleCreated(WireModel):

@@ -106,6 +106,7 @@ EventKind = Literal[
     "battery_recovered",
     "low_battery_cleared",
     "collision_risk",
+    "vehicle_changed",
 ]
 
 

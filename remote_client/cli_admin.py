@@ -32,7 +32,7 @@ from remote_client.sdk import FleetClient
 vehicles_app = typer.Typer(
     invoke_without_command=True,
     help="The vehicles you can see (no subcommand: the list); "
-    "register a vehicle, issue or revoke its token (admin).",
+    "register a vehicle, change its name or type, issue or revoke its token (admin).",
 )
 users_app = typer.Typer(
     invoke_without_command=True,
@@ -110,6 +110,30 @@ def vehicles_add(
     """Register a vehicle; prints its token (shown once) for its agent."""
     data = run(server, token, lambda fleet: fleet.create_vehicle(vehicle_id, name, vehicle_type))
     _new_token(data, as_json, f"vehicle {vehicle_id} registered", "FLEET_AGENT_TOKEN")
+
+
+@vehicles_app.command("set")
+def vehicles_set(
+    vehicle: str = typer.Argument(..., help="vehicle id or name"),
+    name: str | None = typer.Option(None, help="its new display name"),
+    vehicle_type: str | None = typer.Option(None, "--type", help="its type: usv, auv, rov, ..."),
+    server: str = ServerOpt,
+    token: str = TokenOpt,
+    as_json: bool = JsonOpt,
+) -> None:
+    """Put a vehicle's name or type right (admin); its history stays.
+
+    A name or type its agent announces when it starts still wins.
+    """
+    if name is None and vehicle_type is None:
+        fail("nothing to change: give --name or --type")
+
+    async def act(fleet: FleetClient) -> dict[str, Any]:
+        vehicle_id = await fleet.vehicle_id_of(vehicle)
+        return await fleet.update_vehicle(vehicle_id, name=name, vehicle_type=vehicle_type)
+
+    data = run(server, token, act)
+    say(data, as_json, f"vehicle {data['vehicle_id']}: {data['name']} ({data['vehicle_type']})")
 
 
 @vehicles_app.command("token")

@@ -58,6 +58,15 @@ class AdminCalls(Session):
         answer: Body = await self.call("POST", "/api/vehicles", json=body)
         return answer
 
+    async def update_vehicle(
+        self, vehicle_id: str, *, name: str | None = None, vehicle_type: str | None = None
+    ) -> Body:
+        """``PATCH /api/vehicles/{vehicle_id}`` (admin): its name or type put right; the
+        fleet's view of the vehicle after."""
+        body = given(name=name, vehicle_type=vehicle_type)
+        answer: Body = await self.call("PATCH", f"/api/vehicles/{vehicle_id}", json=body)
+        return answer
+
     async def gateways(self) -> Body:
         """``{"gateways": [{gateway_id, vehicles, created_at, active_tokens}, ...]}`` (admin)."""
         body: Body = await self.call("GET", "/api/gateways")

@@ -173,3 +173,31 @@ async def test_users_are_added_changed_disabled_and_their_tokens_issued_and_revo
         assert unknown.exit_code == 1 and "404" in unknown.stderr
         not_admin = await fleetctl(base, fresh, "users")
         assert not_admin.exit_code == 1
+
+
+async def test_a_vehicles_name_and_type_are_put_right_by_name_or_id(
+    make_settings: Callable[..., Settings],
+) -> None:
+    async with serve(make_settings()) as base, httpx.AsyncClient(base_url=base) as c:
+        vid, _ = await make_vehicle(c, "cli-auv", vehicle_type="usv")  # named CLI-AUV
+        done = await fleetctl(base, ADMIN_TOKEN, "vehicles", "set", "CLI-AUV", "--type", "auv")
+        assert done.exit_code == 0, done.output
+        assert "vehicle cli-auv: CLI-AUV (auv)" in done.stdout
+        done = await fleetctl(
+            base, ADMIN_TOKEN, "vehicles", "set", vid, "--name", "Deep One", "--json"
+        )
+        assert done.exit_code == 0, done.output
+        answer = json.loads(done.stdout)
+        assert (answer["name"], answer["vehicle_type"]) == ("Deep One", "auv")
+        view = (await c.get(f"/api/vehicles/{vid}", headers=bearer(ADMIN_TOKEN))).json()
+        assert (view["name"], view["vehicle_type"]) == ("Deep One", "auv")
+
+        nothing = await fleetctl(base, ADMIN_TOKEN, "vehicles", "set", vid)
+        assert nothing.exit_code != 0 and "give --name or --type" in nothing.output
+        _, operator = await make_user(c, "operator", [vid])
+        refused = await fleetctl(
+            base, operator["Authorization"][7:], "vehicles", "set", vid, "--name", "X"
+        )
+        assert refused.exit_code != 0 and "admin" in refused.output
+        bad = await fleetctl(base, ADMIN_TOKEN, "vehicles", "set", vid, "--type", "")
+        assert bad.exit_code != 0 and "vehicle_type" in bad.output

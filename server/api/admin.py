@@ -21,11 +21,13 @@ from fleet_protocol import (
     LoginRequest,
     LogoutResult,
     PatchUser,
+    PatchVehicle,
     TokenResult,
     UserCreated,
     UserList,
     UserView,
     VehicleCreated,
+    VehicleView,
 )
 from server.api.deps import Admin, ServicesDep, Viewer
 from server.errors import Invalid
@@ -41,6 +43,15 @@ def _user_view(doc: dict[str, Any]) -> UserView:
 async def create_vehicle(body: CreateVehicle, _: Admin, s: ServicesDep) -> VehicleCreated:
     token = await s.auth.create_vehicle(body)
     return VehicleCreated(vehicle_id=body.vehicle_id, token=token)
+
+
+@router.patch("/api/vehicles/{vehicle_id}")
+async def patch_vehicle(
+    vehicle_id: str, body: PatchVehicle, admin: Admin, s: ServicesDep
+) -> VehicleView:
+    """Change a vehicle's name or type (**extension**); the fleet's view of it after."""
+    await s.instances.change_vehicle(admin, vehicle_id, body)
+    return await s.views.vehicle(admin, vehicle_id)
 
 
 @router.post("/api/vehicles/{vehicle_id}/rotate_token")

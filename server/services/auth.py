@@ -104,6 +104,16 @@ class AuthService(Tokens):
             raise Conflict(f"vehicle {body.vehicle_id} exists already", code="exists") from None
         return await self._issue("vehicle", body.vehicle_id)
 
+    async def change_vehicle(self, vehicle_id: str, fields: dict[str, Any]) -> dict[str, Any]:
+        """Change a registered vehicle's ``name`` or ``vehicle_type``; its record as it
+        was (NotFound: no such vehicle)."""
+        former = await self.repo.vehicle(vehicle_id)
+        if former is None:
+            raise NotFound(f"no vehicle {vehicle_id}")
+        if fields:
+            await self.repo.update_vehicle(vehicle_id, fields)
+        return former
+
     async def rotate_vehicle_token(self, vehicle_id: str) -> str:
         await self.revoke_vehicle_tokens(vehicle_id)
         return await self._issue("vehicle", vehicle_id)

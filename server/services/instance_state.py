@@ -128,11 +128,12 @@ class InstanceState:
     def merge(self, doc: dict[str, Any]) -> None:
         """Catch up with the store's copy, written by another replica (several replicas).
 
-        What this replica changed and has not written yet (``dirty``) stays.
+        What this replica changed and has not written yet (``dirty``) stays. The name
+        and type are the store's: they are written at once wherever they change.
         """
+        stored = InstanceState.from_doc(doc)
+        self.name, self.vehicle_type = stored.name, stored.vehicle_type
         if not self.dirty:
-            stored = InstanceState.from_doc(doc)
-            self.name, self.vehicle_type = stored.name, stored.vehicle_type
             self.capabilities, self.params = stored.capabilities, stored.params
             self.params_updated_at, self.control_mode = (
                 stored.params_updated_at,

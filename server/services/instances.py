@@ -22,7 +22,7 @@ import time
 from datetime import datetime, timedelta
 from typing import Any
 
-from fleet_protocol import Sample, StartInstance
+from fleet_protocol import PatchVehicle, Sample, StartInstance
 from server.domain.access import Principal
 from server.domain.clock import Clock
 from server.domain.events import InstanceFinished, PresenceChanged, StateWritten
@@ -82,7 +82,7 @@ class InstanceService(InstanceCopies):
             if body.capabilities is not None:
                 state.capabilities = list(body.capabilities)
             self.merge_params(state, body.params, starting=True)
-            await self._write(state, time.monotonic(), whole=True)
+            await self._write(state, time.monotonic(), whole=True, naming=True)
         await self.events.record(
             "instance",
             vehicle_id=state.vehicle_id,
@@ -140,6 +140,36 @@ class InstanceService(InstanceCopies):
             self.messages.emit_now(StateWritten(state.instance_id, "instance"))
             return state, True
         raise Conflict(f"vehicle {vehicle_id}'s instance keeps changing; try again")
+
+    async def change_vehicle(
+        self, principal: Principal, vehicle_id: str, body: PatchVehicle
+    ) -> None:
+        """An admin puts a vehicle's name or type right: in its record, and in its current
+        (or latest) instance, which the fleet shows and the vehicle's next instance goes on
+        from (a name or type its next start announces still wins). Recorded as a
+        ``vehicle_changed`` event with what was there before."""
+        fields: dict[str, Any] = body.model_dump(exclude_none=True)
+        former = await self.auth.change_vehicle(vehicle_id, fields)
+        state = await self.current_or_latest(vehicle_id)
+        was = {
+            "name": state.name if state is not None else former.get("name"),
+            "vehicle_type": state.vehicle_type if state is not None else former.get("vehicle_type"),
+        }
+        changed = {k: v for k, v in fields.items() if was.get(k) != v}
+        if not changed:
+            return
+        if state is not None:
+            state.name = changed.get("name", state.name)
+            state.vehicle_type = changed.get("vehicle_type", state.vehicle_type)
+            await self.repo.save(state.instance_id, changed)  # these fields alone
+            self.messages.emit_now(StateWritten(state.instance_id, "instance"))
+        await self.events.record(
+            "vehicle_changed",
+            vehicle_id=vehicle_id,
+            instance_id=state.instance_id if state is not None else None,
+            actor=principal,
+            data={**changed, "was": {k: was[k] for k in changed}},
+        )
 
     def touch(self, state: InstanceState, now: datetime | None = None) -> None:
         """Contact from the vehicle: any request, frame, or open long poll (at ``now``,
@@ -308,9 +338,17 @@ class InstanceService(InstanceCopies):
         await self.repo.note_presence(state.instance_id, seq, presence)
         self.messages.emit_now(StateWritten(state.instance_id, "instance"))
 
-    async def _write(self, state: InstanceState, tick: float, *, whole: bool) -> None:
+    async def _write(
+        self, state: InstanceState, tick: float, *, whole: bool, naming: bool = False
+    ) -> None:
+        """The instance's record: the fields that move with contact, or ``whole``. Its
+        name and type only when ``naming`` (the vehicle's own start announced them): an
+        admin's change of them, made on any replica, is not written back over."""
         fields = state.to_doc() if whole else state.contact_doc()
         fields.pop("finished_at", None)  # only finish writes it
+        if not naming:
+            fields.pop("name", None)
+            fields.pop("vehicle_type", None)
         state.dirty = state.moved = False
         state.saved_at = tick
         await self.repo.save(state.instance_id, fields)

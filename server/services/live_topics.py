@@ -113,6 +113,11 @@ class ServerTopics:
             second = self.emit(f"vehicle/{vehicle_id}/commands", {"commands": [entry["data"]]})
         elif doc["kind"] in _ALARM_EVENTS:  # the vehicle's alarms moved: its view again
             second = self._stored_view_again(doc.get("instance_id"))
+        elif doc["kind"] == "vehicle_changed":  # its new name or type, on the fleet's views
+            data = doc.get("data") or {}
+            view = {"vehicle_id": vehicle_id}
+            view.update((k, data[k]) for k in ("name", "vehicle_type") if k in data)
+            second = self.emit("fleet", {"vehicles": [view]})
         else:
             return first
         return None if first is None and second is None else _both(first, second)

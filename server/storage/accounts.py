@@ -56,6 +56,9 @@ class AccountsRepo:
     async def insert_vehicle(self, doc: Doc) -> None:
         await self.vehicles.insert({**doc, "_id": doc["vehicle_id"]})
 
+    async def update_vehicle(self, vehicle_id: str, fields: Doc) -> None:
+        await self.vehicles.update({"_id": vehicle_id}, set=fields)
+
     async def gateway(self, gateway_id: str) -> Doc | None:
         return await self.gateways.get(gateway_id)
 

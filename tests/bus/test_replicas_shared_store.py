@@ -43,10 +43,10 @@ Replicas = tuple[httpx.AsyncClient, httpx.AsyncClient, str]
 async def two_replicas(
     make_settings: Callable[..., Settings], redis_server: RedisServer, **overrides: Any
 ) -> AsyncIterator[Replicas]:
-    """Replicas A and B on one store; yields an HTTP client to each and B's base URL."""
-    settings = make_settings(
-        redis_url=redis_server.url, stale_after_s=STALE_S, offline_after_s=OFFLINE_S, **overrides
-    )
+    """Replicas A and B on one store; yields an HTTP client to each and B's base URL.
+    ``overrides``: settings of both (the presence times too)."""
+    times = {"stale_after_s": STALE_S, "offline_after_s": OFFLINE_S}
+    settings = make_settings(redis_url=redis_server.url, **{**times, **overrides})
     store = open_store(settings)
     try:
         async with (

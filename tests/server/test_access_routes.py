@@ -90,6 +90,10 @@ ROWS: dict[tuple[str, str], tuple[Call, dict[str, int]]] = {
         admin(201),
     ),
     ("GET", "/api/vehicles/{vehicle_id}"): (get("/api/vehicles/{w.vid}"), users()),
+    ("PATCH", "/api/vehicles/{vehicle_id}"): (
+        patch("/api/vehicles/{w.vid}", {"vehicle_type": "usv"}),  # as it is: nothing moves
+        admin(),
+    ),
     ("POST", "/api/vehicles/{vehicle_id}/rotate_token"): (
         post("/api/vehicles/{w.vid}/rotate_token"),
         admin(),

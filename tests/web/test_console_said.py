@@ -282,3 +282,30 @@ def test_a_speed_above_a_boat_s_top_speed_is_said(
     expect(page.locator("#toasts .toast.ok")).to_contain_text("go to queued for H2OmniX Charlie")
     shots(page, "top-speed")
     page.fill("#opt-speed", "")
+
+
+def test_a_vehicle_an_admin_renames_is_renamed_in_the_open_console(
+    world: World, open_console: Any, shots: Shots
+) -> None:
+    """A vehicle registered under the wrong name is put right by an admin (``PATCH
+    /api/vehicles/...``): ana's open console shows the new name on its row and its
+    marker at once, and its panel says what was changed."""
+    page, _ = open_console()
+    console.log_in(page, "ana")
+    here = console.position(world, "demo-usv-3")
+    console.centre_on(page, here["lat"], here["lon"], 17)
+    console.marker(page, "demo-usv-3").click()
+    world.fleet.call("PATCH", "/api/vehicles/demo-usv-3", json={"name": "Charlie Survey"})
+    try:
+        row = page.locator('#fleet-table tr[data-vehicle="demo-usv-3"]')
+        expect(row).to_contain_text("Charlie Survey")
+        expect(row).not_to_contain_text("H2OmniX Charlie")
+        label = console.marker(page, "demo-usv-3").locator(".vlabel")
+        expect(label).to_contain_text("Charlie Survey")
+        expect(label).not_to_contain_text("H2OmniX")
+        expect(page.locator("#vehicle-pane ol.events")).to_contain_text(
+            "vehicle record changed: name H2OmniX Charlie \u2192 Charlie Survey"
+        )
+        shots(page, "renamed")
+    finally:
+        world.fleet.call("PATCH", "/api/vehicles/demo-usv-3", json={"name": "H2OmniX Charlie"})

@@ -100,6 +100,15 @@ export function describeEvent(e, known = () => null) {
     return `${d.holder ? `${d.holder}'s control ended` : "control ended"} (${why})` +
       `${d.type === "stop" ? "; it is told to stop (it cannot keep station)" : ""}`;
   }
+  if (e.kind === "vehicle_changed") {  // an admin put its name or type right
+    const was = d.was || {};
+    const said = [];
+    if (d.name != null) said.push(`name ${was.name ?? "(none)"} → ${d.name}`);
+    if (d.vehicle_type != null) {
+      said.push(`type ${was.vehicle_type ?? "(none)"} → ${d.vehicle_type}`);
+    }
+    return said.join(", ");
+  }
   if (e.kind === "presence") return d.presence || "";
   if (e.kind === "instance") return d.action || "";
   if (e.kind === "failsafe_acked") {
@@ -119,7 +128,7 @@ const KIND_NAMES = {
   control_revoke: "control revoked from", control_release: "control released by",
   control_expired: "control expired for", control_deny: "request declined for",
   hold_station: "told to hold station:", instance: "instance",
-  low_battery_cleared: "battery alarm lifted",
+  low_battery_cleared: "battery alarm lifted", vehicle_changed: "vehicle record changed:",
 };
 
 export function kindName(kind) {
