@@ -338,10 +338,48 @@ def test_a_press_on_the_control_panel_outlasts_its_redraw(world: World, open_con
     )
     page.mouse.move(x, y)
     page.mouse.down()
-    page.evaluate(  # news of a vehicle while the button is held down
-        "fleetConsole.fleet.applyFleet({vehicles: [{vehicle_id: 'demo-usv-2', link_rtt_ms: 42}]})"
+    page.evaluate(  # news the panel shows (the boat's presence) while the button is held down
+        "fleetConsole.fleet.applyFleet({vehicles: [{vehicle_id: 'demo-usv-1', presence: 'stale'}]})"
     )
     next_frames(page)
     page.mouse.up()
     expect(page.locator("#confirm-title")).to_contain_text("Revoke")
     page.click("#confirm-cancel")
+
+
+def test_the_control_panel_is_drawn_again_only_when_what_it_shows_changes(
+    world: World, open_console: Any
+) -> None:
+    """The panel was drawn again on every vehicle's news (each position, another boat's
+    link), its buttons swapped under the pointer several times a second for nothing."""
+    world.fleet.grant(world.instances["demo-usv-1"], "ana")
+    page, _ = open_console()
+    log_in(page, "mia")
+    page.click('[data-tab="control"]')
+    lease = page.locator('li.lease[data-vehicle="demo-usv-1"]')
+    expect(lease.locator("button", has_text="Revoke")).to_be_visible()
+    page.evaluate(
+        """() => {
+            window.revokeButton = [...document.querySelectorAll(
+                'li.lease[data-vehicle="demo-usv-1"] button')].find(
+                (b) => b.textContent.includes("Revoke"));
+            const v = fleetConsole.fleet.vehicles.get("demo-usv-1");
+            window.positionBefore = v.view.position.ts;
+        }"""
+    )
+    page.evaluate(  # news the panel does not show: another boat's link, this one's position
+        "fleetConsole.fleet.applyFleet({vehicles: [{vehicle_id: 'demo-usv-2', link_rtt_ms: 42}]})"
+    )
+    page.wait_for_function(  # a new position from the boat itself (its agent runs at 1 Hz)
+        "() => fleetConsole.fleet.vehicles.get('demo-usv-1').view.position.ts"
+        " !== window.positionBefore",
+        timeout=15_000,
+    )
+    next_frames(page)  # the redraws asked have run
+    assert page.evaluate("window.revokeButton.isConnected")
+    page.evaluate(  # news it shows: the boat's presence
+        "fleetConsole.fleet.applyFleet({vehicles: [{vehicle_id: 'demo-usv-1', presence: 'stale'}]})"
+    )
+    next_frames(page)
+    assert not page.evaluate("window.revokeButton.isConnected")
+    expect(lease).to_contain_text("stale")

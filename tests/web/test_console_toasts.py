@@ -15,8 +15,9 @@ from tests.web.console_helpers import ALL, log_in, marker
 
 pytestmark = [pytest.mark.slow, pytest.mark.browser]
 
-#: Buttons of the action bar whose centre is not the button itself (or inside it): covered.
-COVERED = """() => [...document.querySelectorAll("#actions .actions-row button")]
+#: Buttons (of the action bar, by default) whose centre is not the button itself (or
+#: inside it): covered.
+COVERED = """(sel = "#actions .actions-row button") => [...document.querySelectorAll(sel)]
     .filter((b) => b.offsetParent !== null)
     .filter((b) => {
         const r = b.getBoundingClientRect();
@@ -53,6 +54,9 @@ def test_a_burst_of_toasts_on_a_phone_leaves_the_action_bar_clear(
     covered = page.evaluate(COVERED)
     shots(page, "twelve-toasts")
     assert covered == [], f"toasts cover the action bar: {covered}"
+    # nor the map's own buttons: the zoom, and All boats under it
+    on_map = page.evaluate(COVERED, ".leaflet-control-zoom a, .fit-all")
+    assert on_map == [], f"toasts cover the map's buttons: {on_map}"
     expect(page.locator("#toasts .toast:visible")).to_have_count(3)  # the newest three
     expect(toasts.last).to_contain_text("eli asks for control of H2OmniX Charlie")
     more = page.locator("#toasts .toast-more")

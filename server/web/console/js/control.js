@@ -234,13 +234,21 @@ export class ControlPanel {
     }
     const tab = document.querySelector('.tabs [data-tab="control"]');
     if (tab) tab.textContent = this.manages && this.requests.length ? `Control (${this.requests.length})` : "Control";
-    const parts = [h("h2", {}, "Control")];
-    if (this.manages) parts.push(this.requestSection(), grantForm(this));
-    parts.push(this.leaseSection(), this.safetyLog());
-    // The panel is drawn again on every control, view or event change: what the manager
-    // has chosen or typed in its forms (a duration, a user, the grant form open) stays.
+    const drawn = document.createElement("div");
+    drawn.append(h("h2", {}, "Control"));
+    if (this.manages) drawn.append(this.requestSection(), grantForm(this));
+    drawn.append(this.leaseSection(), this.safetyLog());
+    // Asked on every control, view or event change of any vehicle, most of which (a
+    // position, another boat's link) change nothing here: the panel is replaced only
+    // when what it shows has changed, so a button is not swapped under a finger or a
+    // pointer for nothing.
+    const html = drawn.innerHTML;
+    if (html === this.shown) return;
+    this.shown = html;
+    // What the manager has chosen or typed in its forms (a duration, a user, the grant
+    // form open) stays.
     const kept = this.formState();
-    this.el.replaceChildren(...parts);
+    this.el.replaceChildren(...drawn.childNodes);
     this.restoreFormState(kept);
   }
 
