@@ -272,3 +272,39 @@ async def test_a_named_unit_back_while_its_former_connection_is_taken_out_is_ser
                 w.units.link.on_routes = told
                 assert (await ack(op, "publish", "p", topic=plan, data=1))["ok"] is True
                 assert (await next_json(back, event_on(plan)))["data"] == 1
+
+
+async def test_a_unit_that_subscribes_after_another_of_its_vehicle_gets_the_topic_s_state(
+    make_settings: Callable[..., Settings],
+) -> None:
+    """The server answers a new subscriber with a topic's latest message (its state, with
+    ``snapshot: true``); the first unit of a vehicle got it from above, but a second one,
+    answered by the gateway (the vehicle holds the topic above already), got nothing
+    until the next publish. A sibling's publish kept below (nobody above asked for it) is
+    the topic's state for a unit that subscribes later too; a topic the server writes
+    has none."""
+    async with gateway(make_settings) as w:
+        plan = f"user/{w.operator}/plan/{w.a}"
+        sonar = f"vehicle/{w.a}/sonar_meta"
+        commands = f"vehicle/{w.a}/commands"
+        async with await w.operator_ws() as op, w.unit(w.a) as first, w.unit(w.a) as driver:
+            assert (await ack(op, "publish", "p1", topic=plan, data={"leg": 1}))["ok"] is True
+            assert (await ack(first, "subscribe", "s", topics=[plan, commands]))["ok"] is True
+            state = await next_json(first, event_on(plan))
+            assert (state["data"], state["snapshot"]) == ({"leg": 1}, True)
+            assert (await ack(first, "subscribe", "s2", topics=[sonar]))["ok"] is True
+            assert (await ack(driver, "publish", "p2", topic=sonar, data=7))["ok"] is True
+            assert (await next_json(first, event_on(sonar)))["data"] == 7
+
+            async with w.unit(w.a) as second:
+                topics = [plan, sonar, commands]
+                assert (await ack(second, "subscribe", "s", topics=topics))["ok"] is True
+                got = [await next_json(second, lambda f: f["op"] == "event") for _ in range(2)]
+                assert {f["topic"]: (f["data"], f["snapshot"]) for f in got} == {
+                    plan: ({"leg": 1}, True),
+                    sonar: (7, True),
+                }
+                assert (await ack(op, "publish", "p3", topic=plan, data={"leg": 2}))["ok"] is True
+                after = await next_json(second, lambda f: f["op"] == "event")
+                assert (after["topic"], after["data"]) == (plan, {"leg": 2})
+                assert not after.get("snapshot")  # nothing more was said of the others

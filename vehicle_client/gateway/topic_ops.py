@@ -51,12 +51,19 @@ class TopicOps:
         self.router = router
         self.registrar = registrar
         self._turns: defaultdict[str, asyncio.Lock] = defaultdict(asyncio.Lock)
+        self._awaiting: dict[str, set[LocalUnit]] = {}
 
-    async def take(self, unit: LocalUnit, op: TopicOp) -> AckPush:
+    async def take(self, unit: LocalUnit, op: TopicOp) -> tuple[AckPush, set[str]]:
         """Do ``op`` for ``unit``, sending up what it changes for the vehicle; the answer
-        for the unit (its ``id`` the op's, empty when it had none)."""
+        for the unit (its ``id`` the op's, empty when it had none), and the topics it
+        subscribed above (the server follows its ack with their states)."""
         async with self._turns[unit.vehicle_id]:
             return await self._take_op(unit, op)
+
+    def awaiting(self, topic: str) -> set[LocalUnit]:
+        """The units whose subscription to ``topic`` is on its way up: the state the server
+        sends after its ack is theirs (it may come before they are subscribed here)."""
+        return self._awaiting.get(topic, set())
 
     async def join(self, unit: LocalUnit) -> None:
         """A unit connected. In its vehicle's turn: a named unit whose former
@@ -70,13 +77,18 @@ class TopicOps:
         async with self._turns[unit.vehicle_id]:
             await self.registrar.before_publish(unit, topic)
 
-    async def _take_op(self, unit: LocalUnit, op: TopicOp) -> AckPush:
+    async def _take_op(self, unit: LocalUnit, op: TopicOp) -> tuple[AckPush, set[str]]:
         upstream = self._upstream(unit, op)
         if isinstance(op, UnsubscribeOp):
             self.router.unsubscribe(unit, op.topics)
         elif isinstance(op, UnregisterOp):
             self.router.unregister(unit, op.topics)
         answer: dict[str, Any] = {"topics": op.topics}
+        # The states the server sends after a subscribe's ack are the unit's from then on,
+        # though it is subscribed here only once every op it needs is answered.
+        up = {t for sent in upstream if sent["op"] == "subscribe" for t in sent["topics"]}
+        for topic in up:
+            self._awaiting.setdefault(topic, set()).add(unit)
         try:
             for sent in upstream:
                 if sent["op"] == "register":
@@ -84,14 +96,20 @@ class TopicOps:
                 else:
                     ack = await self.link.call(sent, check=False)
                 if not ack.ok:
-                    return ack.model_copy(update={"id": op.id or ""})
+                    return ack.model_copy(update={"id": op.id or ""}), set()
+            self._take(unit, op)
         except AgentError:
             self._take(unit, op)
-            return AckPush.success(op.id or "", {**answer, "local_only": True})
-        self._take(unit, op)
+            return AckPush.success(op.id or "", {**answer, "local_only": True}), set()
+        finally:
+            for topic in up:
+                waiting = self._awaiting[topic]
+                waiting.discard(unit)
+                if not waiting:
+                    del self._awaiting[topic]
         if not upstream and not self.link.connected:
             answer["local_only"] = True  # as the other unit's that holds it above
-        return AckPush.success(op.id or "", answer)
+        return AckPush.success(op.id or "", answer), up
 
     def _upstream(self, unit: LocalUnit, op: TopicOp) -> list[dict[str, Any]]:
         """What ``op`` changes above for the unit's vehicle (``TopicRouter.ops_for``)."""

@@ -54,10 +54,10 @@ from fleet_protocol.links import (
 )
 from fleet_protocol.media import decode_media_frame
 from fleet_protocol.topics import is_media_topic
-from fleet_protocol.ws import AckPush, EventPush, PublishOp, RegisterOp, RoutesPush
+from fleet_protocol.ws import AckPush, EventPush, PublishOp, RegisterOp, RoutesPush, SubscribeOp
 from fleet_protocol.ws_frames import FrameError, parse_client_op
 from vehicle_client.errors import AgentError, FatalError
-from vehicle_client.gateway.forwarding import LocalUnit, TopicRouter, write_refusal
+from vehicle_client.gateway.forwarding import LatestKept, LocalUnit, TopicRouter, write_refusal
 from vehicle_client.gateway.registrar import Registrar
 from vehicle_client.gateway.topic_ops import TopicOps
 from vehicle_client.gateway.unit_queue import DEFAULT_UNIT_QUEUE, UnitQueue
@@ -101,6 +101,10 @@ class UnitServer:
         self.max_media_bytes = max_media_bytes
         self.queue_size = queue_size
         self.router = TopicRouter()
+        self.latest = LatestKept()
+        #: The states sent after a unit's subscribe was acked above, held until the unit
+        #: has its own ack (the server's order: the ack, then the states).
+        self._states_due: dict[LocalUnit, list[tuple[str, str]]] = {}
         self.uplink = MediaUplink(link, media_up_per_s)
         self._queues: dict[LocalUnit, UnitQueue] = {}
         self._unnamed = itertools.count(1)
@@ -215,9 +219,23 @@ class UnitServer:
             elif op.id:
                 queue.put(AckPush.success(op.id).frame())
             return
-        answer = await self.topic_ops.take(unit, op)
+        answer, up = await self.topic_ops.take(unit, op)
+        due = self._states_due.pop(unit, [])
         if op.id:
             queue.put(answer.frame())
+        if isinstance(op, SubscribeOp) and answer.ok:
+            for topic, frame in due:
+                self._put_event(unit, topic, frame)
+            self._states(unit, [t for t in op.topics if t not in up])
+
+    def _states(self, unit: LocalUnit, topics: list[str]) -> None:
+        """A subscription answered here (its vehicle holds the topics above already, or the
+        link is down): each topic's state, as the server gives a new subscriber, from
+        the latest message the units here got on it."""
+        for topic in topics:
+            push = self.latest.latest(topic)
+            if push is not None:
+                self._put(unit, push.model_copy(update={"snapshot": True}).frame())
 
     async def _publish(self, unit: LocalUnit, op: PublishOp) -> ErrorBody | None:
         """To the local units subscribed, and up when someone above asked for it; what to
@@ -227,7 +245,9 @@ class UnitServer:
         registered above first, so that only what someone there asked for goes up."""
         await self.topic_ops.before_publish(unit, op.topic)
         delivery = self.router.publish(unit, op.topic)
-        frame = EventPush(topic=op.topic, data=op.data).model_dump_json()
+        push = EventPush(topic=op.topic, data=op.data)
+        frame = push.model_dump_json()
+        self.latest.note(op.topic, push, len(frame))
         for other in delivery.local:
             self._put_event(other, op.topic, frame)
         if not delivery.up:
@@ -288,6 +308,14 @@ class UnitServer:
     # -- from above -------------------------------------------------------------
     def _from_above(self, push: EventPush) -> None:
         frame = push.frame()
+        self.latest.note(push.topic, push, len(frame))
+        # A state that follows a subscribe's ack is for the units that subscribed (not
+        # yet listed here, maybe); one after a reconnection, for every unit subscribed.
+        waiting = self.topic_ops.awaiting(push.topic) if push.snapshot else None
+        if waiting:
+            for unit in waiting:
+                self._states_due.setdefault(unit, []).append((push.topic, frame))
+            return
         for unit in self.router.from_above(push.topic):
             self._put_event(unit, push.topic, frame)
 
