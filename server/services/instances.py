@@ -83,6 +83,8 @@ class InstanceService(InstanceCopies):
                 state.capabilities = list(body.capabilities)
             self.merge_params(state, body.params, starting=True)
             await self._write(state, time.monotonic(), whole=True, naming=True)
+        else:  # from offline or finished (the vehicle's last instance): fleet watchers hear
+            self.messages.emit_now(PresenceChanged(state.instance_id, state.vehicle_id, "online"))
         await self.events.record(
             "instance",
             vehicle_id=state.vehicle_id,

@@ -107,6 +107,32 @@ async def test_fleet_shows_only_visible_vehicles(base: str, api: httpx.AsyncClie
         assert v2 not in json.dumps(change)
 
 
+async def test_fleet_tells_of_a_vehicle_starting_a_new_instance(
+    base: str, api: httpx.AsyncClient
+) -> None:
+    """A vehicle's first start, and its start after a finish, are presence changes: a
+    fleet watcher hears of them (it saw the vehicle offline, or finished, for good)."""
+    vid, vh = await make_vehicle(api)
+    _, viewer = await make_user(api, "viewer", [vid])
+    async with await connect(base, "/ws/client", tok(viewer)) as ws:
+        await call(ws, "subscribe", "s", topics=["fleet"])
+        snap = await recv_until(ws, lambda f: f["op"] == "event")
+        assert snap["data"]["vehicles"][0]["presence"] == "offline"
+        for name in ("First", "Second"):
+            r = await api.post(
+                "/upper/start_instance", headers=vh, json={"vehicle_id": vid, "name": name}
+            )
+            assert r.status_code == 200, r.text
+            iid = r.json()["instance_id"]
+            change = await recv_until(ws, lambda f: f["op"] == "event", within_s=2)
+            (view,) = change["data"]["vehicles"]
+            assert (view["vehicle_id"], view["instance_id"]) == (vid, iid)
+            assert (view["presence"], view["name"]) == ("online", name)
+            await api.post("/upper/finish_instance", headers=vh, json={"instance_id": iid})
+            done = await recv_until(ws, lambda f: f["op"] == "event")
+            assert done["data"]["vehicles"][0]["presence"] == "finished"
+
+
 async def test_reading_another_vehicle_is_refused(base: str, api: httpx.AsyncClient) -> None:
     v1, _, _ = await _vehicle_with_instance(api)
     v2, _, _ = await _vehicle_with_instance(api)
