@@ -308,3 +308,35 @@ async def test_a_unit_that_subscribes_after_another_of_its_vehicle_gets_the_topi
                 after = await next_json(second, lambda f: f["op"] == "event")
                 assert (after["topic"], after["data"]) == (plan, {"leg": 2})
                 assert not after.get("snapshot")  # nothing more was said of the others
+
+
+async def test_the_first_unit_of_a_vehicle_to_subscribe_gets_a_sibling_s_message_as_state(
+    make_settings: Callable[..., Settings],
+) -> None:
+    """Its subscribe goes up, and the server has no state to send for a message of this
+    gateway's own units: it never had it (nobody above asked), or had it from this very
+    socket and keeps it back (no echo). The gateway's latest is the state, as for a unit
+    it answers itself: a unit of the same vehicle, or of its neighbour, got nothing."""
+    async with gateway(make_settings) as w:
+        status = f"vehicle/{w.a}/status"
+        async with await w.operator_ws() as op, w.unit(w.a) as driver:
+            warm = f"vehicle/{w.b}/other"  # the link up (its agents' job)
+            assert (await ack(driver, "subscribe", "warm", topics=[warm]))["ok"] is True
+            assert (await ack(driver, "publish", "p1", topic=status, data=1))["ok"] is True
+            async with w.unit(w.a) as mission:  # kept below: nobody above asked
+                assert (await ack(mission, "subscribe", "s", topics=[status]))["ok"] is True
+                state = await next_json(mission, event_on(status), within_s=2)
+                assert (state["data"], state["snapshot"]) == (1, True)
+            await units_of(w, w.a, 1)
+            assert (await ack(op, "subscribe", "s", topics=[status]))["ok"] is True
+
+            async def asked_above() -> bool:
+                return status in w.units.router.forward_up
+
+            await eventually(asked_above)
+            assert (await ack(driver, "publish", "p2", topic=status, data=2))["ok"] is True
+            assert (await next_json(op, event_on(status)))["data"] == 2  # kept above too
+            async with w.unit(w.b) as neighbour:
+                assert (await ack(neighbour, "subscribe", "s", topics=[status]))["ok"] is True
+                state = await next_json(neighbour, event_on(status), within_s=2)
+                assert (state["data"], state["snapshot"]) == (2, True)

@@ -227,14 +227,19 @@ class UnitServer:
             for topic, frame in due:
                 self._put_event(unit, topic, frame)
             self._states(unit, [t for t in op.topics if t not in up])
+            told = {topic for topic, _ in due}
+            self._states(unit, [t for t in up if t not in told], below_only=True)
 
-    def _states(self, unit: LocalUnit, topics: list[str]) -> None:
+    def _states(self, unit: LocalUnit, topics: list[str], *, below_only: bool = False) -> None:
         """A subscription answered here (its vehicle holds the topics above already, or the
         link is down): each topic's state, as the server gives a new subscriber, from
-        the latest message the units here got on it."""
+        the latest message the units here got on it. ``below_only``: a subscription the
+        server answered with no state, which it has none to give of a unit's message
+        here (it never had it, nobody above asked; or it came from this socket, which
+        it does not echo): that latest alone (no ``ts``: a unit's, not from above)."""
         for topic in topics:
             push = self.latest.latest(topic)
-            if push is not None:
+            if push is not None and not (below_only and push.ts is not None):
                 self._put(unit, push.model_copy(update={"snapshot": True}).frame())
 
     async def _publish(self, unit: LocalUnit, op: PublishOp) -> ErrorBody | None:
