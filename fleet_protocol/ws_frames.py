@@ -174,7 +174,9 @@ def field_errors(exc: ValidationError) -> list[FieldError]:
         # Drop the union tag pydantic inserts ("update_param" in ops.0.update_param.x).
         field = shown_text(".".join(p for p in loc if p not in _OP_TAGS))
         message = shown_text(error_text(err))
-        if err["type"] == "union_tag_invalid":
+        if err["type"] == "union_tag_invalid" and err["ctx"]["tag"] == "auth":
+            field, message = _join(field, "op"), _AUTH_AGAIN
+        elif err["type"] == "union_tag_invalid":
             field, message = (
                 _join(field, "op"),
                 f"unknown op; expected one of {err['ctx']['expected_tags']}",
@@ -186,6 +188,13 @@ def field_errors(exc: ValidationError) -> list[FieldError]:
         details.append(FieldError(field=field, message=message))
     return details
 
+
+#: An ``auth`` op past the socket's first frame, or on a socket whose header carried the
+#: token: a documented op, not an unknown one.
+_AUTH_AGAIN = (
+    "'auth' is a socket's first frame only, when no header carried a token: "
+    "this socket needs no other"
+)
 
 _OP_TAGS = frozenset(  # every op's tag: the members of the union, and batch
     m.model_fields["op"].default for m in (*get_args(get_args(_SingleVehicleOp)[0]), BatchOp)

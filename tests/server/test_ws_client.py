@@ -9,11 +9,12 @@ from datetime import UTC, datetime
 
 import httpx
 import pytest
+import websockets
 
 from fleet_protocol.media import MediaHeader, decode_media_frame, encode_media_frame
 from server.settings import Settings
 from tests.factories import ADMIN, make_user, make_vehicle, sample
-from tests.live import call, connect, recv_until, serve
+from tests.live import call, connect, recv_until, serve, ws_url
 
 # Each test runs on the embedded store and on FerretDB (the real MongoDB driver).
 pytestmark = pytest.mark.usefixtures("store_backend")
@@ -131,6 +132,27 @@ async def test_fleet_tells_of_a_vehicle_starting_a_new_instance(
             await api.post("/upper/finish_instance", headers=vh, json={"instance_id": iid})
             done = await recv_until(ws, lambda f: f["op"] == "event")
             assert done["data"]["vehicles"][0]["presence"] == "finished"
+
+
+async def test_an_auth_op_on_a_socket_that_has_its_token_says_so(
+    base: str, api: httpx.AsyncClient
+) -> None:
+    """``auth`` is a documented op (the first frame, when no header carried the token): sent
+    again, or beside a header, it is refused as such, not as an op the socket does not
+    know (its list of ops leaves ``auth`` out); the socket goes on."""
+    _, viewer = await make_user(api, "viewer", [])
+    token = tok(viewer)
+    async with await connect(base, "/ws/client", token) as with_header:
+        said = await call(with_header, "auth", "a", token=token)
+        assert said["ok"] is False and said["error"]["code"] == "invalid"
+        (detail,) = said["error"]["details"]
+        assert detail["field"] == "op" and "first frame only" in detail["message"]
+        assert "unknown op" not in said["error"]["message"]
+        assert (await call(with_header, "subscribe", "s", topics=["fleet"]))["ok"] is True
+    async with websockets.connect(ws_url(base, "/ws/client"), compression=None) as bare:
+        assert (await call(bare, "auth", "a1", token=token))["ok"] is True
+        again = await call(bare, "auth", "a2", token=token)
+        assert again["ok"] is False and "first frame only" in again["error"]["message"]
 
 
 async def test_reading_another_vehicle_is_refused(base: str, api: httpx.AsyncClient) -> None:
