@@ -90,6 +90,9 @@ class SamplesStored:
     samples: list[Any]
     replayed: list[bool]
     current: Any = None
+    #: A sample dated after this (a clock glitch: 2099) is stored as sent but never the
+    #: vehicle's position (None: no bound was taken, as for a batch stored whole).
+    ahead_after: Any = None
 
 
 @dataclass(frozen=True, slots=True)

@@ -44,6 +44,7 @@ class IngestResult(Protocol):
     replayed: list[bool]
     latest_doc: dict[str, Any] | None
     current: Sample | None
+    ahead_after: datetime | None
 
 
 class Telemetry(Protocol):
@@ -262,7 +263,13 @@ class VehicleLink:
                 self.commands.ready(state.instance_id)  # its drift can be judged now
         if result.stored:
             self.messages.emit_now(
-                SamplesStored(state.vehicle_id, result.stored, result.replayed, result.current)
+                SamplesStored(
+                    state.vehicle_id,
+                    result.stored,
+                    result.replayed,
+                    result.current,
+                    result.ahead_after,
+                )
             )
         return {
             "accepted": result.accepted,

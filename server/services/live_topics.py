@@ -159,12 +159,15 @@ class ServerTopics:
         if not self.bus.remote and not self.bus.has_local(topic):
             return None
         pending = []
+        bound = event.ahead_after
         for sample, late in zip(event.samples, event.replayed, strict=True):
 
             def data(sample: Any = sample, late: bool = late) -> dict[str, Any]:
                 out: dict[str, Any] = sample.model_dump(mode="json", exclude_none=True)
                 if late:
                     out["replayed"] = True
+                if bound is not None and sample.ts > bound:
+                    out["ahead"] = True  # dated too far ahead: never the position
                 return out
 
             if (rest := self.emit(topic, data)) is not None:

@@ -66,6 +66,9 @@ class IngestResult:
     #: ``latest`` when it also came in time (not late): what the vehicle reports now, the
     #: one sample of the batch that the watch on zones and battery judges (None: none).
     current: Sample | None = None
+    #: The latest ``ts`` a sample of the batch could have and become the position (by the
+    #: vehicle's clock, in the samples' tzinfo); None when none was accepted.
+    ahead_after: datetime | None = None
 
 
 #: How far ahead of the server's clock a sample's ``ts`` may be and still become the
@@ -210,6 +213,7 @@ class TelemetryService(TelemetryWriter, TelemetryViews):
         if (tz := stored[0].ts.tzinfo) is not None:
             stale_before = stale_before.astimezone(tz)
             ahead = ahead.astimezone(tz)
+        result.ahead_after = ahead
         pending, replayed = state.pending, result.replayed
         if not pending:
             self._open(vehicle_id, state)

@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from datetime import UTC, datetime
 
 import httpx
 import pytest
 
+from server.settings import Settings
 from tests.factories import ADMIN, FakeClock, make_user, make_vehicle, sample, start_instance
+from tests.live import call, connect, recv_until, serve
 
 # Each test runs on the embedded store and on FerretDB (the real MongoDB driver).
 pytestmark = pytest.mark.usefixtures("store_backend")
@@ -186,6 +189,28 @@ async def test_a_sample_dated_years_ahead_is_stored_but_never_the_position(
     assert (got["position"]["seq"], got["position"]["lat"]) == (2, 43.95)
     stored = await client.get(f"/api/vehicles/{vid}/telemetry", headers=ADMIN)
     assert [s["seq"] for s in stored.json()["samples"]] == [1, 2]
+
+
+async def test_a_sample_dated_years_ahead_is_said_so_to_those_watching_the_vehicle(
+    make_settings: Callable[..., Settings],
+) -> None:
+    """The console took it as the newest position and kept the marker there: no later
+    sample could replace it. The live event says it is not the position."""
+    async with serve(make_settings()) as base, httpx.AsyncClient(base_url=base) as api:
+        vid, vh = await make_vehicle(api)
+        iid = (await start_instance(api, vid, vh))["instance_id"]
+        async with await connect(base, "/ws/client", ADMIN["Authorization"][7:]) as ws:
+            await call(ws, "subscribe", "s", topics=[f"vehicle/{vid}/telemetry"])
+            glitch = sample(1, ts=datetime(2099, 12, 31, tzinfo=UTC), lat=1.0, lon=1.0)
+            real = sample(2, ts=datetime.now(UTC), lat=43.95, lon=15.45)
+            body = {"instance_id": iid, "samples": [glitch, real]}
+            assert (await api.post("/upper/update_param", headers=vh, json=body)).is_success
+            said = []
+            while len(said) < 2:
+                frame = await recv_until(ws, lambda f: f.get("op") == "event")
+                if not frame.get("snapshot"):
+                    said.append(frame["data"])
+    assert [(s["seq"], s.get("ahead")) for s in said] == [(1, True), (2, None)]
 
 
 async def test_viewer_sees_only_assigned_vehicles(client: httpx.AsyncClient) -> None:

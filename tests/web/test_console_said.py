@@ -9,13 +9,14 @@ module's), in file order: ana holds every vehicle."""
 from __future__ import annotations
 
 import re
+from datetime import UTC, datetime
 from typing import Any
 
 import pytest
 from playwright.sync_api import expect
 
 from tests.web import console_helpers as console
-from tests.web.conftest import Shots, World
+from tests.web.conftest import PASSWORD, Shots, World
 from vehicle_client.geo import LocalFrame
 
 pytestmark = [pytest.mark.slow, pytest.mark.browser]
@@ -309,3 +310,40 @@ def test_a_vehicle_an_admin_renames_is_renamed_in_the_open_console(
         shots(page, "renamed")
     finally:
         world.fleet.call("PATCH", "/api/vehicles/demo-usv-3", json={"name": "H2OmniX Charlie"})
+
+
+def test_a_sample_dated_years_ahead_does_not_hold_the_marker(
+    world: World, open_console: Any
+) -> None:
+    """A boat's clock glitch (a sample dated 2099) was taken as its newest position: the
+    marker stayed there, as no later sample could replace it, and the trail ran to it."""
+    vehicle_id = "clock-usv"  # seen only by yan: the other tests' people still see three
+    body = {"vehicle_id": vehicle_id, "name": "Clock", "vehicle_type": "usv"}
+    token = world.fleet.call("POST", "/api/vehicles", json=body)["token"]
+    started = world.fleet.call(
+        "POST", "/upper/start_instance", token, json={**body, "capabilities": ["stop"]}
+    )
+
+    def report(seq: int, when: datetime, lat: float) -> None:
+        sample = {"seq": seq, "ts": when.isoformat(), "lat": lat, "lon": 15.44}
+        world.fleet.call(
+            "POST", "/upper/update_param", token,
+            json={"instance_id": started["instance_id"], "samples": [sample]},
+        )  # fmt: skip
+
+    report(1, datetime.now(UTC), 43.930)
+    user = {"username": "yan", "role": "viewer", "vehicles": [vehicle_id], "password": PASSWORD}
+    world.fleet.call("POST", "/api/users", json=user)
+    page, _ = open_console()
+    console.log_in(page, "yan", markers=1)
+    report(2, datetime(2099, 12, 31, tzinfo=UTC), 43.950)  # the glitch, far to the north
+    report(3, datetime.now(UTC), 43.931)
+    page.wait_for_function(
+        "() => fleetConsole.fleet.vehicles.get('clock-usv').view.position.seq === 3",
+        timeout=15_000,
+    )
+    far = page.evaluate(
+        "() => fleetConsole.fleet.vehicles.get('clock-usv').trail"
+        ".filter((p) => p.lat > 43.94).length"
+    )
+    assert far == 0, "the trail runs to the glitch"

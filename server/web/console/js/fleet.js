@@ -147,7 +147,9 @@ export class Fleet extends EventTarget {
   }
 
   applyTelemetry(id, sample) {
-    if (!sample) return;
+    // one dated too far ahead (a clock glitch: 2099) is never the position: taken as the
+    // newest, it held the marker, since nothing later could replace it
+    if (!sample || sample.ahead) return;
     const v = this.vehicle(id);
     const latest = v.view.position;
     if (!latest || !(ms(sample.ts) < ms(latest.ts))) v.view.position = sample;
