@@ -54,10 +54,10 @@ class OpRunner:
         self._parse = parse_vehicle_op if conn.kind == "vehicle" else parse_client_op
         self._max_text = services.settings.ws_max_text_bytes
         self._own_unit: UnitRef | None = None  # the unit an op naming no vehicle acts as
-        #: Topics this connection's principal may write (``check_write`` passed), kept
-        #: while the principal is the same object: a new one (a token seen again after
-        #: its cache entry went) is checked afresh.
-        self._writable: set[str] = set()
+        #: (vehicle acted for, topic) this connection's principal may write (``check_write``
+        #: passed), kept while the principal is the same object: a new one (a token seen
+        #: again after its cache entry went) is checked afresh.
+        self._writable: set[tuple[str | None, str]] = set()
         self._writer: object = None
 
     def _rate(self) -> None:
@@ -283,7 +283,7 @@ class OpRunner:
         return UpdateFbMessageResult(abort=abort)
 
     async def _register(self, op: RegisterOp) -> dict[str, Any]:
-        check_write(self.conn.principal, op.topics)
+        check_write(self.conn.principal, op.topics, op.vehicle_id)
         self.hub.register(self.conn, self._unit(op.vehicle_id), op.topics)
         return {"topics": op.topics}
 
@@ -327,12 +327,12 @@ class OpRunner:
         unit = self._unit(op.vehicle_id)
         if principal is not self._writer or len(self._writable) >= _WRITABLE_KEPT:
             self._writer, self._writable = principal, set()
-        if op.topic not in self._writable:
-            check_write(principal, op.topic)
+        if (op.vehicle_id, op.topic) not in self._writable:
+            check_write(principal, op.topic, op.vehicle_id)
             if is_media_topic(op.topic):
                 message = f"{op.topic} is a media topic: send binary frames on it"
                 raise Invalid(message, details=[{"field": "topic", "message": message}])
-            self._writable.add(op.topic)
+            self._writable.add((op.vehicle_id, op.topic))
         return self.hub.publish(self.conn, unit, op.topic, op.data)
 
 

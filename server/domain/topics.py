@@ -81,8 +81,10 @@ def vehicle_written(topic: str) -> bool:
     )
 
 
-def write_refusal(actor: Actor, topic: str) -> str | None:
-    """Why ``actor`` may not publish on (or register) ``topic``; ``None`` if it may."""
+def write_refusal(actor: Actor, topic: str, as_vehicle: str | None = None) -> str | None:
+    """Why ``actor`` may not publish on (or register) ``topic``; ``None`` if it may.
+    ``as_vehicle``: the vehicle a gateway's op acts for (its ``vehicle_id``), which writes
+    under its own ``vehicle/<id>/`` alone, as that vehicle's own token does."""
     segments = split_topic(topic)
     namespace = segments[0]
     if namespace in ("fleet", "zones"):
@@ -97,7 +99,11 @@ def write_refusal(actor: Actor, topic: str) -> str | None:
             return f"'vehicle/{owner}/{kind}' is written by the server alone"
         if not actor.acts_for(owner):
             return f"only vehicle {owner} (or its gateway) writes under 'vehicle/{owner}/'"
+        if as_vehicle is not None and owner != as_vehicle:
+            return f"acting for vehicle {as_vehicle}, it writes under 'vehicle/{as_vehicle}/' alone"
         return None
+    if as_vehicle is not None:
+        return f"acting for vehicle {as_vehicle}, it writes under 'vehicle/{as_vehicle}/' alone"
     if actor.kind != ("user" if namespace == "user" else "gateway") or actor.name != owner:
         return f"only {namespace} {owner} writes under '{namespace}/{owner}/'"
     return None
@@ -151,9 +157,10 @@ def can_read(actor: Actor, topic: str, gateways: Gateways | None = None) -> bool
     return read_refusal(actor, topic, gateways) is None
 
 
-def check_write(actor: Actor, topics: str | list[str]) -> None:
-    """``Forbidden`` naming the first topic ``actor`` may not write."""
-    _check(write_refusal, actor, topics)
+def check_write(actor: Actor, topics: str | list[str], as_vehicle: str | None = None) -> None:
+    """``Forbidden`` naming the first topic ``actor`` (acting for ``as_vehicle``, when a
+    gateway's op names one) may not write."""
+    _check(lambda a, t: write_refusal(a, t, as_vehicle), actor, topics)
 
 
 def check_read(actor: Actor, topics: str | list[str], gateways: Gateways | None = None) -> None:

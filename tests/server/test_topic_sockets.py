@@ -152,3 +152,29 @@ async def test_each_unit_on_a_gateway_socket_gets_what_it_asked_not_its_neighbou
             event = await recv_until(g, lambda f: f["op"] == "event" and f["topic"] == topic)
             got.append(event["data"]["n"])
         assert got == list(range(20))
+
+
+async def test_a_gateway_acting_for_one_vehicle_writes_under_that_vehicle_alone(
+    base: str, api: httpx.AsyncClient
+) -> None:
+    """Acting for usv A (``vehicle_id``), a gateway's publish on B's topics was taken, sent
+    out as A's (``source: vehicle:A``); A's own token, or a unit behind the gateway, is
+    refused it."""
+    a, _ = await make_vehicle(api)
+    b, _ = await make_vehicle(api)
+    gw = await _gateway(api, [a, b])
+    async with await connect(base, "/ws/vehicle", gw) as g:
+        for op, fields in (
+            ("publish", {"topic": f"vehicle/{b}/status", "data": 1}),
+            ("register", {"topics": [f"vehicle/{b}/status"]}),
+            ("publish", {"topic": "gateway/gw-socks/status", "data": 1}),
+        ):
+            refused = await call(g, op, "x", vehicle_id=a, **fields)
+            assert refused["ok"] is False and refused["error"]["code"] == "forbidden", refused
+            assert f"acting for vehicle {a}" in refused["error"]["message"]
+            assert refused["error"]["details"][0]["field"].startswith("topic")
+        said = await call(g, "publish", "ok1", vehicle_id=a, topic=f"vehicle/{a}/status", data=2)
+        assert said["ok"] is True, said
+        # as itself (no vehicle named), the gateway writes for any of its vehicles
+        said = await call(g, "publish", "ok2", topic=f"vehicle/{b}/status", data=3)
+        assert said["ok"] is True, said
