@@ -200,7 +200,8 @@ def unit_for(actor: Actor, vehicle_id: str | None = None) -> UnitRef:
     """
     if vehicle_id is not None and not (actor.kind == "vehicle" and actor.name == vehicle_id):
         if actor.kind != "gateway" or not actor.acts_for(vehicle_id):
-            raise Forbidden(f"this token does not act for vehicle {vehicle_id}")
+            said = f"this token does not act for vehicle {vehicle_id}"
+            raise Forbidden(said, details=[{"field": "vehicle_id", "message": said}])
         return UnitRef(f"vehicle:{vehicle_id}", "vehicle", parent=f"gateway:{actor.name}")
     if actor.kind == "vehicle":
         return UnitRef(f"vehicle:{actor.name}", "vehicle")

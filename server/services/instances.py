@@ -68,22 +68,28 @@ class InstanceService(InstanceCopies):
     # ---- vehicle side ---------------------------------------------------
     async def start(self, principal: Principal, body: StartInstance) -> tuple[InstanceState, bool]:
         if not principal.acts_for(body.vehicle_id):
-            raise Forbidden(f"this token does not act for vehicle {body.vehicle_id}")
+            said = f"this token does not act for vehicle {body.vehicle_id}"
+            raise Forbidden(said, details=[{"field": "vehicle_id", "message": said}])
         meta = await self.auth.vehicle_meta(body.vehicle_id)
         if meta is None:
             raise NotFound(f"no vehicle {body.vehicle_id}; an admin registers it first")
         state, created = await self._claimed(body, meta)
         resumed = not created
+        renamed = False
         if resumed:
+            shown = (state.name, state.vehicle_type)
             if body.name:
                 state.name = body.name
             if body.vehicle_type:
                 state.vehicle_type = body.vehicle_type
+            renamed = (state.name, state.vehicle_type) != shown
             if body.capabilities is not None:
                 state.capabilities = list(body.capabilities)
             self.merge_params(state, body.params, starting=True)
             await self._write(state, time.monotonic(), whole=True, naming=True)
-        else:  # from offline or finished (the vehicle's last instance): fleet watchers hear
+        if not resumed or renamed:
+            # from offline or finished (the vehicle's last instance), or under a new name
+            # or type: fleet watchers hear of it
             self.messages.emit_now(PresenceChanged(state.instance_id, state.vehicle_id, "online"))
         await self.events.record(
             "instance",

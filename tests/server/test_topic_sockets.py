@@ -178,3 +178,24 @@ async def test_a_gateway_acting_for_one_vehicle_writes_under_that_vehicle_alone(
         # as itself (no vehicle named), the gateway writes for any of its vehicles
         said = await call(g, "publish", "ok2", topic=f"vehicle/{b}/status", data=3)
         assert said["ok"] is True, said
+
+
+async def test_a_vehicle_a_token_does_not_act_for_is_named_in_the_refusal(
+    base: str, api: httpx.AsyncClient
+) -> None:
+    """The refusal "this token does not act for vehicle X" named no field: the op's, or
+    the body's, ``vehicle_id`` is the one to put right."""
+    a, _ = await make_vehicle(api)
+    other, _ = await make_vehicle(api)
+    gw = await _gateway(api, [a])
+    async with await connect(base, "/ws/vehicle", gw) as g:
+        refused = await call(g, "subscribe", "s", vehicle_id=other, topics=[f"vehicle/{a}/x"])
+        assert refused["ok"] is False and refused["error"]["code"] == "forbidden", refused
+        assert [d["field"] for d in refused["error"]["details"]] == ["vehicle_id"]
+    r = await api.post(
+        "/upper/start_instance",
+        headers={"Authorization": f"Bearer {gw}"},
+        json={"vehicle_id": other},
+    )
+    assert r.status_code == 403, r.text
+    assert [d["field"] for d in r.json()["error"]["details"]] == ["vehicle_id"]

@@ -155,6 +155,28 @@ async def test_an_auth_op_on_a_socket_that_has_its_token_says_so(
         assert again["ok"] is False and "first frame only" in again["error"]["message"]
 
 
+async def test_fleet_tells_of_a_vehicle_resuming_under_a_new_name(
+    base: str, api: httpx.AsyncClient
+) -> None:
+    """An agent restarted with a new name resumes its instance: watchers kept the old name
+    until the vehicle's next presence change."""
+    vid, vh = await make_vehicle(api)
+    _, viewer = await make_user(api, "viewer", [vid])
+    first = {"vehicle_id": vid, "name": "Before"}
+    r = await api.post("/upper/start_instance", headers=vh, json=first)
+    assert r.status_code == 200, r.text
+    async with await connect(base, "/ws/client", tok(viewer)) as ws:
+        await call(ws, "subscribe", "s", topics=["fleet"])
+        snap = await recv_until(ws, lambda f: f["op"] == "event")
+        assert snap["data"]["vehicles"][0]["name"] == "Before"
+        again = {"vehicle_id": vid, "name": "After", "vehicle_type": "auv"}
+        r = await api.post("/upper/start_instance", headers=vh, json=again)
+        assert r.status_code == 200 and r.json()["resumed"] is True, r.text
+        change = await recv_until(ws, lambda f: f["op"] == "event")
+        (view,) = change["data"]["vehicles"]
+        assert (view["name"], view["vehicle_type"], view["presence"]) == ("After", "auv", "online")
+
+
 async def test_reading_another_vehicle_is_refused(base: str, api: httpx.AsyncClient) -> None:
     v1, _, _ = await _vehicle_with_instance(api)
     v2, _, _ = await _vehicle_with_instance(api)
