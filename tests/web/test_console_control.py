@@ -318,15 +318,22 @@ def test_the_field_manager_revokes_from_the_vehicle_panel(world: World, open_con
     expect(line.locator("button", has_text="Revoke")).to_have_count(0)
 
 
-def test_a_press_on_the_control_panel_outlasts_its_redraw(world: World, open_console: Any) -> None:
-    """A Grant tapped on a phone did nothing now and then: the panel was drawn again (on
-    any vehicle's news) between the press and its end, and the button pressed was gone."""
+def ana_s_lease_in_mia_s_control_panel(world: World, open_console: Any) -> tuple[Any, Any]:
+    """ana holds demo-usv-1; mia (its manager) has the Control panel open at its lease,
+    Revoke on it: the page and the lease's item."""
     world.fleet.grant(world.instances["demo-usv-1"], "ana")
     page, _ = open_console()
     log_in(page, "mia")
     page.click('[data-tab="control"]')
     lease = page.locator('li.lease[data-vehicle="demo-usv-1"]')
     expect(lease.locator("button", has_text="Revoke")).to_be_visible()
+    return page, lease
+
+
+def test_a_press_on_the_control_panel_outlasts_its_redraw(world: World, open_console: Any) -> None:
+    """A Grant tapped on a phone did nothing now and then: the panel was drawn again (on
+    any vehicle's news) between the press and its end, and the button pressed was gone."""
+    page, _ = ana_s_lease_in_mia_s_control_panel(world, open_console)
     x, y = page.evaluate(  # where the button is (the same place in every redraw)
         """() => {
             const b = [...document.querySelectorAll('li.lease[data-vehicle="demo-usv-1"] button')]
@@ -352,12 +359,7 @@ def test_the_control_panel_is_drawn_again_only_when_what_it_shows_changes(
 ) -> None:
     """The panel was drawn again on every vehicle's news (each position, another boat's
     link), its buttons swapped under the pointer several times a second for nothing."""
-    world.fleet.grant(world.instances["demo-usv-1"], "ana")
-    page, _ = open_console()
-    log_in(page, "mia")
-    page.click('[data-tab="control"]')
-    lease = page.locator('li.lease[data-vehicle="demo-usv-1"]')
-    expect(lease.locator("button", has_text="Revoke")).to_be_visible()
+    page, lease = ana_s_lease_in_mia_s_control_panel(world, open_console)
     page.evaluate(
         """() => {
             window.revokeButton = [...document.querySelectorAll(
