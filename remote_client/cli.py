@@ -16,7 +16,7 @@ from rich.table import Table
 
 from fleet_protocol import parse_ts
 from remote_client import cli_data, cli_live
-from remote_client.cli_admin import gateways_app, users_app, vehicles_app
+from remote_client.cli_admin import gateways_app, vehicles_app
 from remote_client.cli_common import (
     Commands,
     JsonOpt,
@@ -36,6 +36,7 @@ from remote_client.cli_common import (
     with_names,
 )
 from remote_client.cli_safety import alive, audit_app, failsafe_app
+from remote_client.cli_users import users_app
 from remote_client.cli_zones import obstacles_app, zones_app
 from remote_client.output import console
 from remote_client.sdk import STOP_TTL_S, FleetClient, shown_status

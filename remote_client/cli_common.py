@@ -237,6 +237,20 @@ def say(data: Any, as_json: bool, text: str) -> None:
         answer_line(text)
 
 
+def new_token(data: dict[str, Any], as_json: bool, what: str, variable: str) -> None:
+    """A new token, shown this once: alone on stdout (for ``$(...)``), what it is on
+    stderr; ``--json``: the whole answer."""
+    if as_json:
+        dump(data)
+        return
+    errors.print(
+        f"{what}. Its token, shown this once (give it as {variable}):",
+        markup=False,
+        highlight=False,
+    )
+    answer_line(data["token"])
+
+
 def dump(data: Any) -> None:
     """JSON for scripts, as ``json`` writes it: ASCII, control characters escaped."""
     print(json.dumps(data, indent=2))
