@@ -7,7 +7,7 @@ from typing import Annotated, Literal
 from pydantic import Field, StrictBool, StrictFloat, StrictInt
 
 from fleet_protocol.commands import ACK_STATUSES, CommandObject, CommandType
-from fleet_protocol.common import Identifier, LatLon, Sample, Timestamp, WireModel
+from fleet_protocol.common import Identifier, LatLon, Sample, SampleDoc, Timestamp, WireModel
 from fleet_protocol.text import Label, Text
 from fleet_protocol.values import Params
 
@@ -34,6 +34,7 @@ __all__ = [
     "UpdateFbMessage",
     "UpdateFbMessageResult",
     "UpdateParam",
+    "UpdateParamDocs",
     "UpdateParamResult",
     "WhoAmIResult",
 ]
@@ -175,6 +176,13 @@ class UpdateParam(InstanceRef):
         default=None, ge=-MAX_CLOCK_OFFSET_S, le=MAX_CLOCK_OFFSET_S, allow_inf_nan=False
     )
     rtt_s: StrictFloat | None = Field(default=None, ge=0, le=86_400, allow_inf_nan=False)
+
+
+class UpdateParamDocs(UpdateParam):
+    """:class:`UpdateParam` as the server reads it: the same fields and rules, each
+    sample a plain dict (:data:`~fleet_protocol.common.SampleDoc`)."""
+
+    samples: list[SampleDoc] = Field(default_factory=list, max_length=MAX_SAMPLES_PER_CALL)
 
 
 class UpdateParamResult(WireModel):

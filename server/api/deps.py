@@ -16,6 +16,7 @@ from collections.abc import Mapping
 from typing import Annotated, Any
 
 from fastapi import Depends, Request
+from starlette.types import Scope
 
 from server.api.live_hub import LiveHub
 from server.domain.access import Principal
@@ -42,17 +43,30 @@ HubDep = Annotated[LiveHub, Depends(get_hub)]
 
 def bearer_token(headers: Mapping[str, str]) -> str | None:
     """The token of an ``Authorization: Bearer <token>`` header."""
-    scheme, _, value = headers.get("authorization", "").partition(" ")
+    return _bearer(headers.get("authorization", ""))
+
+
+def _bearer(header: str) -> str | None:
+    scheme, _, value = header.partition(" ")
     if scheme.lower() == "bearer" and value.strip():
         return value.strip()
     return None
+
+
+def _authorization(scope: Scope) -> str:
+    """The request's first ``Authorization`` header, as ``Headers`` reads it (ASGI names
+    are lower case), without building one for each of the vehicles' calls."""
+    for name, value in scope["headers"]:
+        if name == b"authorization":
+            return str(value.decode("latin-1"))
+    return ""
 
 
 async def authenticate(request: Request) -> Principal:
     """Who calls: the server ready, the bearer token valid, within its rate."""
     services: Services = request.app.state.services
     services.readiness.require()
-    principal = await services.auth.authenticate(bearer_token(request.headers))
+    principal = await services.auth.authenticate(_bearer(_authorization(request.scope)))
     services.auth.check_rate(principal)
     return principal
 

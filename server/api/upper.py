@@ -11,7 +11,7 @@ from fleet_protocol import (
     HeartbeatResult,
     StartInstance,
     StartInstanceResult,
-    UpdateParam,
+    UpdateParamDocs,
     UpdateParamResult,
     WhoAmIResult,
 )
@@ -26,7 +26,10 @@ router = APIRouter(prefix="/upper", tags=["vehicle"], route_class=LeanRoute)
 
 
 @router.post("/update_param", response_model=UpdateParamResult)
-async def update_param(body: UpdateParam, caller: VehicleCaller, s: ServicesDep) -> ModelResponse:
+async def update_param(
+    body: UpdateParamDocs, caller: VehicleCaller, s: ServicesDep
+) -> ModelResponse:
+    """``UpdateParam``, its samples read as plain dicts: they are stored as they come."""
     counts = await s.link.update_param(caller, body, "http")
     return ModelResponse(dumps(counts))  # plain counters and the server's time, as text
 

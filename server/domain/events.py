@@ -81,7 +81,8 @@ class CommandMoved:
 
 @dataclass(frozen=True, slots=True)
 class SamplesStored:
-    """Samples accepted for a vehicle, in the order received, and whether each came late;
+    """Samples accepted for a vehicle (in their stored form: dicts, read only), in the
+    order received, and whether each came late;
     ``current``: the one that became the vehicle's latest position and came in time
     (None: none did: all came late, or are dated too far ahead). What judges the vehicle
     as it is now (its zones, its battery) reads ``current`` alone."""

@@ -22,7 +22,7 @@ import time
 from datetime import datetime, timedelta
 from typing import Any
 
-from fleet_protocol import PatchVehicle, Sample, StartInstance
+from fleet_protocol import PatchVehicle, StartInstance
 from server.domain.access import Principal
 from server.domain.clock import Clock
 from server.domain.events import InstanceFinished, PresenceChanged, StateWritten
@@ -206,17 +206,13 @@ class InstanceService(InstanceCopies):
         state.params_updated_at = self.clock() if now is None else now
         state.dirty = True
 
-    def set_position(
-        self, state: InstanceState, sample: Sample, doc: dict[str, Any] | None = None
-    ) -> bool:
-        """Keep the sample with the greatest ``ts`` as the latest position.
-
-        ``doc``: the sample already in its stored form (``model_dump(exclude_none=True)``).
-        """
+    def set_position(self, state: InstanceState, doc: dict[str, Any]) -> bool:
+        """Keep the sample with the greatest ``ts`` as the latest position (``doc``: the
+        sample in its stored form, ``model_dump(exclude_none=True)``; copied)."""
         current = state.position
-        if current is not None and current["ts"] >= sample.ts:
+        if current is not None and current["ts"] >= doc["ts"]:
             return False
-        state.position = dict(doc) if doc is not None else sample.model_dump(exclude_none=True)
+        state.position = dict(doc)
         state.moved = True
         return True
 

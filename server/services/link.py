@@ -7,7 +7,7 @@ so the HTTP routes and the WebSocket ops call the same methods.
 from __future__ import annotations
 
 import time
-from collections.abc import Awaitable, Callable
+from collections.abc import Awaitable, Callable, Sequence
 from datetime import datetime
 from typing import Any, Protocol
 
@@ -39,11 +39,11 @@ class IngestResult(Protocol):
     duplicates: int
     acked_through_seq: int
     durable_through_seq: int
-    latest: Sample | None
-    stored: list[Sample]
+    #: Samples in their stored form (dicts).
+    latest: dict[str, Any] | None
+    stored: list[dict[str, Any]]
     replayed: list[bool]
-    latest_doc: dict[str, Any] | None
-    current: Sample | None
+    current: dict[str, Any] | None
     ahead_after: datetime | None
 
 
@@ -52,14 +52,19 @@ class Telemetry(Protocol):
         self,
         vehicle_id: str,
         instance_id: str,
-        samples: list[Sample],
+        samples: Sequence[Sample | dict[str, Any]],
         clock_offset_s: float = 0.0,
+        arrived: datetime | None = None,
     ) -> IngestResult: ...
 
     def takes_now(self, vehicle_id: str, count: int) -> bool: ...
 
     def ingest_now(
-        self, vehicle_id: str, samples: list[Sample], clock_offset_s: float = 0.0
+        self,
+        vehicle_id: str,
+        samples: Sequence[Sample | dict[str, Any]],
+        clock_offset_s: float = 0.0,
+        arrived: datetime | None = None,
     ) -> IngestResult: ...
 
     async def last_seq(self, vehicle_id: str) -> int: ...
@@ -223,7 +228,7 @@ class VehicleLink:
         state = await self.live(principal, body.instance_id, arrived)
         self._merge(state, body, arrived, transport)
         result = await self.telemetry.ingest(
-            state.vehicle_id, state.instance_id, body.samples, state.clock_offset_s
+            state.vehicle_id, state.instance_id, body.samples, state.clock_offset_s, arrived
         )
         return self._after_ingest(state, result, arrived)
 
@@ -239,7 +244,9 @@ class VehicleLink:
         arrived = self.instances.clock()
         self.instances.touch(state, arrived)
         self._merge(state, body, arrived, transport)
-        result = self.telemetry.ingest_now(state.vehicle_id, body.samples, state.clock_offset_s)
+        result = self.telemetry.ingest_now(
+            state.vehicle_id, body.samples, state.clock_offset_s, arrived
+        )
         return self._after_ingest(state, result, arrived)
 
     def _merge(
@@ -255,7 +262,7 @@ class VehicleLink:
         self, state: InstanceState, result: IngestResult, arrived: datetime
     ) -> dict[str, Any]:
         if result.latest is not None:
-            self.instances.set_position(state, result.latest, result.latest_doc)
+            self.instances.set_position(state, result.latest)
             if state.drift_held and position_is_current(
                 state.position, state.vehicle_clock(arrived), self.settings.offline_after_s
             ):

@@ -162,11 +162,12 @@ class ServerTopics:
         bound = event.ahead_after
         for sample, late in zip(event.samples, event.replayed, strict=True):
 
-            def data(sample: Any = sample, late: bool = late) -> dict[str, Any]:
-                out: dict[str, Any] = sample.model_dump(mode="json", exclude_none=True)
+            def data(sample: dict[str, Any] = sample, late: bool = late) -> dict[str, Any]:
+                # The stored form (no nulls; ``data`` JSON already): only ``ts`` to format.
+                out = {**sample, "ts": format_ts(sample["ts"])}
                 if late:
                     out["replayed"] = True
-                if bound is not None and sample.ts > bound:
+                if bound is not None and sample["ts"] > bound:
                     out["ahead"] = True  # dated too far ahead: never the position
                 return out
 

@@ -57,6 +57,7 @@ from server.services.instances import InstanceService, InstanceState
 from server.services.messagebus import MessageBus
 from server.services.zones import ZoneService
 from server.settings import Settings
+from server.storage.backends import Doc
 from server.storage.safety import SafetyRepo, watch_state
 
 
@@ -189,22 +190,22 @@ class SafetyService(FailsafePolicies):
             return None
         return self._record(state, self._judged(state, sample), now)
 
-    def _next(self, state: InstanceState, was: WatchState, sample: Any) -> WatchState:
+    def _next(self, state: InstanceState, was: WatchState, sample: Doc) -> WatchState:
         threshold = self.known_policy(state.vehicle_id).low_battery_pct
-        point = (float(sample.lat), float(sample.lon))
+        point = (float(sample["lat"]), float(sample["lon"]))
         return next_state(
-            was, self.zones.known(), state.vehicle_id, point, sample.battery_pct, threshold
+            was, self.zones.known(), state.vehicle_id, point, sample.get("battery_pct"), threshold
         )
 
-    def _judged(self, state: InstanceState, sample: Any) -> Judged:
-        at = said_time(sample.ts, self.clock(), state.started_at)
-        return Judged(float(sample.lat), float(sample.lon), sample.battery_pct, at)
+    def _judged(self, state: InstanceState, sample: Doc) -> Judged:
+        at = said_time(sample["ts"], self.clock(), state.started_at)
+        return Judged(float(sample["lat"]), float(sample["lon"]), sample.get("battery_pct"), at)
 
-    async def _first(self, state: InstanceState, sample: Any) -> None:
+    async def _first(self, state: InstanceState, sample: Doc) -> None:
         """The instance's watch state, read (or begun, with its home) once."""
         doc = await self.repo.watch_of(state.instance_id)
         if doc is None:
-            home = (float(sample.lat), float(sample.lon))
+            home = (float(sample["lat"]), float(sample["lon"]))
             await self.repo.begin_watch(state.instance_id, state.vehicle_id, home)
             doc = await self.repo.watch_of(state.instance_id)
         was = watch_state(doc)

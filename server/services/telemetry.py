@@ -24,6 +24,7 @@ yet written (the open bucket), the latest position and the durable mark.
 from __future__ import annotations
 
 import logging
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from datetime import datetime, timedelta
 
@@ -56,16 +57,16 @@ class IngestResult:
     duplicates: int
     acked_through_seq: int
     durable_through_seq: int
-    #: The vehicle's new latest position when this batch moved it, else None.
-    latest: Sample | None
-    #: The accepted samples, in the order received, and whether each came late.
-    stored: list[Sample] = field(default_factory=list)
+    #: The vehicle's new latest position when this batch moved it, else None (stored
+    #: form, a dict shared with the open bucket: read, never change).
+    latest: Doc | None
+    #: The accepted samples in their stored form, in the order received, and whether
+    #: each came late.
+    stored: list[Doc] = field(default_factory=list)
     replayed: list[bool] = field(default_factory=list)
-    #: ``latest`` in its stored form (a dict shared with the open bucket: read, never change).
-    latest_doc: Doc | None = None
     #: ``latest`` when it also came in time (not late): what the vehicle reports now, the
     #: one sample of the batch that the watch on zones and battery judges (None: none).
-    current: Sample | None = None
+    current: Doc | None = None
     #: The latest ``ts`` a sample of the batch could have and become the position (by the
     #: vehicle's clock, in the samples' tzinfo); None when none was accepted.
     ahead_after: datetime | None = None
@@ -82,9 +83,22 @@ _AHEAD = timedelta(minutes=5)
 _STORED: TypeAdapter[list[Sample]] = TypeAdapter(list[Sample])
 
 
-def _stored(samples: list[Sample]) -> list[Doc]:
-    docs: list[Doc] = _STORED.dump_python(samples, exclude_none=True)
-    return docs
+def stored_form(samples: Sequence[Sample | Doc]) -> list[Doc]:
+    """The samples in their stored form: :class:`Sample` models serialized, samples read
+    as plain dicts (``SampleDoc``, the request's own) kept, their nulls left out."""
+    docs: list[Doc] = []
+    for doc in samples:
+        if type(doc) is not dict:
+            break
+        if None in doc.values():
+            for name in [name for name, value in doc.items() if value is None]:
+                del doc[name]
+        docs.append(doc)
+    else:
+        return docs
+    models = [s if isinstance(s, Sample) else Sample.model_validate(s) for s in samples]
+    out: list[Doc] = _STORED.dump_python(models, exclude_none=True)
+    return out
 
 
 def _sample(doc: Doc) -> Sample:
@@ -138,22 +152,25 @@ class TelemetryService(TelemetryWriter, TelemetryViews):
         self,
         vehicle_id: str,
         instance_id: str,
-        samples: list[Sample],
+        samples: Sequence[Sample | Doc],
         clock_offset_s: float = 0.0,
+        arrived: datetime | None = None,
     ) -> IngestResult:
-        """Take the samples (duplicates counted, not stored). ``clock_offset_s``: the
+        """Take the samples (duplicates counted, not stored): models, or plain dicts read
+        as ``SampleDoc`` (taken as they are: the caller hands them over). ``clock_offset_s``: the
         server's clock minus the vehicle's, as the vehicle last said: its samples are
         dated by its clock, so whether one is stale or too far ahead is judged by the
-        server's clock turned into the vehicle's."""
+        server's clock turned into the vehicle's. ``arrived``: the server's clock as the
+        samples came (read now when not given)."""
         if self.takes_now(vehicle_id, len(samples)):
-            return self.ingest_now(vehicle_id, samples, clock_offset_s)
+            return self.ingest_now(vehicle_id, samples, clock_offset_s, arrived)
         state = self._vehicles.get(vehicle_id) or self._state(vehicle_id)
         cap = self.settings.bucket_samples
         async with state.lock:
             await self._load(vehicle_id, state)
             if samples and len(state.pending) >= cap * MAX_PENDING_BUCKETS:
                 raise Unavailable("telemetry cannot be stored now; send it again shortly")
-            result = self._accept(vehicle_id, state, samples, clock_offset_s)
+            result = self._accept(vehicle_id, state, samples, clock_offset_s, arrived)
             while self._full(state):
                 if not await self._write_bucket(vehicle_id, state, best_effort=True):
                     break
@@ -175,44 +192,50 @@ class TelemetryService(TelemetryWriter, TelemetryViews):
         )
 
     def ingest_now(
-        self, vehicle_id: str, samples: list[Sample], clock_offset_s: float = 0.0
+        self,
+        vehicle_id: str,
+        samples: Sequence[Sample | Doc],
+        clock_offset_s: float = 0.0,
+        arrived: datetime | None = None,
     ) -> IngestResult:
         """:meth:`ingest` within this call; only when :meth:`takes_now` said so."""
-        return self._accept(vehicle_id, self._vehicles[vehicle_id], samples, clock_offset_s)
+        state = self._vehicles[vehicle_id]
+        return self._accept(vehicle_id, state, samples, clock_offset_s, arrived)
 
     def _accept(
         self,
         vehicle_id: str,
         state: VehicleTelemetry,
-        samples: list[Sample],
+        samples: Sequence[Sample | Doc],
         clock_offset_s: float,
+        arrived: datetime | None,
     ) -> IngestResult:
         """Take the new samples into the open bucket (synchronous: the caller holds the turn)."""
         result = IngestResult(0, 0, -1, -1, None)
         high = state.high
         stored = result.stored
-        for sample in samples:
-            if sample.seq <= high:
+        for doc in stored_form(samples):
+            if doc["seq"] <= high:
                 result.duplicates += 1
                 continue
-            high = sample.seq
-            stored.append(sample)
+            high = doc["seq"]
+            stored.append(doc)
         state.high = high
         result.accepted = len(stored)
         result.acked_through_seq = high
         result.durable_through_seq = state.durable
         if not stored:
             return result
-        # The same instant in the samples' own tzinfo: two datetimes of one tzinfo are
-        # compared without a call to either's utcoffset (one per sample saved).
-        now = self.clock()
+        # Now in the samples' own tzinfo (an offset of zero: Timestamp's): two datetimes of
+        # one tzinfo are compared without a call to either's utcoffset.
+        now = arrived if arrived is not None else self.clock()
+        if (tz := stored[0]["ts"].tzinfo) is not None and tz is not now.tzinfo:
+            same = tz.utcoffset(now) == now.utcoffset()  # then no arithmetic is needed
+            now = now.replace(tzinfo=tz) if same else now.astimezone(tz)
         if clock_offset_s:  # now by the vehicle's clock, which dates its samples
             now -= timedelta(seconds=clock_offset_s)
         stale_before = now - self._offline_after
         ahead = now + _AHEAD  # a sample past it is stored, never the latest position
-        if (tz := stored[0].ts.tzinfo) is not None:
-            stale_before = stale_before.astimezone(tz)
-            ahead = ahead.astimezone(tz)
         result.ahead_after = ahead
         pending, replayed = state.pending, result.replayed
         if not pending:
@@ -220,16 +243,16 @@ class TelemetryService(TelemetryWriter, TelemetryViews):
         latest = state.latest
         latest_ts = latest["ts"] if latest is not None else None
         added = 0
-        for sample, doc in zip(stored, _stored(stored), strict=True):
+        for doc in stored:
             pending.append(doc)
             added += sample_size(doc) if "data" in doc else SAMPLE_BYTES
-            ts = sample.ts
+            ts = doc["ts"]
             late = (latest_ts is not None and ts < latest_ts) or ts < stale_before
             replayed.append(late)
             if (latest_ts is None or ts >= latest_ts) and ts <= ahead:
                 latest, latest_ts = doc, ts
-                result.latest, result.latest_doc = sample, doc
-                result.current = None if late else sample
+                result.latest = doc
+                result.current = None if late else doc
         state.pending_bytes += added
         state.latest = latest
         return result

@@ -213,6 +213,32 @@ async def test_a_sample_dated_years_ahead_is_said_so_to_those_watching_the_vehic
     assert [(s["seq"], s.get("ahead")) for s in said] == [(1, True), (2, None)]
 
 
+async def test_a_samples_nulls_and_unknown_fields_are_not_taken_into_what_watchers_see(
+    make_settings: Callable[..., Settings],
+) -> None:
+    """update_param reads its samples as plain dicts: a field sent as null is left out
+    (as the model's ``exclude_none`` left it), a field the contract lacks is ignored."""
+    async with serve(make_settings()) as base, httpx.AsyncClient(base_url=base) as api:
+        vid, vh = await make_vehicle(api)
+        iid = (await start_instance(api, vid, vh))["instance_id"]
+        async with await connect(base, "/ws/client", ADMIN["Authorization"][7:]) as ws:
+            await call(ws, "subscribe", "s", topics=[f"vehicle/{vid}/telemetry"])
+            sent = {
+                **sample(1, ts=datetime(2026, 11, 27, 6, 0, 0, 250000, tzinfo=UTC)),
+                "depth_m": None,
+                "data": None,
+                "battery_pct": 81.5,
+                "colour": "red",
+            }
+            body = {"instance_id": iid, "samples": [sent]}
+            r = await api.post("/upper/update_param", headers=vh, json=body)
+            assert r.status_code == 200 and r.json()["accepted"] == 1, r.text
+            frame = await recv_until(ws, lambda f: f.get("op") == "event" and not f.get("snapshot"))
+    said = frame["data"]
+    assert said["ts"] == "2026-11-27T06:00:00.250Z" and said["battery_pct"] == 81.5
+    assert not {"depth_m", "data", "colour"} & set(said), said
+
+
 async def test_viewer_sees_only_assigned_vehicles(client: httpx.AsyncClient) -> None:
     v1, _h1 = await make_vehicle(client)
     v2, h2 = await make_vehicle(client)

@@ -93,7 +93,7 @@ async def test_ingest_is_idempotent_by_seq(world: World) -> None:
 async def test_gaps_are_allowed_and_lower_seqs_are_duplicates(world: World) -> None:
     result = await world.svc.ingest("usv-1", "i1", samples([1, 5, 100, 50, 101]))
     assert (result.accepted, result.duplicates, result.acked_through_seq) == (4, 1, 101)
-    assert [s.seq for s in result.stored] == [1, 5, 100, 101]
+    assert [s["seq"] for s in result.stored] == [1, 5, 100, 101]
     assert await world.svc.last_seq("usv-1") == 101
     assert await world.svc.last_seq("usv-unknown") == -1
 
@@ -207,7 +207,7 @@ async def test_the_highest_seq_outlives_the_buckets_retention_drops(world: World
 async def test_latest_is_the_greatest_ts_and_late_samples_are_replayed(world: World) -> None:
     world.clock.now = T0 + timedelta(seconds=20)
     first = await world.svc.ingest("usv-1", "i1", samples(range(10, 13)))
-    assert first.latest is not None and first.latest.seq == 12
+    assert first.latest is not None and first.latest["seq"] == 12
     assert first.replayed == [False, False, False]
     # seq 13 carries an older ts: stored in place, the latest position stays.
     late = Sample(seq=13, ts=T0 + timedelta(seconds=3), lat=1.0, lon=2.0)
@@ -217,7 +217,7 @@ async def test_latest_is_the_greatest_ts_and_late_samples_are_replayed(world: Wo
     world.clock.now = T0 + timedelta(minutes=10)
     drained = await world.svc.ingest("usv-1", "i1", samples(range(14, 16)))
     assert drained.replayed == [True, True]
-    assert drained.latest is not None and drained.latest.seq == 15
+    assert drained.latest is not None and drained.latest["seq"] == 15
 
 
 async def test_track_window_is_ts_ordered_from_inclusive_to_exclusive(world: World) -> None:
