@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Annotated, Literal
 
-from pydantic import Field, StrictBool, StrictFloat, StrictInt
+from pydantic import ConfigDict, Field, StrictBool, StrictFloat, StrictInt
 
 from fleet_protocol.commands import ACK_STATUSES, CommandObject, CommandType
 from fleet_protocol.common import Identifier, LatLon, Sample, SampleDoc, Timestamp, WireModel
@@ -180,7 +180,11 @@ class UpdateParam(InstanceRef):
 
 class UpdateParamDocs(UpdateParam):
     """:class:`UpdateParam` as the server reads it: the same fields and rules, each
-    sample a plain dict (:data:`~fleet_protocol.common.SampleDoc`)."""
+    sample a plain dict (:data:`~fleet_protocol.common.SampleDoc`). Fields it does not
+    know are kept aside (``model_extra``), never used: a call that carries nothing but
+    them (``sample`` for ``samples``) is refused rather than answered "0 accepted"."""
+
+    model_config = ConfigDict(extra="allow")
 
     samples: list[SampleDoc] = Field(default_factory=list, max_length=MAX_SAMPLES_PER_CALL)
 

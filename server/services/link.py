@@ -6,6 +6,7 @@ so the HTTP routes and the WebSocket ops call the same methods.
 
 from __future__ import annotations
 
+import difflib
 import time
 from collections.abc import Awaitable, Callable, Sequence
 from datetime import datetime
@@ -28,6 +29,7 @@ from server.domain.access import Principal
 from server.domain.commands import Command, position_is_current
 from server.domain.events import LinkChanged, SamplesStored
 from server.domain.latency import one_way_delay_s
+from server.errors import Invalid
 from server.metrics import Hops
 from server.services.instances import InstanceService, InstanceState
 from server.services.messagebus import MessageBus
@@ -221,6 +223,8 @@ class VehicleLink:
         """Merge the params, store the samples; the fields of ``UpdateParamResult``
         (a dict: the socket's ack is built from it with no model in between).
         ``transport`` (``ws``, ``http``) labels the call's delay in ``/metrics``."""
+        if not body.samples and not body.params and body.model_extra:
+            raise _only_unknown(body.model_extra)
         done = self.update_param_now(principal, body, transport)
         if done is not None:
             return done
@@ -295,3 +299,15 @@ class VehicleLink:
         self.hops.vehicle_to_server(transport, delay)
         if state.link.observe(delay, body.rtt_s, time.monotonic()):
             self.messages.emit_now(LinkChanged(state.instance_id, state.vehicle_id))
+
+
+def _only_unknown(extra: dict[str, Any]) -> Invalid:
+    """The refusal of an ``update_param`` whose only fields are ones it does not know: it
+    would change nothing, and the vehicle would take "0 accepted" for its samples."""
+    name = next(iter(extra))
+    guess = difflib.get_close_matches(name, ("params", "samples"), n=1)
+    said = f"{name}: not a field of update_param" + (f": did you mean {guess[0]}?" if guess else "")
+    return Invalid(
+        f"{said} (it takes params and samples; this call has neither)",
+        details=[{"field": name, "message": said}],
+    )

@@ -48,6 +48,27 @@ async def test_update_param_counts_duplicates_and_reports_marks(client: httpx.As
     assert again["last_seq"] == 12
 
 
+async def test_an_update_with_only_fields_it_does_not_know_is_refused_naming_the_field(
+    client: httpx.AsyncClient,
+) -> None:
+    """``sample`` for ``samples`` was answered 200 "0 accepted": the vehicle took it for
+    its samples refused as duplicates, or for stored. Unknown fields beside known ones are
+    still ignored (a newer client's), and an empty update is still a contact."""
+    vid, vh = await make_vehicle(client)
+    iid = (await start_instance(client, vid, vh))["instance_id"]
+    typo = {"instance_id": iid, "sample": [sample(1)]}
+    r = await client.post("/upper/update_param", headers=vh, json=typo)
+    assert r.status_code == 422, r.text
+    error = r.json()["error"]
+    assert error["details"][0]["field"] == "sample", error
+    assert "did you mean samples" in error["message"], error
+    newer = {"instance_id": iid, "samples": [sample(1)], "priority": "high"}
+    r = await client.post("/upper/update_param", headers=vh, json=newer)
+    assert r.status_code == 200 and r.json()["accepted"] == 1, r.text
+    r = await client.post("/upper/update_param", headers=vh, json={"instance_id": iid})
+    assert r.status_code == 200 and r.json()["accepted"] == 0, r.text
+
+
 async def test_track_json(client: httpx.AsyncClient) -> None:
     vid, _, _ = await vehicle_with_samples(client, range(1, 31), speed_mps=1.5)
     r = await client.get(
