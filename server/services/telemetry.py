@@ -211,39 +211,36 @@ class TelemetryService(TelemetryWriter, TelemetryViews):
         arrived: datetime | None,
     ) -> IngestResult:
         """Take the new samples into the open bucket (synchronous: the caller holds the turn)."""
-        result = IngestResult(0, 0, -1, -1, None)
-        high = state.high
-        stored = result.stored
-        for doc in stored_form(samples):
-            if doc["seq"] <= high:
-                result.duplicates += 1
-                continue
-            high = doc["seq"]
-            stored.append(doc)
-        state.high = high
-        result.accepted = len(stored)
-        result.acked_through_seq = high
-        result.durable_through_seq = state.durable
-        if not stored:
+        docs = stored_form(samples)
+        result = IngestResult(0, 0, state.high, state.durable, None)
+        if not docs:
             return result
         # Now in the samples' own tzinfo (an offset of zero: Timestamp's): two datetimes of
         # one tzinfo are compared without a call to either's utcoffset.
         now = arrived if arrived is not None else self.clock()
-        if (tz := stored[0]["ts"].tzinfo) is not None and tz is not now.tzinfo:
+        if (tz := docs[0]["ts"].tzinfo) is not None and tz is not now.tzinfo:
             same = tz.utcoffset(now) == now.utcoffset()  # then no arithmetic is needed
             now = now.replace(tzinfo=tz) if same else now.astimezone(tz)
         if clock_offset_s:  # now by the vehicle's clock, which dates its samples
             now -= timedelta(seconds=clock_offset_s)
         stale_before = now - self._offline_after
         ahead = now + _AHEAD  # a sample past it is stored, never the latest position
-        result.ahead_after = ahead
-        pending, replayed = state.pending, result.replayed
-        if not pending:
-            self._open(vehicle_id, state)
+        stored, replayed, pending = result.stored, result.replayed, state.pending
+        opened = bool(pending)
+        high = state.high
         latest = state.latest
         latest_ts = latest["ts"] if latest is not None else None
         added = 0
-        for doc in stored:
+        for doc in docs:  # one pass: most batches are all new, in order
+            seq = doc["seq"]
+            if seq <= high:
+                result.duplicates += 1
+                continue
+            high = seq
+            if not opened:
+                self._open(vehicle_id, state)
+                opened = True
+            stored.append(doc)
             pending.append(doc)
             added += sample_size(doc) if "data" in doc else SAMPLE_BYTES
             ts = doc["ts"]
@@ -253,8 +250,12 @@ class TelemetryService(TelemetryWriter, TelemetryViews):
                 latest, latest_ts = doc, ts
                 result.latest = doc
                 result.current = None if late else doc
-        state.pending_bytes += added
-        state.latest = latest
+        state.high = result.acked_through_seq = high
+        result.accepted = len(stored)
+        if stored:
+            result.ahead_after = ahead
+            state.pending_bytes += added
+            state.latest = latest
         return result
 
     async def last_seq(self, vehicle_id: str) -> int:
