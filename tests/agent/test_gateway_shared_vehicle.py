@@ -229,6 +229,12 @@ async def test_a_unit_name_must_be_an_identifier_and_its_vehicle_listed(
     async with gateway(make_settings) as w:
         async with w.unit(w.a, "Sonar%20Driver") as badly_named:
             assert await closed_with(badly_named) == CLOSE_BAD_REQUEST
+        async with w.unit(w.a, "") as unnamed:  # unit= with no name was an unnamed unit
+            assert await closed_with(unnamed) == CLOSE_BAD_REQUEST
+            assert "unit=<name>" in unnamed.close_reason
+        async with w.unit(f"{w.a}&vehicle_id={w.b}", "sonar") as two_vehicles:
+            assert await closed_with(two_vehicles) == CLOSE_BAD_REQUEST  # was the first's
+            assert "vehicle_id is given more than once" in two_vehicles.close_reason
         async with w.unit(w.a, "sonar") as ua:  # the link up: the server said whom it lists
             assert (await ack(ua, "register", "r", topics=[f"vehicle/{w.a}/x"]))["ok"] is True
         async with w.unit("usv-not-ours", "sonar") as stranger:

@@ -153,9 +153,14 @@ class UnitServer:
 
     # -- one unit -------------------------------------------------------------
     async def _serve(self, conn: ServerConnection) -> None:
-        query = parse_qs(urlsplit(conn.request.path if conn.request else "").query)
+        query = parse_qs(
+            urlsplit(conn.request.path if conn.request else "").query, keep_blank_values=True
+        )
+        if twice := next((k for k in ("vehicle_id", "unit") if len(query.get(k, ())) > 1), None):
+            await conn.close(CLOSE_BAD_REQUEST, f"{twice} is given more than once: give it once")
+            return
         vehicle_id = (query.get("vehicle_id") or [""])[0]
-        name = query["unit"][0] if "unit" in query else None
+        name = query["unit"][0] if "unit" in query else None  # unit= (empty) is refused
         if not re.fullmatch(ID_PATTERN, vehicle_id):
             await conn.close(CLOSE_BAD_REQUEST, "connect with ?vehicle_id=<the unit's vehicle>")
             return
