@@ -208,11 +208,12 @@ class UnitServer:
             return
         if isinstance(op, PublishOp | RegisterOp):
             topics = [op.topic] if isinstance(op, PublishOp) else op.topics
-            refusal = next((r for t in topics if (r := write_refusal(unit.vehicle_id, t))), None)
-            if refusal is not None:
-                field = "topic" if isinstance(op, PublishOp) else "topics"
-                queue.refuse(op.id, _refusal("forbidden", refusal, field))
-                return
+            for topic in topics:
+                if (reason := write_refusal(unit.vehicle_id, topic)) is not None:
+                    # As the server says it: the field ``topic``, a sentence naming it.
+                    said = _refusal("forbidden", reason, "topic", f"{topic}: {reason}")
+                    queue.refuse(op.id, said)
+                    return
         if isinstance(op, PublishOp) and is_media_topic(op.topic):
             message = f"{op.topic} is a media topic: send binary frames on it"
             queue.refuse(op.id, _refusal("invalid", message, "topic"))
@@ -385,9 +386,11 @@ class UnitServer:
             queue.put_media(topic, frame)
 
 
-def _refusal(code: str, message: str, field: str) -> ErrorBody:
-    """An op refused for one of its fields, named as the server names it."""
-    return ErrorBody(code=code, message=message, details=[{"field": field, "message": message}])
+def _refusal(code: str, message: str, field: str, detail: str | None = None) -> ErrorBody:
+    """An op refused for one of its fields, named as the server names it (``detail``: the
+    field's own sentence, when it is not ``message``)."""
+    said = detail if detail is not None else message
+    return ErrorBody(code=code, message=message, details=[{"field": field, "message": said}])
 
 
 def _not_listed(vehicle_id: str) -> str:
