@@ -12,7 +12,6 @@ one runs on the event loop, never in the thread pool.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from typing import Annotated, Any
 
 from fastapi import Depends, Request
@@ -41,32 +40,22 @@ async def get_hub(request: Request) -> LiveHub:
 HubDep = Annotated[LiveHub, Depends(get_hub)]
 
 
-def bearer_token(headers: Mapping[str, str]) -> str | None:
-    """The token of an ``Authorization: Bearer <token>`` header."""
-    return _bearer(headers.get("authorization", ""))
-
-
-def _bearer(header: str) -> str | None:
-    scheme, _, value = header.partition(" ")
+def bearer_token(scope: Scope) -> str | None:
+    """The token of the request's ``Authorization: Bearer <token>`` header (its first
+    ``Authorization``, as ``Headers`` reads it: ASGI names are lower case), read from the
+    raw headers without building a ``Headers`` for each of the vehicles' calls."""
+    header = next((v for k, v in scope["headers"] if k == b"authorization"), b"")
+    scheme, _, value = header.decode("latin-1").partition(" ")
     if scheme.lower() == "bearer" and value.strip():
         return value.strip()
     return None
-
-
-def _authorization(scope: Scope) -> str:
-    """The request's first ``Authorization`` header, as ``Headers`` reads it (ASGI names
-    are lower case), without building one for each of the vehicles' calls."""
-    for name, value in scope["headers"]:
-        if name == b"authorization":
-            return str(value.decode("latin-1"))
-    return ""
 
 
 async def authenticate(request: Request) -> Principal:
     """Who calls: the server ready, the bearer token valid, within its rate."""
     services: Services = request.app.state.services
     services.readiness.require()
-    principal = await services.auth.authenticate(_bearer(_authorization(request.scope)))
+    principal = await services.auth.authenticate(bearer_token(request.scope))
     services.auth.check_rate(principal)
     return principal
 

@@ -18,7 +18,7 @@ from collections.abc import Awaitable, Callable, Coroutine, Generator, MutableMa
 from typing import Any
 
 from pydantic import ValidationError
-from starlette.datastructures import Headers, QueryParams
+from starlette.datastructures import QueryParams
 
 from fleet_protocol import utcnow
 from fleet_protocol.links import (
@@ -58,7 +58,7 @@ def _token(scope: Scope) -> str | None:
     (``{"op": "auth", "token": ...}``, the way for browsers, which cannot set headers and
     should not put secrets in URLs)."""
     query = QueryParams(scope.get("query_string", b"").decode("latin-1"))
-    return bearer_token(Headers(scope=scope)) or query.get("token") or None
+    return bearer_token(scope) or query.get("token") or None
 
 
 async def serve_live(

@@ -28,7 +28,7 @@ from tests.agent.test_gateway_media import (
     next_media,
 )
 from tests.server.commanding import eventually
-from vehicle_client.gateway.units import CLOSE_BAD_REQUEST
+from vehicle_client.gateway.unit_admission import CLOSE_BAD_REQUEST
 
 
 def consumers(w: World, topic: str, want: Callable[[list[str]], bool]) -> Callable[[Frame], bool]:

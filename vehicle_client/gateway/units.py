@@ -5,7 +5,8 @@ vehicle the gateway's token acts for) and speaks the topic ops of
 ``/ws/client``: ``register``, ``unregister``, ``subscribe``, ``unsubscribe``,
 ``publish`` (``id`` for an ack). A unit of a vehicle the gateway's token does
 not list is closed with 4403 once the server has said which it lists
-(``whoami``, at each connection).
+(``whoami``, at each connection); what a connection's query may be, and the
+refusals of one that is not: :mod:`vehicle_client.gateway.unit_admission`.
 
 Each connection is a unit of its own (a :class:`LocalUnit`), with its own
 subscriptions, registrations, throttles and queue, and several may act for
@@ -37,15 +38,12 @@ from __future__ import annotations
 import asyncio
 import itertools
 import logging
-import re
 from typing import Any
-from urllib.parse import parse_qs, urlsplit
 
 from websockets.asyncio.server import Server, ServerConnection, serve
 from websockets.exceptions import ConnectionClosed
 
 from fleet_protocol import ErrorBody
-from fleet_protocol.common import ID_PATTERN
 from fleet_protocol.links import (
     CLOSE_FORBIDDEN,
     CLOSE_REPLACED,
@@ -60,6 +58,7 @@ from vehicle_client.errors import AgentError, FatalError
 from vehicle_client.gateway.forwarding import LatestKept, LocalUnit, TopicRouter, write_refusal
 from vehicle_client.gateway.registrar import Registrar
 from vehicle_client.gateway.topic_ops import TopicOps
+from vehicle_client.gateway.unit_admission import Refused, admit, not_listed
 from vehicle_client.gateway.unit_queue import DEFAULT_UNIT_QUEUE, UnitQueue
 from vehicle_client.gateway.uplink import (
     DEFAULT_MEDIA_UP_PER_S,
@@ -71,9 +70,6 @@ from vehicle_client.transport.wire import op_frame
 from vehicle_client.transport.ws import WsLink
 
 log = logging.getLogger(__name__)
-
-CLOSE_BAD_REQUEST = 4400  # the gateway's own: a unit that did not name its vehicle (or
-# named itself with what is not an identifier)
 
 
 def _listen_address(listen: str) -> tuple[str, int]:
@@ -153,24 +149,13 @@ class UnitServer:
 
     # -- one unit -------------------------------------------------------------
     async def _serve(self, conn: ServerConnection) -> None:
-        query = parse_qs(
-            urlsplit(conn.request.path if conn.request else "").query, keep_blank_values=True
-        )
-        if twice := next((k for k in ("vehicle_id", "unit") if len(query.get(k, ())) > 1), None):
-            await conn.close(CLOSE_BAD_REQUEST, f"{twice} is given more than once: give it once")
+        admitted = admit(conn.request.path if conn.request else "", self.acts_for)
+        if isinstance(admitted, Refused):
+            if admitted.code == CLOSE_FORBIDDEN:
+                log.warning("local unit refused: %s", admitted.reason)
+            await conn.close(admitted.code, admitted.reason)
             return
-        vehicle_id = (query.get("vehicle_id") or [""])[0]
-        name = query["unit"][0] if "unit" in query else None  # unit= (empty) is refused
-        if not re.fullmatch(ID_PATTERN, vehicle_id):
-            await conn.close(CLOSE_BAD_REQUEST, "connect with ?vehicle_id=<the unit's vehicle>")
-            return
-        if name is not None and not re.fullmatch(ID_PATTERN, name):
-            await conn.close(CLOSE_BAD_REQUEST, f"unit=<name>: a name matching {ID_PATTERN}")
-            return
-        if self.acts_for is not None and vehicle_id not in self.acts_for:
-            log.warning("local unit %s refused: %s", vehicle_id, _not_listed(vehicle_id))
-            await conn.close(CLOSE_FORBIDDEN, _not_listed(vehicle_id))
-            return
+        vehicle_id, name = admitted.vehicle_id, admitted.name
         unit = LocalUnit(vehicle_id, name or f"#{next(self._unnamed)}")
         queue = UnitQueue(conn, self.queue_size)
         former = self._queues.get(unit)
@@ -366,8 +351,8 @@ class UnitServer:
         self.acts_for = frozenset(v for v in vehicles if isinstance(v, str))
         for unit, queue in list(self._queues.items()):
             if unit.vehicle_id not in self.acts_for:
-                log.warning("local unit %s: %s", unit, _not_listed(unit.vehicle_id))
-                await queue.conn.close(CLOSE_FORBIDDEN, _not_listed(unit.vehicle_id))
+                log.warning("local unit %s: %s", unit, not_listed(unit.vehicle_id))
+                await queue.conn.close(CLOSE_FORBIDDEN, not_listed(unit.vehicle_id))
 
     def _put(self, unit: LocalUnit, frame: str) -> None:
         queue = self._queues.get(unit)
@@ -391,10 +376,6 @@ def _refusal(code: str, message: str, field: str, detail: str | None = None) -> 
     field's own sentence, when it is not ``message``)."""
     said = detail if detail is not None else message
     return ErrorBody(code=code, message=message, details=[{"field": field, "message": said}])
-
-
-def _not_listed(vehicle_id: str) -> str:
-    return f"this gateway's token does not act for {vehicle_id}"
 
 
 def _frame_bytes(op: dict[str, Any], shown: int) -> int:
