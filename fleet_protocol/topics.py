@@ -27,16 +27,19 @@ from __future__ import annotations
 
 import functools
 import re
-from typing import Annotated
+from collections import OrderedDict
+from typing import Annotated, Generic, TypeVar
 
 from pydantic import AfterValidator
 
 __all__ = [
+    "KEEP_MAX_BYTES",
     "MAX_TOPIC_CHARS",
     "MAX_TOPIC_SEGMENTS",
     "MEDIA_KINDS",
     "NAMESPACES",
     "SERVER_ONLY_VEHICLE_TOPICS",
+    "Kept",
     "Topic",
     "is_media_topic",
     "split_topic",
@@ -114,3 +117,38 @@ def is_media_topic(topic: str) -> bool:
 def vehicle_topic(vehicle_id: str, kind: str) -> str:
     """``vehicle/<vehicle_id>/<kind>``, e.g. ``vehicle_topic("usv-1", "telemetry")``."""
     return validate_topic(f"vehicle/{vehicle_id}/{kind}")
+
+
+#: A topic's state (its latest kept message, the first a new subscriber gets) has at most
+#: this many bytes of JSON: a larger message is not kept, and the one before it is no
+#: longer the latest (docs/live.md). The server's bus and a gateway keep states alike.
+KEEP_MAX_BYTES = 64 * 1024
+
+M = TypeVar("M")
+
+
+class Kept(Generic[M]):
+    """Each topic's latest kept message, within a budget of bytes (the topic written on
+    longest ago goes first when it is passed)."""
+
+    def __init__(self, budget_bytes: int) -> None:
+        self.budget_bytes = budget_bytes
+        self.bytes = 0
+        self._latest: OrderedDict[str, tuple[M, int]] = OrderedDict()
+
+    def put(self, topic: str, message: M | None, size: int) -> None:
+        """``message`` (``size`` bytes of JSON) is the topic's latest; None: forget it."""
+        old = self._latest.pop(topic, None)
+        if old is not None:
+            self.bytes -= old[1]
+        if message is None or size > KEEP_MAX_BYTES:
+            return
+        self._latest[topic] = (message, size)
+        self.bytes += size
+        while self.bytes > self.budget_bytes:
+            _, (_, gone) = self._latest.popitem(last=False)
+            self.bytes -= gone
+
+    def get(self, topic: str) -> M | None:
+        found = self._latest.get(topic)
+        return found[0] if found is not None else None

@@ -24,53 +24,32 @@ from __future__ import annotations
 import itertools
 import logging
 from abc import ABC, abstractmethod
-from collections import OrderedDict
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass
 from types import TracebackType
 from typing import Any, Self
 
-__all__ = ["Bus", "Handler", "Kept", "LocalRouter", "Message", "Subscription"]
+from fleet_protocol.topics import KEEP_MAX_BYTES, Kept
+
+__all__ = [
+    "KEEP_MAX_BYTES",
+    "Bus",
+    "Handler",
+    "Kept",
+    "LocalRouter",
+    "Message",
+    "Subscription",
+]
 
 log = logging.getLogger(__name__)
 
 Message = bytes | dict[str, Any]
 Handler = Callable[[str, Message], None]
 
-#: A kept message has at most this many bytes of JSON (a larger one is not kept, and
-#: the topic's older one is forgotten: it is no longer the latest).
-KEEP_MAX_BYTES = 64 * 1024
 #: What one process keeps in all, in bytes of JSON.
 KEEP_BUDGET_BYTES = 32 * 2**20
 #: How long Redis keeps a topic's latest message after its publish.
 KEEP_TTL_S = 24 * 3600
-
-
-class Kept:
-    """Each topic's latest kept message in this process, within a budget of bytes (the
-    topic published on longest ago goes first)."""
-
-    def __init__(self, budget_bytes: int = KEEP_BUDGET_BYTES) -> None:
-        self.budget_bytes = budget_bytes
-        self.bytes = 0
-        self._latest: OrderedDict[str, tuple[dict[str, Any], int]] = OrderedDict()
-
-    def put(self, topic: str, message: dict[str, Any] | None, size: int) -> None:
-        """``message`` (``size`` bytes of JSON) is the topic's latest; None: forget it."""
-        old = self._latest.pop(topic, None)
-        if old is not None:
-            self.bytes -= old[1]
-        if message is None or size > KEEP_MAX_BYTES:
-            return
-        self._latest[topic] = (message, size)
-        self.bytes += size
-        while self.bytes > self.budget_bytes:
-            _, (_, gone) = self._latest.popitem(last=False)
-            self.bytes -= gone
-
-    def get(self, topic: str) -> dict[str, Any] | None:
-        found = self._latest.get(topic)
-        return found[0] if found is not None else None
 
 
 @dataclass(frozen=True, eq=False)

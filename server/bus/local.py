@@ -2,7 +2,17 @@
 
 from __future__ import annotations
 
-from server.bus.base import Bus, Handler, Kept, LocalRouter, Message, Subscription
+from typing import Any
+
+from server.bus.base import (
+    KEEP_BUDGET_BYTES,
+    Bus,
+    Handler,
+    Kept,
+    LocalRouter,
+    Message,
+    Subscription,
+)
 
 __all__ = ["LocalBus"]
 
@@ -10,7 +20,7 @@ __all__ = ["LocalBus"]
 class LocalBus(Bus):
     def __init__(self) -> None:
         self._router = LocalRouter()
-        self._kept = Kept()
+        self._kept: Kept[dict[str, Any]] = Kept(KEEP_BUDGET_BYTES)
 
     async def publish(self, topic: str, message: Message) -> None:
         self._router.deliver(topic, message)

@@ -33,6 +33,7 @@ from redis.backoff import NoBackoff
 from redis.exceptions import RedisError
 
 from server.bus.base import (
+    KEEP_BUDGET_BYTES,
     KEEP_MAX_BYTES,
     KEEP_TTL_S,
     Bus,
@@ -78,7 +79,7 @@ class RedisBus(Bus):
         self._reconnect_max_s = reconnect_max_s
         self.replica_id = secrets.token_bytes(_ORIGIN_BYTES)
         self._router = LocalRouter()
-        self._kept = Kept()
+        self._kept: Kept[dict[str, Any]] = Kept(KEEP_BUDGET_BYTES)
         self._redis: Redis | None = None
         self._pubsub: PubSub | None = None
         self._lock = asyncio.Lock()

@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from vehicle_client.gateway.forwarding import MAX_KEPT_MESSAGE_BYTES, LatestKept, has_state
+from fleet_protocol.topics import KEEP_MAX_BYTES as MAX_KEPT_MESSAGE_BYTES
+from vehicle_client.gateway.forwarding import LatestKept, has_state
 
 
 def test_the_topics_with_a_state_are_those_the_server_keeps() -> None:

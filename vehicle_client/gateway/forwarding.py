@@ -33,17 +33,13 @@ goes up (the table above has no demand for it to read).
 
 from __future__ import annotations
 
-from collections import OrderedDict
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
-from fleet_protocol.topics import SERVER_ONLY_VEHICLE_TOPICS, is_media_topic, topic_owner
+from fleet_protocol.topics import SERVER_ONLY_VEHICLE_TOPICS, Kept, is_media_topic, topic_owner
 from fleet_protocol.ws import MAX_TOPICS_PER_OP
 
-#: A message of more JSON than this is not a topic's state (as on the server:
-#: docs/live.md), and the one before it is no longer the latest.
-MAX_KEPT_MESSAGE_BYTES = 64 * 1024
 #: What a gateway keeps of its topics' states at most; the topics written longest ago go.
 MAX_KEPT_BYTES = 4 * 1024 * 1024
 
@@ -275,35 +271,20 @@ def has_state(topic: str) -> bool:
     )
 
 
-@dataclass
 class LatestKept:
     """Each topic's latest message as the gateway's units got it (from above, or from a
     sibling below): its state for a unit that subscribes later, answered here (its
-    vehicle holds the topic above already, or the link is down). Bounded as the server's
-    (``MAX_KEPT_MESSAGE_BYTES`` a message, ``max_bytes`` in all)."""
+    vehicle holds the topic above already, or the link is down). Kept as the server keeps
+    states (``fleet_protocol.topics.Kept``: ``KEEP_MAX_BYTES`` a message), ``max_bytes``
+    in all; only the topics that :func:`has_state`."""
 
-    max_bytes: int = MAX_KEPT_BYTES
-    _frames: OrderedDict[str, Any] = field(default_factory=OrderedDict)
-    _bytes: int = 0
+    def __init__(self, max_bytes: int = MAX_KEPT_BYTES) -> None:
+        self._kept: Kept[Any] = Kept(max_bytes)
 
     def note(self, topic: str, message: Any, size: int) -> None:
         """``message`` (what is handed back) is ``topic``'s latest, ``size`` bytes of JSON."""
-        if not has_state(topic):
-            return
-        self.forget(topic)
-        if size > MAX_KEPT_MESSAGE_BYTES:
-            return  # not kept; the one before is not the latest any more
-        self._frames[topic] = (message, size)
-        self._bytes += size
-        while self._bytes > self.max_bytes:
-            _, (_, gone) = self._frames.popitem(last=False)
-            self._bytes -= gone
-
-    def forget(self, topic: str) -> None:
-        kept = self._frames.pop(topic, None)
-        if kept is not None:
-            self._bytes -= kept[1]
+        if has_state(topic):
+            self._kept.put(topic, message, size)
 
     def latest(self, topic: str) -> Any | None:
-        kept = self._frames.get(topic)
-        return kept[0] if kept is not None else None
+        return self._kept.get(topic)
