@@ -119,6 +119,10 @@ class FinishInstanceOp(_Op, FinishInstance):
 
 
 class UpdateParamOp(_Op, UpdateParam):
+    """Fields it does not know are kept aside (``model_extra``), never used: an op that
+    carries nothing but them is refused, as ``POST /upper/update_param`` is."""
+
+    model_config = ConfigDict(extra="allow")
     op: Literal["update_param"] = "update_param"
 
 

@@ -223,8 +223,6 @@ class VehicleLink:
         """Merge the params, store the samples; the fields of ``UpdateParamResult``
         (a dict: the socket's ack is built from it with no model in between).
         ``transport`` (``ws``, ``http``) labels the call's delay in ``/metrics``."""
-        if not body.samples and not body.params and body.model_extra:
-            raise _only_unknown(body.model_extra)
         done = self.update_param_now(principal, body, transport)
         if done is not None:
             return done
@@ -242,6 +240,8 @@ class VehicleLink:
         """:meth:`update_param` within this call when nothing has to wait (this replica
         keeps the instance, the vehicle's open bucket takes the samples); None when
         something would, and then nothing was done."""
+        if not body.samples and not body.params and body.model_extra:
+            raise _only_unknown(body.model_extra)
         state = self.instances.kept_for_vehicle_caller(principal, body.instance_id)
         if state is None or not self.telemetry.takes_now(state.vehicle_id, len(body.samples)):
             return None

@@ -241,6 +241,26 @@ async def test_telemetry_over_the_socket_is_stored(base: str, api: httpx.AsyncCl
     assert params["params"] == {"mode": "survey"} and params["position"]["seq"] == 3
 
 
+async def test_an_update_with_only_fields_it_does_not_know_is_refused_naming_the_field(
+    base: str, api: httpx.AsyncClient
+) -> None:
+    """As over HTTP: ``sample`` for ``samples`` is refused naming the field, not acked
+    "0 accepted"; unknown fields beside known ones are ignored; an empty update is acked."""
+    vid, vh = await make_vehicle(api)
+    async with await connect(base, "/ws/vehicle", token_of(vh)) as ws:
+        iid = await _start(ws, vid)
+        typo = await call(ws, "update_param", "u1", instance_id=iid, sample=[sample(1)])
+        assert typo["ok"] is False and typo["error"]["code"] == "invalid", typo
+        assert typo["error"]["details"][0]["field"] == "sample", typo
+        assert "did you mean samples" in typo["error"]["message"], typo
+        newer = await call(
+            ws, "update_param", "u2", instance_id=iid, samples=[sample(1)], priority="high"
+        )
+        assert newer["ok"] is True and newer["accepted"] == 1, newer
+        empty = await call(ws, "update_param", "u3", instance_id=iid)
+        assert empty["ok"] is True and empty["accepted"] == 0, empty
+
+
 async def test_bad_op_is_answered_not_fatal(base: str, api: httpx.AsyncClient) -> None:
     vid, vh = await make_vehicle(api)
     async with await connect(base, "/ws/vehicle", token_of(vh)) as ws:
