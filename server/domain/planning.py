@@ -11,6 +11,10 @@ circumscribing the discs and on the outward corners of each grown polygon
 (grown a little more, so the edges between corners stay clear), edges the
 segments that keep every clearance, shortest path by Dijkstra.
 
+A vehicle that starts inside obstacles (in a no-go zone, outside its operating
+area, within another vehicle's radius) is first taken out of them, then routed
+round everything, those it left too.
+
 Fixed obstacles join a leg's graph lazily: first those the straight leg
 crosses, then any the route found crosses, until a route crosses none. A
 harbour full of piers thus costs only the piers near the way.
@@ -42,6 +46,11 @@ MARGIN = 1.02
 CORNER_GAP_M = 0.25
 #: A segment may come this close (m) inside a clearance (rounding): touching is not crossing.
 TOUCH_M = 1e-3
+#: How far (m) past the edge of the obstacles it starts in a leaving vehicle is routed from.
+EXIT_PAST_M = 0.05
+#: A point less than this (m) inside a zone's edge is on it (the zones' check of a route
+#: allows a rounding's width there, ``zones.EDGE_DEG``: about 2 mm).
+EDGE_M = 3e-3
 #: Segments per quarter circle where a polygon is grown round a corner.
 ARC_SEGMENTS = 4
 #: Nodes of one leg's graph at most (their distances: a square array of this side).
@@ -121,7 +130,21 @@ class _Area:
         return _outward_corners(grown)
 
     def holds(self, x: float, y: float) -> bool:
+        """Whether the point is in the area or its clearance."""
         return bool(shapely.intersects_xy(self.keep_out, x, y))
+
+    def zone_holds(self, x: float, y: float) -> bool:
+        """Whether the point is in the area itself (its clearance aside), further in than
+        a rounding's width from the edge (the zones' check has such a point on it)."""
+        return bool(shapely.intersects_xy(self._core, x, y))
+
+    def zone_enters(self, line: shapely.Geometry) -> bool:
+        """Whether ``line`` reaches into the area itself (as :meth:`zone_holds` has it)."""
+        return bool(self._core.intersects(line))
+
+    @functools.cached_property
+    def _core(self) -> shapely.Geometry:
+        return self._polygon.buffer(-EDGE_M)
 
 
 def _outward_corners(polygon: shapely.Geometry) -> list[XY]:
@@ -245,20 +268,102 @@ def _leg(
     areas: list[_Area],
     deadline: Deadline,
 ) -> list[XY]:
-    # An obstacle the leg starts in is one the vehicle is leaving: it does not block this leg.
-    keep = [
-        i for i, (c, r) in enumerate(zip(centres, radii, strict=True)) if math.dist(start, c) >= r
-    ]
-    cs, rs = [centres[i] for i in keep], [radii[i] for i in keep]
-    left = [a for a in areas if not a.holds(*start)]
+    """The way from ``start`` to ``goal``, ``start`` first. A vehicle that starts inside
+    obstacles is leaving them: it is taken out of them all first (:func:`_way_out`), and
+    routed round everything from there, those too (so it does not come back in)."""
+    out, straight = _way_out(start, goal, centres, radii, areas)
+    head = [start] if out == start else [start, out]
     active: list[_Area] = []
     while True:
-        route = _route(start, goal, cs, rs, active, deadline)
+        route = _route(out, goal, centres, radii, active, deadline)
         line = shapely.LineString(route)
-        crossed = [a for a in left if a not in active and a.keep_out.intersects(line)]
-        if not crossed:
-            return route
+        crossed = [a for a in areas if a not in active and a.keep_out.intersects(line)]
+        if not crossed:  # straight on from a way out on the straight way: one leg
+            return [start, goal] if straight and len(route) == 2 else head + route[1:]
         active.extend(crossed)
+
+
+def _way_out(
+    start: XY, goal: XY, centres: list[XY], radii: list[float], areas: list[_Area]
+) -> tuple[XY, bool]:
+    """Where a vehicle at ``start`` is out of every disc and area it is in, a little past
+    the last edge (``start`` itself when it is in none), and whether that is on the
+    straight way to ``goal``. The route from there keeps clear of them all.
+
+    Inside a zone itself (or outside its operating area) it heads straight for the goal
+    (as the zones let it: only until it is out), or else takes the nearest way out; in a
+    zone's clearance only, it takes the nearest way out (away from the zone: the
+    straight way might cross it). Either way is taken only if it stays clear of every
+    disc and area it does not start in; :class:`NoPath` when neither does."""
+    in_discs = [
+        i for i, (c, r) in enumerate(zip(centres, radii, strict=True)) if math.dist(start, c) < r
+    ]
+    in_areas = [a for a in areas if a.holds(*start)]
+    if not in_discs and not in_areas:
+        return start, True
+    nearest = _nearest_out(start, [(centres[i], radii[i]) for i in in_discs], in_areas)
+    in_zone = any(a.zone_holds(*start) for a in in_areas)
+    ways = [_straight_out(start, goal, in_discs, centres, radii, in_areas), nearest]
+    others = [i for i in range(len(centres)) if i not in in_discs]
+    cs, rs = [centres[i] for i in others], [radii[i] for i in others]
+    elsewhere = [a for a in areas if a not in in_areas]
+    near = [a for a in in_areas if not a.zone_holds(*start)]  # in their clearance only
+    for out in ways if in_zone or not in_areas else ways[1:]:
+        if any(math.dist(out, centres[i]) < radii[i] for i in in_discs):
+            continue
+        if any(a.holds(*out) for a in in_areas):
+            continue
+        head = shapely.LineString([start, out])
+        if any(a.zone_enters(head) for a in near):
+            continue
+        if _clear(np.array([start]), np.array([out]), cs, rs, elsewhere)[0]:
+            return out, out is ways[0] or _on_the_way(start, goal, out)
+    names = ", ".join(a.label for a in in_areas) or "the vehicles round it"
+    raise NoPath(f"no way out of {names} keeps clear of the other obstacles")
+
+
+def _on_the_way(start: XY, goal: XY, point: XY) -> bool:
+    """Whether ``point`` lies on the straight way from ``start`` to ``goal`` (to a mm)."""
+    return math.dist(start, point) + math.dist(point, goal) - math.dist(start, goal) < TOUCH_M
+
+
+def _straight_out(
+    start: XY,
+    goal: XY,
+    in_discs: list[int],
+    centres: list[XY],
+    radii: list[float],
+    in_areas: list[_Area],
+) -> XY:
+    """Along the straight way to the goal, a little past the last edge it crosses of the
+    discs and areas ``start`` is in (each the first time the way leaves it)."""
+    length = math.dist(start, goal)
+    if length == 0:
+        return start
+    ux, uy = (goal[0] - start[0]) / length, (goal[1] - start[1]) / length
+    along = 0.0
+    for i in in_discs:  # the far root of |start + t u - c| = r
+        dx, dy = start[0] - centres[i][0], start[1] - centres[i][1]
+        b = dx * ux + dy * uy
+        along = max(along, -b + math.sqrt(max(b * b - (dx * dx + dy * dy - radii[i] ** 2), 0.0)))
+    line = shapely.LineString([start, goal])
+    for area in in_areas:
+        beyond = line.difference(area.keep_out)
+        if not beyond.is_empty:
+            coords = shapely.points(shapely.get_coordinates(beyond))
+            along = max(along, float(shapely.line_locate_point(line, coords).min()))
+    along = min(along + EXIT_PAST_M, length)
+    return (start[0] + ux * along, start[1] + uy * along)
+
+
+def _nearest_out(start: XY, discs: list[tuple[XY, float]], in_areas: list[_Area]) -> XY:
+    """A little past the nearest point out of the discs and areas ``start`` is in."""
+    parts = [a.keep_out for a in in_areas]
+    parts += [shapely.Point(c).buffer(r * MARGIN, quad_segs=SIDES) for c, r in discs]
+    edge = shapely.union_all(parts).boundary
+    x, y = shapely.get_coordinates(shapely.shortest_line(shapely.Point(start), edge))[1]
+    away = math.dist(start, (x, y)) or 1.0
+    return (x + (x - start[0]) / away * EXIT_PAST_M, y + (y - start[1]) / away * EXIT_PAST_M)
 
 
 def _route(

@@ -130,21 +130,18 @@ def route_violation(
 ) -> Violation | None:
     """Why the vehicle, at ``start`` (None: unknown), may not drive through ``points``
     (straight legs). A vehicle already inside a no-go zone, or outside its areas, may
-    leave: the leg it starts on is not held against it, only where it is sent."""
+    leave: the leg it starts on is not held against it until it is out (or in), but
+    from there on the route may not come back in (or leave again)."""
     if not points:
         return None
     no_go, areas = zones.of(vehicle_id)
-    here = Point(start[1], start[0]) if start is not None else None
-
-    def line(from_start: bool) -> LineString | Point:
-        route = [start, *points] if from_start and start is not None else list(points)
-        if len(route) == 1:
-            return Point(route[0][1], route[0][0])
-        return LineString([(lon, lat) for lat, lon in route])
-
+    whole = _line([start, *points] if start is not None else list(points))
+    first = LineString([start[::-1], points[0][::-1]]) if start is not None else None
     for area in no_go:
-        inside = here is not None and area.enters(here)
-        if not area.enters(line(not inside)):
+        route = whole
+        if first is not None and area.enters(Point(start[1], start[0])):  # type: ignore[index]
+            route = _from(first, first.difference(area.shape), points, 0.0)
+        if not area.enters(route):
             continue
         hit = [k for k, (lat, lon) in enumerate(points) if area.enters(Point(lon, lat))]
         if not hit:
@@ -156,8 +153,11 @@ def route_violation(
         return Violation(area.zone_id, area.name, "no_go", f"{what} no-go zone {area.name}")
     if areas:
         held = unary_union([a.shape for a in areas])
-        outside = here is not None and not held.covers(here)
-        if not held.covers(line(not outside)):
+        route = whole
+        if first is not None and not held.covers(Point(start[1], start[0])):  # type: ignore[index]
+            # Past the edge by a rounding's width: the point where it comes in is not out.
+            route = _from(first, first.intersection(held), points, EDGE_DEG)
+        if not held.covers(route):
             names = ", ".join(a.name for a in areas)
             last = Point(points[-1][1], points[-1][0])
             what = "target is outside" if not held.covers(last) else "route leaves"
@@ -168,6 +168,31 @@ def route_violation(
                 f"the {what} the vehicle's operating area ({names})",
             )
     return None
+
+
+def _line(route: Sequence[LatLon]) -> LineString | Point:
+    if len(route) == 1:
+        return Point(route[0][1], route[0][0])
+    return LineString([(lon, lat) for lat, lon in route])
+
+
+def _from(
+    first: LineString, beyond: BaseGeometry, points: Sequence[LatLon], past: float
+) -> LineString | Point:
+    """The route from where its first leg (``first``, from the vehicle) first reaches
+    ``beyond`` (the part of the leg out of the zone the vehicle is in, or in the areas
+    it is out of), ``past`` degrees further on; all of it when the leg never does (its
+    end, the first point, is then judged)."""
+    if beyond.is_empty:
+        return _line(points)
+    reached = float(
+        shapely.line_locate_point(first, shapely.points(shapely.get_coordinates(beyond))).min()
+    )
+    at = min(reached + past, first.length)
+    if at >= first.length:
+        return _line(points)
+    x, y = first.interpolate(at).coords[0]
+    return _line([(y, x), *points])
 
 
 def breaches(zones: ZoneSet, vehicle_id: str, point: LatLon) -> frozenset[str]:

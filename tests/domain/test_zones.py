@@ -83,6 +83,65 @@ def test_a_vehicle_in_breach_may_leave() -> None:
     assert route_violation(ZONES, "v1", outside, [at(0, 160)]) is not None
 
 
+#: A no-go zone shaped like a C open to the east: arms y 100..300 and -300..-100, its
+#: back x -300..-100; the gap between the arms is open water.
+C_ZONE = [
+    (-300.0, -300.0),
+    (300.0, -300.0),
+    (300.0, -100.0),
+    (-100.0, -100.0),
+    (-100.0, 100.0),
+    (300.0, 100.0),
+    (300.0, 300.0),
+    (-300.0, 300.0),
+]
+
+
+def test_a_vehicle_leaving_a_zone_may_not_come_back_into_it_on_the_way() -> None:
+    """The leg a vehicle in a zone starts on is let off only until it is out: the
+    straight way from the upper arm down through the lower one was let through whole."""
+    zones = ZoneSet((area("harbour", C_ZONE),), 1)
+    upper = at(0, 200)
+    through = route_violation(zones, "v1", upper, [at(0, -400)])
+    assert through is not None and through.message == "the route crosses no-go zone harbour"
+    assert route_violation(zones, "v1", upper, [at(0, 0)]) is None  # out into the gap
+    back = route_violation(zones, "v1", upper, [at(0, 0), at(0, 200)])
+    assert back is not None and "point 1 of the route is in" in back.message
+    # Out, then round the lower arm's end.
+    assert route_violation(zones, "v1", upper, [at(0, 0), at(350, 0), at(350, -400)]) is None
+
+
+def test_a_vehicle_coming_into_its_area_may_not_leave_it_again_on_the_way() -> None:
+    # A U open to the north, the vehicle west of it: the straight way to the right arm
+    # comes in through the left arm, leaves it over the gap and comes in again.
+    u = [(-300.0, -300.0), (300.0, -300.0), (300.0, 300.0), (100.0, 300.0), (100.0, -100.0)]
+    u += [(-100.0, -100.0), (-100.0, 300.0), (-300.0, 300.0)]
+    zones = ZoneSet((area("bay", u, "operating_area", frozenset({"v1"})),), 1)
+    west = at(-400, 0)
+    across = route_violation(zones, "v1", west, [at(200, 0)])
+    assert across is not None and "route leaves" in across.message
+    assert route_violation(zones, "v1", west, [at(-200, 0)]) is None  # in, and stays
+    round_ = route_violation(zones, "v1", west, [at(-200, 0), at(-200, -200), at(200, -200)])
+    assert round_ is None  # in, then round the bottom of the U, inside it
+    path = plan_path(west, [at(200, 0)], [], keep_out(zones, "v1"))
+    assert route_violation(zones, "v1", west, path) is None
+    route = local_line([west, *path])
+    came_in = shapely.ops.substring(route, route.project(shapely.Point(-300, 0)), route.length)
+    assert shapely.Polygon(u).buffer(0.01).covers(came_in)
+
+
+def test_a_plan_from_inside_a_zone_leaves_it_and_goes_round_it() -> None:
+    zones = ZoneSet((area("harbour", C_ZONE, clearance_m=5),), 1)
+    upper, goal = at(0, 200), at(0, -400)
+    path = plan_path(upper, [goal], [], keep_out(zones, "v1"))
+    assert path[-1] == goal
+    route = local_line([upper, *path])
+    left = route.interpolate(route.project(shapely.Point(0, 95)))  # out of the upper arm
+    after = shapely.ops.substring(route, route.project(left) + 0.1, route.length)
+    assert not after.intersects(shapely.Polygon(C_ZONE).buffer(4.9))
+    assert route_violation(zones, "v1", upper, path) is None
+
+
 def test_commands_that_send_a_vehicle_nowhere_pass() -> None:
     assert command_violation(ZONES, "v1", "stop", {}, at(50, 0)) is None
     assert command_violation(ZONES, "v1", "keep_station", {}, at(150, 0)) is None
@@ -211,6 +270,38 @@ def test_no_planned_path_crosses_a_no_go_zone(
     for b in boxes:
         assert not route.intersects(shapely.Polygon(b).buffer(clearance * 0.98 - 0.01))
     assert route_violation(zones, "v", at(*start), path) is None
+
+
+FRACTION = st.floats(0.01, 0.99)
+
+
+@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(
+    rects=rectangles(),
+    fx=FRACTION,
+    fy=FRACTION,
+    goal=POINT,
+    clearance=st.sampled_from([0.0, 3.0]),
+)
+def test_a_plan_from_inside_zones_passes_their_check(
+    rects: list[tuple[float, float, float, float]],
+    fx: float,
+    fy: float,
+    goal: tuple[float, float],
+    clearance: float,
+) -> None:
+    """A vehicle in a zone (or more): the path planned out of it is one the zones let it
+    take (let off only until it is out), or the planner says why there is none."""
+    boxes = [[(x, y), (x + w, y), (x + w, y + h), (x, y + h)] for x, y, w, h in rects]
+    zones = ZoneSet(tuple(area(f"z{k}", b, clearance_m=clearance) for k, b in enumerate(boxes)), 1)
+    x, y, w, h = rects[0]
+    start = at(x + fx * w, y + fy * h)
+    try:
+        path = plan_path(start, [at(*goal)], [], keep_out(zones, "v"))
+    except NoPath as exc:
+        assert str(exc)
+        return
+    assert route_violation(zones, "v", start, path) is None
 
 
 SEPARATION = 10.0
