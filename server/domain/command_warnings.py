@@ -13,8 +13,7 @@ def shared_target(
     command_type: str, args: dict[str, Any], vehicles: int, separation_m: float
 ) -> str | None:
     """What to tell an operator who sends several vehicles to one point, or along one path
-    not planned (the planner keeps paths sent together apart): they meet there. None when
-    the command sends them nowhere in common."""
+    not planned: they meet there. None when the command sends them nowhere in common."""
     if vehicles < 2 or separation_m <= 0:
         return None
     if command_type == "go_to" or (command_type == "keep_station" and "lat" in args):
@@ -24,9 +23,12 @@ def shared_target(
             f"{separation_m:g} m of each other there; give each its own target to keep them apart"
         )
     if command_type == "follow_path" and not args.get("plan"):
+        # Not "plan it": paths planned together are kept apart, so one path planned for
+        # several vehicles is refused (its waypoints are in the first vehicle's corridor).
         return (
             f"{vehicles} vehicles sent along one path, not planned: they will come within "
-            f"{separation_m:g} m of each other on it; plan it (plan: true) or give each its own"
+            f"{separation_m:g} m of each other on it; give each its own waypoints, sending "
+            "them one at a time"
         )
     return None
 

@@ -270,6 +270,27 @@ async def test_many_instances_each_get_their_own_command(w: World) -> None:
     assert "is offline" in waits and "expires if it is not back" in waits
 
 
+async def test_one_path_for_several_vehicles_is_said_with_advice_that_works(w: World) -> None:
+    """The warning said "plan it (plan: true)", and the same path planned for two vehicles
+    is refused (the second's waypoints lie in the corridor kept about the first's)."""
+    a, b = await w.vehicle(), await w.vehicle()
+    op = await w.person("operator", a, b)
+    for v in (a, b):
+        await w.grant(v, op.username)
+    path = {"waypoints": [{"lat": 43.94, "lon": 15.439}, {"lat": 43.941, "lon": 15.4395}]}
+    r = await w.submit(op, [a, b], {"type": "follow_path", "args": path})
+    assert r.status_code == 202, r.text
+    [meet] = r.json()["warnings"]
+    assert meet.startswith("2 vehicles sent along one path, not planned"), meet
+    assert "plan it" not in meet and "give each its own waypoints" in meet, meet
+    planned = {"type": "follow_path", "args": {**path, "plan": True}}
+    assert (await w.submit(op, [a, b], planned)).status_code == 422  # no advice, that
+    for v, lon in ((a, 15.439), (b, 15.441)):  # the advice: each its own, one at a time
+        own = [{"lat": 43.94, "lon": lon}, {"lat": 43.941, "lon": lon + 0.0005}]
+        r = await w.submit(op, [v], {"type": "follow_path", "args": {"waypoints": own}})
+        assert r.status_code == 202 and r.json()["warnings"] == [], r.text
+
+
 async def test_stop_to_star_reaches_every_vehicle_the_caller_sees(w: World) -> None:
     a, b, hidden = await w.vehicle(), await w.vehicle(), await w.vehicle()
     op = await w.person("operator", a, b)

@@ -103,8 +103,8 @@ def test_the_same_refusal_again_is_counted_on_one_toast(
 def test_one_path_for_several_boats_is_told_in_the_console_s_words(
     world: World, open_console: Any, shots: Shots
 ) -> None:
-    """ "note: 2 vehicles sent along one path, not planned: ...; plan it (plan: true) or give
-    each its own": the console cannot plan one path for several boats."""
+    """ "note: 2 vehicles sent along one path, not planned: ...; give each its own waypoints,
+    sending them one at a time", in the console's words."""
     page, _ = open_console()
     console.log_in(page, "ana")
     here = console.position(world, "demo-usv-1")

@@ -50,8 +50,7 @@ function names(vehicles) {
 }
 
 /** A warning of the server (written for any client: "plan: true") as the console says
- * it, in the words of its own controls: the console cannot plan one path for several
- * boats, so "plan it" is no advice here. */
+ * it, in the words of its own controls and naming the boats. */
 function saidHere(warning, vehicles) {
   const along = /^\d+ vehicles sent along one path, not planned: they will come within (\S+) m of each other/
     .exec(warning);
