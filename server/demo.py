@@ -7,6 +7,7 @@ prints the dashboard URL and an admin token. Ctrl-C stops everything.
 The demo keeps its world in ``data/`` (the store's snapshot and each vehicle's
 outbox): started again, it finds its vehicles, and each simulated vehicle
 starts where the server last saw it, not back at its first position.
+``FLEET_SNAPSHOT_PATH`` moves the whole world: the outboxes go beside the snapshot.
 
 Tokens, as ``fleet-server`` does: with no ``FLEET_ADMIN_TOKEN``, each start
 makes a fresh admin token, prints it, and revokes the one printed at the
@@ -34,6 +35,7 @@ from server.app import create_app
 from server.cli import load_settings
 from server.logs import log_config
 
+#: The demo's world by default: the folder of the default ``snapshot_path``.
 DATA = Path("data")
 VEHICLES = [
     ("demo-usv-1", "H2OmniX Alpha", 43.9400, 15.4400),
@@ -77,8 +79,19 @@ def start_positions(last: dict[str, tuple[float, float]]) -> dict[str, tuple[flo
     return {vid: last.get(vid, (lat, lon)) for vid, _, lat, lon in VEHICLES}
 
 
+def world_folder(snapshot_path: Path) -> Path:
+    """The folder of the demo's world (the snapshot's), made if it is not there. It holds
+    the store, the tokens' digests and the outboxes: made the owner's alone, and so kept
+    when it is the default ``data``; a folder of the user's own is left as they set it."""
+    folder = snapshot_path.parent
+    folder.mkdir(mode=0o700, parents=True, exist_ok=True)
+    if folder == DATA:
+        folder.chmod(0o700)
+    return folder
+
+
 def _start_agents(
-    base: str, tokens: dict[str, str], starts: dict[str, tuple[float, float]]
+    base: str, tokens: dict[str, str], starts: dict[str, tuple[float, float]], world: Path
 ) -> list[subprocess.Popen[bytes]]:
     procs = []
     for vehicle_id, _, _, _ in VEHICLES:
@@ -102,7 +115,7 @@ def _start_agents(
                     "--rate-hz",
                     "1",
                     "--outbox",
-                    str(DATA / f"{vehicle_id}.outbox"),
+                    str(world / f"{vehicle_id}.outbox"),
                 ],
                 env=env,
             )
@@ -112,6 +125,7 @@ def _start_agents(
 
 async def main() -> None:
     settings = load_settings()
+    world = world_folder(settings.snapshot_path)
     app = create_app(settings)
     server = uvicorn.Server(
         uvicorn.Config(
@@ -138,8 +152,8 @@ async def main() -> None:
         await serving
         return
     starts = start_positions(await _last_positions(base, admin))
-    agents = _start_agents(base, await _register(base, admin), starts)
-    print(f"\nfleet-cloud demo is running (embedded store in {settings.snapshot_path})")
+    agents = _start_agents(base, await _register(base, admin), starts, world)
+    print(f"\nfleet-cloud demo is running (its world in {world}/)")
     print(f"  dashboard:   {base}/")
     print(f"  API docs:    {base}/docs")
     if given:
@@ -180,17 +194,15 @@ def _arguments(argv: list[str]) -> None:
     parser = argparse.ArgumentParser(
         prog="python -m server.demo",
         description="Start fleet-server on the embedded store with three simulated "
-        "vehicles (data in ./data), print the console's URL and an admin token; "
-        "Ctrl-C stops everything. Settings: FLEET_* as for fleet-server "
-        "(FLEET_PORT, FLEET_ADMIN_TOKEN, ...).",
+        "vehicles (its world in ./data, or beside FLEET_SNAPSHOT_PATH), print the "
+        "console's URL and an admin token; Ctrl-C stops everything. Settings: FLEET_* as "
+        "for fleet-server (FLEET_PORT, FLEET_ADMIN_TOKEN, FLEET_SNAPSHOT_PATH, ...).",
     )
     parser.parse_args(argv)
 
 
 if __name__ == "__main__":
     _arguments(sys.argv[1:])
-    DATA.mkdir(mode=0o700, exist_ok=True)
-    DATA.chmod(0o700)  # the world's store, tokens' digests and outboxes: the owner's alone
     # uvicorn hands a SIGTERM back to the handler it found once it has shut down; the
     # default one would end the process before the simulated vehicles are stopped.
     signal.signal(signal.SIGTERM, _stop_as_on_ctrl_c)

@@ -32,7 +32,7 @@ def test_demo_serves_three_simulated_vehicles_and_stops_them_on_sigterm(tmp_path
         **os.environ,
         "FLEET_HOST": "127.0.0.1",
         "FLEET_PORT": str(port),
-        "FLEET_SNAPSHOT_PATH": str(tmp_path / "demo.snapshot"),
+        "FLEET_SNAPSHOT_PATH": str(tmp_path / "world" / "demo.snapshot"),
     }
     env.pop("FLEET_MONGO_URL", None)
     env.pop("FLEET_REDIS_URL", None)
@@ -64,8 +64,11 @@ def test_demo_serves_three_simulated_vehicles_and_stops_them_on_sigterm(tmp_path
         assert online == ["demo-usv-1", "demo-usv-2", "demo-usv-3"]
         agents = psutil.Process(demo.pid).children(recursive=True)
         assert len(agents) == 3
-        data = tmp_path / "data"  # the agents' outboxes: readings, commands seen
+        # The agents' outboxes (readings, commands seen) beside the snapshot: the whole
+        # world moved by FLEET_SNAPSHOT_PATH, nothing left in ./data.
+        data = tmp_path / "world"
         assert stat.S_IMODE(data.stat().st_mode) == 0o700
+        assert not (tmp_path / "data").exists()
         outboxes = list(data.glob("*.outbox"))
         assert outboxes and all(stat.S_IMODE(p.stat().st_mode) == 0o600 for p in outboxes)
 
