@@ -240,7 +240,7 @@ class VehicleLink:
         """:meth:`update_param` within this call when nothing has to wait (this replica
         keeps the instance, the vehicle's open bucket takes the samples); None when
         something would, and then nothing was done."""
-        if not body.samples and not body.params and body.model_extra:
+        if body.model_extra and not _SAID & body.model_fields_set:
             raise _only_unknown(body.model_extra)
         state = self.instances.kept_for_vehicle_caller(principal, body.instance_id)
         if state is None or not self.telemetry.takes_now(state.vehicle_id, len(body.samples)):
@@ -299,6 +299,11 @@ class VehicleLink:
         self.hops.vehicle_to_server(transport, delay)
         if state.link.observe(delay, body.rtt_s, time.monotonic()):
             self.messages.emit_now(LinkChanged(state.instance_id, state.vehicle_id))
+
+
+#: What an ``update_param`` carries: one of them sent (even empty), its unknown fields are
+#: a newer client's, ignored.
+_SAID = frozenset({"params", "samples"})
 
 
 def _only_unknown(extra: dict[str, Any]) -> Invalid:

@@ -67,6 +67,10 @@ async def test_an_update_with_only_fields_it_does_not_know_is_refused_naming_the
     assert r.status_code == 200 and r.json()["accepted"] == 1, r.text
     r = await client.post("/upper/update_param", headers=vh, json={"instance_id": iid})
     assert r.status_code == 200 and r.json()["accepted"] == 0, r.text
+    for said in ({"samples": []}, {"params": {}}):  # sent, though empty: a newer client's
+        newer_empty = {"instance_id": iid, **said, "battery_summary": {}}
+        r = await client.post("/upper/update_param", headers=vh, json=newer_empty)
+        assert r.status_code == 200 and r.json()["accepted"] == 0, r.text
 
 
 async def test_track_json(client: httpx.AsyncClient) -> None:

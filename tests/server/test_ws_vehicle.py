@@ -259,6 +259,10 @@ async def test_an_update_with_only_fields_it_does_not_know_is_refused_naming_the
         assert newer["ok"] is True and newer["accepted"] == 1, newer
         empty = await call(ws, "update_param", "u3", instance_id=iid)
         assert empty["ok"] is True and empty["accepted"] == 0, empty
+        newer_empty = await call(
+            ws, "update_param", "u4", instance_id=iid, samples=[], battery_summary={}
+        )
+        assert newer_empty["ok"] is True and newer_empty["accepted"] == 0, newer_empty
 
 
 async def test_bad_op_is_answered_not_fatal(base: str, api: httpx.AsyncClient) -> None:
