@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from server.domain.geo import EARTH_RADIUS_M
+from server.domain.geo import EARTH_RADIUS_M, normal_lon
 
 #: Rows of pairs worked out at once (a block of ROWS x n distances in memory).
 ROWS = 256
@@ -57,7 +57,7 @@ def forecast(courses: Sequence[Course], horizon_s: float, separation_m: float) -
     if n < 2 or separation_m <= 0:
         return []
     lat = np.array([c.lat for c in courses])
-    lon = np.array([c.lon for c in courses])
+    lon = _seamless(np.array([c.lon for c in courses]))
     lat0, lon0 = float(lat.mean()), float(lon.mean())
     k = math.pi / 180 * EARTH_RADIUS_M
     x = (lon - lon0) * k * math.cos(math.radians(lat0))
@@ -100,8 +100,22 @@ def forecast(courses: Sequence[Course], horizon_s: float, separation_m: float) -
     for a, b, t_s, closest_m, now_m in found:
         mx = (x[a] + vx[a] * t_s + x[b] + vx[b] * t_s) / 2
         my = (y[a] + vy[a] * t_s + y[b] + vy[b] * t_s) / 2
-        where = (lat0 + my / k, lon0 + mx / (k * math.cos(math.radians(lat0))))
+        where = (lat0 + my / k, normal_lon(lon0 + mx / (k * math.cos(math.radians(lat0)))))
         first, second = sorted((courses[a].key, courses[b].key))
         risks.append(Risk(first, second, t_s, closest_m, now_m, where))
     risks.sort(key=lambda r: (r.closest_m, r.a, r.b))
     return risks
+
+
+def _seamless(lon: np.ndarray) -> np.ndarray:
+    """The fleet's longitudes made continuous where it has vehicles: as they are when
+    they span at most 180 degrees (no two are nearer the other way round); else turned
+    into one 360-degree range whose seam lies in the widest gap between them, so two
+    boats either side of the antimeridian are near, not a world apart."""
+    if len(lon) == 0 or float(lon.max() - lon.min()) <= 180.0:
+        return lon
+    round_ = np.sort(np.mod(lon, 360.0))
+    gaps = np.diff(np.append(round_, round_[0] + 360.0))
+    widest = int(np.argmax(gaps))
+    seam = float(round_[widest] + gaps[widest] / 2)
+    return np.asarray(np.mod(lon - seam, 360.0) + seam)

@@ -181,11 +181,12 @@ def crossed(route: Sequence[LatLon], obstacles: Sequence[Zone]) -> list[str]:
     clearance aside): what a vehicle sent that way, unplanned, would meet."""
     if not route or not obstacles:
         return []
-    positions = [(lon, lat) for lat, lon in route]
+    lat0, lon0 = route[0]  # a metric frame round the start: each leg the short way round
+    positions = [to_local(lat, lon, lat0, lon0) for lat, lon in route]
     line = shapely.LineString(positions) if len(positions) > 1 else shapely.Point(positions[0])
     hit = []
     for zone in obstacles:
-        shell, *holes = ([(lon, lat) for lat, lon in ring] for ring in zone.rings)
+        shell, *holes = ([to_local(lat, lon, lat0, lon0) for lat, lon in r] for r in zone.rings)
         if shapely.make_valid(shapely.Polygon(shell, holes)).intersects(line):
             hit.append(zone.name or "a fixed obstacle")
     return hit
@@ -222,7 +223,8 @@ def plan_path(
         deadline.check()
         out.extend(_leg(here, goal, centres, radii, areas, deadline)[1:])
         here = goal
-    return [from_local(x, y, lat0, lon0) for x, y in out]
+    exact = dict(zip(points, waypoints, strict=True))  # a waypoint as it was given
+    return [exact.get((x, y)) or from_local(x, y, lat0, lon0) for x, y in out]
 
 
 def _check_waypoints(

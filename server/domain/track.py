@@ -17,24 +17,10 @@ import math
 from collections.abc import Sequence
 from datetime import datetime, timedelta
 
+from server.domain.geo import unwrap
+
 #: Points returned without ``max_points`` before a track page is cut.
 TRACK_PAGE_CAP = 10_000
-
-
-def _unwrap(lons: Sequence[float]) -> list[float]:
-    out: list[float] = []
-    prev = None
-    offset = 0.0
-    for lon in lons:
-        if prev is not None:
-            step = lon - prev
-            if step > 180:
-                offset -= 360
-            elif step < -180:
-                offset += 360
-        out.append(lon + offset)
-        prev = lon
-    return out
 
 
 def simplify(lat: Sequence[float], lon: Sequence[float], max_points: int) -> list[int]:
@@ -48,7 +34,7 @@ def simplify(lat: Sequence[float], lon: Sequence[float], max_points: int) -> lis
     if n <= max(max_points, 2):
         return list(range(n))
     scale = math.cos(math.radians(sum(lat) / n))
-    xs = [x * scale for x in _unwrap(lon)]
+    xs = [x * scale for x in unwrap(lon)]
     ys = list(lat)
 
     def area(a: int, b: int, c: int) -> float:

@@ -17,10 +17,12 @@ from functools import cached_property
 from typing import Any, Literal
 
 import shapely
+import shapely.affinity
 from shapely.geometry import LineString, Point, Polygon
 from shapely.geometry.base import BaseGeometry
 from shapely.ops import unary_union
 
+from server.domain.geo import lon_step, unwrap
 from server.domain.planning import Zone
 from server.errors import Invalid
 
@@ -50,8 +52,17 @@ class Area:
 
     @cached_property
     def shape(self) -> Polygon:
+        """The zone in (lon, lat) degrees, each ring's longitudes continuous (a zone across
+        the antimeridian runs past 180), the holes on the outline's side of it."""
         shell, *holes = ([(lon, lat) for lat, lon in ring] for ring in self.rings)
-        return Polygon(shell, holes)
+        outline = _continuous(shell)
+        west = outline[0][0]
+        inner = []
+        for hole in holes:
+            ring = _continuous(hole)
+            turn = ring[0][0] - (west + lon_step(ring[0][0], west))
+            inner.append([(lon - turn, lat) for lon, lat in ring])
+        return Polygon(outline, inner)
 
     @cached_property
     def inside(self) -> Polygon:
@@ -69,19 +80,45 @@ class Area:
         shapely.prepare(self.shape)
         return self.shape
 
+    @cached_property
+    def _lons(self) -> tuple[float, float]:
+        west, _, east, _ = self.shape.bounds
+        return west, east
+
+    def turns(self, west: float, east: float) -> list[float]:
+        """The whole turns (0, -360, 360 degrees) by which the zone, turned, meets the
+        longitudes from ``west`` to ``east``: a zone and a route on either side of the
+        antimeridian are compared on one side of it. Only 0 for most."""
+        low, high = self._lons
+        return [t for t in (0.0, -360.0, 360.0) if west <= high + t and east >= low + t]
+
+    def copies(self, west: float, east: float) -> list[Polygon]:
+        """The zone, turned by each of :meth:`turns`."""
+        return [shapely.affinity.translate(self.shape, t) for t in self.turns(west, east)]
+
     def holds(self, point: LatLon) -> bool:
         """Whether a position is inside (as :meth:`enters` has it for a point): no
         geometry object made, the zone prepared once (the watch asks for every sample)."""
-        return bool(shapely.contains_xy(self._prepared_inside, point[1], point[0]))
+        lat, lon = point
+        inside = self._prepared_inside
+        return any(shapely.contains_xy(inside, lon - t, lat) for t in self.turns(lon, lon))
 
     def covers(self, point: LatLon) -> bool:
         """Whether a position is inside or on the edge."""
-        return bool(shapely.intersects_xy(self._prepared_shape, point[1], point[0]))
+        lat, lon = point
+        shape = self._prepared_shape
+        return any(shapely.intersects_xy(shape, lon - t, lat) for t in self.turns(lon, lon))
 
     def enters(self, geometry: BaseGeometry) -> bool:
-        """Whether ``geometry`` reaches inside (its edge touched is not inside, nor a
-        millimetre or two past it: rounding)."""
-        return bool(self.inside.relate_pattern(geometry, "T********"))
+        """Whether ``geometry`` (longitudes continuous) reaches inside (its edge touched
+        is not inside, nor a millimetre or two past it: rounding)."""
+        west, _, east, _ = geometry.bounds
+        return any(
+            self.inside.relate_pattern(
+                shapely.affinity.translate(geometry, -t) if t else geometry, "T********"
+            )
+            for t in self.turns(west, east)
+        )
 
     def applies_to(self, vehicle_id: str) -> bool:
         if self.kind == "no_go":
@@ -129,21 +166,27 @@ def route_violation(
     zones: ZoneSet, vehicle_id: str, start: LatLon | None, points: Sequence[LatLon]
 ) -> Violation | None:
     """Why the vehicle, at ``start`` (None: unknown), may not drive through ``points``
-    (straight legs). A vehicle already inside a no-go zone, or outside its areas, may
-    leave: the leg it starts on is not held against it until it is out (or in), but
-    from there on the route may not come back in (or leave again)."""
+    (straight legs, each the short way round in longitude). A vehicle already inside a
+    no-go zone, or outside its areas, may leave: the leg it starts on is not held
+    against it until it is out (or in), but from there on the route may not come back
+    in (or leave again)."""
     if not points:
         return None
     no_go, areas = zones.of(vehicle_id)
-    whole = _line([start, *points] if start is not None else list(points))
-    first = LineString([start[::-1], points[0][::-1]]) if start is not None else None
+    route = _continuous_route([start, *points] if start is not None else list(points))
+    if start is not None:
+        start, *sent = route
+        first = LineString([start[::-1], sent[0][::-1]])
+    else:
+        sent, first = route, None
+    whole = _line(route)
     for area in no_go:
-        route = whole
+        way = whole
         if first is not None and area.enters(Point(start[1], start[0])):  # type: ignore[index]
-            route = _from(first, first.difference(area.shape), points, 0.0)
-        if not area.enters(route):
+            way = _from(first, first.difference(unary_union(area.copies(*_lons(first)))), sent, 0.0)
+        if not area.enters(way):
             continue
-        hit = [k for k, (lat, lon) in enumerate(points) if area.enters(Point(lon, lat))]
+        hit = [k for k, (lat, lon) in enumerate(sent) if area.enters(Point(lon, lat))]
         if not hit:
             what = "the route crosses"
         elif len(points) == 1:
@@ -152,14 +195,14 @@ def route_violation(
             what = f"point {hit[0]} of the route is in"
         return Violation(area.zone_id, area.name, "no_go", f"{what} no-go zone {area.name}")
     if areas:
-        held = unary_union([a.shape for a in areas])
-        route = whole
+        held = unary_union([c for a in areas for c in a.copies(*_lons(whole))])
+        way = whole
         if first is not None and not held.covers(Point(start[1], start[0])):  # type: ignore[index]
             # Past the edge by a rounding's width: the point where it comes in is not out.
-            route = _from(first, first.intersection(held), points, EDGE_DEG)
-        if not held.covers(route):
+            way = _from(first, first.intersection(held), sent, EDGE_DEG)
+        if not held.covers(way):
             names = ", ".join(a.name for a in areas)
-            last = Point(points[-1][1], points[-1][0])
+            last = Point(sent[-1][1], sent[-1][0])
             what = "target is outside" if not held.covers(last) else "route leaves"
             return Violation(
                 areas[0].zone_id,
@@ -185,14 +228,28 @@ def _from(
     end, the first point, is then judged)."""
     if beyond.is_empty:
         return _line(points)
-    reached = float(
-        shapely.line_locate_point(first, shapely.points(shapely.get_coordinates(beyond))).min()
-    )
+    coords = shapely.points(shapely.get_coordinates(beyond))
+    reached = float(shapely.line_locate_point(first, coords).min())
     at = min(reached + past, first.length)
     if at >= first.length:
         return _line(points)
     x, y = first.interpolate(at).coords[0]
     return _line([(y, x), *points])
+
+
+def _continuous(ring: Sequence[tuple[float, float]]) -> list[tuple[float, float]]:
+    """(lon, lat) points with their longitudes made continuous."""
+    return list(zip(unwrap([lon for lon, _ in ring]), [lat for _, lat in ring], strict=True))
+
+
+def _continuous_route(route: Sequence[LatLon]) -> list[LatLon]:
+    """(lat, lon) points with their longitudes made continuous: each leg the short way."""
+    return list(zip([lat for lat, _ in route], unwrap([lon for _, lon in route]), strict=True))
+
+
+def _lons(geometry: BaseGeometry) -> tuple[float, float]:
+    west, _, east, _ = geometry.bounds
+    return west, east
 
 
 def breaches(zones: ZoneSet, vehicle_id: str, point: LatLon) -> frozenset[str]:
@@ -239,11 +296,16 @@ def closest_routes(
     lat0 = sum(p[0] for p in points) / len(points)
     kx = 111_320.0 * math.cos(math.radians(lat0))
     ky = 110_540.0
+    lon0 = points[0][1]  # longitudes the short way from it: routes across the antimeridian
+
+    def east(lon: float) -> float:
+        return (lon0 + lon_step(lon, lon0)) * kx
+
     shapes = {
         name: (
-            LineString([(lon * kx, lat * ky) for lat, lon in route])
+            LineString([(east(lon), lat * ky) for lat, lon in route])
             if len(route) > 1
-            else Point(route[0][1] * kx, route[0][0] * ky)
+            else Point(east(route[0][1]), route[0][0] * ky)
         )
         for name, route in routes.items()
         if route
