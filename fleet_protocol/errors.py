@@ -60,6 +60,11 @@ def error_text(err: Mapping[str, Any]) -> str:
         return f"String should have at most {ctx.get('max_length')} characters"
     if err.get("type") == "too_short" and isinstance(err.get("input"), str):
         return f"String should have at least {ctx.get('min_length')} characters"
+    if err.get("type") == "extra_forbidden":
+        return (
+            "not a field of this body (this body refuses fields it does not know: "
+            "a misspelt one would otherwise pass as a change not made)"
+        )
     return str(err.get("msg", "invalid value")).removeprefix("Value error, ")
 
 

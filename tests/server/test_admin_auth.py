@@ -97,6 +97,22 @@ async def test_users_listed_and_disabled(client: httpx.AsyncClient) -> None:
     assert (await client.get("/api/vehicles", headers=token)).status_code == 401
 
 
+async def test_a_patch_of_a_user_with_a_field_it_does_not_have_changes_nothing_and_says_why(
+    client: httpx.AsyncClient,
+) -> None:
+    """``disabld`` must not pass as a change made; the 422 names it and says why the body
+    refuses it, where other bodies ignore unknown fields (docs/api.md, Conventions)."""
+    name, _ = await make_user(client, "viewer", [])
+    typo = {"role": "operator", "disabld": True}
+    r = await client.patch(f"/api/users/{name}", headers=ADMIN, json=typo)
+    assert r.status_code == 422, r.text
+    [detail] = r.json()["error"]["details"]
+    assert detail["field"] == "disabld", detail
+    assert detail["message"].startswith("not a field of this body"), detail
+    users = (await client.get("/api/users", headers=ADMIN)).json()["users"]
+    assert next(u for u in users if u["username"] == name)["role"] == "viewer"
+
+
 async def test_patch_user_changes_access_at_once(client: httpx.AsyncClient) -> None:
     v1, _ = await make_vehicle(client)
     v2, _ = await make_vehicle(client)
