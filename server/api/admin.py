@@ -2,10 +2,11 @@
 
 from __future__ import annotations
 
+import json
 from typing import Annotated, Any
 from urllib.parse import parse_qs
 
-from fastapi import APIRouter, Depends, Query, Request
+from fastapi import APIRouter, Depends, HTTPException, Query, Request
 from fastapi.exceptions import RequestValidationError
 from pydantic import ValidationError
 
@@ -170,7 +171,11 @@ async def _login_body(request: Request) -> LoginRequest:
         if content_type.startswith("application/x-www-form-urlencoded"):
             form = {k: v[0] for k, v in parse_qs(raw.decode("utf-8", "replace")).items()}
             return LoginRequest.model_validate(form)
-        return LoginRequest.model_validate_json(raw)
+        try:  # read as every other route's body is (a byte-order mark, "\ud800" read)
+            data = json.loads(raw)
+        except (ValueError, RecursionError) as exc:  # answered as FastAPI's own refusal
+            raise HTTPException(400, "There was an error parsing the body") from exc
+        return LoginRequest.model_validate(data)
     except ValidationError as exc:
         raise RequestValidationError(exc.errors(), body=raw) from None
 

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 import httpx
 import pytest
 
@@ -186,6 +188,26 @@ async def test_password_login_as_a_form_too(client: httpx.AsyncClient) -> None:
     missing = await client.post("/auth/token", json={"username": name})
     assert missing.status_code == 422
     assert missing.json()["error"]["details"][0]["field"] == "password"
+
+
+async def test_a_login_body_is_read_as_every_other_route_reads_its_body(
+    client: httpx.AsyncClient,
+) -> None:
+    """A byte-order mark before the JSON, or a lone surrogate in a string, was "the body is
+    not valid JSON" here alone: every other route reads past the mark and names the field."""
+    name, _ = await make_user(client, "viewer", password="correct horse battery")
+    json_type = {"Content-Type": "application/json"}
+    body = json.dumps({"username": name, "password": "correct horse battery"})
+    marked = await client.post(
+        "/auth/token", content=b"\xef\xbb\xbf" + body.encode(), headers=json_type
+    )
+    assert marked.status_code == 200, marked.text
+    lone = json.dumps({"username": name, "password": "?"}).replace("?", "\\ud800")
+    r = await client.post("/auth/token", content=lone, headers=json_type)
+    assert r.status_code == 422, r.text
+    assert r.json()["error"]["details"][0]["field"] == "password", r.text
+    r = await client.post("/auth/token", content="{not json", headers=json_type)
+    assert r.status_code == 422 and r.json()["error"]["details"][0]["field"] == "body", r.text
 
 
 async def test_admin_token_from_the_environment_survives_revocation_and_restart(
