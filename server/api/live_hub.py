@@ -168,11 +168,17 @@ class LiveHub(TopicFanout):
             conn.outbox.put(push.frame(), critical=True)
 
     def touch(self, conn: Connection) -> None:
-        """Every frame on a vehicle's socket counts as contact."""
+        """Every frame on a vehicle's socket counts as contact: for the instances it
+        serves, or, on a vehicle's own socket that has not named one yet (opened again
+        after a link loss, pinging), for the vehicle's live instance."""
         for instance_id in conn.instances:
             state = self.instances.current_by_id(instance_id)
             if state is not None:
                 self.instances.touch(state)
+        if not conn.instances and conn.principal.kind == "vehicle":
+            own = self.instances.current(conn.principal.name)
+            if own is not None and not own.finished:
+                self.instances.touch(own)
 
     # ---- connections --------------------------------------------------------------
     def add(self, conn: Connection) -> None:

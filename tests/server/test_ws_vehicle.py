@@ -355,3 +355,12 @@ async def test_a_vehicles_pings_keep_it_online(
                     await asyncio.sleep(0.25)  # the client's ping interval, not a wait
                     view = (await api.get(f"/api/vehicles/{vid}", headers=ADMIN)).json()
                     assert view["presence"] == "online", view
+            # A socket opened again (after a link loss, say) that has not named the
+            # instance yet: its pings are the vehicle's contact all the same.
+            async with await connect(base, "/ws/vehicle", token) as ws:
+                until = loop.time() + 3.0
+                while loop.time() < until:
+                    await (await ws.ping())
+                    await asyncio.sleep(0.25)
+                    view = (await api.get(f"/api/vehicles/{vid}", headers=ADMIN)).json()
+                    assert view["presence"] == "online", view
