@@ -2,8 +2,10 @@
 found them, in a real browser (as test_console_toasts): on a phone the red "LINK LOST"
 banner hid behind the replay's, which covered the zoom and layers buttons, the header read
 "l…" and "ben · ope…", and the replay's labels ran off the map; on a desktop the toasts
-covered the map's controls and swallowed clicks on the map between them, and a tab under
-the pointer looked selected. A world of its own (the module's): ana holds every vehicle."""
+covered the map's controls and swallowed clicks on the map between them, a tab under the
+pointer looked selected, and an operating area's name opened at its centre over the boats
+wherever the pointer (or, on a phone, a tap) was in it. A world of its own (the module's):
+ana holds every vehicle."""
 
 from __future__ import annotations
 
@@ -163,3 +165,151 @@ def test_a_tab_under_the_pointer_does_not_look_selected(
     shots(page, "tab-hovered")
     underline = "el => getComputedStyle(el).borderBottomColor"
     assert other.evaluate(underline) != selected.evaluate(underline)
+
+
+def operating_area(world: World) -> tuple[dict[str, float], str]:
+    """An operating area round the three boats with some 400 m of water beyond them on
+    every side, as a field manager adds one: its bounds (south, west, north, east) and its
+    id."""
+    here = [console.position(world, v) for v in console.ALL]
+    box = {
+        "south": min(p["lat"] for p in here) - 0.004,
+        "north": max(p["lat"] for p in here) + 0.004,
+        "west": min(p["lon"] for p in here) - 0.005,
+        "east": max(p["lon"] for p in here) + 0.005,
+    }
+    ring = [
+        [box["west"], box["south"]],
+        [box["east"], box["south"]],
+        [box["east"], box["north"]],
+        [box["west"], box["north"]],
+        [box["west"], box["south"]],
+    ]
+    body = {
+        "name": "bay",
+        "kind": "operating_area",
+        "vehicles": list(console.ALL),
+        "polygon": {"type": "Polygon", "coordinates": [ring]},
+    }
+    return box, world.fleet.call("POST", "/api/zones", json=body)["zone_id"]
+
+
+def tooltip_over_boats(page: Any, tip: dict[str, float]) -> list[str]:
+    """The boats whose marker or label the tooltip's box covers."""
+    covered = []
+    for vehicle_id in console.ALL:
+        for part in (
+            console.marker(page, vehicle_id),
+            console.marker(page, vehicle_id).locator(".vlabel"),
+        ):
+            if console.boxes_overlap(tip, console.box_of(part)):
+                covered.append(vehicle_id)
+    return covered
+
+
+def test_an_operating_area_s_name_shows_on_its_outline_not_over_the_boats(
+    world: World, open_console: Any, shots: Shots
+) -> None:
+    """With an operating area round the working area, the pointer anywhere over the map
+    opened "bay: operating area (...)" at the area's centre, and it stayed there as long as
+    the pointer was inside (almost always), over a boat's trail. It shows now only with
+    the pointer on or near the outline, beside the pointer, and goes when it leaves."""
+    box, zone_id = operating_area(world)
+    try:
+        page, _ = open_console()
+        console.log_in(page, "ana")
+        expect(page.locator("path.zone-operating_area")).to_have_count(1)
+        middle = (box["south"] + box["north"]) / 2
+        console.centre_on(page, middle, (box["west"] + box["east"]) / 2, 16)
+        tooltip = page.locator(".leaflet-tooltip")
+        # the pointer over the water inside the area, and by each boat
+        inside = [(middle, box["west"] + 0.002), (box["north"] - 0.002, box["east"] - 0.003)]
+        for vehicle_id in console.ALL:
+            p = console.position(world, vehicle_id)
+            inside.append((p["lat"] - 0.0004, p["lon"]))
+        for lat, lon in inside:
+            page.mouse.move(*console.screen_point(page, lat, lon))
+            console.next_frames(page)
+            shots(page, "pointer-inside")
+            assert tooltip.count() == 0, f"a tooltip at {lat}, {lon}: {tooltip.all_inner_texts()}"
+        # on the outline (low on its west side, away from the boats): the area's name,
+        # beside the pointer and on the map
+        x, y = console.screen_point(page, box["south"] + 0.0012, box["west"])
+        page.mouse.move(x, y)
+        expect(tooltip).to_have_text("bay: operating area (demo-usv-1, demo-usv-2, demo-usv-3)")
+        shots(page, "pointer-on-the-outline")
+        tip, view = console.box_of(tooltip), console.box_of(page.locator("#map"))
+        assert tip["x"] - 30 <= x <= tip["x"] + tip["width"] + 30, (x, tip)
+        assert tip["y"] - 30 <= y <= tip["y"] + tip["height"] + 30, (y, tip)
+        assert view["x"] <= tip["x"] and tip["x"] + tip["width"] <= view["x"] + view["width"]
+        assert tooltip_over_boats(page, tip) == []
+        page.mouse.move(*console.screen_point(page, middle, box["west"] + 0.002))
+        expect(tooltip).to_have_count(0)
+
+        # a no-go zone the same: its name on its outline, nothing inside it
+        south, west = box["north"] - 0.0025, box["east"] - 0.0035
+        ring = [[west, south], [west + 0.002, south], [west + 0.002, south + 0.0015]]
+        body = {
+            "name": "rocks",
+            "kind": "no_go",
+            "polygon": {
+                "type": "Polygon",
+                "coordinates": [[*ring, [west, south + 0.0015], ring[0]]],
+            },
+        }
+        rocks = world.fleet.call("POST", "/api/zones", json=body)["zone_id"]
+        expect(page.locator("path.zone-no_go")).to_have_count(1)
+        page.mouse.move(*console.screen_point(page, south + 0.00075, west + 0.001))
+        console.next_frames(page)
+        assert tooltip.count() == 0, tooltip.all_inner_texts()
+        page.mouse.move(*console.screen_point(page, south + 0.00075, west))
+        expect(tooltip).to_have_text("rocks: no-go zone")
+        shots(page, "no-go-outline")
+        world.fleet.call("DELETE", f"/api/zones/{rocks}")
+    finally:
+        world.fleet.call("DELETE", f"/api/zones/{zone_id}")
+
+
+def test_a_tap_in_an_operating_area_on_a_phone_opens_nothing(
+    world: World, open_console: Any, shots: Shots
+) -> None:
+    """On a phone one tap anywhere in the area opened its tooltip, cut off at the map's
+    left edge and over a boat's marker and name. A tap inside opens nothing now; a tap on
+    the outline by the map's edge shows the name whole, on the map and clear of the boats."""
+    box, zone_id = operating_area(world)
+    try:
+        page, _ = open_console(viewport=PHONE, is_mobile=True, has_touch=True)
+        console.log_in(page, "ana")
+        expect(page.locator("path.zone-operating_area")).to_have_count(1)
+        middle = (box["south"] + box["north"]) / 2
+        console.centre_on(page, middle, (box["west"] + box["east"]) / 2, 16)
+        tooltip = page.locator(".leaflet-tooltip")
+        near = console.position(world, "demo-usv-1")
+        page.touchscreen.tap(*console.screen_point(page, near["lat"] - 0.0004, near["lon"]))
+        console.next_frames(page)
+        shots(page, "tapped-inside")
+        assert tooltip.count() == 0, tooltip.all_inner_texts()
+        # the area's west side 6 px from the map's left edge, tapped low in the area
+        view = console.box_of(page.locator("#map"))
+        x, _ = console.screen_point(page, middle, box["west"])
+        page.evaluate(
+            "(dx) => fleetConsole.map.map.panBy([dx, 0], {animate: false})", x - view["x"] - 6
+        )
+        console.next_frames(page)
+        low = box["south"] + 0.0012
+        page.touchscreen.tap(*console.screen_point(page, low, box["west"]))
+        expect(tooltip).to_contain_text("bay: operating area")
+        console.next_frames(page)  # and stays (a finger has no hover to leave)
+        expect(tooltip).to_be_visible()
+        shots(page, "tapped-the-outline")
+        tip = console.box_of(tooltip)
+        assert view["x"] <= tip["x"] and tip["x"] + tip["width"] <= view["x"] + view["width"], (
+            tip,
+            view,
+        )
+        assert tooltip_over_boats(page, tip) == []
+        # a tap on the map elsewhere puts it away
+        page.touchscreen.tap(*console.screen_point(page, middle, box["west"] + 0.002))
+        expect(tooltip).to_have_count(0)
+    finally:
+        world.fleet.call("DELETE", f"/api/zones/{zone_id}")

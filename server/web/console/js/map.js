@@ -8,6 +8,7 @@ import { alarmText } from "./alarms.js";
 import { alarmLabel, isFinal, lastKnown, stageLabel } from "./fleet.js";
 import { addBase } from "./grid.js";
 import { placeLabels } from "./labels.js";
+import { bindKeptTooltip, outlineBand } from "./tooltips.js";
 
 export { L };
 
@@ -187,10 +188,9 @@ export class MapView {
       if (cmd.type === "follow_path") {
         const pts = (a.path || a.waypoints || []).map((w) => [w.lat, w.lon]);
         if (here) pts.unshift([here.lat, here.lon]);
-        L.polyline(pts, {
+        bindKeptTooltip(L.polyline(pts, {
           color: colour, weight: 2, dashArray: "6 6", className: `planned path-of-${v.id}`,
-        })
-          .bindTooltip(`${escapeHtml(v.view.name || v.id)}: ${a.path ? "planned path" : "path"}`)
+        }), `${escapeHtml(v.view.name || v.id)}: ${a.path ? "planned path" : "path"}`)
           .addTo(group);
         for (const w of a.waypoints || []) {
           L.circleMarker([w.lat, w.lon], { radius: 4, color: colour, fillOpacity: 1 })
@@ -202,9 +202,10 @@ export class MapView {
             color: colour, weight: 2, dashArray: "4 6", className: "planned",
           }).addTo(group);
         }
-        L.circleMarker([a.lat, a.lon], { radius: 6, color: colour, fill: false, weight: 2 })
-          .bindTooltip(`${escapeHtml(v.view.name || v.id)}: go to`)
-          .addTo(group);
+        bindKeptTooltip(
+          L.circleMarker([a.lat, a.lon], { radius: 6, color: colour, fill: false, weight: 2 }),
+          `${escapeHtml(v.view.name || v.id)}: go to`,
+        ).addTo(group);
       } else if (cmd.type === "keep_station") {
         const at = a.lat != null ? [a.lat, a.lon] : here ? [here.lat, here.lon] : null;
         if (at) {
@@ -299,10 +300,14 @@ export class MapView {
   }
 
   // ---- the server's shapes ------------------------------------------------------
+  /** The zones: no-go zones filled red, operating areas outlined blue. Neither's fill
+   * answers the pointer (an operating area round the working water opened its name over the
+   * boats wherever the pointer was): its name shows on or near its outline (tooltips.js),
+   * and a click inside is the map's. */
   setZones(zones) {
     this.zones.clearLayers();
     for (const z of zones) {
-      const shape = L.geoJSON(z.polygon, {
+      L.geoJSON(z.polygon, {
         style: {
           className: `zone zone-${z.kind}`,
           color: z.kind === "no_go" ? "#c62828" : "#1565c0",
@@ -310,22 +315,22 @@ export class MapView {
           dashArray: z.kind === "no_go" ? null : "8 6",
           fillOpacity: z.kind === "no_go" ? 0.18 : 0.03,
         },
-        interactive: true,
-      });
+        interactive: false,
+      }).addTo(this.zones);
       const who = z.vehicles && z.vehicles.length ? ` (${z.vehicles.join(", ")})` : "";
       const kind = z.kind === "no_go" ? "no-go zone" : "operating area";
-      shape.bindTooltip(`${escapeHtml(z.name || z.zone_id)}: ${kind}${escapeHtml(who)}`);
-      shape.addTo(this.zones);
+      const text = `${escapeHtml(z.name || z.zone_id)}: ${kind}${escapeHtml(who)}`;
+      outlineBand(z.polygon, `zone-edge zone-edge-${z.kind}`, text).addTo(this.zones);
     }
   }
 
   setObstacles(obstacles) {
     this.obstacles.clearLayers();
     for (const o of obstacles) {
-      L.geoJSON(o.polygon, {
+      const shape = L.geoJSON(o.polygon, {
         style: { className: "obstacle", color: "#5d4037", weight: 1, fillOpacity: 0.45 },
-      })
-        .bindTooltip(`${escapeHtml(o.name)} (obstacle, clearance ${o.clearance_m} m)`)
+      });
+      bindKeptTooltip(shape, `${escapeHtml(o.name)} (obstacle, clearance ${o.clearance_m} m)`)
         .addTo(this.obstacles);
     }
   }
