@@ -4,7 +4,9 @@ keyboard's focus while samples come in (each sample drew them anew: the focus fe
 page within a second), a map marker reached with Tab is selected by Enter or Space, "plan
 round obstacles" says in words why it is off for several boats (and is unticked then),
 the vehicle panel's battery reads as the table's, and the replay's window is brought up to
-the moment its tab opens. A world of its own (the module's): ana holds every vehicle."""
+the moment its tab opens, but not from under the answer read for it (after Back to live the
+old window's summary and Export stayed under a window moved on). A world of its own (the
+module's): ana holds every vehicle."""
 
 from __future__ import annotations
 
@@ -249,3 +251,73 @@ def test_a_refused_window_leaves_no_earlier_answer_under_the_form(
     expect(info).to_have_text("the window must start before it ends: nothing read")
     expect(info).not_to_contain_text("Nothing was recorded")
     shots(page, "refused-window")
+
+
+def test_a_replay_s_answer_stays_with_the_window_it_read(
+    world: World, open_console: Any, shots: Shots
+) -> None:
+    """A replay of the last 5 minutes, Back to live, and a minute later the Replay tab
+    opened again: its window had moved on, but the summary, the events and the Export
+    buttons were still the old window's, and GPX saved the old window. The form stays on
+    the window read while its answer is shown; changing the form takes the answer away."""
+    page, _ = open_console()
+    page.clock.install()
+    console.log_in(page, "ana")
+    replay_up(page)
+    frm, to = page.locator("#replay-from"), page.locator("#replay-to")
+    info, export = page.locator("#replay-info"), page.locator("#replay-export")
+    events = page.locator("#replay-events")
+
+    def load_5_minutes() -> tuple[str, str]:
+        page.click('#replay-form [data-minutes="5"]')
+        page.click("#replay-load")
+        expect(page.locator("#replay-bar")).to_be_visible()
+        window = frm.input_value(), to.input_value()
+        expect(info).to_contain_text(f"{window[0]} ")
+        expect(info).to_contain_text(f" to {window[1]} ")
+        return window
+
+    def answer_gone() -> None:
+        expect(info).to_have_text("")
+        expect(export).to_be_hidden()
+        expect(events).to_be_hidden()
+
+    page.click('[data-tab="replay"]')
+    read = load_5_minutes()
+    expect(events.locator("li").first).to_be_visible()
+    page.click("#replay-exit")
+    page.clock.fast_forward("01:00")
+    page.click('[data-tab="fleet"]')
+    page.click('[data-tab="replay"]')
+    shots(page, "replay-tab-again")
+    # what is shown under the form is the answer to the window in it
+    assert (frm.input_value(), to.input_value()) == read
+    expect(info).to_contain_text(f"{read[0]} ")
+    expect(info).to_contain_text(f" to {read[1]} ")
+    expect(export).to_be_visible()
+    with page.expect_download() as got:
+        page.click('#replay-export button[data-format="gpx"]')
+    utc = page.evaluate(
+        """(t) => new Date(t.replace(" ", "T")).toISOString().slice(0, 19).replace(/:/g, "")""",
+        read[0],
+    )
+    assert got.value.suggested_filename.endswith(f"-{utc}Z.gpx"), got.value.suggested_filename
+
+    # a shortcut pressed: the window moves on, and the old answer goes with it
+    page.click('#replay-form [data-minutes="15"]')
+    assert frm.input_value() != read[0]
+    answer_gone()
+    shots(page, "window-changed")
+    page.click("#replay-load")  # the answer to the window now in the form
+    expect(info).to_contain_text(f"{frm.input_value()} ")
+    expect(export).to_be_visible()
+    expect(events).to_be_visible()
+    page.click("#replay-exit")
+    # a time typed, or a vehicle unticked, the same
+    load_5_minutes()
+    page.click("#replay-exit")
+    frm.fill(console.local_times(page, 0.2)[0])
+    answer_gone()
+    load_5_minutes()
+    page.locator('#replay-vehicles input[value="demo-usv-2"]').uncheck()
+    answer_gone()

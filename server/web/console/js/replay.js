@@ -60,6 +60,7 @@ export class Replay {
     this.map = ctx.map;
     this.form = document.getElementById("replay-form");
     this.choice = new ReplayForm(ctx); // the vehicles and the window
+    this.choice.onChange = () => this.forget(); // the form changed: the answer is not its
     this.slider = document.getElementById("replay-slider");
     this.bar = document.getElementById("replay-bar");
     this.playButton = document.getElementById("replay-play");
@@ -133,6 +134,7 @@ export class Replay {
       this.info.textContent = `Nothing was recorded for ${ids.length === 1 ? "this vehicle" : "these vehicles"} ` +
         `from ${dateTime(start)} to ${dateTime(end)}: no position, no event. ` +
         "Try a wider window (1 h, 6 h, or an earlier start).";
+      this.choice.hold();
       return undefined;
     }
     this.start = start;
@@ -148,6 +150,7 @@ export class Replay {
         `${counted(this.events.length, "event")}, ${dateTime(start)} to ${dateTime(end)}`,
       ...this.missing.map((text) => h("div.no-positions", {}, text)),
     );
+    this.choice.hold();
     this.enter();
   }
 
@@ -177,9 +180,20 @@ export class Replay {
     this.missing = [];
     this.ids = null;
     this.list.replaceChildren();
+    this.list.hidden = false;
     this.ticks.replaceChildren();
     this.gaps.replaceChildren();
     this.exportBox.hidden = true;
+    this.choice.hold(false);
+  }
+
+  /** The form changed: what was read for it before (the summary, the events, Export) is
+   * taken from under it. A replay on the map plays on, with its own bar, until another is
+   * read or Back to live. */
+  forget() {
+    this.info.textContent = "";
+    this.exportBox.hidden = true;
+    this.list.hidden = true;
   }
 
   refuse(why) {

@@ -9,6 +9,12 @@
 // whatever the browser's language (a datetime-local picker in an English browser showed
 // "02:05:00 PM"). Each is read here, refused in words when it is not such a time, and
 // written back in that form once typed; Up and Down step the part under the caret.
+//
+// Once a replay has been read, the form stays as it asked (its vehicles and its window)
+// while the answer (the summary, the events, Export) is shown under it: opening the tab
+// again moves nothing on. The person changing the form (a shortcut, a time typed, a box
+// ticked) takes the answer away, which no longer belongs to it: after Back to live the
+// window had moved on under the old window's summary and export.
 
 import { h, localStamp } from "./ui.js";
 
@@ -46,19 +52,39 @@ export class ReplayForm {
     this.minutes = 15;
     this.ticksFor = ""; // the selection the boxes were last ticked for (none: every vehicle)
     this.typed = false; // a time typed: kept as it is
+    this.held = false; // the form as a replay read it, its answer shown: kept as it is
+    this.onChange = () => {}; // the person changed the form that was held
     for (const b of document.querySelectorAll("#replay-form [data-minutes]")) {
       b.addEventListener("click", () => {
         this.minutes = +b.dataset.minutes;
         this.typed = false;
         this.setWindow();
+        this.changed();
       });
     }
     for (const field of this.fields()) {
-      field.addEventListener("input", () => { this.typed = true; });
+      field.addEventListener("input", () => {
+        this.typed = true;
+        this.changed();
+      });
       field.addEventListener("change", () => this.check(field, true));
       field.addEventListener("keydown", (e) => this.step(e, field));
     }
+    $("replay-vehicles").addEventListener("change", () => this.changed());
     this.setWindow();
+  }
+
+  /** A replay was read as the form asks: it stays so (the tab opening again moves nothing
+   * on) until the person changes it. ``on`` false: nothing read is shown any more. */
+  hold(on = true) {
+    this.held = on;
+  }
+
+  /** The person changed the form: what was read for it before is not its answer. */
+  changed() {
+    if (!this.held) return;
+    this.held = false;
+    this.onChange();
   }
 
   fields() {
@@ -69,6 +95,7 @@ export class ReplayForm {
    * unless the person typed it. */
   opened() {
     this.drawChoices();
+    if (this.held) return; // as the replay shown under it read it
     const selected = [...this.ctx.selection].sort().join(" ");
     if (selected !== this.ticksFor) this.tickSelection(); // it changed since: ticked anew
     if (!this.typed) this.setWindow();
@@ -118,6 +145,7 @@ export class ReplayForm {
     field.setSelectionRange(caret, caret);
     this.typed = true;
     this.check(field, false);
+    this.changed();
   }
 
   /** The window asked: ``{start, end}`` in ms, or ``{error}`` naming the field. Unless a
@@ -138,7 +166,8 @@ export class ReplayForm {
   }
 
   /** The vehicle checkboxes: the user's ticks kept; a vehicle not offered before is
-   * ticked when it is selected, or when nothing is selected (every vehicle). */
+   * ticked when it is selected, or when nothing is selected (every vehicle), but not while
+   * the form is held (the replay shown did not read it). */
   drawChoices() {
     const box = $("replay-vehicles");
     const offered = new Map(
@@ -150,7 +179,7 @@ export class ReplayForm {
       h("input", {
         type: "checkbox", name: "vehicle", value: v.id,
         checked: offered.has(v.id) ? offered.get(v.id)
-          : selection.size ? selection.has(v.id) : true,
+          : this.held ? false : selection.size ? selection.has(v.id) : true,
       }),
       ` ${v.view.name || v.id}`)));
   }
