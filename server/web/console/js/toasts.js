@@ -14,6 +14,7 @@ const log = []; // {at, message, kind}, newest last
  * time again: five refusals in a row are one toast, not three and "+2 more". */
 export function toast(message, kind = "info", action = null) {
   const box = document.getElementById("toasts");
+  reserve(box);
   const same = [...box.querySelectorAll(".toast")]
     .find((el) => el.dataset.message === message && el.dataset.kind === kind);
   if (same) return again(box, same);
@@ -83,6 +84,19 @@ function arrange(box) {
   }
   more.textContent = `+${hidden} more`;
   more.setAttribute("aria-label", `${hidden} more messages: open the log`);
+}
+
+/** The room the toasts take at the bottom of a phone's panes, kept up to date in
+ * ``--toasts-reserve`` (their height, the 12 px under them and a 6 px gap; 0 with none):
+ * the panes' scrolling area ends above them (console.css), so that no toast covers a
+ * button there (one covered the last lease card's Revoke). */
+function reserve(box) {
+  if (box.reserved) return;
+  box.reserved = new ResizeObserver(() => {
+    const height = box.offsetHeight;
+    document.documentElement.style.setProperty("--toasts-reserve", `${height ? height + 18 : 0}px`);
+  });
+  box.reserved.observe(box);
 }
 
 /** Every message said in this tab, newest first. */
