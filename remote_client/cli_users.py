@@ -177,7 +177,9 @@ def _check_role(role: str) -> None:
 
 
 def _ask_password() -> str:
-    password: str = typer.prompt("password", hide_input=True, confirmation_prompt=True)
+    """A new password, typed twice. The prompts go to stderr: stdout holds the answer
+    alone (``T=$(fleetctl users add ben --ask-password)`` keeps the token)."""
+    password: str = typer.prompt("password", hide_input=True, confirmation_prompt=True, err=True)
     return password
 
 

@@ -3,7 +3,10 @@ token printed alone on stdout, issuing a new one and revoking them, disabling a 
 
 from __future__ import annotations
 
+import asyncio
 import json
+import os
+import sys
 from collections.abc import Callable
 
 import httpx
@@ -173,6 +176,31 @@ async def test_users_are_added_changed_disabled_and_their_tokens_issued_and_revo
         assert unknown.exit_code == 1 and "404" in unknown.stderr
         not_admin = await fleetctl(base, fresh, "users")
         assert not_admin.exit_code == 1
+
+
+async def test_the_password_prompts_go_to_stderr_and_the_token_alone_to_stdout(
+    make_settings: Callable[..., Settings],
+) -> None:
+    """``T=$(fleetctl users add ben --ask-password)``: the prompts are on stderr, so the
+    shell keeps the token alone (they went to stdout: T held "password:Repeat for
+    confirmation:fct_..."). A process of its own, with no terminal to ask on: the
+    password is read from stdin, as getpass does then."""
+    async with serve(make_settings()) as base, httpx.AsyncClient(base_url=base) as c:
+        env = {**os.environ, "FLEET_SERVER": base, "FLEET_TOKEN": ADMIN_TOKEN}
+        fleetctl_process = await asyncio.create_subprocess_exec(
+            sys.executable, "-m", "remote_client", "users", "add", "ben", "--ask-password",
+            env=env, stdin=asyncio.subprocess.PIPE, stdout=asyncio.subprocess.PIPE,
+            stderr=asyncio.subprocess.PIPE, start_new_session=True,  # no controlling terminal
+        )  # fmt: skip
+        async with asyncio.timeout(30):
+            stdout, stderr = await fleetctl_process.communicate(b"harbour-gate\nharbour-gate\n")
+        assert fleetctl_process.returncode == 0, stderr.decode()
+        token = stdout.decode().strip()
+        assert stdout.decode() == token + "\n" and token.startswith("fct_"), stdout
+        assert "password" in stderr.decode() and "Repeat for confirmation" in stderr.decode()
+        login = await c.post("/auth/token", json={"username": "ben", "password": "harbour-gate"})
+        assert login.status_code == 200, login.text
+        assert (await c.get("/api/me", headers=bearer(token))).json()["username"] == "ben"
 
 
 async def test_a_vehicles_name_and_type_are_put_right_by_name_or_id(
