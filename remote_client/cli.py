@@ -12,6 +12,7 @@ from datetime import UTC, datetime, timedelta
 from typing import Any
 
 import typer
+from rich import box
 from rich.table import Table
 
 from fleet_protocol import parse_ts
@@ -40,6 +41,7 @@ from remote_client.cli_users import users_app
 from remote_client.cli_zones import obstacles_app, zones_app
 from remote_client.output import console
 from remote_client.sdk import STOP_TTL_S, FleetClient, shown_status
+from remote_client.times import short_time
 
 app = typer.Typer(
     cls=Commands,
@@ -198,25 +200,34 @@ def commands(
     if as_json:
         dump(data)
         return
-    table = Table()
-    table.add_column("type", no_wrap=True, min_width=len("keep_station"))  # never "keep_…"
-    table.add_column("status", no_wrap=True, min_width=len("superseded"))
-    table.add_column("issued by")
-    table.add_column("issued at (UTC)", no_wrap=True)
-    table.add_column("last detail")
-    table.add_column("command", no_wrap=True)  # whole: the id cancel takes
+    # 80 columns hold it: no vertical rules; the type, status, issuer, time and id whole
+    # (the id is what cancel takes), the last detail (often the vehicle's words) wrapping.
+    table = Table(box=box.SIMPLE_HEAD, show_edge=False, pad_edge=False, collapse_padding=True)
+    for name in ("type", "status", "by", "at (UTC)", "command"):
+        table.add_column(name, no_wrap=True)
+    table.add_column("last detail", overflow="fold")
     for c in data["commands"]:
-        detail = next((h.get("detail") for h in reversed(c["history"]) if h.get("detail")), None)
         table.add_row(
             c["type"],
             shown_status(c),
             c["issued_by"],
-            c["issued_at"][5:19].replace("T", " "),  # 11-22 10:00:01
-            detail or "-",
+            short_time(c["issued_at"]),
             c["command_id"],
+            _last_detail(c),
         )
     console.print(f"control mode: {data['control_mode']}")
     console.print(table)
+
+
+def _last_detail(command: dict[str, Any]) -> str:
+    """A command's latest detail. A superseded one's (``superseded_by_stop``, ``superseded_by
+    go_to c-...``) says by what type of command, as the console does (``by a stop``, ``by
+    go_to``): its status says superseded, and the newer command has its own row."""
+    detail = next((h["detail"] for h in reversed(command["history"]) if h.get("detail")), "-")
+    if shown_status(command) != "superseded":
+        return str(detail)
+    newer = detail.removeprefix("superseded_by").lstrip("_ ").split(" ")[0]
+    return "by a stop" if newer in ("stop", "") else f"by {newer}"
 
 
 @app.command()

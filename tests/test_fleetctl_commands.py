@@ -6,6 +6,7 @@ stderr."""
 from __future__ import annotations
 
 import json
+import re
 from collections.abc import Callable
 
 import pytest
@@ -182,3 +183,50 @@ async def test_a_vehicle_name_works_wherever_an_id_does(
         assert twin_a in ambiguous.stderr and twin_b in ambiguous.stderr
         exact = await fleetctl(base, ADMIN_TOKEN, "stop", "Twin", "--json")
         assert exact.exit_code == 0  # the exact name is one vehicle
+
+
+async def test_the_commands_table_reads_whole_at_80_columns(
+    make_settings: Callable[..., Settings], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """``COLUMNS=80 fleetctl commands``: each command on a row with its type, status, who
+    issued it, when and its id whole, and its last detail wrapped under it, never cut to
+    ``ad…`` (the issuer and the detail were, beside a type column padded to 14)."""
+    async with served_vehicle(make_settings()) as (base, c, vid, vh, iid):
+        _, op = await make_user(c, "operator", vehicles=[vid], username="ana")
+        ana = op["Authorization"].removeprefix("Bearer ")
+        assert (await fleetctl(base, ADMIN_TOKEN, "grant", vid, "ana")).exit_code == 0
+        went = json.loads(
+            (await fleetctl(base, ana, "goto", vid, "43.95", "15.45", "--json")).stdout
+        )
+        go_id = went["commands"][0]["command_id"]
+        r = await c.get("/upper/get_control", headers=vh, params={"instance_id": iid})
+        assert r.status_code == 200, r.text
+        arrived = "arrived within 2.0 m of the target after 41 s"
+        ack = {"command_id": go_id, "status": "done", "detail": arrived}
+        r = await c.post("/upper/update_fbmessage", headers=vh,
+                         json={"instance_id": iid, "acks": [ack]})  # fmt: skip
+        assert r.status_code == 200, r.text
+        held = json.loads((await fleetctl(base, ana, "station", vid, "--json")).stdout)
+        station_id = held["commands"][0]["command_id"]
+        stopped = json.loads((await fleetctl(base, ADMIN_TOKEN, "stop", vid, "--json")).stdout)
+        stop_id = stopped["commands"][0]["command_id"]
+
+        monkeypatch.setenv("COLUMNS", "80")
+        narrow = await fleetctl(base, ana, "commands", vid)
+        assert narrow.exit_code == 0, narrow.output
+        lines = narrow.stdout.splitlines()
+        assert "…" not in narrow.stdout and max(map(len, lines)) <= 80, narrow.stdout
+        rows = {cid: next(line for line in lines if cid in line)
+                for cid in (go_id, station_id, stop_id)}  # fmt: skip
+        clock = r"\d\d:\d\d(:\d\d)?"  # HH:MM:SS today (MM-DD HH:MM past midnight UTC)
+        assert re.search(rf"go_to +done +ana +{clock}", rows[go_id]), rows[go_id]
+        assert re.search(
+            rf"keep_station +superseded +ana +{clock} .* by a stop *$", rows[station_id]
+        )
+        assert re.search(rf"stop +\w+ +admin +{clock}", rows[stop_id]), rows[stop_id]
+        assert all(word in narrow.stdout for word in arrived.split())  # wrapped, whole
+
+        monkeypatch.setenv("COLUMNS", "120")
+        wide = await fleetctl(base, ana, "commands", vid)
+        row = next(line for line in wide.stdout.splitlines() if go_id in line)
+        assert arrived in row and max(map(len, wide.stdout.splitlines())) <= 120
