@@ -19,6 +19,7 @@ from fleet_protocol import parse_ts
 from remote_client import cli_data, cli_live
 from remote_client.cli_admin import gateways_app, vehicles_app
 from remote_client.cli_common import (
+    HELP_MARKUP,
     Commands,
     JsonOpt,
     ServerOpt,
@@ -44,6 +45,7 @@ from remote_client.sdk import STOP_TTL_S, FleetClient, shown_status
 from remote_client.times import short_time
 
 app = typer.Typer(
+    rich_markup_mode=HELP_MARKUP,
     cls=Commands,
     add_completion=False,
     no_args_is_help=True,
@@ -84,8 +86,10 @@ def stop(
     token: str = TokenOpt,
     as_json: bool = JsonOpt,
 ) -> None:
-    """Stop vehicles at once (needs no lease). With none named: every vehicle you can see.
-    A vehicle out of reach gets the stop when it is back, within --ttl."""
+    """Stop vehicles at once (needs no lease); none named: every vehicle you can see.
+
+    A vehicle out of reach gets the stop when it is back, within --ttl.
+    """
 
     async def act(fleet: FleetClient) -> dict[str, Any]:
         ids = await fleet.instance_ids_of(vehicles) if vehicles else None
@@ -105,8 +109,10 @@ def goto(
     token: str = TokenOpt,
     as_json: bool = JsonOpt,
 ) -> None:
-    """Send vehicles to a position (needs a lease on each). Several sent to one point are
-    warned of: they would meet there."""
+    """Send vehicles to a position (needs a lease on each).
+
+    Several sent to one point are warned of: they would meet there.
+    """
     if len(targets) < 3:
         fail("give a vehicle (or more), then LAT and LON")
     *vehicles, lat_text, lon_text = targets
@@ -163,8 +169,10 @@ def path(
     token: str = TokenOpt,
     as_json: bool = JsonOpt,
 ) -> None:
-    """Follow a path of waypoints (needs a lease on each vehicle). The vehicles are the
-    arguments before the first LAT,LON pair."""
+    """Follow a path of waypoints (needs a lease on each vehicle).
+
+    The vehicles are the arguments before the first LAT,LON pair.
+    """
     vehicles, waypoints = split_waypoints(targets)
     points = []
     for text in waypoints:

@@ -15,6 +15,7 @@ import typer
 from rich.table import Table
 
 from remote_client.cli_common import (
+    HELP_MARKUP,
     GroupTokenOpt,
     JsonOpt,
     ServerOpt,
@@ -29,13 +30,16 @@ from remote_client.cli_common import (
 from remote_client.lines import alarms_text, position_text
 from remote_client.output import console
 from remote_client.sdk import FleetClient
+from remote_client.times import plain_time
 
 vehicles_app = typer.Typer(
+    rich_markup_mode=HELP_MARKUP,
     invoke_without_command=True,
     help="The vehicles you can see (no subcommand: the list); "
     "register a vehicle, change its name or type, issue or revoke its token (admin).",
 )
 gateways_app = typer.Typer(
+    rich_markup_mode=HELP_MARKUP,
     invoke_without_command=True,
     help="(admin) Gateways (one uplink for several vehicles): list (no subcommand), add, "
     "issue or revoke a token.",
@@ -154,8 +158,8 @@ def vehicles_revoke(
 ) -> None:
     """Revoke every token of a vehicle: its agent is cut off.
 
-    Its link is closed at once, and it stays off until `vehicles token` issues a new
-    token. Its record and history stay.
+    Its link is closed at once, and it stays off until a new token is issued (fleetctl
+    vehicles token). Its record and history stay.
     """
 
     async def act(fleet: FleetClient) -> tuple[str, dict[str, Any]]:
@@ -195,7 +199,7 @@ def _list_gateways(server: str, token: str, as_json: bool) -> None:
             g["gateway_id"],
             ", ".join(g["vehicles"]) or "-",
             "revoked" if not tokens else "active" if tokens == 1 else f"{tokens} active",
-            (g.get("created_at") or "-")[:19].replace("T", " "),
+            plain_time(g.get("created_at")),
         )
     console.print(table)
 
@@ -233,6 +237,6 @@ def gateways_token(
 def gateways_revoke(
     gateway_id: str, server: str = ServerOpt, token: str = TokenOpt, as_json: bool = JsonOpt
 ) -> None:
-    """Revoke every token of a gateway (its link is closed) until `gateways token`."""
+    """Revoke every token of a gateway (its link is closed) until a new one is issued."""
     data = run(server, token, lambda fleet: fleet.revoke_tokens("gateway", gateway_id))
     say(data, as_json, f"every token of gateway {gateway_id} revoked")

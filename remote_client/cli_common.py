@@ -15,7 +15,7 @@ import math
 from collections.abc import Awaitable, Callable, Sequence
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any, NoReturn, TypeVar
+from typing import Any, Final, NoReturn, TypeVar
 
 import httpx
 import typer
@@ -26,6 +26,9 @@ from remote_client.output import OutputClosed, answer_line, console, errors, qui
 from remote_client.sdk import AmbiguousName, FleetApiError, FleetClient
 from remote_client.times import BadTime, when_text
 
+#: Help texts are Markdown: a paragraph is reflowed to the terminal's width (typer's rich
+#: mode kept each line break of a docstring, so sentences broke in the middle).
+HELP_MARKUP: Final = "markdown"
 ServerOpt = typer.Option("http://127.0.0.1:8000", envvar="FLEET_SERVER", help="server URL")
 TokenOpt = typer.Option(..., envvar="FLEET_TOKEN", help="API token (FLEET_TOKEN)")
 JsonOpt = typer.Option(False, "--json", help="print JSON for scripts")

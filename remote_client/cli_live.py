@@ -97,8 +97,11 @@ def publish(
     token: str = TokenOpt,
     as_json: bool = JsonOpt,
 ) -> None:
-    """Publish one message on a topic, to whoever subscribes to it (a unit, a worker,
-    another operator's watch). A user writes under user/ITS-NAME/."""
+    """Publish one message on a topic, to whoever subscribes to it.
+
+    A unit, a worker or another operator's watch may subscribe. A user writes under
+    user/ITS-NAME/.
+    """
     _checked(topic)
     try:
         message: Any = json.loads(data, parse_constant=_no_constant)

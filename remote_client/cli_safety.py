@@ -11,6 +11,7 @@ import typer
 
 from fleet_protocol import first_break
 from remote_client.cli_common import (
+    HELP_MARKUP,
     JsonOpt,
     ServerOpt,
     TokenOpt,
@@ -21,14 +22,20 @@ from remote_client.cli_common import (
     run,
     say,
 )
-from remote_client.output import console, errors
+from remote_client.output import answer_line, console, errors
 from remote_client.sdk import FleetClient
+from remote_client.times import plain_time
 
 failsafe_app = typer.Typer(
+    rich_markup_mode=HELP_MARKUP,
     no_args_is_help=True,
     help="A vehicle's failsafe: show it; set it (the vehicle's manager, an admin).",
 )
-audit_app = typer.Typer(no_args_is_help=True, help="A vehicle's control log: show, verify.")
+audit_app = typer.Typer(
+    rich_markup_mode=HELP_MARKUP,
+    no_args_is_help=True,
+    help="A vehicle's control log: show, verify.",
+)
 
 ACTIONS = ("none", "keep_station", "stop", "return_home")
 
@@ -119,8 +126,11 @@ def alive(
     server: str = ServerOpt,
     token: str = TokenOpt,
 ) -> None:
-    """Keep the leases you hold alive while this runs (a lease granted with an operator
-    timeout lapses, and its vehicle holds station, once your client falls silent)."""
+    """Keep the leases you hold alive while this runs.
+
+    A lease granted with an operator timeout lapses, and its vehicle holds station, once
+    your client falls silent.
+    """
 
     async def keep() -> None:
         async with FleetClient(server, token) as fleet, asyncio.timeout(seconds):
@@ -139,7 +149,7 @@ def audit_show(
     token: str = TokenOpt,
     as_json: bool = JsonOpt,
 ) -> None:
-    """The vehicle's control log, oldest first."""
+    """The vehicle's control log, oldest first: an entry a line (UTC, to the second)."""
 
     async def act(fleet: FleetClient) -> list[dict[str, Any]]:
         return await fleet.audit(await fleet.vehicle_id_of(vehicle))
@@ -152,11 +162,8 @@ def audit_show(
         d = e["data"]
         what = d.get("status") or d.get("holder") or d.get("action") or ""
         cmd = f" {d['type']} {d['command_id']}" if d.get("command_id") else ""
-        console.print(
-            f"{e['seq']:>5} {e['at']} {e['kind']}{cmd} {what} {e.get('actor') or ''}".rstrip(),
-            highlight=False,
-            markup=False,
-        )
+        at = plain_time(e["at"])
+        answer_line(f"{e['seq']:>5} {at} {e['kind']}{cmd} {what} {e.get('actor') or ''}".rstrip())
 
 
 @audit_app.command("verify")
@@ -166,8 +173,10 @@ def audit_verify(
     token: str = TokenOpt,
     as_json: bool = JsonOpt,
 ) -> None:
-    """Check the vehicle's control log: every entry holds the hash of the one before and
-    matches its own. Exit 0 when the chain holds, 1 where it breaks."""
+    """Check the vehicle's control log: exit 0 when its hash chain holds, 1 where it breaks.
+
+    Every entry holds the hash of the one before and matches its own.
+    """
 
     async def act(fleet: FleetClient) -> tuple[str, list[dict[str, Any]]]:
         vehicle_id = await fleet.vehicle_id_of(vehicle)

@@ -11,6 +11,7 @@ import typer
 from rich.table import Table
 
 from remote_client.cli_common import (
+    HELP_MARKUP,
     GroupTokenOpt,
     JsonOpt,
     ServerOpt,
@@ -24,8 +25,10 @@ from remote_client.cli_common import (
 )
 from remote_client.output import console
 from remote_client.sdk import FleetClient
+from remote_client.times import plain_time
 
 users_app = typer.Typer(
+    rich_markup_mode=HELP_MARKUP,
     invoke_without_command=True,
     help="(admin) Users: list (no subcommand), add, change, disable, tokens.",
 )
@@ -65,7 +68,7 @@ def _list_users(server: str, token: str, as_json: bool) -> None:
             u["role"],
             ", ".join(u["vehicles"]) or "-",
             "disabled" if u["disabled"] else "active",
-            u.get("created_at") or "-",
+            plain_time(u.get("created_at")),
         )
     console.print(table)
 

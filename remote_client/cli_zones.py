@@ -11,6 +11,7 @@ import typer
 from rich.table import Table
 
 from remote_client.cli_common import (
+    HELP_MARKUP,
     GroupTokenOpt,
     JsonOpt,
     ServerOpt,
@@ -26,10 +27,12 @@ from remote_client.output import console
 from remote_client.sdk import FleetClient
 
 zones_app = typer.Typer(
+    rich_markup_mode=HELP_MARKUP,
     invoke_without_command=True,
     help="Operating areas and no-go zones: list (no subcommand); add, edit, remove (admin).",
 )
 obstacles_app = typer.Typer(
+    rich_markup_mode=HELP_MARKUP,
     invoke_without_command=True,
     help="Fixed obstacles the planner keeps clear of: list (no subcommand); add, remove (admin).",
 )

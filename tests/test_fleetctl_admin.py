@@ -6,6 +6,7 @@ from __future__ import annotations
 import asyncio
 import json
 import os
+import re
 import sys
 from collections.abc import Callable
 
@@ -176,6 +177,32 @@ async def test_users_are_added_changed_disabled_and_their_tokens_issued_and_revo
         assert unknown.exit_code == 1 and "404" in unknown.stderr
         not_admin = await fleetctl(base, fresh, "users")
         assert not_admin.exit_code == 1
+
+
+async def test_the_users_and_gateways_tables_fit_80_columns(
+    make_settings: Callable[..., Settings], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Their ``created`` whole, to the second (``2026-11-27 09:29:51``), not cut to
+    ``2026-11-27T09:29:51.82…``; the vehicles wrap."""
+    async with serve(make_settings()) as base, httpx.AsyncClient(base_url=base) as c:
+        first, _ = await make_vehicle(c, "demo-usv-1")
+        second, _ = await make_vehicle(c, "demo-usv-2")
+        await make_user(c, "operator", [first, second], username="ana")
+        await make_user(c, "manager", [first], username="fm-north")
+        added = await fleetctl(
+            base, ADMIN_TOKEN, "gateways", "add", "gw-1", "-v", first, "-v", second
+        )
+        assert added.exit_code == 0, added.output
+
+        monkeypatch.setenv("COLUMNS", "80")
+        for listing, names in (("users", ["admin", "ana", "fm-north"]), ("gateways", ["gw-1"])):
+            table = await fleetctl(base, ADMIN_TOKEN, listing)
+            assert table.exit_code == 0, table.output
+            lines = table.stdout.splitlines()
+            assert "…" not in table.stdout and max(map(len, lines)) <= 80, table.stdout
+            for name in names:
+                row = next(line for line in lines if f" {name} " in line)
+                assert re.search(r" \d{4}-\d\d-\d\d \d\d:\d\d:\d\d ", row), row
 
 
 async def test_the_password_prompts_go_to_stderr_and_the_token_alone_to_stdout(

@@ -110,6 +110,41 @@ async def test_audit_verify_holds_then_fails_after_one_stored_entry_is_altered(
         assert json.loads(as_json.stdout)["broken_at_seq"] == 2
 
 
+async def test_audit_show_prints_an_entry_a_line_within_80_columns(
+    make_settings: Callable[..., Settings], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Each entry of the control log on one line, its time to the second (``2026-11-27
+    09:57:09``): a keep_station ana sent made an 82-character line, broken in two at 80."""
+    app = create_app(make_settings())
+    async with serve(make_settings(), app=app) as base, httpx.AsyncClient(base_url=base) as c:
+        vid, vh = await make_vehicle(c)
+        iid = (await start_instance(c, vid, vh))["instance_id"]
+        _, op = await make_user(c, "operator", [vid], username="ana")
+        grant = {"instance_id": iid, "user": "ana", "duration_s": 600}
+        assert (await c.post("/client/grant_control", headers=ADMIN, json=grant)).is_success
+        body = {"instance_ids": [iid], "command": {"type": "keep_station", "args": {}}}
+        assert (await c.post("/client/submit_control", headers=op, json=body)).is_success
+        store = app.state.services.store["audit"]
+
+        async def two() -> bool:
+            return await store.count({"vehicle_id": vid}) >= 2
+
+        await eventually(two)
+        entries = json.loads(
+            (await fleetctl(base, ADMIN_TOKEN, "audit", "show", vid, "--json")).stdout
+        )
+        monkeypatch.setenv("COLUMNS", "80")
+        shown = await fleetctl(base, ADMIN_TOKEN, "audit", "show", vid)
+        assert shown.exit_code == 0, shown.output
+        lines = shown.stdout.splitlines()
+        assert len(lines) == len(entries), shown.stdout
+        for line, entry in zip(lines, entries, strict=True):
+            at = entry["at"][:19].replace("T", " ")
+            assert line.startswith(f"{entry['seq']:>5} {at} {entry['kind']}"), line
+            assert len(line) <= 80, line
+        assert "keep_station" in lines[-1] and lines[-1].endswith(" ana"), lines
+
+
 async def test_killing_the_operators_client_ends_the_lease_and_holds_the_vehicle(
     make_settings: Callable[..., Settings],
 ) -> None:
