@@ -25,6 +25,7 @@ from remote_client.cli_common import (
     ServerOpt,
     TokenOpt,
     between,
+    boat,
     dump,
     fail,
     lat_lon,
@@ -256,11 +257,13 @@ def request(
 ) -> None:
     """Ask the field manager for control of a vehicle."""
 
-    async def act(fleet: FleetClient) -> dict[str, Any]:
-        return await fleet.request_control(await fleet.instance_id_of(vehicle))
+    async def act(fleet: FleetClient) -> tuple[dict[str, Any], dict[str, Any]]:
+        instance = await fleet.instance_of(vehicle)
+        return instance, await fleet.request_control(instance["instance_id"])
 
-    data = run(server, token, act)
-    say(data, as_json, f"requested: {data['request_id']} (instance {data['instance_id']})")
+    instance, data = run(server, token, act)
+    text = f"control of {boat(instance)} requested: {data['request_id']}"
+    say(data, as_json, text)
 
 
 @app.command()
@@ -272,18 +275,27 @@ def requests(
 ) -> None:
     """(manager) The pending control requests you may answer."""
 
-    async def act(fleet: FleetClient) -> dict[str, Any]:
+    async def act(fleet: FleetClient) -> tuple[dict[str, Any], dict[str, dict[str, Any]]]:
         instance_id = await fleet.instance_id_of(vehicle) if vehicle else None
-        return await fleet.control_requests(instance_id)
+        data = await fleet.control_requests(instance_id)
+        return data, await fleet.instance_vehicles(r["instance_id"] for r in data["requests"])
 
-    data = run(server, token, act)
+    data, vehicles = run(server, token, act)
     if as_json:
         dump(data)
         return
-    table = Table("user", "requested at", "request")
-    table.add_column("instance", no_wrap=True)  # whole: the id grant takes
+    # The request ids (which no command takes) with --json only: 80 columns hold the rest.
+    table = Table("vehicle", "name", "user", "asked (UTC)")
+    table.add_column("instance", no_wrap=True)  # whole: grant and deny take it too
     for r in data["requests"]:
-        table.add_row(r["username"], r["requested_at"], r["request_id"], r["instance_id"])
+        v = vehicles[r["instance_id"]]
+        table.add_row(
+            v["vehicle_id"],
+            v.get("name") or "-",
+            r["username"],
+            short_time(r["requested_at"]),
+            r["instance_id"],
+        )
     console.print(table)
 
 
@@ -307,14 +319,14 @@ def grant(
 
     asked = datetime.now(UTC) + timedelta(seconds=duration)
 
-    async def act(fleet: FleetClient) -> tuple[str, dict[str, Any]]:
-        instance_id = await fleet.instance_id_of(vehicle)
-        return instance_id, await fleet.grant_control(
-            instance_id, user, duration, operator_timeout_s=operator_timeout
+    async def act(fleet: FleetClient) -> tuple[dict[str, Any], dict[str, Any]]:
+        instance = await fleet.instance_of(vehicle)
+        return instance, await fleet.grant_control(
+            instance["instance_id"], user, duration, operator_timeout_s=operator_timeout
         )
 
-    instance_id, data = run(server, token, act)
-    text = f"{data['holder']} holds {instance_id} until {data['expires_at']}"
+    instance, data = run(server, token, act)
+    text = f"{data['holder']} holds {boat(instance)} until {data['expires_at']}"
     if parse_ts(data["expires_at"]) > asked + timedelta(seconds=5):  # the lease ran longer
         text += " (held already: a grant never shortens a lease; revoke it to end it sooner)"
     say(data, as_json, text)
@@ -331,12 +343,12 @@ def deny(
 ) -> None:
     """(manager) Decline an operator's pending request for control of a vehicle."""
 
-    async def act(fleet: FleetClient) -> tuple[str, dict[str, Any]]:
-        instance_id = await fleet.instance_id_of(vehicle)
-        return instance_id, await fleet.deny_control(instance_id, user, reason)
+    async def act(fleet: FleetClient) -> tuple[dict[str, Any], dict[str, Any]]:
+        instance = await fleet.instance_of(vehicle)
+        return instance, await fleet.deny_control(instance["instance_id"], user, reason)
 
-    instance_id, data = run(server, token, act)
-    say(data, as_json, f"{user}'s request for control of {instance_id} declined")
+    instance, data = run(server, token, act)
+    say(data, as_json, f"{user}'s request for control of {boat(instance)} declined")
 
 
 @app.command()
@@ -348,13 +360,13 @@ def revoke(
 ) -> None:
     """(manager) End the lease on a vehicle: its holder's queued commands are cancelled."""
 
-    async def act(fleet: FleetClient) -> tuple[str, dict[str, Any]]:
-        instance_id = await fleet.instance_id_of(vehicle)
-        return instance_id, await fleet.revoke_control(instance_id)
+    async def act(fleet: FleetClient) -> tuple[dict[str, Any], dict[str, Any]]:
+        instance = await fleet.instance_of(vehicle)
+        return instance, await fleet.revoke_control(instance["instance_id"])
 
-    instance_id, data = run(server, token, act)
-    done = f"control of {instance_id} revoked"
-    say(data, as_json, done if data.get("revoked", True) else f"nobody held {instance_id}")
+    instance, data = run(server, token, act)
+    done = f"control of {boat(instance)} revoked"
+    say(data, as_json, done if data.get("revoked", True) else f"nobody held {boat(instance)}")
 
 
 @app.command()
@@ -366,12 +378,12 @@ def release(
 ) -> None:
     """Give back the lease you hold on a vehicle."""
 
-    async def act(fleet: FleetClient) -> tuple[str, dict[str, Any]]:
-        instance_id = await fleet.instance_id_of(vehicle)
-        return instance_id, await fleet.release_control(instance_id)
+    async def act(fleet: FleetClient) -> tuple[dict[str, Any], dict[str, Any]]:
+        instance = await fleet.instance_of(vehicle)
+        return instance, await fleet.release_control(instance["instance_id"])
 
-    instance_id, data = run(server, token, act)
-    say(data, as_json, f"control of {instance_id} released")
+    instance, data = run(server, token, act)
+    say(data, as_json, f"control of {boat(instance)} released")
 
 
 def main() -> None:

@@ -259,6 +259,13 @@ def dump(data: Any) -> None:
     print(json.dumps(data, indent=2))
 
 
+def boat(view: dict[str, Any]) -> str:
+    """A vehicle as people know it: its name and its id (``H2OmniX Alpha (usv-1)``), the id
+    alone when it has no other name. ``view``: any answer naming a vehicle and its name."""
+    name, vehicle_id = view.get("name"), view["vehicle_id"]
+    return f"{name} ({vehicle_id})" if name and name != vehicle_id else str(vehicle_id)
+
+
 async def with_names(fleet: FleetClient, data: dict[str, Any]) -> dict[str, Any]:
     """A submit's answer and, for :func:`print_queued`, the name of each instance's boat
     (``_names``: not part of the answer, never in ``--json``)."""

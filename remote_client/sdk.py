@@ -16,7 +16,7 @@ Tests hand it an ``httpx.AsyncClient`` on the app itself (``client=``).
 
 from __future__ import annotations
 
-from collections.abc import AsyncGenerator, Sequence
+from collections.abc import AsyncGenerator, Iterable, Sequence
 from dataclasses import dataclass
 from datetime import UTC, datetime
 
@@ -136,6 +136,25 @@ class FleetClient(ControlCalls, LiveCalls, AdminCalls):
 
     async def instance_id_of(self, ref: str) -> str:
         return (await self.instance_ids_of([ref]))[0]
+
+    async def instance_of(self, ref: str) -> Body:
+        """The instance ``ref`` names (as :meth:`instance_ids_of`) as ``connect`` shows it:
+        its ``instance_id``, its vehicle's ``vehicle_id`` and ``name``, presence, control."""
+        instance: Body = (await self.connect(await self.instance_id_of(ref)))["instance"]
+        return instance
+
+    async def instance_vehicles(self, instance_ids: Iterable[str]) -> dict[str, Body]:
+        """Which vehicle each instance is: ``{instance_id: view}``, each view holding
+        ``vehicle_id`` and ``name``; the current instances from one ``GET
+        /api/vehicles``, any other as ``connect`` shows it."""
+        wanted = set(instance_ids)
+        if not wanted:
+            return {}
+        fleet = (await self.vehicles())["vehicles"]
+        found = {v["instance_id"]: v for v in fleet if v.get("instance_id") in wanted}
+        for instance_id in sorted(wanted - found.keys()):
+            found[instance_id] = (await self.connect(instance_id))["instance"]
+        return found
 
     async def _older_instance(self, ref: str) -> str:
         """``ref`` when the server knows it as an instance (one no longer current)."""

@@ -122,7 +122,7 @@ async def test_missions_requests_and_the_lease_from_the_command_line(
         revoked = await fleetctl(base, ADMIN_TOKEN, "revoke", iid, "--json")
         assert revoked.exit_code == 0 and json.loads(revoked.stdout)["revoked"] is True
         nobody = await fleetctl(base, ADMIN_TOKEN, "revoke", iid)
-        assert nobody.exit_code == 0 and f"nobody held {iid}" in nobody.stdout
+        assert nobody.exit_code == 0 and f"nobody held {vid}" in nobody.stdout  # named as its id
         not_a_manager = await fleetctl(base, op_token, "revoke", iid)
         assert not_a_manager.exit_code == 1 and "403" in not_a_manager.stderr
 
@@ -151,7 +151,7 @@ async def test_a_vehicle_name_works_wherever_an_id_does(
         pending = await fleetctl(base, ADMIN_TOKEN, "requests", "h2omnix alpha", "--json")
         assert [r["username"] for r in json.loads(pending.stdout)["requests"]] == ["nora"]
         granted = await fleetctl(base, ADMIN_TOKEN, "grant", "H2OmniX Alpha", "nora")
-        assert granted.exit_code == 0 and f"nora holds {iid}" in granted.stdout
+        assert granted.exit_code == 0 and f"nora holds H2OmniX Alpha ({vid})" in granted.stdout
 
         went = await fleetctl(base, nora, "goto", "H2OmniX Alpha", "43.95", "-15.45", "--json")
         assert went.exit_code == 0, went.output
@@ -230,3 +230,36 @@ async def test_the_commands_table_reads_whole_at_80_columns(
         wide = await fleetctl(base, ana, "commands", vid)
         row = next(line for line in wide.stdout.splitlines() if go_id in line)
         assert arrived in row and max(map(len, wide.stdout.splitlines())) <= 120
+
+
+async def test_control_commands_name_the_vehicle_not_its_instance(
+    make_settings: Callable[..., Settings], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """``requests`` has the vehicle's id and name; ``request``, ``grant``, ``deny``,
+    ``revoke`` and ``release`` say which vehicle (they named its instance, ``i-...``,
+    alone: a field manager could not tell the boats apart)."""
+    async with served_vehicle(make_settings(), name="H2OmniX Alpha") as (base, c, vid, _, iid):
+        _, op = await make_user(c, "operator", vehicles=[vid], username="nora")
+        nora = op["Authorization"].removeprefix("Bearer ")
+        boat = f"H2OmniX Alpha ({vid})"
+
+        asked = await fleetctl(base, nora, "request", "H2OmniX Alpha")
+        assert asked.exit_code == 0 and f"control of {boat} requested" in asked.stdout
+        monkeypatch.setenv("COLUMNS", "80")
+        pending = await fleetctl(base, ADMIN_TOKEN, "requests")
+        assert pending.exit_code == 0, pending.output
+        row = next(line for line in pending.stdout.splitlines() if "nora" in line)
+        assert vid in row and "H2OmniX Alpha" in row and iid in row, pending.stdout
+        assert max(map(len, pending.stdout.splitlines())) <= 80, pending.stdout
+
+        denied = await fleetctl(base, ADMIN_TOKEN, "deny", "H2OmniX Alpha", "nora")
+        assert denied.stdout == f"nora's request for control of {boat} declined\n"
+        granted = await fleetctl(base, ADMIN_TOKEN, "grant", iid, "nora")  # its instance
+        assert granted.stdout.startswith(f"nora holds {boat} until "), granted.output
+        released = await fleetctl(base, nora, "release", vid)
+        assert released.stdout == f"control of {boat} released\n", released.output
+        assert (await fleetctl(base, ADMIN_TOKEN, "grant", vid, "nora")).exit_code == 0
+        revoked = await fleetctl(base, ADMIN_TOKEN, "revoke", "h2omnix alpha")
+        assert revoked.stdout == f"control of {boat} revoked\n", revoked.output
+        nobody = await fleetctl(base, ADMIN_TOKEN, "revoke", vid)
+        assert nobody.stdout == f"nobody held {boat}\n", nobody.output

@@ -99,7 +99,7 @@ def test_the_readme_walk_through_and_the_agent_path_work_as_written(demo_folder:
 
         vehicle_rows = [line for line in out.splitlines() if "demo-usv-" in line and "│" in line]
         assert all("online" in row for row in vehicle_rows[:3]), out
-        assert re.search(r"admin holds i-\w+ until", out)
+        assert "admin holds H2OmniX Alpha (demo-usv-1) until" in out
         assert re.search(r"H2OmniX Alpha \(i-\w+\): c-\w+ queued", out)  # the go_to, by name
         samples = re.findall(r"^(?:current|\d\d:\d\d:\d\dZ) demo-usv-1 telemetry #\d+ ", out, re.M)
         assert len(samples) == 3

@@ -129,6 +129,14 @@ async def test_a_vehicle_name_stands_for_the_vehicle_and_its_instance(
     assert await fleet.vehicle_id_of("Bravo") == bravo  # the exact name first
     assert await fleet.instance_ids_of([alpha, "Alpha One", iid]) == [iid, iid, iid]
     assert await fleet.instance_id_of(first) == first  # an older instance: the server knows it
+    instance = await fleet.instance_of("alpha one")  # which vehicle an instance is
+    assert (instance["instance_id"], instance["vehicle_id"], instance["name"]) == (
+        iid, alpha, "Alpha One"
+    )  # fmt: skip
+    views = await fleet.instance_vehicles([iid, first])  # the older one as connect shows it
+    assert {i: (v["vehicle_id"], v["name"]) for i, v in views.items()} == {
+        iid: (alpha, "Alpha One"), first: (alpha, "Alpha One")
+    }  # fmt: skip
     with pytest.raises(AmbiguousName) as two:
         await fleet.instance_id_of("BRAVO")
     assert two.value.code == "ambiguous_name" and bravo in two.value.message
