@@ -9,7 +9,6 @@ import itertools
 import re
 from collections.abc import Iterator
 
-import click
 import pytest
 from typer.main import get_command
 
@@ -55,7 +54,8 @@ def test_at_80_columns_a_summary_breaks_only_where_the_next_word_would_not_fit(
             assert len(line) + 1 + len(next_word) > width - 2, (name, lines)
 
 
-def _commands(command: click.Command, path: list[str]) -> Iterator[list[str]]:
+def _commands(command: object, path: list[str]) -> Iterator[list[str]]:
+    """``path`` and the path of every command under it."""
     yield path
     for name, sub in getattr(command, "commands", {}).items():
         yield from _commands(sub, [*path, name])
