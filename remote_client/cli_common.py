@@ -16,6 +16,7 @@ from collections.abc import Awaitable, Callable, Sequence
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any, Final, NoReturn, TypeVar
+from urllib.parse import urlsplit
 
 import httpx
 import typer
@@ -29,7 +30,30 @@ from remote_client.times import BadTime, when_text
 #: Help texts are Markdown: a paragraph is reflowed to the terminal's width (typer's rich
 #: mode kept each line break of a docstring, so sentences broke in the middle).
 HELP_MARKUP: Final = "markdown"
-ServerOpt = typer.Option("http://127.0.0.1:8000", envvar="FLEET_SERVER", help="server URL")
+
+
+def server_url(ctx: typer.Context, param: typer.CallbackParam, value: str) -> str:
+    """The callback of ``--server``: the server's root as an http:// or https:// URL
+    (``http://127.0.0.1:8000``), else a bad argument naming where it came from, --server
+    or FLEET_SERVER (exit 2; it was taken for a server out of reach, or asked for
+    /api/api/... and answered 404)."""
+    source = ctx.get_parameter_source(param.name or "server")
+    given = "FLEET_SERVER" if source is not None and source.name == "ENVIRONMENT" else "--server"
+    url = urlsplit(value)
+    if "://" not in value:
+        fail(f"{given} is a URL with its scheme: give http://{value}, not {value!r}")
+    if url.scheme not in ("http", "https") or not url.hostname:
+        fail(f"{given} is an http:// or https:// URL with a host (http://127.0.0.1:8000), "
+             f"not {value!r}")  # fmt: skip
+    if url.path.rstrip("/").endswith("/api"):
+        root = value.rstrip("/").removesuffix("/api")
+        fail(f"{given} is the server's address, without /api: give {root}, not {value!r}")
+    return value
+
+
+ServerOpt = typer.Option(
+    "http://127.0.0.1:8000", envvar="FLEET_SERVER", callback=server_url, help="server URL"
+)
 TokenOpt = typer.Option(..., envvar="FLEET_TOKEN", help="API token (FLEET_TOKEN)")
 JsonOpt = typer.Option(False, "--json", help="print JSON for scripts")
 #: The token of a group whose bare form lists (``fleetctl users``): optional there, since

@@ -86,6 +86,35 @@ def test_a_position_out_of_range_or_an_unknown_kind_is_refused_before_anything_i
     assert_refused(fleetctl(*args), named)
 
 
+@pytest.mark.parametrize(
+    ("server", "said"),
+    [
+        ("127.0.0.1:8741", "FLEET_SERVER is a URL with its scheme: give http://127.0.0.1:8741"),
+        ("localhost:8741", "give http://localhost:8741"),
+        ("ftp://fleet.example.org", "FLEET_SERVER is an http:// or https:// URL"),
+        ("http://", "FLEET_SERVER is an http:// or https:// URL"),
+        ("http://127.0.0.1:8741/api", "without /api: give http://127.0.0.1:8741"),
+        ("https://fleet.example.org/api/", "without /api: give https://fleet.example.org"),
+    ],
+)
+@pytest.mark.parametrize("args", [("vehicles",), ("watch", "--seconds", "1"), ("alive",)])
+def test_a_server_address_that_is_no_servers_root_is_refused_before_anything_is_sent(
+    server: str, said: str, args: tuple[str, ...]
+) -> None:
+    """Exit 2, a bad argument (it was exit 3, the server out of reach, or a 404 from a
+    server asked for /api/api/vehicles)."""
+    refused = runner.invoke(
+        app, list(args), env={"FLEET_SERVER": server, "FLEET_TOKEN": ADMIN_TOKEN}
+    )
+    assert_refused(refused, said)
+
+
+def test_a_server_given_as_an_option_is_named_so() -> None:
+    env = {"FLEET_SERVER": "http://127.0.0.1:8741", "FLEET_TOKEN": ADMIN_TOKEN}
+    given = runner.invoke(app, ["users", "--server", "127.0.0.1:8741"], env=env)
+    assert_refused(given, "--server is a URL with its scheme")
+
+
 TRACK_ENDINGS = ".json, .geojson, .gpx, .csv, .png"
 
 
