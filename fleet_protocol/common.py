@@ -33,6 +33,7 @@ from fleet_protocol.values import (
 
 __all__ = [
     "ID_PATTERN",
+    "ID_RULE",
     "MAX_SAMPLE_DATA_BYTES",
     "Identifier",
     "LatLon",
@@ -52,6 +53,8 @@ __all__ = [
 #: Identifiers (vehicles, users, gateways) become topic segments
 #: (``vehicle/<id>/telemetry``), so they follow the topic grammar.
 ID_PATTERN = r"^[a-z0-9][a-z0-9_-]{0,63}$"
+#: :data:`ID_PATTERN` in words, for a person told why an id or a name is refused.
+ID_RULE = "1 to 64 characters of a-z, 0-9, - and _, the first a letter or a digit"
 
 
 def utcnow() -> datetime:

@@ -16,6 +16,7 @@ from rich import box
 from rich.table import Table
 
 from fleet_protocol import parse_ts
+from fleet_protocol.client import DenyControl, GrantControl
 from remote_client import cli_data, cli_live
 from remote_client.cli_admin import gateways_app, vehicles_app
 from remote_client.cli_common import (
@@ -35,6 +36,7 @@ from remote_client.cli_common import (
     print_queued,
     run,
     say,
+    sent_as,
     split_waypoints,
     with_names,
 )
@@ -302,7 +304,9 @@ def requests(
 @app.command()
 def grant(
     vehicle: str = VehicleArg,
-    user: str = typer.Argument(..., help="the operator to hand control to"),
+    user: str = typer.Argument(
+        ..., callback=sent_as(GrantControl, "user"), help="the operator to hand control to"
+    ),
     duration: int = typer.Option(3600, callback=between(1, 86400), help="seconds (1-86400)"),
     operator_timeout: int | None = typer.Option(
         None,
@@ -335,7 +339,9 @@ def grant(
 @app.command()
 def deny(
     vehicle: str = VehicleArg,
-    user: str = typer.Argument(..., help="the operator whose request to decline"),
+    user: str = typer.Argument(
+        ..., callback=sent_as(DenyControl, "user"), help="the operator whose request to decline"
+    ),
     reason: str | None = typer.Option(None, help="why (the requester sees it)"),
     server: str = ServerOpt,
     token: str = TokenOpt,

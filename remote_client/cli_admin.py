@@ -14,6 +14,7 @@ from typing import Any
 import typer
 from rich.table import Table
 
+from fleet_protocol.admin import CreateGateway, CreateVehicle
 from remote_client.cli_common import (
     HELP_MARKUP,
     GroupTokenOpt,
@@ -26,6 +27,7 @@ from remote_client.cli_common import (
     new_token,
     run,
     say,
+    sent_as,
 )
 from remote_client.lines import alarms_text, position_text
 from remote_client.output import console
@@ -96,7 +98,9 @@ def _list_vehicles(server: str, token: str, as_json: bool) -> None:
 
 @vehicles_app.command("add")
 def vehicles_add(
-    vehicle_id: str = typer.Argument(..., help="its id: a-z, 0-9, - and _ (usv-4)"),
+    vehicle_id: str = typer.Argument(
+        ..., callback=sent_as(CreateVehicle, "vehicle_id"), help="its id: a-z, 0-9, - and _ (usv-4)"
+    ),
     name: str = typer.Option("", help="display name (default: the id)"),
     vehicle_type: str = typer.Option("usv", "--type", help="usv, auv, rov, uav, ..."),
     server: str = ServerOpt,
@@ -171,6 +175,11 @@ def vehicles_revoke(
 
 
 # ---- gateways -----------------------------------------------------------------------
+GatewayArg = typer.Argument(
+    ..., callback=sent_as(CreateGateway, "gateway_id"), help="its id: a-z, 0-9, - and _"
+)
+
+
 @gateways_app.callback()
 def gateways(
     ctx: typer.Context,
@@ -206,7 +215,7 @@ def _list_gateways(server: str, token: str, as_json: bool) -> None:
 
 @gateways_app.command("add")
 def gateways_add(
-    gateway_id: str = typer.Argument(..., help="its id: a-z, 0-9, - and _"),
+    gateway_id: str = GatewayArg,
     vehicles: list[str] = typer.Option(..., "--vehicle", "-v", help="a vehicle it carries"),
     server: str = ServerOpt,
     token: str = TokenOpt,
@@ -225,7 +234,10 @@ def gateways_add(
 
 @gateways_app.command("token")
 def gateways_token(
-    gateway_id: str, server: str = ServerOpt, token: str = TokenOpt, as_json: bool = JsonOpt
+    gateway_id: str = GatewayArg,
+    server: str = ServerOpt,
+    token: str = TokenOpt,
+    as_json: bool = JsonOpt,
 ) -> None:
     """Issue a new token for a gateway (printed once); its former tokens stop working."""
     data = run(server, token, lambda fleet: fleet.rotate_token("gateway", gateway_id))
@@ -235,7 +247,10 @@ def gateways_token(
 
 @gateways_app.command("revoke")
 def gateways_revoke(
-    gateway_id: str, server: str = ServerOpt, token: str = TokenOpt, as_json: bool = JsonOpt
+    gateway_id: str = GatewayArg,
+    server: str = ServerOpt,
+    token: str = TokenOpt,
+    as_json: bool = JsonOpt,
 ) -> None:
     """Revoke every token of a gateway (its link is closed) until a new one is issued."""
     data = run(server, token, lambda fleet: fleet.revoke_tokens("gateway", gateway_id))

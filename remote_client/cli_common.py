@@ -20,8 +20,11 @@ from urllib.parse import urlsplit
 
 import httpx
 import typer
+from pydantic import BaseModel, ValidationError
 from typer.core import TyperGroup
 
+from fleet_protocol.common import ID_PATTERN, ID_RULE
+from fleet_protocol.errors import error_text
 from remote_client import streams
 from remote_client.output import OutputClosed, answer_line, console, errors, quiet_stdout
 from remote_client.sdk import AmbiguousName, FleetApiError, FleetClient
@@ -152,6 +155,34 @@ def between(
         return value
 
     return check
+
+
+def sent_as(
+    model: type[BaseModel], field: str
+) -> Callable[[typer.CallbackParam, str | None], str | None]:
+    """The callback of an argument the server takes as ``model``'s ``field`` (a username,
+    a vehicle's or a gateway's id): checked here by the protocol's own model, and refused
+    in words (exit 2) before anything is sent."""
+
+    def check(param: typer.CallbackParam, value: str | None) -> str | None:
+        if value is None:
+            return None
+        try:
+            model.model_validate({field: value})
+        except ValidationError as exc:
+            for error in exc.errors():
+                if error["loc"] == (field,):
+                    fail(_refused(_shown_name(param), value, error))
+        return value
+
+    return check
+
+
+def _refused(name: str, value: str, error: Any) -> str:
+    """Why the server would refuse ``value``, in words (an identifier's pattern too)."""
+    if error["type"] == "string_pattern_mismatch" and error["ctx"]["pattern"] == ID_PATTERN:
+        return f"{name} is {ID_RULE}, not {value!r}"
+    return f"{name} {value!r}: {error_text(error)}"
 
 
 def latitude(param: typer.CallbackParam, value: float | None) -> float | None:

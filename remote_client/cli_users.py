@@ -5,11 +5,12 @@ disable them, and issue and revoke their tokens (a new token is printed as
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, get_args
 
 import typer
 from rich.table import Table
 
+from fleet_protocol.admin import CreateUser, Role
 from remote_client.cli_common import (
     HELP_MARKUP,
     GroupTokenOpt,
@@ -22,6 +23,7 @@ from remote_client.cli_common import (
     new_token,
     run,
     say,
+    sent_as,
 )
 from remote_client.output import console
 from remote_client.sdk import FleetClient
@@ -33,10 +35,13 @@ users_app = typer.Typer(
     help="(admin) Users: list (no subcommand), add, change, disable, tokens.",
 )
 
+UsernameArg = typer.Argument(
+    ..., callback=sent_as(CreateUser, "username"), help="a-z, 0-9, - and _ (ana, fm-north)"
+)
 VehicleOpt = typer.Option(
     None, "--vehicle", "-v", help="a vehicle (id or name) it may see; repeat for several"
 )
-ROLES = ("viewer", "operator", "manager", "admin")
+ROLES: tuple[str, ...] = get_args(Role)
 
 
 # ---- users --------------------------------------------------------------------------
@@ -75,7 +80,7 @@ def _list_users(server: str, token: str, as_json: bool) -> None:
 
 @users_app.command("add")
 def users_add(
-    username: str = typer.Argument(..., help="a-z, 0-9, - and _"),
+    username: str = UsernameArg,
     role: str = typer.Option("operator", help="viewer, operator, manager or admin"),
     vehicles: list[str] = VehicleOpt,
     ask_password: bool = typer.Option(
@@ -100,7 +105,7 @@ def users_add(
 
 @users_app.command("set")
 def users_set(
-    username: str,
+    username: str = UsernameArg,
     role: str | None = typer.Option(None, help="viewer, operator, manager or admin"),
     vehicles: list[str] = VehicleOpt,
     no_vehicles: bool = typer.Option(False, "--no-vehicles", help="take every vehicle away"),
@@ -134,7 +139,10 @@ def users_set(
 
 @users_app.command("disable")
 def users_disable(
-    username: str, server: str = ServerOpt, token: str = TokenOpt, as_json: bool = JsonOpt
+    username: str = UsernameArg,
+    server: str = ServerOpt,
+    token: str = TokenOpt,
+    as_json: bool = JsonOpt,
 ) -> None:
     """Disable a user: its tokens are refused and its sessions and leases end."""
     _user_said(run(server, token, lambda f: f.update_user(username, disabled=True)), as_json)
@@ -142,7 +150,10 @@ def users_disable(
 
 @users_app.command("enable")
 def users_enable(
-    username: str, server: str = ServerOpt, token: str = TokenOpt, as_json: bool = JsonOpt
+    username: str = UsernameArg,
+    server: str = ServerOpt,
+    token: str = TokenOpt,
+    as_json: bool = JsonOpt,
 ) -> None:
     """Enable a disabled user (its API token works again; its sessions do not)."""
     _user_said(run(server, token, lambda f: f.update_user(username, disabled=False)), as_json)
@@ -150,7 +161,10 @@ def users_enable(
 
 @users_app.command("token")
 def users_token(
-    username: str, server: str = ServerOpt, token: str = TokenOpt, as_json: bool = JsonOpt
+    username: str = UsernameArg,
+    server: str = ServerOpt,
+    token: str = TokenOpt,
+    as_json: bool = JsonOpt,
 ) -> None:
     """Issue a new API token for a user (printed once); every former token is revoked."""
     data = run(server, token, lambda fleet: fleet.rotate_token("user", username))
@@ -160,7 +174,10 @@ def users_token(
 
 @users_app.command("revoke")
 def users_revoke(
-    username: str, server: str = ServerOpt, token: str = TokenOpt, as_json: bool = JsonOpt
+    username: str = UsernameArg,
+    server: str = ServerOpt,
+    token: str = TokenOpt,
+    as_json: bool = JsonOpt,
 ) -> None:
     """Revoke every token of a user (API token and sessions; open links close)."""
     data = run(server, token, lambda fleet: fleet.revoke_tokens("user", username))

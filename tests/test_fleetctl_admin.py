@@ -65,7 +65,7 @@ async def test_vehicles_are_registered_and_their_tokens_issued_and_revoked(
         taken = await fleetctl(base, ADMIN_TOKEN, "vehicles", "add", "cli-usv")
         assert taken.exit_code == 1 and "409" in taken.stderr and taken.stdout == ""
         bad_id = await fleetctl(base, ADMIN_TOKEN, "vehicles", "add", "Not An Id")
-        assert bad_id.exit_code == 1 and "422 invalid" in bad_id.stderr
+        assert bad_id.exit_code == 2 and "VEHICLE_ID is 1 to 64 characters" in bad_id.stderr
         nobody = await fleetctl(base, ADMIN_TOKEN, "vehicles", "token", "Zulu")
         assert nobody.exit_code == 1 and "'Zulu'" in nobody.stderr
         _, op = await make_user(c, "operator", vehicles=["cli-usv"])

@@ -115,6 +115,35 @@ def test_a_server_given_as_an_option_is_named_so() -> None:
     assert_refused(given, "--server is a URL with its scheme")
 
 
+ID_RULE = "is 1 to 64 characters of a-z, 0-9, - and _, the first a letter or a digit"
+
+
+@pytest.mark.parametrize(
+    ("args", "named"),
+    [
+        (("users", "add", "Bad Name"), f"USERNAME {ID_RULE}, not 'Bad Name'"),
+        (("users", "add", "x" * 65, "--role", "viewer"), f"USERNAME {ID_RULE}"),
+        (("users", "set", "Ana", "--role", "viewer"), f"USERNAME {ID_RULE}, not 'Ana'"),
+        (("users", "disable", "_ana"), f"USERNAME {ID_RULE}, not '_ana'"),
+        (("users", "token", "ana smith"), f"USERNAME {ID_RULE}"),
+        (("vehicles", "add", "Not An Id"), f"VEHICLE_ID {ID_RULE}, not 'Not An Id'"),
+        (("vehicles", "add", "i-0123456789abcdef"), "shaped like an id the server gives"),
+        (("gateways", "add", "GW 1", "-v", "usv-1"), f"GATEWAY_ID {ID_RULE}"),
+        (("gateways", "revoke", "gw.1"), f"GATEWAY_ID {ID_RULE}"),
+        (("grant", "Alpha", "Ana Smith"), f"USER {ID_RULE}, not 'Ana Smith'"),
+        (("deny", "Alpha", "ana!"), f"USER {ID_RULE}"),
+    ],
+)
+def test_a_name_or_id_the_server_would_refuse_is_refused_in_words_before_anything_is_sent(
+    args: tuple[str, ...], named: str
+) -> None:
+    """As the protocol's models take it (``fleet_protocol``: a username, a vehicle's and a
+    gateway's id), said in words: it was sent, and refused with the pattern itself."""
+    refused = fleetctl(*args)
+    assert_refused(refused, named)
+    assert "^[a-z0-9]" not in refused.stderr
+
+
 TRACK_ENDINGS = ".json, .geojson, .gpx, .csv, .png"
 
 
