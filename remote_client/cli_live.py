@@ -21,18 +21,24 @@ __all__ = ["publish", "watch"]
 
 def watch(
     topics: list[str] = typer.Argument(None, help="topics to follow; none: fleet"),
-    count: int | None = typer.Option(None, min=1, help="stop after this many events"),
+    count: int | None = typer.Option(
+        None,
+        min=1,
+        help="stop after this many lines are printed (--json: events, a line each)",
+    ),
     seconds: float | None = typer.Option(None, min=0, callback=finite, help="stop after this long"),
     throttle_ms: int = typer.Option(0, min=0, help="at most one event per topic per N ms"),
     server: str = ServerOpt,
     token: str = TokenOpt,
     as_json: bool = JsonOpt,
 ) -> None:
-    """Follow topics live: a readable line per event (--json: JSON lines).
+    """Follow topics live, a readable line at a time (--json: a line per event).
 
-    Each topic's current state comes first, then every change. Topics: fleet
-    (presence), vehicle/VEHICLE/telemetry, .../commands, .../control, .../events
-    (VEHICLE: an id or a name), or any topic a unit publishes. Ctrl-C stops.
+    Each topic's current state comes first, then every change. A line is a vehicle of the
+    fleet, a command of a vehicle's list, a sample, an entry of its event log: --count
+    counts these lines. Topics: fleet (presence), vehicle/VEHICLE/telemetry, .../commands,
+    .../control, .../events (VEHICLE: an id or a name), or any topic a unit publishes.
+    Ctrl-C stops.
     """
     wanted = list(topics or ["fleet"])
     for topic in wanted:  # all but a vehicle's name (any text), before any look-up

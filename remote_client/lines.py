@@ -1,8 +1,9 @@
-"""Live events as one readable line each (``fleetctl watch``). Pure: text in, text out.
+"""Live events as readable lines (``fleetctl watch``). Pure: text in, text out.
 
 A line is ``TIME TOPIC WHAT``: ``TIME`` the server's time of the event (UTC, to the
-second), or ``current`` for the state a subscription starts with. The ``fleet``
-topic's current state lists every vehicle: a line per vehicle.
+second), or ``current`` for the state a subscription starts with. Most events are a
+line; one that lists things is a line per thing: the ``fleet`` topic's state a line per
+vehicle, a vehicle's commands a line per command, its event log a line per entry.
 
 The lines hold what vehicles and people wrote as they wrote it (free-form data as
 compact JSON); printing them escapes what a terminal would obey

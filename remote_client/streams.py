@@ -65,7 +65,8 @@ RECONNECT_S = (0.5, 1.0, 2.0, 5.0, 10.0)
 
 @dataclass(frozen=True)
 class Follow:
-    """What ``watch`` follows and when it stops."""
+    """What ``watch`` follows and when it stops: after ``count`` lines (an event is one or
+    more, :func:`print_event`), or ``seconds``."""
 
     topics: list[str]
     throttle_ms: int = 0
@@ -75,7 +76,7 @@ class Follow:
 
 
 async def watch(fleet: FleetClient, follow: Follow) -> None:
-    """Print each event of ``follow.topics`` until ``count`` events or ``seconds``. A lost
+    """Print each event of ``follow.topics`` until ``count`` lines or ``seconds``. A lost
     link is taken up again and each topic's current state comes first again (the changes
     while the link was down are not replayed: ``export`` has every sample); a refusal is
     exit 1, a server not reachable at the start exit 3; stdout closed (OutputClosed) ends
@@ -91,7 +92,8 @@ async def watch(fleet: FleetClient, follow: Follow) -> None:
 
 async def _follow(fleet: FleetClient, follow: Follow) -> None:
     """:func:`watch`'s loop; TimeoutError when ``--seconds`` is over."""
-    seen = failures = 0
+    printed = failures = 0
+    seen = False  # an event came: a link lost after it is taken up again
     async with fleet, asyncio.timeout(follow.seconds), _leases_kept(fleet):
         while True:
             try:
@@ -99,9 +101,10 @@ async def _follow(fleet: FleetClient, follow: Follow) -> None:
                     if push["op"] == "lagging":
                         errors.print(f"{push.get('dropped')} events dropped (too slow)")
                         continue
-                    print_event(push, follow.as_json)
-                    seen += 1
-                    if follow.count is not None and seen >= follow.count:
+                    left = None if follow.count is None else follow.count - printed
+                    printed += print_event(push, follow.as_json, left)
+                    seen = True
+                    if follow.count is not None and printed >= follow.count:
                         return
                 failures = 0  # it ran: the next loss starts the waits again
                 reason = "the server closed the connection"
@@ -109,7 +112,7 @@ async def _follow(fleet: FleetClient, follow: Follow) -> None:
                 print_refusal(exc)
                 raise typer.Exit(1) from None
             except (OSError, TimeoutError, websockets.InvalidHandshake) as exc:
-                if seen == 0 and failures == 0:
+                if not seen and failures == 0:
                     errors.print(f"cannot reach {fleet.server}: {exc}", style="red", markup=False)
                     raise typer.Exit(3) from None
                 reason = f"{type(exc).__name__}: {exc}"
@@ -141,11 +144,11 @@ async def _leases_kept(fleet: FleetClient) -> AsyncIterator[None]:
             await task
 
 
-def print_event(push: dict[str, Any], as_json: bool) -> None:
+def print_event(push: dict[str, Any], as_json: bool, limit: int | None = None) -> int:
     """An event as one JSON line (``--json``), or as readable lines (``remote_client.lines``:
-    one per event; the ``fleet`` topic's current state, one per vehicle)."""
-    if as_json:
-        answer_line(json.dumps(push))
-        return
-    for line in event_lines(push):
+    one per event; the ``fleet`` topic's current state, one per vehicle; a vehicle's
+    commands, one per command): at most ``limit`` of them. The lines printed."""
+    lines = [json.dumps(push)] if as_json else event_lines(push)
+    for line in lines[:limit]:
         answer_line(line)
+    return len(lines[:limit])

@@ -205,3 +205,24 @@ async def test_a_vehicle_segment_that_is_neither_a_name_nor_an_id_is_refused_unw
     nowhere = "http://127.0.0.1:9"  # nothing is asked of a server: refused all the same
     named = await fleetctl(nowhere, ADMIN_TOKEN, "watch", "vehicle/Kestrel/Tele", "--seconds", "1")
     assert named.exit_code == 2 and "segment 'Tele'" in named.stderr, named.output
+
+
+async def test_count_counts_the_lines_printed(make_settings: Callable[..., Settings]) -> None:
+    """``--count N`` ends the watch once N lines are printed: a vehicle's commands (and the
+    fleet) come as one event of a line each, and ``--count 3`` printed every line of it,
+    then waited for two more events."""
+    async with served_vehicle(make_settings()) as (base, c, vid, _, _):
+        other, oh = await make_vehicle(c)
+        await start_instance(c, other, oh)
+        for _ in range(4):
+            assert (await fleetctl(base, ADMIN_TOKEN, "stop", vid)).exit_code == 0
+        topic = f"vehicle/{vid}/commands"
+        # --seconds: a bound should it wait (it waited for ever)
+        three = await fleetctl(base, ADMIN_TOKEN, "watch", topic, "--count", "3", "--seconds", "20")
+        assert three.exit_code == 0, three.output
+        lines = three.stdout.splitlines()
+        assert len(lines) == 3 and all(f"current {vid} commands stop " in line for line in lines)
+        one = await fleetctl(base, ADMIN_TOKEN, "watch", "fleet", "--count", "1", "--seconds", "20")
+        assert one.exit_code == 0 and len(one.stdout.splitlines()) == 1, one.output
+        as_json = await fleetctl(base, ADMIN_TOKEN, "watch", topic, "--count", "1", "--json")
+        assert json.loads(as_json.stdout)["snapshot"] is True  # an event, a line
