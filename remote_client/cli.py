@@ -8,16 +8,13 @@ Exit codes: ``remote_client.cli_common``.
 from __future__ import annotations
 
 import os
-from datetime import UTC, datetime, timedelta
 from typing import Any
 
 import typer
 from rich import box
 from rich.table import Table
 
-from fleet_protocol import parse_ts
-from fleet_protocol.client import DenyControl, GrantControl
-from remote_client import cli_data, cli_live
+from remote_client import cli_control, cli_data, cli_live
 from remote_client.cli_admin import gateways_app, vehicles_app
 from remote_client.cli_common import (
     HELP_MARKUP,
@@ -25,8 +22,8 @@ from remote_client.cli_common import (
     JsonOpt,
     ServerOpt,
     TokenOpt,
+    VehicleArg,
     between,
-    boat,
     dump,
     fail,
     lat_lon,
@@ -36,7 +33,6 @@ from remote_client.cli_common import (
     print_queued,
     run,
     say,
-    sent_as,
     split_waypoints,
     with_names,
 )
@@ -69,7 +65,6 @@ app.command()(cli_live.publish)
 for command in (cli_data.params, cli_data.events, cli_data.export, cli_data.track, cli_data.sync):
     app.command()(command)
 
-VehicleArg = typer.Argument(..., help="vehicle id or name (its current instance), or instance id")
 VehiclesArg = typer.Argument(..., help="vehicle ids or names, or instance ids")
 #: Negative coordinates (-33.9) are arguments, not unknown options.
 COORDINATES = {"ignore_unknown_options": True}
@@ -250,146 +245,15 @@ def cancel(
     say(data, as_json, f"{data['command_id']} {shown_status(data)}")
 
 
-@app.command()
-def request(
-    vehicle: str = VehicleArg,
-    server: str = ServerOpt,
-    token: str = TokenOpt,
-    as_json: bool = JsonOpt,
-) -> None:
-    """Ask the field manager for control of a vehicle."""
-
-    async def act(fleet: FleetClient) -> tuple[dict[str, Any], dict[str, Any]]:
-        instance = await fleet.instance_of(vehicle)
-        return instance, await fleet.request_control(instance["instance_id"])
-
-    instance, data = run(server, token, act)
-    text = f"control of {boat(instance)} requested: {data['request_id']}"
-    say(data, as_json, text)
-
-
-@app.command()
-def requests(
-    vehicle: str | None = typer.Argument(None, help="one vehicle; none: all you may answer"),
-    server: str = ServerOpt,
-    token: str = TokenOpt,
-    as_json: bool = JsonOpt,
-) -> None:
-    """(manager) The pending control requests you may answer."""
-
-    async def act(fleet: FleetClient) -> tuple[dict[str, Any], dict[str, dict[str, Any]]]:
-        instance_id = await fleet.instance_id_of(vehicle) if vehicle else None
-        data = await fleet.control_requests(instance_id)
-        return data, await fleet.instance_vehicles(r["instance_id"] for r in data["requests"])
-
-    data, vehicles = run(server, token, act)
-    if as_json:
-        dump(data)
-        return
-    # The request ids (which no command takes) with --json only: 80 columns hold the rest.
-    table = Table("vehicle", "name", "user", "asked (UTC)")
-    table.add_column("instance", no_wrap=True)  # whole: grant and deny take it too
-    for r in data["requests"]:
-        v = vehicles[r["instance_id"]]
-        table.add_row(
-            v["vehicle_id"],
-            v.get("name") or "-",
-            r["username"],
-            short_time(r["requested_at"]),
-            r["instance_id"],
-        )
-    console.print(table)
-
-
-@app.command()
-def grant(
-    vehicle: str = VehicleArg,
-    user: str = typer.Argument(
-        ..., callback=sent_as(GrantControl, "user"), help="the operator to hand control to"
-    ),
-    duration: int = typer.Option(3600, callback=between(1, 86400), help="seconds (1-86400)"),
-    operator_timeout: int | None = typer.Option(
-        None,
-        min=2,
-        max=3600,
-        help="the lease lapses (the vehicle holds station) when the operator's client is "
-        "silent this many seconds (fleetctl alive, watch and the console keep it alive)",
-    ),
-    server: str = ServerOpt,
-    token: str = TokenOpt,
-    as_json: bool = JsonOpt,
-) -> None:
-    """(manager) Grant remote control of a vehicle to an operator."""
-
-    asked = datetime.now(UTC) + timedelta(seconds=duration)
-
-    async def act(fleet: FleetClient) -> tuple[dict[str, Any], dict[str, Any]]:
-        instance = await fleet.instance_of(vehicle)
-        return instance, await fleet.grant_control(
-            instance["instance_id"], user, duration, operator_timeout_s=operator_timeout
-        )
-
-    instance, data = run(server, token, act)
-    text = f"{data['holder']} holds {boat(instance)} until {data['expires_at']}"
-    if parse_ts(data["expires_at"]) > asked + timedelta(seconds=5):  # the lease ran longer
-        text += " (held already: a grant never shortens a lease; revoke it to end it sooner)"
-    say(data, as_json, text)
-
-
-@app.command()
-def deny(
-    vehicle: str = VehicleArg,
-    user: str = typer.Argument(
-        ..., callback=sent_as(DenyControl, "user"), help="the operator whose request to decline"
-    ),
-    reason: str | None = typer.Option(None, help="why (the requester sees it)"),
-    server: str = ServerOpt,
-    token: str = TokenOpt,
-    as_json: bool = JsonOpt,
-) -> None:
-    """(manager) Decline an operator's pending request for control of a vehicle."""
-
-    async def act(fleet: FleetClient) -> tuple[dict[str, Any], dict[str, Any]]:
-        instance = await fleet.instance_of(vehicle)
-        return instance, await fleet.deny_control(instance["instance_id"], user, reason)
-
-    instance, data = run(server, token, act)
-    say(data, as_json, f"{user}'s request for control of {boat(instance)} declined")
-
-
-@app.command()
-def revoke(
-    vehicle: str = VehicleArg,
-    server: str = ServerOpt,
-    token: str = TokenOpt,
-    as_json: bool = JsonOpt,
-) -> None:
-    """(manager) End the lease on a vehicle: its holder's queued commands are cancelled."""
-
-    async def act(fleet: FleetClient) -> tuple[dict[str, Any], dict[str, Any]]:
-        instance = await fleet.instance_of(vehicle)
-        return instance, await fleet.revoke_control(instance["instance_id"])
-
-    instance, data = run(server, token, act)
-    done = f"control of {boat(instance)} revoked"
-    say(data, as_json, done if data.get("revoked", True) else f"nobody held {boat(instance)}")
-
-
-@app.command()
-def release(
-    vehicle: str = VehicleArg,
-    server: str = ServerOpt,
-    token: str = TokenOpt,
-    as_json: bool = JsonOpt,
-) -> None:
-    """Give back the lease you hold on a vehicle."""
-
-    async def act(fleet: FleetClient) -> tuple[dict[str, Any], dict[str, Any]]:
-        instance = await fleet.instance_of(vehicle)
-        return instance, await fleet.release_control(instance["instance_id"])
-
-    instance, data = run(server, token, act)
-    say(data, as_json, f"control of {boat(instance)} released")
+for control in (  # after the missions in the help's list, as the README lists them
+    cli_control.request,
+    cli_control.requests,
+    cli_control.grant,
+    cli_control.deny,
+    cli_control.revoke,
+    cli_control.release,
+):
+    app.command()(control)
 
 
 def main() -> None:

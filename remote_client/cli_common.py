@@ -59,6 +59,7 @@ ServerOpt = typer.Option(
 )
 TokenOpt = typer.Option(..., envvar="FLEET_TOKEN", help="API token (FLEET_TOKEN)")
 JsonOpt = typer.Option(False, "--json", help="print JSON for scripts")
+VehicleArg = typer.Argument(..., help="vehicle id or name (its current instance), or instance id")
 #: The token of a group whose bare form lists (``fleetctl users``): optional there, since
 #: ``--help`` and the subcommands take their own.
 GroupTokenOpt = typer.Option(None, envvar="FLEET_TOKEN", help="API token (FLEET_TOKEN)")
