@@ -13,6 +13,7 @@ from typing import Any
 
 from pydantic import BaseModel
 
+from fleet_protocol.common import ID_PATTERN, ID_RULE
 from fleet_protocol.values import MAX_INT, MAX_JSON_DEPTH, MIN_INT
 
 __all__ = [
@@ -60,6 +61,8 @@ def error_text(err: Mapping[str, Any]) -> str:
         return f"String should have at most {ctx.get('max_length')} characters"
     if err.get("type") == "too_short" and isinstance(err.get("input"), str):
         return f"String should have at least {ctx.get('min_length')} characters"
+    if err.get("type") == "string_pattern_mismatch" and ctx.get("pattern") == ID_PATTERN:
+        return f"an id or a name is {ID_RULE}"
     if err.get("type") == "extra_forbidden":
         return (
             "not a field of this body (this body refuses fields it does not know: "

@@ -7,6 +7,7 @@ import json
 import httpx
 import pytest
 
+from fleet_protocol.common import ID_RULE
 from tests.factories import ADMIN, bearer, make_user, make_vehicle, start_instance
 
 # Each test runs on the embedded store and on FerretDB (the real MongoDB driver).
@@ -113,6 +114,20 @@ async def test_a_patch_of_a_user_with_a_field_it_does_not_have_changes_nothing_a
     assert detail["message"].startswith("not a field of this body"), detail
     users = (await client.get("/api/users", headers=ADMIN)).json()["users"]
     assert next(u for u in users if u["username"] == name)["role"] == "viewer"
+
+
+async def test_a_bad_username_or_vehicle_id_is_refused_in_words_not_by_its_pattern(
+    client: httpx.AsyncClient,
+) -> None:
+    for path, body, field in (
+        ("/api/users", {"username": "Bad Name", "role": "viewer"}, "username"),
+        ("/api/vehicles", {"vehicle_id": "USV 1", "name": "x"}, "vehicle_id"),
+    ):
+        r = await client.post(path, headers=ADMIN, json=body)
+        assert r.status_code == 422, r.text
+        [detail] = r.json()["error"]["details"]
+        assert detail["field"] == field, detail
+        assert detail["message"] == f"an id or a name is {ID_RULE}", detail
 
 
 async def test_patch_user_changes_access_at_once(client: httpx.AsyncClient) -> None:
