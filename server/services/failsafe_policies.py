@@ -140,7 +140,9 @@ class FailsafePolicies:
         await self.events.record(
             "failsafe_changed", vehicle_id=vehicle_id, actor=principal, data=wire
         )
-        self.messages.emit_now(FailsafeChanged(vehicle_id, wire))
+        # Awaited, as a zone's change is: the answer comes once the vehicle's alarms are
+        # judged by the new policy (a sample sent after it is judged after that).
+        await self.messages.emit(FailsafeChanged(vehicle_id, wire))
         return await self.view(principal, vehicle_id)
 
     async def for_start(self, state: InstanceState) -> FailsafePolicy:
