@@ -4,6 +4,7 @@ back; its field manager answers the requests, grants, declines and revokes
 
 from __future__ import annotations
 
+from collections.abc import Awaitable, Callable
 from datetime import UTC, datetime, timedelta
 from typing import Any
 
@@ -30,6 +31,21 @@ from remote_client.times import short_time
 
 __all__ = ["deny", "grant", "release", "request", "requests", "revoke"]
 
+Call = Callable[[FleetClient, str], Awaitable[dict[str, Any]]]
+
+
+def _on_vehicle(
+    server: str, token: str, vehicle: str, call: Call
+) -> tuple[dict[str, Any], dict[str, Any]]:
+    """The vehicle's instance (for its name and id) and ``call``'s answer on it."""
+
+    async def act(fleet: FleetClient) -> tuple[dict[str, Any], dict[str, Any]]:
+        instance = await fleet.instance_of(vehicle)
+        return instance, await call(fleet, instance["instance_id"])
+
+    result: tuple[dict[str, Any], dict[str, Any]] = run(server, token, act)
+    return result
+
 
 def request(
     vehicle: str = VehicleArg,
@@ -39,11 +55,9 @@ def request(
 ) -> None:
     """Ask the field manager for control of a vehicle."""
 
-    async def act(fleet: FleetClient) -> tuple[dict[str, Any], dict[str, Any]]:
-        instance = await fleet.instance_of(vehicle)
-        return instance, await fleet.request_control(instance["instance_id"])
-
-    instance, data = run(server, token, act)
+    instance, data = _on_vehicle(
+        server, token, vehicle, lambda fleet, iid: fleet.request_control(iid)
+    )
     text = f"control of {boat(instance)} requested: {data['request_id']}"
     say(data, as_json, text)
 
@@ -101,13 +115,14 @@ def grant(
 
     asked = datetime.now(UTC) + timedelta(seconds=duration)
 
-    async def act(fleet: FleetClient) -> tuple[dict[str, Any], dict[str, Any]]:
-        instance = await fleet.instance_of(vehicle)
-        return instance, await fleet.grant_control(
-            instance["instance_id"], user, duration, operator_timeout_s=operator_timeout
-        )
-
-    instance, data = run(server, token, act)
+    instance, data = _on_vehicle(
+        server,
+        token,
+        vehicle,
+        lambda fleet, iid: fleet.grant_control(
+            iid, user, duration, operator_timeout_s=operator_timeout
+        ),
+    )
     text = f"{data['holder']} holds {boat(instance)} until {data['expires_at']}"
     if parse_ts(data["expires_at"]) > asked + timedelta(seconds=5):  # the lease ran longer
         text += " (held already: a grant never shortens a lease; revoke it to end it sooner)"
@@ -126,11 +141,9 @@ def deny(
 ) -> None:
     """(manager) Decline an operator's pending request for control of a vehicle."""
 
-    async def act(fleet: FleetClient) -> tuple[dict[str, Any], dict[str, Any]]:
-        instance = await fleet.instance_of(vehicle)
-        return instance, await fleet.deny_control(instance["instance_id"], user, reason)
-
-    instance, data = run(server, token, act)
+    instance, data = _on_vehicle(
+        server, token, vehicle, lambda fleet, iid: fleet.deny_control(iid, user, reason)
+    )
     say(data, as_json, f"{user}'s request for control of {boat(instance)} declined")
 
 
@@ -142,11 +155,9 @@ def revoke(
 ) -> None:
     """(manager) End the lease on a vehicle: its holder's queued commands are cancelled."""
 
-    async def act(fleet: FleetClient) -> tuple[dict[str, Any], dict[str, Any]]:
-        instance = await fleet.instance_of(vehicle)
-        return instance, await fleet.revoke_control(instance["instance_id"])
-
-    instance, data = run(server, token, act)
+    instance, data = _on_vehicle(
+        server, token, vehicle, lambda fleet, iid: fleet.revoke_control(iid)
+    )
     done = f"control of {boat(instance)} revoked"
     say(data, as_json, done if data.get("revoked", True) else f"nobody held {boat(instance)}")
 
@@ -159,9 +170,7 @@ def release(
 ) -> None:
     """Give back the lease you hold on a vehicle."""
 
-    async def act(fleet: FleetClient) -> tuple[dict[str, Any], dict[str, Any]]:
-        instance = await fleet.instance_of(vehicle)
-        return instance, await fleet.release_control(instance["instance_id"])
-
-    instance, data = run(server, token, act)
+    instance, data = _on_vehicle(
+        server, token, vehicle, lambda fleet, iid: fleet.release_control(iid)
+    )
     say(data, as_json, f"control of {boat(instance)} released")
