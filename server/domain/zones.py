@@ -174,16 +174,18 @@ def route_violation(
         return None
     no_go, areas = zones.of(vehicle_id)
     route = _continuous_route([start, *points] if start is not None else list(points))
+    here: Point | None = None  # the vehicle, and the leg it starts on
+    first = LineString()
+    sent = route
     if start is not None:
-        start, *sent = route
-        first = LineString([start[::-1], sent[0][::-1]])
-    else:
-        sent, first = route, None
+        (lat, lon), *sent = route
+        here, first = Point(lon, lat), LineString([(lon, lat), (sent[0][1], sent[0][0])])
     whole = _line(route)
     for area in no_go:
         way = whole
-        if first is not None and area.enters(Point(start[1], start[0])):  # type: ignore[index]
-            way = _from(first, first.difference(unary_union(area.copies(*_lons(first)))), sent, 0.0)
+        if here is not None and area.enters(here):
+            out = first.difference(unary_union(area.copies(*_lons(first))))
+            way = _from(first, out, sent, 0.0)
         if not area.enters(way):
             continue
         hit = [k for k, (lat, lon) in enumerate(sent) if area.enters(Point(lon, lat))]
@@ -197,7 +199,7 @@ def route_violation(
     if areas:
         held = unary_union([c for a in areas for c in a.copies(*_lons(whole))])
         way = whole
-        if first is not None and not held.covers(Point(start[1], start[0])):  # type: ignore[index]
+        if here is not None and not held.covers(here):
             # Past the edge by a rounding's width: the point where it comes in is not out.
             way = _from(first, first.intersection(held), sent, EDGE_DEG)
         if not held.covers(way):
