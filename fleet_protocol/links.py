@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from urllib.parse import urlsplit
+
 __all__ = [
     "CLOSE_FORBIDDEN",
     "CLOSE_RECONNECT",
@@ -12,6 +14,7 @@ __all__ = [
     "CLOSE_UNAUTHORIZED",
     "MAX_BINARY_FRAME_BYTES",
     "MAX_TEXT_FRAME_BYTES",
+    "server_root_problem",
     "websocket_url",
 ]
 
@@ -50,3 +53,18 @@ def websocket_url(server: str, path: str) -> str:
     else:
         raise ValueError(f"the server must be an http(s) URL, got {server!r}")
     return base.rstrip("/") + path
+
+
+def server_root_problem(value: str) -> str | None:
+    """Why ``value`` is not a server's root URL (``http://127.0.0.1:8000``, or one behind
+    a proxy's path prefix), in words that end "..., not <value>"; None when it is one.
+    Without a scheme it was taken for a server out of reach; ending in ``/api`` every
+    call asked for ``/api/api/...`` and was answered 404."""
+    if "://" not in value:
+        return f"a URL with its scheme: give http://{value}"
+    url = urlsplit(value)
+    if url.scheme not in ("http", "https") or not url.hostname:
+        return "an http:// or https:// URL with a host (http://127.0.0.1:8000)"
+    if url.path.rstrip("/").endswith("/api"):
+        return f"the server's address, without /api: give {value.rstrip('/').removesuffix('/api')}"
+    return None

@@ -16,7 +16,6 @@ from collections.abc import Awaitable, Callable, Sequence
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any, Final, NoReturn, TypeVar
-from urllib.parse import urlsplit
 
 import httpx
 import typer
@@ -25,6 +24,7 @@ from typer.core import TyperGroup
 
 from fleet_protocol.common import ID_PATTERN, ID_RULE
 from fleet_protocol.errors import error_text
+from fleet_protocol.links import server_root_problem
 from remote_client import streams
 from remote_client.output import OutputClosed, answer_line, console, errors, quiet_stdout
 from remote_client.sdk import AmbiguousName, FleetApiError, FleetClient
@@ -42,15 +42,8 @@ def server_url(ctx: typer.Context, param: typer.CallbackParam, value: str) -> st
     /api/api/... and answered 404)."""
     source = ctx.get_parameter_source(param.name or "server")
     given = "FLEET_SERVER" if source is not None and source.name == "ENVIRONMENT" else "--server"
-    url = urlsplit(value)
-    if "://" not in value:
-        fail(f"{given} is a URL with its scheme: give http://{value}, not {value!r}")
-    if url.scheme not in ("http", "https") or not url.hostname:
-        fail(f"{given} is an http:// or https:// URL with a host (http://127.0.0.1:8000), "
-             f"not {value!r}")  # fmt: skip
-    if url.path.rstrip("/").endswith("/api"):
-        root = value.rstrip("/").removesuffix("/api")
-        fail(f"{given} is the server's address, without /api: give {root}, not {value!r}")
+    if (problem := server_root_problem(value)) is not None:
+        fail(f"{given} is {problem}, not {value!r}")
     return value
 
 

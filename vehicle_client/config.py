@@ -24,7 +24,8 @@ from pydantic_settings import (
 )
 
 from fleet_protocol.common import ID_PATTERN
-from fleet_protocol.links import MAX_BINARY_FRAME_BYTES
+from fleet_protocol.errors import error_text
+from fleet_protocol.links import MAX_BINARY_FRAME_BYTES, server_root_problem
 from vehicle_client.errors import FatalError
 from vehicle_client.gateway.uplink import DEFAULT_MEDIA_UP_PER_S, DEFAULT_PUBLISH_UP_PER_S
 from vehicle_client.outbox import DEFAULT_MAX_SAMPLES
@@ -104,6 +105,15 @@ class LinkOptions(BaseSettings):
     #: Seconds on HTTP (``auto``) before the WebSocket is tried again.
     retry_ws_s: float = Field(default=60.0, gt=0, le=3600)
 
+    @field_validator("server")
+    @classmethod
+    def _server(cls, value: str) -> str:
+        """The server's root URL: one ending in /api was retried for ever (every call
+        answered 404); one without a scheme is refused here too, before any link."""
+        if (problem := server_root_problem(value)) is not None:
+            raise ValueError(f"{problem}, not {value!r}")
+        return value
+
 
 class AgentSettings(LinkOptions, VehicleOptions):
     model_config = LinkOptions.model_config  # both bases say no NaN, no infinity
@@ -148,12 +158,14 @@ def _with_file(cls: type[BaseSettings], config: Path | None) -> type[BaseSetting
 
 def _describe(exc: ValidationError) -> str:
     return "; ".join(
-        f"{'.'.join(str(p) for p in e['loc']) or 'settings'}: {e['msg']}" for e in exc.errors()
+        f"{'.'.join(str(p) for p in e['loc']) or 'settings'}: {error_text(e)}" for e in exc.errors()
     )
 
 
 def load(cls: type[BaseSettings], config: Path | None, **options: Any) -> Any:
     """Settings from options (``None`` = not given), env and ``config``; ``FatalError`` if bad."""
+    if config is not None and config.is_dir():
+        raise FatalError(f"config file {config} is a directory: give the TOML file in it")
     if config is not None and not config.is_file():
         raise FatalError(f"config file {config} not found")
     given = {k: v for k, v in options.items() if v is not None}

@@ -82,6 +82,11 @@ def _private_file(path: Path) -> None:
         os.close(fd)
 
 
+class OutboxUnusable(FatalError):
+    """The outbox's file cannot be made or opened (no permission, a folder, a read-only
+    file system): the agent cannot keep a sample it takes, so it does not start."""
+
+
 class OutboxTaken(FatalError):
     """The outbox belongs to another vehicle."""
 
@@ -107,15 +112,19 @@ class Outbox:
         if max_samples < 1 or max_seen < 1:
             raise ValueError("max_samples and max_seen must be at least 1")
         self.path = Path(path)
-        if str(path) != ":memory:":
-            _private_file(self.path)
         self.max_samples = max_samples
         self.max_seen = max_seen
         self._lock = threading.Lock()
-        self._db = sqlite3.connect(str(path), check_same_thread=False, isolation_level=None)
-        self._db.execute("PRAGMA journal_mode=WAL")
-        self._db.execute("PRAGMA synchronous=NORMAL")
-        self._db.executescript(_SCHEMA)
+        try:
+            if str(path) != ":memory:":
+                _private_file(self.path)
+            self._db = sqlite3.connect(str(path), check_same_thread=False, isolation_level=None)
+            self._db.execute("PRAGMA journal_mode=WAL")
+            self._db.execute("PRAGMA synchronous=NORMAL")
+            self._db.executescript(_SCHEMA)
+        except (OSError, sqlite3.Error) as exc:
+            why = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
+            raise OutboxUnusable(f"the outbox {path} cannot be opened: {why}") from None
         if vehicle_id is not None:
             self._claim(vehicle_id)
         self._count = self._db.execute("SELECT COUNT(*) FROM samples").fetchone()[0]

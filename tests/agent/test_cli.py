@@ -61,6 +61,12 @@ def test_the_example_gateway_file_loads() -> None:
         (["run", "--vehicle-id", "usv-1", "--server", "http://x"], "no token"),
         (["run"], "no vehicle"),
         (["run", "--config", "/nonexistent/agent.toml"], "not found"),
+        (["run", "--config", "/tmp"], "/tmp is a directory"),
+        # Every call answered 404 (/api/api/...): retried for ever, now refused at start.
+        (
+            ["run", "--vehicle-id", "usv-1", "--server", "http://127.0.0.1:9/api"],
+            "without /api: give http://127.0.0.1:9",
+        ),
         (["gateway", "--config", "/nonexistent/gateway.toml"], "not found"),
     ],
 )
@@ -150,3 +156,16 @@ def test_an_outbox_of_another_vehicle_is_refused(tmp_path: Path) -> None:
     assert result.exit_code == 2, result.output
     assert f"the outbox {path} holds vehicle usv-7's samples" in " ".join(result.output.split())
     Outbox(path, vehicle_id="usv-7").close()  # its own vehicle opens it again
+
+
+def test_an_outbox_that_cannot_be_opened_is_said_in_a_line_not_a_traceback(
+    tmp_path: Path,
+) -> None:
+    """A folder given for the outbox (or a place the agent may not write) ended the agent
+    with a traceback and exit 1: no sample could be kept, so it does not start, said."""
+    args = ["run", "--vehicle-id", "usv-8", "--token", "t", "--server", "http://127.0.0.1:9"]
+    result = runner.invoke(app, [*args, "--outbox", str(tmp_path)])
+    assert result.exit_code == 2, result.output
+    said = " ".join(result.output.split())
+    assert f"fleet-agent: error: the outbox {tmp_path} cannot be opened: Is a directory" in said
+    assert "Traceback" not in result.output

@@ -229,9 +229,13 @@ async def test_a_unit_name_must_be_an_identifier_and_its_vehicle_listed(
     async with gateway(make_settings) as w:
         async with w.unit(w.a, "Sonar%20Driver") as badly_named:
             assert await closed_with(badly_named) == CLOSE_BAD_REQUEST
+            assert badly_named.close_reason.startswith("unit: not a unit name (1 to 64")
         async with w.unit(w.a, "") as unnamed:  # unit= with no name was an unnamed unit
             assert await closed_with(unnamed) == CLOSE_BAD_REQUEST
-            assert "unit=<name>" in unnamed.close_reason
+            assert unnamed.close_reason.startswith("unit: not a unit name")
+        async with w.unit("Bad%20Id", "sonar") as bad_vehicle:  # was "connect with ..."
+            assert await closed_with(bad_vehicle) == CLOSE_BAD_REQUEST
+            assert bad_vehicle.close_reason.startswith("vehicle_id: not a vehicle id (1 to 64")
         async with w.unit(f"{w.a}&vehicle_id={w.b}", "sonar") as two_vehicles:
             assert await closed_with(two_vehicles) == CLOSE_BAD_REQUEST  # was the first's
             assert "vehicle_id is given more than once" in two_vehicles.close_reason

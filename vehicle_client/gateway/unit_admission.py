@@ -12,7 +12,7 @@ import re
 from dataclasses import dataclass
 from urllib.parse import parse_qs, urlsplit
 
-from fleet_protocol.common import ID_PATTERN
+from fleet_protocol.common import ID_PATTERN, ID_RULE
 from fleet_protocol.links import CLOSE_FORBIDDEN
 
 CLOSE_BAD_REQUEST = 4400  # the gateway's own: a unit that did not name its vehicle (or
@@ -38,10 +38,12 @@ def admit(path: str, acts_for: frozenset[str] | set[str] | None) -> Admitted | R
         return Refused(CLOSE_BAD_REQUEST, f"{twice} is given more than once: give it once")
     vehicle_id = (query.get("vehicle_id") or [""])[0]
     name = query["unit"][0] if "unit" in query else None  # unit= (empty) is refused
-    if not re.fullmatch(ID_PATTERN, vehicle_id):
+    if not vehicle_id:
         return Refused(CLOSE_BAD_REQUEST, "connect with ?vehicle_id=<the unit's vehicle>")
+    if not re.fullmatch(ID_PATTERN, vehicle_id):
+        return Refused(CLOSE_BAD_REQUEST, f"vehicle_id: not a vehicle id ({ID_RULE})")
     if name is not None and not re.fullmatch(ID_PATTERN, name):
-        return Refused(CLOSE_BAD_REQUEST, f"unit=<name>: a name matching {ID_PATTERN}")
+        return Refused(CLOSE_BAD_REQUEST, f"unit: not a unit name ({ID_RULE})")
     if acts_for is not None and vehicle_id not in acts_for:
         return Refused(CLOSE_FORBIDDEN, not_listed(vehicle_id))
     return Admitted(vehicle_id, name)
