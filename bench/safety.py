@@ -22,7 +22,8 @@ import shapely
 from bench import Metric
 from server.domain.forecast import Course, forecast
 from server.domain.geo import from_local
-from server.domain.planning import Zone, plan_path
+from server.domain.plan_frame import Zone
+from server.domain.planning import plan_path
 
 TITLE = "safety: planning round 10 / 100 obstacles (20 waypoints), forecast of 1,000 vehicles"
 ORIGIN = (43.9, 15.4)

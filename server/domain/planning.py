@@ -28,7 +28,6 @@ thread cannot be stopped from outside; this one stops itself.
 
 from __future__ import annotations
 
-import functools
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -37,29 +36,25 @@ import numpy as np
 import shapely
 
 from server.domain.geo import from_local, to_local
+from server.domain.plan_frame import (
+    MARGIN,
+    SIDES,
+    TOUCH_M,
+    XY,
+    LatLon,
+    LocalArea,
+    Obstacle,
+    Zone,
+    clear,
+    outside,
+)
 
-#: Vertices of the polygon put round each disc; more: shorter detours, slower planning.
-SIDES = 12
-#: Margin so that the polygon's edges stay outside the disc despite rounding.
-MARGIN = 1.02
-#: Fixed obstacles: the graph's corners lie this much (m) beyond the clearance, plus 2 %.
-CORNER_GAP_M = 0.25
-#: A segment may come this close (m) inside a clearance (rounding): touching is not crossing.
-TOUCH_M = 1e-3
 #: How far (m) past the edge of the obstacles it starts in a leaving vehicle is routed from.
 EXIT_PAST_M = 0.05
-#: A point less than this (m) inside a zone's edge is on it (the zones' check of a route
-#: allows a rounding's width there, ``zones.EDGE_DEG``: about 2 mm).
-EDGE_M = 3e-3
-#: Segments per quarter circle where a polygon is grown round a corner.
-ARC_SEGMENTS = 4
 #: Nodes of one leg's graph at most (their distances: a square array of this side).
 MAX_ROUTE_NODES = 2000
 #: Segments checked against the obstacles at once, between two looks at the deadline.
 SEGMENTS_PER_STEP = 16_384
-
-LatLon = tuple[float, float]
-XY = tuple[float, float]
 
 
 class NoPath(ValueError):
@@ -86,112 +81,6 @@ class Deadline:
 NO_DEADLINE = Deadline(math.inf, lambda: 0.0)
 
 
-@dataclass(frozen=True)
-class Obstacle:
-    """Another vehicle: a disc of ``radius_m`` round its position."""
-
-    lat: float
-    lon: float
-    radius_m: float
-    name: str = ""
-
-
-@dataclass(frozen=True)
-class Zone:
-    """A fixed obstacle: a polygon, its rings as (lat, lon) (the first is the outside,
-    any others holes), and the clearance a path keeps from it."""
-
-    rings: tuple[tuple[LatLon, ...], ...]
-    clearance_m: float = 0.0
-    name: str = ""
-
-
-class _Area:
-    """A zone in the local frame: what a path may not enter, and the graph's corners."""
-
-    def __init__(self, zone: Zone, lat0: float, lon0: float) -> None:
-        shell, *holes = [[to_local(lat, lon, lat0, lon0) for lat, lon in r] for r in zone.rings]
-        polygon = shapely.make_valid(shapely.Polygon(shell, holes))
-        self.label = zone.name or "a fixed obstacle"
-        self.clearance = zone.clearance_m
-        # Few segments per arc, the arcs pushed out so that their chords keep the clearance.
-        grow = zone.clearance_m / math.cos(math.pi / (4 * ARC_SEGMENTS)) if zone.clearance_m else 0
-        self.keep_out = polygon.buffer(grow - TOUCH_M, quad_segs=ARC_SEGMENTS)
-        shapely.prepare(self.keep_out)
-        self._polygon, self._gap = polygon, zone.clearance_m * 1.02 + CORNER_GAP_M
-
-    @functools.cached_property
-    def corners(self) -> list[XY]:
-        """The graph's corners, built when a route first meets this area (most never do)."""
-        grown = shapely.orient_polygons(
-            self._polygon.buffer(self._gap, join_style="mitre", mitre_limit=2.0),
-            exterior_cw=False,
-        )
-        return _outward_corners(grown)
-
-    def holds(self, x: float, y: float) -> bool:
-        """Whether the point is in the area or its clearance."""
-        return bool(shapely.intersects_xy(self.keep_out, x, y))
-
-    def zone_holds(self, x: float, y: float) -> bool:
-        """Whether the point is in the area itself (its clearance aside), further in than
-        a rounding's width from the edge (the zones' check has such a point on it)."""
-        return bool(shapely.intersects_xy(self._core, x, y))
-
-    def zone_enters(self, line: shapely.Geometry) -> bool:
-        """Whether ``line`` reaches into the area itself (as :meth:`zone_holds` has it)."""
-        return bool(self._core.intersects(line))
-
-    @functools.cached_property
-    def _core(self) -> shapely.Geometry:
-        return self._polygon.buffer(-EDGE_M)
-
-
-def _outward_corners(polygon: shapely.Geometry) -> list[XY]:
-    """The corners a shortest path may bend round: left turns of each ring (exterior
-    counter-clockwise, holes clockwise: the obstacle is always on the left)."""
-    out: list[XY] = []
-    for part in shapely.get_parts(polygon):
-        rings = [part.exterior, *part.interiors] if isinstance(part, shapely.Polygon) else []
-        for ring in rings:
-            pts = np.asarray(ring.coords)[:-1]
-            if len(pts) < 3:
-                continue
-            before, after = pts - np.roll(pts, 1, axis=0), np.roll(pts, -1, axis=0) - pts
-            turn = before[:, 0] * after[:, 1] - before[:, 1] * after[:, 0]
-            out.extend((float(x), float(y)) for x, y in pts[turn > 0])
-    return out
-
-
-def corridor(route: Sequence[LatLon], width_m: float, name: str) -> Zone:
-    """The band ``width_m`` either side of ``route`` (straight legs) as a fixed obstacle:
-    a path planned round it keeps that separation from the route."""
-    lat0, lon0 = route[0]
-    local = [to_local(lat, lon, lat0, lon0) for lat, lon in route]
-    line = shapely.LineString(local) if len(local) > 1 else shapely.Point(local[0])
-    band = line.buffer(width_m / math.cos(math.pi / (4 * ARC_SEGMENTS)), quad_segs=ARC_SEGMENTS)
-    rings = [band.exterior, *band.interiors]
-    return Zone(
-        tuple(tuple(from_local(x, y, lat0, lon0) for x, y in r.coords) for r in rings), 0.0, name
-    )
-
-
-def crossed(route: Sequence[LatLon], obstacles: Sequence[Zone]) -> list[str]:
-    """The names of the obstacles the straight legs of ``route`` run into (their outline,
-    clearance aside): what a vehicle sent that way, unplanned, would meet."""
-    if not route or not obstacles:
-        return []
-    lat0, lon0 = route[0]  # a metric frame round the start: each leg the short way round
-    positions = [to_local(lat, lon, lat0, lon0) for lat, lon in route]
-    line = shapely.LineString(positions) if len(positions) > 1 else shapely.Point(positions[0])
-    hit = []
-    for zone in obstacles:
-        shell, *holes = ([to_local(lat, lon, lat0, lon0) for lat, lon in r] for r in zone.rings)
-        if shapely.make_valid(shapely.Polygon(shell, holes)).intersects(line):
-            hit.append(zone.name or "a fixed obstacle")
-    return hit
-
-
 def plan_path(
     start: LatLon | None,
     waypoints: Sequence[LatLon],
@@ -214,7 +103,7 @@ def plan_path(
     areas = []
     for z in zones:
         deadline.check()
-        areas.append(_Area(z, lat0, lon0))
+        areas.append(LocalArea(z, lat0, lon0))
     points = [to_local(lat, lon, lat0, lon0) for lat, lon in waypoints]
     _check_waypoints(np.array(points), centres, radii, obstacles, areas, deadline)
     here = to_local(*origin, lat0, lon0) if start is not None else points[0]
@@ -232,7 +121,7 @@ def _check_waypoints(
     centres: list[XY],
     radii: list[float],
     obstacles: Sequence[Obstacle],
-    areas: list[_Area],
+    areas: list[LocalArea],
     deadline: Deadline,
 ) -> None:
     """:class:`NoPath` naming the first waypoint within a disc or an area (a disc first,
@@ -267,7 +156,7 @@ def _leg(
     goal: XY,
     centres: list[XY],
     radii: list[float],
-    areas: list[_Area],
+    areas: list[LocalArea],
     deadline: Deadline,
 ) -> list[XY]:
     """The way from ``start`` to ``goal``, ``start`` first. A vehicle that starts inside
@@ -275,7 +164,7 @@ def _leg(
     routed round everything from there, those too (so it does not come back in)."""
     out, straight = _way_out(start, goal, centres, radii, areas)
     head = [start] if out == start else [start, out]
-    active: list[_Area] = []
+    active: list[LocalArea] = []
     while True:
         route = _route(out, goal, centres, radii, active, deadline)
         line = shapely.LineString(route)
@@ -286,7 +175,7 @@ def _leg(
 
 
 def _way_out(
-    start: XY, goal: XY, centres: list[XY], radii: list[float], areas: list[_Area]
+    start: XY, goal: XY, centres: list[XY], radii: list[float], areas: list[LocalArea]
 ) -> tuple[XY, bool]:
     """Where a vehicle at ``start`` is out of every disc and area it is in, a little past
     the last edge (``start`` itself when it is in none), and whether that is on the
@@ -318,7 +207,7 @@ def _way_out(
         head = shapely.LineString([start, out])
         if any(a.zone_enters(head) for a in near):
             continue
-        if _clear(np.array([start]), np.array([out]), cs, rs, elsewhere)[0]:
+        if clear(np.array([start]), np.array([out]), cs, rs, elsewhere)[0]:
             return out, out is ways[0] or _on_the_way(start, goal, out)
     names = ", ".join(a.label for a in in_areas) or "the vehicles round it"
     raise NoPath(f"no way out of {names} keeps clear of the other obstacles")
@@ -335,7 +224,7 @@ def _straight_out(
     in_discs: list[int],
     centres: list[XY],
     radii: list[float],
-    in_areas: list[_Area],
+    in_areas: list[LocalArea],
 ) -> XY:
     """Along the straight way to the goal, a little past the last edge it crosses of the
     discs and areas ``start`` is in (each the first time the way leaves it)."""
@@ -358,7 +247,7 @@ def _straight_out(
     return (start[0] + ux * along, start[1] + uy * along)
 
 
-def _nearest_out(start: XY, discs: list[tuple[XY, float]], in_areas: list[_Area]) -> XY:
+def _nearest_out(start: XY, discs: list[tuple[XY, float]], in_areas: list[LocalArea]) -> XY:
     """A little past the nearest point out of the discs and areas ``start`` is in."""
     parts = [a.keep_out for a in in_areas]
     parts += [shapely.Point(c).buffer(r * MARGIN, quad_segs=SIDES) for c, r in discs]
@@ -369,10 +258,10 @@ def _nearest_out(start: XY, discs: list[tuple[XY, float]], in_areas: list[_Area]
 
 
 def _route(
-    start: XY, goal: XY, cs: list[XY], rs: list[float], areas: list[_Area], deadline: Deadline
+    start: XY, goal: XY, cs: list[XY], rs: list[float], areas: list[LocalArea], deadline: Deadline
 ) -> list[XY]:
     """Shortest way from ``start`` to ``goal`` round the discs and ``areas``."""
-    if _clear(np.array([start]), np.array([goal]), cs, rs, areas)[0]:
+    if clear(np.array([start]), np.array([goal]), cs, rs, areas)[0]:
         return [start, goal]
     candidates: list[XY] = []
     for (cx, cy), r in zip(cs, rs, strict=True):
@@ -383,7 +272,7 @@ def _route(
     for area in areas:
         deadline.check()
         candidates.extend(area.corners)
-    nodes = np.array([start, goal, *_outside(candidates, cs, rs, areas)])
+    nodes = np.array([start, goal, *outside(candidates, cs, rs, areas)])
     if len(nodes) > MAX_ROUTE_NODES:
         raise NoPath(
             f"the way round has {len(nodes)} corners; at most {MAX_ROUTE_NODES} are planned "
@@ -395,26 +284,13 @@ def _route(
     for lo in range(0, len(first), SEGMENTS_PER_STEP):
         deadline.check()
         a, b = first[lo : lo + SEGMENTS_PER_STEP], second[lo : lo + SEGMENTS_PER_STEP]
-        clear = _clear(nodes[a], nodes[b], cs, rs, areas)
-        a, b = a[clear], b[clear]
+        kept = clear(nodes[a], nodes[b], cs, rs, areas)
+        a, b = a[kept], b[kept]
         weights[a, b] = weights[b, a] = np.hypot(*(nodes[a] - nodes[b]).T)
     route = _shortest(weights, deadline)
     if route is None:
         raise NoPath("no way round the obstacles keeps the clearance")
     return [(float(nodes[i][0]), float(nodes[i][1])) for i in route]
-
-
-def _outside(candidates: list[XY], cs: list[XY], rs: list[float], areas: list[_Area]) -> list[XY]:
-    """The candidate corners outside every disc and every area."""
-    if not candidates:
-        return []
-    xy = np.array(candidates)
-    ok = np.ones(len(xy), dtype=bool)
-    for (cx, cy), r in zip(cs, rs, strict=True):
-        ok &= np.hypot(xy[:, 0] - cx, xy[:, 1] - cy) >= r
-    for area in areas:
-        ok &= ~shapely.intersects_xy(area.keep_out, xy[:, 0], xy[:, 1])
-    return [(float(x), float(y)) for x, y in xy[ok]]
 
 
 def _shortest(weights: np.ndarray, deadline: Deadline) -> list[int] | None:
@@ -442,37 +318,3 @@ def _shortest(weights: np.ndarray, deadline: Deadline) -> list[int] | None:
     while route[-1] != 0:
         route.append(int(before[route[-1]]))
     return route[::-1]
-
-
-def _clear(
-    a: np.ndarray, b: np.ndarray, centres: list[XY], radii: list[float], areas: list[_Area]
-) -> np.ndarray:
-    """For each segment a[k]-b[k]: whether it keeps every disc's radius and stays out of
-    every area.
-
-    Worked out in arrays as far as it goes (a disc: the distance to each segment; an area:
-    the segments' middles in it, the segments clear of its bounding box); shapely's
-    segments are made only for the few left to look at, since every object made costs
-    the garbage collector's time too (a server holds many).
-    """
-    ok = np.ones(len(a), dtype=bool)
-    if not centres and not areas:
-        return ok
-    step = b - a
-    length2 = np.maximum((step * step).sum(axis=1), 1e-18)
-    for (cx, cy), r in zip(centres, radii, strict=True):
-        t = np.clip(((cx - a[:, 0]) * step[:, 0] + (cy - a[:, 1]) * step[:, 1]) / length2, 0, 1)
-        ok &= np.hypot(a[:, 0] + t * step[:, 0] - cx, a[:, 1] + t * step[:, 1] - cy) >= r * 0.999
-    middles = (a + b) / 2
-    for area in areas:
-        ok &= ~shapely.intersects_xy(area.keep_out, middles[:, 0], middles[:, 1])
-    low, high = np.minimum(a, b), np.maximum(a, b)
-    for area in areas:
-        x0, y0, x1, y1 = area.keep_out.bounds
-        near = np.flatnonzero(
-            ok & (low[:, 0] <= x1) & (high[:, 0] >= x0) & (low[:, 1] <= y1) & (high[:, 1] >= y0)
-        )
-        if len(near):
-            lines = shapely.linestrings(np.stack([a[near], b[near]], axis=1))
-            ok[near] = ~shapely.intersects(area.keep_out, lines)
-    return ok

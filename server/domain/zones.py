@@ -23,7 +23,7 @@ from shapely.geometry.base import BaseGeometry
 from shapely.ops import unary_union
 
 from server.domain.geo import lon_step, unwrap
-from server.domain.planning import Zone
+from server.domain.plan_frame import Zone
 from server.errors import Invalid
 
 ZoneKind = Literal["no_go", "operating_area"]

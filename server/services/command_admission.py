@@ -26,7 +26,7 @@ from server.domain import command_warnings as warn
 from server.domain import commands as life
 from server.domain.access import Principal
 from server.domain.clock import Clock
-from server.domain.planning import Zone, corridor, crossed
+from server.domain.plan_frame import Zone, corridor, crossed
 from server.domain.zones import ZoneSet, command_targets, command_violation, keep_out
 from server.errors import FleetError, InstanceFinished, NotFound, RateLimited, ZoneViolation
 from server.services.control import ControlService

@@ -15,7 +15,7 @@ from shapely.validation import explain_validity
 
 from fleet_protocol import CreateObstacle, PolygonGeometry
 from server.domain.clock import Clock
-from server.domain.planning import Zone
+from server.domain.plan_frame import Zone
 from server.errors import Conflict, Invalid, NotFound
 from server.settings import Settings
 from server.storage.backends import Doc

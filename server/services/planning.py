@@ -22,7 +22,8 @@ from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
-from server.domain.planning import Deadline, NoPath, Obstacle, OutOfTime, Zone, plan_path
+from server.domain.plan_frame import Obstacle, Zone
+from server.domain.planning import Deadline, NoPath, OutOfTime, plan_path
 from server.errors import Invalid, RateLimited
 from server.services.instances import InstanceState
 

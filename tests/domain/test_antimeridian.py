@@ -8,7 +8,8 @@ import shapely
 
 from server.domain.forecast import Course, forecast
 from server.domain.geo import from_local, haversine_m, to_local, unwrap
-from server.domain.planning import Obstacle, plan_path
+from server.domain.plan_frame import Obstacle
+from server.domain.planning import plan_path
 from server.domain.zones import Area, ZoneSet, breaches, closest_routes, route_violation
 
 WEST_OF_180 = (43.0, 179.999)  # about 80 m west of the antimeridian

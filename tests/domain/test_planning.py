@@ -8,15 +8,8 @@ import math
 import pytest
 
 from server.domain.geo import from_local, to_local
-from server.domain.planning import (
-    MAX_ROUTE_NODES,
-    SIDES,
-    Deadline,
-    NoPath,
-    Obstacle,
-    OutOfTime,
-    plan_path,
-)
+from server.domain.plan_frame import SIDES, Obstacle
+from server.domain.planning import MAX_ROUTE_NODES, Deadline, NoPath, OutOfTime, plan_path
 
 ORIGIN = (43.9, 15.4)
 

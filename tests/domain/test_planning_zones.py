@@ -6,7 +6,8 @@ import pytest
 import shapely
 
 from server.domain.geo import from_local, to_local
-from server.domain.planning import NoPath, Obstacle, Zone, plan_path
+from server.domain.plan_frame import Obstacle, Zone
+from server.domain.planning import NoPath, plan_path
 
 ORIGIN = (43.9, 15.4)
 

@@ -9,7 +9,8 @@ from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
 from server.domain.geo import from_local, to_local
-from server.domain.planning import NoPath, corridor, plan_path
+from server.domain.plan_frame import corridor
+from server.domain.planning import NoPath, plan_path
 from server.domain.watch import (
     WatchState,
     battery_event,
