@@ -55,6 +55,8 @@ _READ_TIMEOUT_S = 1.0
 #: A connection quiet this long is asked for a PONG: a Redis that hangs (stopped, or a
 #: network that drops packets without a reset) answers nothing and raises no error.
 _PING_AFTER_S = 2.0
+#: How long :meth:`RedisBus.close` waits for the connection loop to end.
+_STOP_WAIT_S = 5.0
 
 
 class RedisBus(Bus):
@@ -115,11 +117,15 @@ class RedisBus(Bus):
             log.warning("redis bus: Redis unreachable at start; serving this replica only")
 
     async def close(self) -> None:
+        """End the connection loop and the connection. The loop is told by ``_closing``
+        as well as cancelled (a cancellation can be lost inside a read with a timeout), and
+        is waited for :data:`_STOP_WAIT_S` at most."""
         self._closing.set()
         if self._task is not None:
             self._task.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await self._task
+            _, late = await asyncio.wait([self._task], timeout=_STOP_WAIT_S)
+            if late:
+                log.error("redis bus: the connection loop did not stop in time")
             self._task = None
         if self._redis is not None:
             with contextlib.suppress(RedisError, OSError):
@@ -266,7 +272,7 @@ class RedisBus(Bus):
         loop = asyncio.get_running_loop()
         heard = loop.time()
         pinged: float | None = None
-        while True:
+        while not self._closing.is_set():
             message = await pubsub.get_message(timeout=_READ_TIMEOUT_S)
             now = loop.time()
             if message is not None:

@@ -51,6 +51,8 @@ ZONES_TOPIC = "_zones"
 PARTS = ("instance", "lease", "commands", "watch")
 #: How often the sync looks whether the bus came back (then it reads everything back).
 HEALTH_CHECK_S = 0.5
+#: How long :meth:`ReplicaSync.stop` waits for its work to end.
+STOP_WAIT_S = 5.0
 
 
 class ReplicaSync:
@@ -91,14 +93,22 @@ class ReplicaSync:
         self._worker = asyncio.create_task(self._run(), name="replica-sync")
 
     async def stop(self) -> None:
+        """Unsubscribe and end the work. The loop is told by ``_stopped`` as well as
+        cancelled: Python 3.11's ``wait_for`` loses a cancellation that comes as the event
+        it waits on is set (an announcement at shutdown), and the loop then went on for
+        ever, holding the server's shutdown up. A task still running after
+        :data:`STOP_WAIT_S` is logged and left."""
         self._stopped = True
+        self._wake.set()
         for sub in self._subs:
             await self.bus.unsubscribe(sub)
-        for task in [self._worker, *self._tasks]:
-            if task is not None:
-                task.cancel()
-                with contextlib.suppress(asyncio.CancelledError):
-                    await task
+        tasks = [task for task in (self._worker, *self._tasks) if task is not None]
+        for task in tasks:
+            task.cancel()
+        if tasks:
+            _, late = await asyncio.wait(tasks, timeout=STOP_WAIT_S)
+            for task in late:
+                log.error("replica sync: %s did not stop in time", task.get_name())
 
     # ---- what this replica wrote -------------------------------------------------
     def on_state_written(self, event: StateWritten) -> None:
@@ -188,14 +198,17 @@ class ReplicaSync:
 
     async def _run(self) -> None:
         healthy = self.bus.healthy
-        while True:
+        while not self._stopped:
             with contextlib.suppress(TimeoutError):
                 await asyncio.wait_for(self._wake.wait(), HEALTH_CHECK_S)
+            if self._stopped:
+                return
             self._wake.clear()
             if self.bus.healthy and not healthy:  # announcements were lost meanwhile
                 self._catch_up_all()
             healthy = self.bus.healthy
-            while self._pending:  # one pass per instance, however many announcements came
+            # One pass per instance, however many announcements came.
+            while self._pending and not self._stopped:
                 instance_id = next(iter(self._pending))
                 parts = self._pending.pop(instance_id)
                 try:
