@@ -149,7 +149,7 @@ class Helm:
                 self.apply(self.pilot.on_report(report))
             if self.link.poll(loop.time()) == "lost":
                 log.warning(
-                    "%s: no answer from the server for %.0f s: failsafe %s",
+                    "%s: no answer from the server for %g s: failsafe %s",
                     self.vehicle_id,
                     self.link.after_s,
                     self.pilot.failsafe.action,
