@@ -13,6 +13,7 @@ from __future__ import annotations
 import contextlib
 import functools
 import logging
+from collections.abc import Mapping
 from datetime import datetime
 from typing import Any
 
@@ -211,7 +212,8 @@ class AuthService(Tokens):
         """Change a user. A new password, or disabling, ends the user's sessions (tokens
         from ``/auth/token``) but the one ``actor`` made this call with; the API token
         stays. A change of role, vehicles or ``disabled`` goes out as
-        :class:`~server.domain.events.UserChanged` (leases the user may no longer hold end)."""
+        :class:`~server.domain.events.UserChanged` (leases the user may no longer hold end,
+        sockets close); a patch that sets them to what they are changes nothing."""
         user = await self.get_user(username)
         if unseats_admin(user, body.role, body.disabled) and not await self._other_admin(username):
             raise Conflict(
@@ -228,7 +230,7 @@ class AuthService(Tokens):
             await self.repo.update_user(username, fields)
         if body.password is not None or body.disabled:
             await self._end_sessions(username, keep=actor)
-        if body.role is not None or body.vehicles is not None or body.disabled is not None:
+        if _rights_changed(user, body):
             await self._forget_subject("user", username, refused=bool(body.disabled))
             await self.messages.emit(UserChanged(username, actor))
         return await self.get_user(username)
@@ -287,3 +289,15 @@ class AuthService(Tokens):
         if user is None or user.get("disabled"):
             return None
         return user["role"], frozenset(user.get("vehicles", []))
+
+
+def _rights_changed(user: Mapping[str, Any], body: PatchUser) -> bool:
+    """Whether ``body`` changes the user's role, vehicles or ``disabled`` as stored."""
+    return (
+        (body.role is not None and body.role != user.get("role"))
+        or (
+            body.vehicles is not None
+            and sorted(set(body.vehicles)) != sorted(set(user.get("vehicles", [])))
+        )
+        or (body.disabled is not None and body.disabled != bool(user.get("disabled")))
+    )

@@ -46,9 +46,17 @@ async def test_new_rights_close_the_user_s_sockets_to_reconnect_with(
             assert (await call(ws, "subscribe", "s", topics=["fleet"]))["ok"]
             snapshot = await recv_until(ws, lambda f: f.get("topic") == "fleet")
             assert _fleet_ids(snapshot) == {one}
-            same = await c.patch(f"/api/users/{name}", headers=ADMIN, json={})
-            assert same.status_code == 200, same.text
-            assert (await call(ws, "subscribe", "again", topics=["fleet"]))["ok"]  # still open
+            as_they_are: list[dict[str, Any]] = [
+                {},
+                {"role": "operator"},
+                {"vehicles": [one, one]},
+                {"disabled": False},
+                {"role": "operator", "vehicles": [one], "disabled": False},
+            ]
+            for n, body in enumerate(as_they_are):  # nothing changed: nothing to reconnect for
+                same = await c.patch(f"/api/users/{name}", headers=ADMIN, json=body)
+                assert same.status_code == 200, same.text
+                assert (await call(ws, "subscribe", f"again-{n}", topics=["fleet"]))["ok"], body
             more = await c.patch(f"/api/users/{name}", headers=ADMIN, json={"vehicles": [one, two]})
             assert more.status_code == 200, more.text
             assert await _closed_with(ws) == CLOSE_RECONNECT
