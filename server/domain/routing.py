@@ -21,9 +21,10 @@ The table answers three questions:
 
 Gateway forwarding is demand-driven. A gateway forwards *upward* a topic
 produced in its subtree only when a unit outside the subtree subscribed to
-it (its own units are served locally, and nothing travels up that nobody
-above asked for); it forwards *downward* the topics units below it
-subscribed to. Forwarding upward needs the producer to have registered the
+it and no unit inside did (the contract and the multilayer paper: what its
+own units consume is served locally and stays there, and nothing travels up
+that nobody above asked for); it forwards *downward* the topics units below
+it subscribed to. Forwarding upward needs the producer to have registered the
 topic; the paper registers before it publishes.
 """
 
@@ -187,10 +188,15 @@ class RoutingTable:
         return frozenset(endpoints)
 
     def forward_up(self, gateway_id: str) -> frozenset[str]:
-        """Topics produced under (or by) the gateway that a unit outside it consumes."""
+        """Topics produced under (or by) the gateway that a unit outside it consumes and
+        none inside it does (the contract: what its own units consume stays below)."""
         inside = set(self._subtree(gateway_id))
         produced = {t for member in inside for t in self._units[member].produces}
-        return frozenset(t for t in produced if not self._consumers.get(t, set()) <= inside)
+        return frozenset(
+            t
+            for t in produced
+            if (consumers := self._consumers.get(t, set())) and not consumers & inside
+        )
 
     def forward_down(self, gateway_id: str) -> frozenset[str]:
         """Topics units under the gateway consume."""

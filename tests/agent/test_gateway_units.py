@@ -113,7 +113,7 @@ async def test_a_unit_of_a_vehicle_the_token_does_not_list_is_closed(
             assert (await ack(ub, "register", "r", topics=[f"vehicle/{w.b}/x"]))["ok"] is True
 
 
-async def test_an_unregistered_topic_goes_up_only_once_someone_above_asks(
+async def test_a_topic_goes_up_only_when_someone_above_asks_and_no_unit_below_consumes_it(
     make_settings: Callable[..., Settings],
 ) -> None:
     """API.md: a gateway forwards up what its own units do not consume and someone above
@@ -129,14 +129,22 @@ async def test_an_unregistered_topic_goes_up_only_once_someone_above_asks(
             assert router.sent_up == up_before  # only a sibling wants it: kept below
             assert depth in router.held(w.a).produces  # registered above for the unit
 
+            # Asked above too: a unit below consumes it, so it still stays below.
             assert (await ack(op, "subscribe", "s", topics=[depth]))["ok"] is True
+            assert (await ack(ua, "publish", "p2", topic=depth, data=2))["ok"] is True
+            assert (await next_json(ub, event_on(depth)))["data"] == 2
+            assert router.sent_up == up_before and depth not in router.forward_up
+
+            # No unit below consumes it any more: up, on the table's word.
+            assert (await ack(ub, "unsubscribe", "u", topics=[depth]))["ok"] is True
 
             async def asked_above() -> bool:  # the routes push, on the gateway's own socket
                 return depth in router.forward_up
 
             await eventually(asked_above)
-            assert (await ack(ua, "publish", "p2", topic=depth, data=2))["ok"] is True
-            assert (await next_json(op, event_on(depth)))["data"] == 2
+            assert (await ack(ua, "publish", "p3", topic=depth, data=3))["ok"] is True
+            # The operator's first event on it is p3's: p2 never went up.
+            assert (await next_json(op, event_on(depth)))["data"] == 3
             assert router.sent_up == up_before + 1
 
 

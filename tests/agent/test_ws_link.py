@@ -105,7 +105,7 @@ def test_link_choice_falls_back_then_retries_the_websocket_sooner_first() -> Non
     assert choice.use_ws() and choice.fallbacks == 2
 
 
-def test_router_keeps_local_what_only_local_units_consume() -> None:
+def test_router_keeps_local_what_local_units_consume() -> None:
     router = TopicRouter()
     a, b = LocalUnit("a", "#1"), LocalUnit("b", "#2")
     for unit in (a, b):
@@ -114,12 +114,34 @@ def test_router_keeps_local_what_only_local_units_consume() -> None:
     router.subscribe(b, ["vehicle/a/sonar"])
     first = router.publish(a, "vehicle/a/sonar")
     assert first.local == [b] and first.up is False
-    assert router.routes("gateway:g", ["vehicle/a/sonar"], []) is None  # someone above asks
+    # Someone above asks (a table that has not yet heard of b's subscription): a unit
+    # below consumes it, so it stays below all the same.
+    assert router.routes("gateway:g", ["vehicle/a/sonar"], []) is None
     second = router.publish(a, "vehicle/a/sonar")
-    assert second.local == [b] and second.up is True
-    assert (router.sent_up, router.kept_local) == (1, 1)
+    assert second.local == [b] and second.up is False
     router.unsubscribe(b, ["vehicle/a/sonar"])
-    assert router.publish(a, "vehicle/a/sonar").local == []
+    third = router.publish(a, "vehicle/a/sonar")
+    assert third.local == [] and third.up is True
+    assert (router.sent_up, router.kept_local) == (1, 2)
+    # Not registered (the table above cannot say who wants it): up, unless consumed here.
+    assert router.publish(a, "vehicle/a/other").up is True
+    router.subscribe(b, ["vehicle/a/other"])
+    assert router.publish(a, "vehicle/a/other").up is False
+
+
+def test_router_drops_its_own_media_frame_coming_back_from_above() -> None:
+    """The server filters a JSON event by the socket it came from, not a media frame: one
+    on a topic of a vehicle with a unit here is the gateway's own, which its units had."""
+    router = TopicRouter()
+    a, b = LocalUnit("a", "#1"), LocalUnit("b", "#2")
+    for unit in (a, b):
+        router.add(unit)
+    router.subscribe(b, ["vehicle/a/cam", "vehicle/c/cam"])
+    assert router.from_above("vehicle/a/cam", media=True) == []
+    assert router.from_above("vehicle/c/cam", media=True) == [b]  # no unit of c here
+    assert router.from_above("vehicle/a/cam") == [b]  # JSON: filtered by the server
+    router.drop(a)
+    assert router.from_above("vehicle/a/cam", media=True) == [b]
 
 
 def test_router_delivers_from_above_and_replays_after_a_reconnection() -> None:

@@ -75,7 +75,9 @@ def test_demand_driven_forwarding_upward():
     assert table.forward_up("gw") == frozenset()  # consumed locally only
     assert table.forward_down("gw") == {CAM}
     table.subscribe("op", [CAM])
-    assert table.forward_up("gw") == {CAM}  # someone upstream asked
+    assert table.forward_up("gw") == frozenset()  # asked upstream, but consumed below
+    table.unsubscribe("rov-2", [CAM])
+    assert table.forward_up("gw") == {CAM}  # someone upstream asked, nobody below
     assert table.unsubscribe("op", [CAM]) == {"op", "rov-1", "gw"}
     assert table.forward_up("gw") == frozenset()
 

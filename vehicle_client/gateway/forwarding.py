@@ -5,10 +5,11 @@ produce and subscribe to what they need. The gateway:
 
 - delivers a unit's publish to the other local units subscribed to it,
   at once, without the cloud;
-- sends it **up** only if the topic is in its ``forward_up`` (the server's
-  ``routes`` push to the gateway unit: topics produced under the gateway
-  that a unit outside it consumes; demand-driven, so nothing travels up
-  that nobody above asked for, and nothing its own units alone consume);
+- sends it **up** only if no local unit consumes it and the topic is in its
+  ``forward_up`` (the server's ``routes`` push to the gateway unit: topics
+  produced under the gateway that a unit outside it consumes and none
+  inside does; demand-driven, so nothing travels up that nobody above asked
+  for, and nothing its own units consume: the contract's rule);
 - delivers **down** an event from above to the local units subscribed to
   its topic (the server sends the gateway what is in its ``forward_down``).
 
@@ -169,11 +170,15 @@ class TopicRouter:
     def publish(self, unit: LocalUnit, topic: str, *, media: bool = False) -> Delivery:
         """A local unit published on ``topic``: to whom (the caller checked the right).
 
-        A topic the unit's vehicle registered goes up on demand (``forward_up``); one it
-        did not register is unknown to the routing table above, whose demand cannot be
-        known here: it goes up, as a publish straight to the server reaches its
-        subscribers. The other units of the same vehicle get it as any other unit."""
-        up = topic in self.forward_up or not self.produced(unit.vehicle_id, topic)
+        A topic a local unit consumes stays here (the contract: a gateway forwards up
+        what its own units do not consume), whatever ``forward_up`` says before the
+        table above hears of that subscription. Else a topic the unit's vehicle
+        registered goes up on demand (``forward_up``); one it did not register is
+        unknown to the routing table above, whose demand cannot be known here: it goes
+        up, as a publish straight to the server reaches its subscribers. The other
+        units of the same vehicle get it as any other unit."""
+        local = self.subscribers(topic, but=unit)
+        up = not local and (topic in self.forward_up or not self.produced(unit.vehicle_id, topic))
         if media and up:
             self.media_up += 1
         elif media:
@@ -182,7 +187,7 @@ class TopicRouter:
             self.sent_up += 1
         else:
             self.kept_local += 1
-        return Delivery(self.subscribers(topic, but=unit), up)
+        return Delivery(local, up)
 
     def from_above(self, topic: str, *, media: bool = False) -> list[LocalUnit]:
         """An event came down from the cloud: the local units subscribed to it.
