@@ -50,7 +50,10 @@ class FleetApp(FastAPI):
         return self.openapi_schema
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
-        if scope["type"] == "websocket" and scope["path"] in LIVE_PATHS:
+        if scope["type"] == "websocket":
+            if scope["path"] not in LIVE_PATHS:
+                await errors.no_socket_here(scope, send, list(LIVE_PATHS))
+                return
             scope["app"] = self
             await serve_live(self.state.services, self.state.hub, scope, receive, send)
             return

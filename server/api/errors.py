@@ -200,3 +200,22 @@ def install(app: FastAPI) -> None:
     async def _unexpected(_: Request, exc: Exception) -> JSONResponse:
         log.exception("unexpected error", exc_info=exc)
         return envelope(500, "internal", "the server failed on this request; it is logged")
+
+
+async def no_socket_here(scope: Scope, send: Any, live_paths: Sequence[str]) -> None:
+    """A WebSocket asked for on a path that serves none: 404 in the envelope, as an HTTP
+    request there gets (a client reads 403 as a refusal of its token). Sent as the ASGI
+    denial response where the server offers it, else the handshake is refused (403)."""
+    path = scope["path"]
+    message = f"no WebSocket at {path}: the live sockets are {' and '.join(live_paths)}"
+    if (trimmed := path.rstrip("/")) in live_paths:
+        message += f" (did you mean {trimmed}?)"
+    if "websocket.http.response" not in scope.get("extensions", {}):
+        await send({"type": "websocket.close", "code": 1008})
+        return
+    body = SafeJSONResponse(
+        {"error": {"code": "not_found", "message": said(message), "details": None}}
+    ).body
+    headers = [(b"content-type", b"application/json"), (b"content-length", b"%d" % len(body))]
+    await send({"type": "websocket.http.response.start", "status": 404, "headers": headers})
+    await send({"type": "websocket.http.response.body", "body": body})

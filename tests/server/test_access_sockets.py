@@ -161,3 +161,21 @@ async def test_each_caller_gets_what_its_socket_cell_says(
                         ack = await recv_until(ws, lambda f: f.get("id") == "x")
                         got[caller] = "ok" if ack["ok"] else ack["error"]["code"]
                 assert got == cells, (path, op)
+
+
+async def test_a_socket_asked_where_none_is_served_is_404_in_the_envelope(
+    make_settings: Callable[..., Settings],
+) -> None:
+    """Not 403 (a refusal of the token, which a client stops for): the path is wrong."""
+    async with serve(make_settings()) as base:
+        for path in ("/ws/other", "/ws/client/", "/api/vehicles", "/nowhere"):
+            with pytest.raises(websockets.InvalidStatus) as refused:
+                async with websockets.connect(ws_url(base, path, "fct_any-token")):
+                    pass
+            response = refused.value.response
+            assert response.status_code == 404, (path, response.status_code)
+            error = json.loads(response.body)["error"]
+            assert error["code"] == "not_found", path
+            assert "/ws/vehicle and /ws/client" in error["message"], error
+            if path == "/ws/client/":
+                assert "did you mean /ws/client?" in error["message"], error
