@@ -345,14 +345,23 @@ class FailsafePush(_Push):
 
 
 class EventPush(_Push):
-    _omit_if_none = frozenset({"snapshot", "ts"})
+    """A message on a topic. A gateway passes the events from above down to its units as
+    they came, rebuilt from this model: ``source`` is one of its fields, and a field it
+    does not know (a newer server's) is kept too, not dropped on the way."""
+
+    model_config = ConfigDict(extra="allow")
+    _omit_if_none = frozenset({"snapshot", "ts", "source"})
 
     op: Literal["event"] = "event"
     topic: Text
     data: Any = None
     #: ``true`` on the current state sent first after a subscribe.
     snapshot: bool | None = None
+    #: The server's time of the change (none on an event between a gateway's units).
     ts: Timestamp | None = None
+    #: The unit that published it (``vehicle:<id>``, ``gateway:<id>``, ``user:<name>``);
+    #: none on a topic the server writes, and on an event between a gateway's units.
+    source: Text | None = None
 
 
 class RoutesPush(_Push):

@@ -262,3 +262,39 @@ async def test_a_publish_that_cannot_go_up_is_not_acked_ok(
             await w.units.link.aclose()  # the cloud link goes down
             down = await ack(ua, "publish", "p", topic=depth, data=3)
             assert down["ok"] is False and down["error"]["code"] == "unavailable", down
+
+
+async def test_events_from_above_reach_a_unit_as_they_came_source_and_ts_included(
+    make_settings: Callable[..., Settings],
+) -> None:
+    """docs/live.md: events from above come down as they came; the contract's ``event``
+    names its ``source`` and ``ts``. The gateway rebuilt each one from a model without
+    ``source``: its units got an operator's message (a live one, the state relayed after
+    a subscribe, the state it answers a later unit with) not knowing who sent it, where
+    a socket on the server gets it. Events between its own units carry neither."""
+    async with gateway(make_settings) as w:
+        note, status = f"user/{w.operator}/src/{w.a}", f"vehicle/{w.a}/status"
+        async with (
+            await w.operator_ws() as op,
+            await w.operator_ws() as direct,  # the same event, straight from the server
+            w.unit(w.a) as first,
+            w.unit(w.a) as driver,
+        ):
+            assert (await ack(op, "publish", "p1", topic=note, data={"x": 1}))["ok"] is True
+            assert (await ack(direct, "subscribe", "s", topics=[note]))["ok"] is True
+            state = await next_json(direct, event_on(note))
+            assert (state["source"], state["snapshot"]) == (f"user:{w.operator}", True)
+            assert (await ack(first, "subscribe", "s", topics=[note, status]))["ok"] is True
+            assert await next_json(first, event_on(note)) == state  # relayed from above
+
+            assert (await ack(op, "publish", "p2", topic=note, data={"x": 2}))["ok"] is True
+            live = await next_json(direct, event_on(note))
+            assert {"source", "ts"} <= live.keys() and "snapshot" not in live, live
+            assert await next_json(first, event_on(note)) == live
+            async with w.unit(w.a) as second:  # answered by the gateway, from what it kept
+                assert (await ack(second, "subscribe", "s", topics=[note]))["ok"] is True
+                assert await next_json(second, event_on(note)) == {**live, "snapshot": True}
+
+            assert (await ack(driver, "publish", "p3", topic=status, data=3))["ok"] is True
+            beside = await next_json(first, event_on(status))
+            assert beside == {"op": "event", "topic": status, "data": 3}  # a unit's, within

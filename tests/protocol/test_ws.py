@@ -281,6 +281,21 @@ def test_event_push_omits_snapshot_unless_set():
     assert "data" in snap
 
 
+def test_an_event_framed_again_is_what_came():
+    """A gateway rebuilds each event from above for its units: nothing of it is lost, a
+    field this version does not know included (``source`` was lost)."""
+    came = {
+        "op": "event",
+        "topic": "user/ana/src/g1",
+        "data": {"x": 2, "replayed": True},
+        "source": "user:ana",
+        "ts": "2026-11-22T10:00:00.123Z",
+        "snapshot": True,
+        "newer": [1],
+    }
+    assert json.loads(EventPush.model_validate_json(json.dumps(came)).frame()) == came
+
+
 def test_other_pushes_serialise_with_their_op():
     assert json.loads(LaggingPush(dropped=3).frame()) == {"op": "lagging", "dropped": 3}
     control = json.loads(ControlPush(instance_id="i-1").frame())
