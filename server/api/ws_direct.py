@@ -258,7 +258,7 @@ class LiveWebSocketProtocol(WebSocketsSansIOProtocol):
                 try:
                     message: Message = payload.decode()
                 except UnicodeDecodeError:
-                    end = start  # the parser closes with 1007
+                    end = start  # to the parser, then closed with 1007 (_not_utf8)
                     break
             else:
                 message = payload
@@ -267,24 +267,38 @@ class LiveWebSocketProtocol(WebSocketsSansIOProtocol):
         return data[end:] if end else data
 
     def send_receive_event_to_app(self) -> None:
+        """A whole message: to ``on_message`` once attached, to uvicorn's queue before. Text
+        that is not UTF-8 closes the socket here (:meth:`_not_utf8`), on either path."""
         on_message = self._on_message
-        if on_message is None or self.close_sent:
-            super().send_receive_event_to_app()
+        if self.close_sent:
+            super().send_receive_event_to_app()  # uvicorn drops it
             return
         data = self.frames[0] if len(self.frames) == 1 else b"".join(self.frames)
+        message: Message
         if self.curr_msg_data_type == "text":
             try:
-                text = data.decode()
+                message = data.decode()
             except UnicodeDecodeError:
-                super().send_receive_event_to_app()  # uvicorn closes with 1007
+                self.frames = []
+                self._not_utf8()
                 return
-            self.frames = []
-            self._rank += 1
-            on_message(text, self._rank)
-        else:
-            self.frames = []
-            self._rank += 1
-            on_message(bytes(data), self._rank)
+        elif on_message is not None:
+            message = bytes(data)
+        if on_message is None:
+            super().send_receive_event_to_app()  # decodes it again: the few before attach
+            return
+        self.frames = []
+        self._rank += 1
+        on_message(message, self._rank)
+
+    def _not_utf8(self) -> None:
+        """A text message that is not UTF-8 fails the connection with 1007 (RFC 6455 8.1),
+        with one INFO line. uvicorn's own path logs an ERROR and its traceback for each
+        (two chained, once this class had tried): any client could write them at will."""
+        peer = f"{self.client[0]}:{self.client[1]}" if self.client else "peer"
+        log.info("WebSocket %s sent text that is not UTF-8: closed with 1007", peer)
+        self.conn.fail(1007, "text frame not UTF-8")
+        self.handle_parser_exception()  # the app told (disconnect), the close sent
 
 
 def _header(first: int, length: int) -> bytes:

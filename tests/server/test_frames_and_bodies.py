@@ -1,12 +1,15 @@
 """Bodies and frames a careless or hostile client sends: a real uvicorn serving the app.
 
 An over-size body is 413, chunked or not; an over-size frame closes the socket with
-1009; a malformed frame gets an error in the contract's envelope and the socket goes on
-(never 1011); every frame counts toward the socket's rate, the malformed ones too."""
+1009, a text frame that is not UTF-8 with 1007 (one INFO line in the log); a malformed
+frame gets an error in the contract's envelope and the socket goes on (never 1011);
+every frame counts toward the socket's rate, the malformed ones too."""
 
 from __future__ import annotations
 
+import asyncio
 import json
+import logging
 from collections.abc import AsyncIterator, Callable
 
 import httpx
@@ -16,6 +19,7 @@ import websockets
 from server.settings import Settings
 from tests.factories import ADMIN, ADMIN_TOKEN
 from tests.live import call, connect, recv_until, serve
+from tests.server.test_ws_keepalive import RawSocket, raw_client
 
 pytestmark = pytest.mark.usefixtures("store_backend")
 
@@ -93,3 +97,38 @@ async def test_every_frame_counts_toward_the_rate_malformed_ones_too(base: str) 
             codes.append(reply["error"]["code"])
         assert "rate_limited" in codes and codes.count("rate_limited") >= 30, codes
         assert codes[0] == "invalid"  # within the rate: told what was wrong
+
+
+async def closed_with(ws: RawSocket) -> tuple[int, str]:
+    """The code and reason of the server's close frame, by a deadline."""
+    async with asyncio.timeout(10):
+        payload = await ws.until(0x8, answer=True)
+    return int.from_bytes(payload[:2], "big"), payload[2:].decode()
+
+
+async def test_a_text_frame_that_is_not_utf8_closes_with_1007_and_one_quiet_line(
+    base: str, caplog: pytest.LogCaptureFixture
+) -> None:
+    """RFC 6455 8.1. Each one used to log an ERROR with two chained tracebacks (the direct
+    path's decode, then uvicorn's, which it fell back on): any client could write them
+    into the server's log at will. Client libraries refuse to send such a frame: a raw
+    socket sends it whole once its socket is served (the direct path), in two parts (the
+    parser), and before its token (uvicorn's queue, the socket waiting for ``auth``)."""
+    # caplog hears uvicorn's loggers too (pytest attaches it to those that do not propagate)
+    caplog.set_level(logging.INFO, logger="fleet")
+    for parts in ([b'{"op":"subscribe","id":"\xff\xfe"}'], [b'{"id":"\xe2\x82', b'"}']):
+        async with raw_client(base) as ws:
+            ws.send(0x1, b'{"op":"subscribe","id":"s","topics":["fleet"]}')
+            async with asyncio.timeout(10):
+                assert b'"id":"s","ok":true' in await ws.until(0x1, answer=True)
+            for n, part in enumerate(parts):
+                ws.send(0x1 if n == 0 else 0x0, part, fin=n == len(parts) - 1)
+            assert await closed_with(ws) == (1007, "text frame not UTF-8")
+    async with raw_client(base, token=None) as ws:
+        ws.send(0x1, b"\xc3\x28")
+        assert await closed_with(ws) == (1007, "text frame not UTF-8")
+    assert [r for r in caplog.records if r.levelno >= logging.ERROR or r.exc_info] == []
+    said = [r.getMessage() for r in caplog.records if "UTF-8" in r.getMessage()]
+    assert len(said) == 3 and all("closed with 1007" in line for line in said), said
+    assert all(r.levelno == logging.INFO for r in caplog.records if "UTF-8" in r.getMessage())
+    assert not any(ADMIN_TOKEN in r.getMessage() for r in caplog.records)

@@ -38,10 +38,12 @@ class RawSocket:
             length = int.from_bytes(await self.reader.readexactly(8), "big")
         return first & 0x0F, await self.reader.readexactly(length)
 
-    def send(self, opcode: int, payload: bytes) -> None:
+    def send(self, opcode: int, payload: bytes, *, fin: bool = True) -> None:
+        """One masked frame of under 126 bytes (``fin=False``: a message's first part)."""
         mask = os.urandom(4)
         masked = bytes(b ^ mask[i % 4] for i, b in enumerate(payload))
-        self.writer.write(bytes((0x80 | opcode, 0x80 | len(payload))) + mask + masked)
+        first = (0x80 if fin else 0) | opcode
+        self.writer.write(bytes((first, 0x80 | len(payload))) + mask + masked)
 
     async def until(self, opcode: int, *, answer: bool) -> bytes:
         """Frames up to the first of ``opcode``; each ping counted, answered if ``answer``."""
@@ -56,16 +58,18 @@ class RawSocket:
 
 
 @asynccontextmanager
-async def raw_client(base: str) -> AsyncIterator[RawSocket]:
+async def raw_client(base: str, token: str | None = ADMIN_TOKEN) -> AsyncIterator[RawSocket]:
+    """A raw client on ``/ws/client``, its token in the header (none: it has not said it)."""
     host, port = base.removeprefix("http://").split(":")
     reader, writer = await asyncio.open_connection(host, int(port))
     key = base64.b64encode(os.urandom(16)).decode()
+    auth = f"Authorization: Bearer {token}\r\n" if token is not None else ""
     writer.write(
         (
             "GET /ws/client HTTP/1.1\r\n"
             f"Host: {host}\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
             f"Sec-WebSocket-Key: {key}\r\nSec-WebSocket-Version: 13\r\n"
-            f"Authorization: Bearer {ADMIN_TOKEN}\r\n\r\n"
+            f"{auth}\r\n"
         ).encode()
     )
     head = await reader.readuntil(b"\r\n\r\n")
