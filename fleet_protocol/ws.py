@@ -164,6 +164,12 @@ class SubscribeOp(_UnitOp):
     #: At most one event per topic every ``throttle_ms`` (the latest value wins).
     throttle_ms: StrictInt = Field(default=0, ge=0, le=3_600_000)
 
+    @field_validator("throttle_ms", mode="before")
+    @classmethod
+    def _null_is_no_throttle(cls, value: Any) -> Any:
+        """``throttle_ms: null`` is the optional field not given (no throttle)."""
+        return 0 if value is None else value
+
 
 class UnsubscribeOp(_UnitOp):
     op: Literal["unsubscribe"] = "unsubscribe"

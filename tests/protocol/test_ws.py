@@ -154,6 +154,11 @@ def test_client_socket_refuses_vehicle_ops():
     assert "unknown op" in body["error"]["details"][0]["message"]
 
 
+def test_client_subscribe_takes_a_null_throttle_as_none():
+    op = parse_client_op(frame(op="subscribe", topics=["fleet"], throttle_ms=None))
+    assert isinstance(op, SubscribeOp) and op.throttle_ms == 0
+
+
 def test_client_subscribe_parses_with_throttle():
     op = parse_client_op(frame(op="subscribe", topics=["vehicle/usv-1/telemetry"], throttle_ms=50))
     assert isinstance(op, SubscribeOp)
