@@ -30,12 +30,12 @@ is). Unit identities for the routing table come from :func:`unit_for`.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
 from typing import Literal, Protocol
 
 from fleet_protocol.topics import SERVER_ONLY_VEHICLE_TOPICS, split_topic
-from server.errors import Forbidden
+from server.errors import Forbidden, Invalid
 
 __all__ = [
     "Actor",
@@ -81,18 +81,35 @@ def vehicle_written(topic: str) -> bool:
     )
 
 
+def shape_problem(topic: str) -> str | None:
+    """Why ``topic`` names no topic anybody may read or write (the same for every caller:
+    a 422, not a refusal of rights); ``None`` for one of a known shape."""
+    segments = split_topic(topic)
+    namespace = segments[0]
+    if namespace in ("fleet", "zones"):
+        if len(segments) > 1:
+            return f"there are no topics under '{namespace}/': '{namespace}' is one topic"
+        return None
+    if namespace not in ("vehicle", "user", "gateway"):
+        return (
+            f"there are no topics under '{namespace}/': a topic is fleet, zones, or under "
+            "vehicle/<id>/, user/<username>/ or gateway/<id>/"
+        )
+    if len(segments) < 3:
+        return f"a topic under '{namespace}/' is '{namespace}/<id>/<name>'"
+    return None
+
+
 def write_refusal(actor: Actor, topic: str, as_vehicle: str | None = None) -> str | None:
     """Why ``actor`` may not publish on (or register) ``topic``; ``None`` if it may.
     ``as_vehicle``: the vehicle a gateway's op acts for (its ``vehicle_id``), which writes
     under its own ``vehicle/<id>/`` alone, as that vehicle's own token does."""
+    if (problem := shape_problem(topic)) is not None:
+        return problem
     segments = split_topic(topic)
     namespace = segments[0]
     if namespace in ("fleet", "zones"):
         return f"'{namespace}' is written by the server alone"
-    if namespace not in ("vehicle", "user", "gateway"):
-        return f"nobody writes under '{namespace}/': use user/<username>/ or vehicle/<id>/"
-    if len(segments) < 3:
-        return f"a topic under '{namespace}/' is '{namespace}/<id>/<name>'"
     owner, kind = segments[1], segments[2]
     if namespace == "vehicle":
         if kind in SERVER_ONLY_VEHICLE_TOPICS:
@@ -116,16 +133,12 @@ Gateways = Mapping[str, frozenset[str]]
 def read_refusal(actor: Actor, topic: str, gateways: Gateways | None = None) -> str | None:
     """Why ``actor`` may not subscribe to ``topic``; ``None`` if it may. ``gateways``: the
     vehicles of each gateway a ``gateway/...`` topic names (unknown ones: none)."""
+    if (problem := shape_problem(topic)) is not None:
+        return problem
     segments = split_topic(topic)
     namespace = segments[0]
     if namespace in ("fleet", "zones"):
-        if len(segments) > 1:
-            return f"there are no topics under '{namespace}/': '{namespace}' is one topic"
         return None if actor.kind == "user" else f"'{namespace}' is for users"
-    if namespace not in ("vehicle", "user", "gateway"):
-        return f"there are no topics under '{namespace}/'"
-    if len(segments) < 3:
-        return f"a topic under '{namespace}/' is '{namespace}/<id>/<name>'"
     owner = segments[1]
     if namespace == "vehicle":
         return None if _reads_vehicle(actor, owner) else f"no read access to vehicle {owner}"
@@ -174,11 +187,23 @@ def gateways_named(topics: list[str]) -> set[str]:
 
 
 def _check(rule: Callable[[Actor, str], str | None], actor: Actor, topics: str | list[str]) -> None:
-    for topic in [topics] if isinstance(topics, str) else topics:
+    """The first topic refused: ``Invalid`` when it names no topic at all, ``Forbidden``
+    when ``actor`` may not; its detail names the field as validation does (``topic``,
+    or ``topics.<i>`` in a list)."""
+    named = [("topic", topics)] if isinstance(topics, str) else list(_indexed(topics))
+    for field_name, topic in named:
         reason = rule(actor, topic)
         if reason is not None:
             said = f"{topic}: {reason}"  # the detail is a sentence that names the topic
-            raise Forbidden(reason, details=[{"field": "topic", "message": said}])
+            details = [{"field": field_name, "message": said}]
+            if shape_problem(topic) is not None:
+                raise Invalid(said, details=details)
+            raise Forbidden(reason, details=details)
+
+
+def _indexed(topics: list[str]) -> Iterator[tuple[str, str]]:
+    for index, topic in enumerate(topics):
+        yield f"topics.{index}", topic
 
 
 @dataclass(frozen=True)

@@ -14,7 +14,7 @@ from server.domain.topics import (
     check_write,
     unit_for,
 )
-from server.errors import Forbidden
+from server.errors import Forbidden, Invalid
 
 
 @dataclass(frozen=True)
@@ -144,15 +144,27 @@ def test_checks_raise_forbidden_naming_the_topic():
         check_write(vehicle("usv-1"), ["vehicle/usv-1/camera", "vehicle/usv-2/camera"])
     assert caught.value.details == [
         {
-            "field": "topic",
+            "field": "topics.1",
             "message": "vehicle/usv-2/camera: only vehicle usv-2 (or its gateway) writes"
             " under 'vehicle/usv-2/'",
         }
     ]
-    with pytest.raises(Forbidden, match="no read access"):
+    with pytest.raises(Forbidden, match="no read access") as caught:
         check_read(user("alice"), "vehicle/usv-1/telemetry")
+    assert [d["field"] for d in caught.value.details] == ["topic"]
     check_read(user("alice", "usv-1"), ["fleet", "vehicle/usv-1/telemetry"])
     check_write(user("alice"), "user/alice/x")
+
+
+@pytest.mark.parametrize("topic", ["user/alice", "vehicle/usv-1", "gateway", "fleet/x", "foo/a/b"])
+def test_a_topic_of_no_known_shape_is_invalid_for_everyone(topic: str) -> None:
+    """The same for every caller, the admin too: a 422, not a refusal of rights."""
+    for actor in (user("alice", "usv-1"), user("root", admin=True), vehicle("usv-1")):
+        for check in (check_read, check_write):
+            with pytest.raises(Invalid) as caught:
+                check(actor, ["vehicle/usv-1/x", topic] if check is check_read else [topic])
+            field = "topics.1" if check is check_read else "topics.0"
+            assert [d["field"] for d in caught.value.details] == [field], (topic, actor)
 
 
 def test_unit_for_each_kind_of_caller():
