@@ -11,6 +11,7 @@ import websockets
 
 from fleet_protocol.links import (
     CLOSE_FORBIDDEN,
+    CLOSE_RECONNECT,
     CLOSE_UNAUTHORIZED,
     MAX_BINARY_FRAME_BYTES,
     websocket_url,
@@ -26,6 +27,12 @@ STATUS_OF_CODE = {
     "unauthorized": 401, "forbidden": 403, "not_found": 404, "invalid": 422, "rate_limited": 429,
     "too_large": 413, "unavailable": 503,
 }  # fmt: skip
+
+
+#: How many times in a row, with no event between, :meth:`LiveCalls.events` opens its
+#: socket again when told to (4012); the server does not say so again and again, but a
+#: bound holds.
+_REOPENS = 20
 
 
 class LiveCalls(Session):
@@ -57,23 +64,34 @@ class LiveCalls(Session):
         topic's current state first, ``snapshot: true``) until the server closes.
 
         A refused token or subscription raises :class:`FleetApiError`; a lost link ends
-        the iteration (``websockets.ConnectionClosed`` is not raised).
+        the iteration (``websockets.ConnectionClosed`` is not raised). A socket closed
+        because the user's rights changed (4012: connect again) is opened again and the
+        topics subscribed again, each one's state coming first once more; a subscription
+        the new rights refuse raises.
         """
         subscribe: Body = {"op": "subscribe", "id": "events", "topics": list(topics)}
         if throttle_ms:
             subscribe["throttle_ms"] = throttle_ms
-        async with self._socket() as ws:
-            try:
-                await ws.send(json.dumps(subscribe))
-                async for frame in ws:
-                    if not isinstance(frame, str):
-                        continue  # media frames: not for this iterator
-                    push = json.loads(frame)
-                    _acked(push, "events")  # a refusal raises
-                    if push.get("op") in ("event", "lagging"):
-                        yield push
-            except websockets.ConnectionClosed as exc:
-                _raise_refusal(exc)
+        reopens = 0
+        while True:
+            async with self._socket() as ws:
+                try:
+                    await ws.send(json.dumps(subscribe))
+                    async for frame in ws:
+                        if not isinstance(frame, str):
+                            continue  # media frames: not for this iterator
+                        push = json.loads(frame)
+                        _acked(push, "events")  # a refusal raises
+                        if push.get("op") in ("event", "lagging"):
+                            reopens = 0
+                            yield push
+                except websockets.ConnectionClosed as exc:
+                    _raise_refusal(exc)
+                    told = exc.rcvd is not None and exc.rcvd.code == CLOSE_RECONNECT
+                    if told and reopens < _REOPENS:
+                        reopens += 1
+                        continue
+            return
 
     def _socket(self) -> Any:
         return websockets.connect(

@@ -100,3 +100,33 @@ async def test_events_take_the_largest_message_the_server_accepts(
                         assert push["data"] == "ping", push
             finally:
                 listening.cancel()
+
+
+async def test_events_go_on_when_the_user_s_rights_change(
+    make_settings: Callable[..., Settings],
+) -> None:
+    """The server closes a user's sockets with 4012 (connect again) when an admin changes
+    the user's vehicles: the iterator opens its socket again and gives the topics' state
+    under the new rights, rather than ending as if the link were lost."""
+    async with serve(make_settings()) as base, httpx.AsyncClient(base_url=base) as c:
+        one, oh = await make_vehicle(c)
+        two, th = await make_vehicle(c)
+        for vid, vh in ((one, oh), (two, th)):
+            await start_instance(c, vid, vh)
+        name, headers = await make_user(c, "viewer", vehicles=[one])
+        admin = {"Authorization": f"Bearer {ADMIN_TOKEN}"}
+        seen: list[set[str]] = []
+        async with FleetClient(base, _token(headers)) as fleet:
+            events = fleet.events(["fleet"])
+            async with asyncio.timeout(20):
+                async for push in events:
+                    if not push.get("snapshot"):
+                        continue  # a presence change: not what is looked at here
+                    seen.append({v["vehicle_id"] for v in push["data"]["vehicles"]})
+                    if len(seen) == 2:
+                        break
+                    patch = {"vehicles": [one, two]}
+                    r = await c.patch(f"/api/users/{name}", headers=admin, json=patch)
+                    assert r.status_code == 200, r.text
+            await events.aclose()
+        assert seen == [{one}, {one, two}]
