@@ -50,6 +50,8 @@ class TopicFanout:
         self._unit_conns: dict[str, list[Connection]] = {}
         self._last_message: dict[str, Any] | None = None
         self._routes_due: set[str] = set()
+        #: (socket, unit) a socket joined a unit the table had: told the unit's part too.
+        self._joined: list[tuple[Connection, str]] = []
         self._last_frame = ""
         #: The topics the server writes: their current state for a new subscriber.
         self.topics = topics
@@ -254,7 +256,10 @@ class TopicFanout:
         if unit_id in conn.units:
             return
         conn.units.add(unit_id)
-        self._unit_conns.setdefault(unit_id, []).append(conn)
+        conns = self._unit_conns.setdefault(unit_id, [])
+        if conns:  # a unit in the table already: this socket is told its part as it joins
+            self._joined.append((conn, unit_id))
+        conns.append(conn)
 
     def _push_routes(self, changed: frozenset[str]) -> None:
         """Note whose part of the table changed; :meth:`flush_routes` tells them."""
@@ -267,9 +272,10 @@ class TopicFanout:
         part to it, and the unit may publish at once on what it learned, so the
         gateway must know by then what to forward up.
         """
-        if not self._routes_due:
+        if not self._routes_due and not self._joined:
             return
         due, self._routes_due = self._routes_due, set()
+        joined, self._joined = self._joined, []
         for unit_id in sorted(due, key=lambda u: (not u.startswith("gateway:"), u)):
             if unit_id not in self.routing:
                 continue
@@ -277,6 +283,9 @@ class TopicFanout:
             for conn in self._unit_conns.get(unit_id, ()):
                 if not conn.closed:
                     conn.outbox.put(frame)
+        for conn, unit_id in joined:  # a unit's new socket whose part did not change
+            if unit_id not in due and unit_id in self.routing and not conn.closed:
+                conn.outbox.put(RoutesPush(**self.routing.view(unit_id).as_dict()).frame())
 
     def _drop_units(self, conn: Connection) -> None:
         """Take what the ended connection held out of the table: a unit it alone held,

@@ -199,3 +199,18 @@ async def test_a_vehicle_a_token_does_not_act_for_is_named_in_the_refusal(
     )
     assert r.status_code == 403, r.text
     assert [d["field"] for d in r.json()["error"]["details"]] == ["vehicle_id"]
+
+
+async def test_a_unit_s_new_socket_is_told_the_unit_s_part(
+    base: str, api: httpx.AsyncClient
+) -> None:
+    """A second socket of a unit (the console beside fleetctl) whose op changes nothing
+    in the table is still told the unit's part (``routes``), as the first one was."""
+    name, headers = await make_user(api, "operator", [])
+    topic = f"user/{name}/plan"
+    async with await connect(base, "/ws/client", tok(headers)) as first:
+        assert (await call(first, "register", "r", topics=[topic]))["ok"]
+        assert topic in (await _routes(first, f"user:{name}"))["produces"]
+        async with await connect(base, "/ws/client", tok(headers)) as second:
+            assert (await call(second, "register", "r", topics=[topic]))["ok"]  # no change
+            assert topic in (await _routes(second, f"user:{name}"))["produces"]
