@@ -21,6 +21,12 @@ class FatalError(AgentError):
     """Retrying cannot help (401, 403, bad configuration): stop with this message."""
 
 
+class TokenRefused(FatalError):
+    """The server refused the token itself: unknown, expired or revoked (HTTP 401, an
+    ``unauthorized`` ack, a socket closed with 4401). A gateway tells its local units
+    so before it stops (``UnitServer.token_refused``): a restart would not help them."""
+
+
 class RetryableError(AgentError):
     """Network trouble, timeouts, 5xx, 429: back off and try again."""
 

@@ -13,7 +13,7 @@ from vehicle_client.adapters.base import Adapter
 from vehicle_client.adapters.sim import SimAdapter
 from vehicle_client.agent import AgentConfig, VehicleAgent
 from vehicle_client.config import LinkOptions, VehicleOptions
-from vehicle_client.errors import FatalError
+from vehicle_client.errors import FatalError, TokenRefused
 from vehicle_client.outbox import Outbox
 from vehicle_client.sim.dynamics import VehicleParams
 from vehicle_client.transport.auto import AutoTransport, LinkChoice
@@ -130,6 +130,8 @@ async def _run(agents: list[VehicleAgent], units: UnitServer | None = None) -> i
         return 0
     finally:
         status.cancel()
+    if units is not None and any(isinstance(r, TokenRefused) for r in results):
+        await units.token_refused()  # before the port goes: a restart would not help them
     code = 0
     for agent, result in zip(agents, results, strict=True):
         if isinstance(result, FatalError):

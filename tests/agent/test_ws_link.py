@@ -13,7 +13,7 @@ from websockets.asyncio.server import ServerConnection, serve
 
 from fleet_protocol import ErrorBody, StartInstance
 from fleet_protocol.ws import AckPush, CommandPush, RoutesPush
-from vehicle_client.errors import FatalError, RetryableError, SessionLost
+from vehicle_client.errors import FatalError, RetryableError, SessionLost, TokenRefused
 from vehicle_client.gateway.forwarding import LocalUnit, TopicRouter, write_refusal
 from vehicle_client.transport.auto import LinkChoice
 from vehicle_client.transport.wire import (
@@ -54,7 +54,7 @@ def test_one_op_goes_alone_more_go_as_batches_within_the_limit() -> None:
 @pytest.mark.parametrize(
     ("code", "kind", "says"),
     [
-        (4401, FatalError, "token"),
+        (4401, TokenRefused, "token"),  # a FatalError a gateway tells its units of
         (4403, FatalError, "may not act"),
         (4409, FatalError, "another agent"),
         (1001, RetryableError, "1001"),
@@ -71,6 +71,7 @@ def test_refused_ops_are_sorted_like_http_statuses() -> None:
         return AckPush.failure("1", ErrorBody(code=code, message="m"))
 
     assert isinstance(ack_error(refused("forbidden"), "op"), FatalError)
+    assert isinstance(ack_error(refused("unauthorized"), "op"), TokenRefused)
     assert isinstance(ack_error(refused("not_found"), "op"), SessionLost)
     assert type(ack_error(refused("rate_limited"), "op")) is RetryableError
 

@@ -21,7 +21,8 @@ A ``register`` or ``subscribe`` takes effect among the local units once the
 server accepted it (refused: it leaves nothing to replay later), or at once
 while the cloud link is down (acked with ``local_only``: a unit restarted at sea
 still gets its neighbours' data; it goes up with the replay when the link is
-back, where the server may refuse it, and nothing comes from above for it).
+back). A subscription the server refuses then is handed back to the caller
+(``UnitServer``), which lets go of it and tells the units that held it.
 An ``unsubscribe`` or ``unregister`` takes effect here at once. The ops of one
 vehicle's units, and their leaving, take turns (a lock for each vehicle), so
 that what is held here and what was said above never cross.
@@ -31,18 +32,24 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import logging
 from collections import defaultdict
 from typing import Any
 
+from fleet_protocol import ErrorBody
 from fleet_protocol.ws import AckPush, RegisterOp, SubscribeOp, UnregisterOp, UnsubscribeOp
 from vehicle_client.errors import AgentError
 from vehicle_client.gateway.forwarding import LocalUnit, TopicRouter
 from vehicle_client.gateway.registrar import Registrar
 from vehicle_client.transport.ws import WsLink
 
-__all__ = ["TopicOp", "TopicOps"]
+__all__ = ["Dropped", "TopicOp", "TopicOps"]
+
+log = logging.getLogger(__name__)
 
 TopicOp = RegisterOp | UnregisterOp | SubscribeOp | UnsubscribeOp
+#: A subscription refused above at the replay: its vehicle, its topic, the server's error.
+Dropped = tuple[str, str, ErrorBody]
 
 
 class TopicOps:
@@ -150,8 +157,30 @@ class TopicOps:
                 with contextlib.suppress(AgentError):
                     await self.link.send(sent)
 
-    async def replay(self) -> None:
-        """After a reconnection: what each vehicle's units hold, once."""
-        for sent in self.router.replay():
-            with contextlib.suppress(AgentError):
-                await self.link.send(sent)
+    async def replay(self) -> list[Dropped]:
+        """After a reconnection: what each vehicle's units hold, once, the ops together
+        (one round trip). The subscriptions the server refused, for the caller to let
+        go of and tell their units (else each would go up again at every reconnection,
+        its units hearing nothing)."""
+        answered = await asyncio.gather(*(self._replayed(sent) for sent in self.router.replay()))
+        return [each for one_op in answered for each in one_op]
+
+    async def _replayed(self, sent: dict[str, Any]) -> list[Dropped]:
+        """``sent`` acked; the subscriptions of it the server refused. The server refuses
+        an op whole for its first topic it may not read: a ``forbidden`` op of several
+        topics is sent again one topic each, so that the others still go up."""
+        try:
+            ack = await self.link.call(sent, check=False)
+        except AgentError:
+            return []  # the link is down again: the next replay
+        if ack.ok:
+            return []
+        error = ack.error or ErrorBody(code="forbidden", message="refused")
+        topics: list[str] = sent["topics"]
+        subscribe = sent["op"] == "subscribe"
+        if subscribe and len(topics) > 1 and error.code == "forbidden":
+            ones = await asyncio.gather(*(self._replayed({**sent, "topics": [t]}) for t in topics))
+            return [each for one in ones for each in one]
+        what = f"{sent['op']} {', '.join(topics)} for {sent['vehicle_id']}"
+        log.warning("%s: refused at the replay: %s", what, error.message)
+        return [(sent["vehicle_id"], topic, error) for topic in topics] if subscribe else []

@@ -3,7 +3,8 @@
 A unit connects to ``/?vehicle_id=<id>[&unit=<name>]``. Both are identifiers, each
 given at most once; ``unit=`` with no name is refused, not taken for an unnamed
 unit. The vehicle must be one the gateway's token acts for (when the server has
-said which). :func:`admit` says who connects, or why the connection is closed.
+said which). :func:`admit` says who connects, or why the connection is closed;
+:func:`listen_address`, where the socket listens.
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ from urllib.parse import parse_qs, urlsplit
 
 from fleet_protocol.common import ID_PATTERN, ID_RULE
 from fleet_protocol.links import CLOSE_FORBIDDEN
+from vehicle_client.errors import FatalError
 
 CLOSE_BAD_REQUEST = 4400  # the gateway's own: a unit that did not name its vehicle (or
 # named itself with what is not an identifier)
@@ -47,6 +49,15 @@ def admit(path: str, acts_for: frozenset[str] | set[str] | None) -> Admitted | R
     if acts_for is not None and vehicle_id not in acts_for:
         return Refused(CLOSE_FORBIDDEN, not_listed(vehicle_id))
     return Admitted(vehicle_id, name)
+
+
+def listen_address(listen: str) -> tuple[str, int]:
+    """``HOST:PORT`` (``:PORT``: on loopback) of the gateway's ``listen`` setting."""
+    host, _, port = listen.rpartition(":")
+    try:
+        return host or "127.0.0.1", int(port)
+    except ValueError:
+        raise FatalError(f"listen must be HOST:PORT, got {listen!r}") from None
 
 
 def not_listed(vehicle_id: str) -> str:

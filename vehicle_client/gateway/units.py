@@ -7,6 +7,8 @@ vehicle the gateway's token acts for) and speaks the topic ops of
 not list is closed with 4403 once the server has said which it lists
 (``whoami``, at each connection); what a connection's query may be, and the
 refusals of one that is not: :mod:`vehicle_client.gateway.unit_admission`.
+Every unit is closed with 4401 once the server refused the gateway's own token
+(``token_refused``); what else a unit is refused: ``unit_refusals``.
 
 Each connection is a unit of its own (a :class:`LocalUnit`), with its own
 subscriptions, registrations, throttles and queue, and several may act for
@@ -47,19 +49,25 @@ from fleet_protocol import ErrorBody
 from fleet_protocol.links import (
     CLOSE_FORBIDDEN,
     CLOSE_REPLACED,
+    CLOSE_UNAUTHORIZED,
     MAX_BINARY_FRAME_BYTES,
     MAX_TEXT_FRAME_BYTES,
 )
 from fleet_protocol.media import decode_media_frame
-from fleet_protocol.topics import is_media_topic
-from fleet_protocol.ws import AckPush, EventPush, PublishOp, RegisterOp, RoutesPush, SubscribeOp
+from fleet_protocol.ws import AckPush, EventPush, PublishOp, RoutesPush, SubscribeOp
 from fleet_protocol.ws_frames import FrameError, parse_client_op
 from vehicle_client.errors import AgentError, FatalError
-from vehicle_client.gateway.forwarding import LatestKept, LocalUnit, TopicRouter, write_refusal
+from vehicle_client.gateway.forwarding import LatestKept, LocalUnit, TopicRouter, read_refusal
 from vehicle_client.gateway.registrar import Registrar
 from vehicle_client.gateway.topic_ops import TopicOps
-from vehicle_client.gateway.unit_admission import Refused, admit, not_listed
+from vehicle_client.gateway.unit_admission import Refused, admit, listen_address, not_listed
 from vehicle_client.gateway.unit_queue import DEFAULT_UNIT_QUEUE, UnitQueue
+from vehicle_client.gateway.unit_refusals import (
+    TOKEN_REFUSED,
+    dropped,
+    media_refusal,
+    op_refusal,
+)
 from vehicle_client.gateway.uplink import (
     DEFAULT_MEDIA_UP_PER_S,
     DEFAULT_PUBLISH_UP_PER_S,
@@ -70,14 +78,6 @@ from vehicle_client.transport.wire import op_frame
 from vehicle_client.transport.ws import WsLink
 
 log = logging.getLogger(__name__)
-
-
-def _listen_address(listen: str) -> tuple[str, int]:
-    host, _, port = listen.rpartition(":")
-    try:
-        return host or "127.0.0.1", int(port)
-    except ValueError:
-        raise FatalError(f"listen must be HOST:PORT, got {listen!r}") from None
 
 
 class UnitServer:
@@ -93,7 +93,7 @@ class UnitServer:
     ) -> None:
         self.link = link
         self.publish_budget = PublishBudget(publish_up_per_s)
-        self.host, self.port = _listen_address(listen)
+        self.host, self.port = listen_address(listen)
         self.max_media_bytes = max_media_bytes
         self.queue_size = queue_size
         self.router = TopicRouter()
@@ -108,6 +108,8 @@ class UnitServer:
         self.topic_ops = TopicOps(link, self.router, self.registrar)
         #: The vehicles the gateway's token acts for, as the server last said (None: not yet).
         self.acts_for: frozenset[str] | None = None
+        #: Set once the server refused the gateway's token: how a unit's socket closes.
+        self._ending: tuple[int, str] | None = None
         self._server: Server | None = None
         link.on_event = self._from_above
         link.on_media = self._media_from_above
@@ -135,6 +137,16 @@ class UnitServer:
         await self.uplink.aclose()
         log.info("local units: %s", self.describe())
 
+    async def token_refused(self) -> None:
+        """The server refused the gateway's own token (revoked, expired): each unit is
+        closed with 4401 and why, and any that connects until the gateway stops, so that
+        its process knows a restart of the gateway will not bring it back. They used to
+        see their sockets close with 1001, as at any restart."""
+        self._ending = (CLOSE_UNAUTHORIZED, TOKEN_REFUSED)
+        log.warning("local units: closing them all (4401): %s", TOKEN_REFUSED)
+        queues = list(self._queues.values())
+        await asyncio.gather(*(q.conn.close(*self._ending) for q in queues))
+
     def describe(self) -> str:
         """The forwarding counters, for the status log."""
         r, up = self.router, self.uplink
@@ -149,6 +161,9 @@ class UnitServer:
 
     # -- one unit -------------------------------------------------------------
     async def _serve(self, conn: ServerConnection) -> None:
+        if self._ending is not None:
+            await conn.close(*self._ending)
+            return
         admitted = admit(conn.request.path if conn.request else "", self.acts_for)
         if isinstance(admitted, Refused):
             if admitted.code == CLOSE_FORBIDDEN:
@@ -191,17 +206,8 @@ class UnitServer:
         except FrameError as exc:
             queue.put(exc.reply().frame())
             return
-        if isinstance(op, PublishOp | RegisterOp):
-            topics = [op.topic] if isinstance(op, PublishOp) else op.topics
-            for topic in topics:
-                if (reason := write_refusal(unit.vehicle_id, topic)) is not None:
-                    # As the server says it: the field ``topic``, a sentence naming it.
-                    said = _refusal("forbidden", reason, "topic", f"{topic}: {reason}")
-                    queue.refuse(op.id, said)
-                    return
-        if isinstance(op, PublishOp) and is_media_topic(op.topic):
-            message = f"{op.topic} is a media topic: send binary frames on it"
-            queue.refuse(op.id, _refusal("invalid", message, "topic"))
+        if (refused := op_refusal(unit.vehicle_id, op, self.acts_for)) is not None:
+            queue.refuse(op.id, refused)
             return
         if isinstance(op, PublishOp):
             refused = await self._publish(unit, op)
@@ -214,6 +220,8 @@ class UnitServer:
         due = self._states_due.pop(unit, [])
         if op.id:
             queue.put(answer.frame())
+        elif not answer.ok and answer.error is not None:
+            queue.refuse(None, answer.error)  # refused above: as the server says it, unasked
         if isinstance(op, SubscribeOp) and answer.ok:
             for topic, frame in due:
                 self._put_event(unit, topic, frame)
@@ -287,13 +295,8 @@ class UnitServer:
             queue.put(exc.reply().frame())
             return
         topic = header.topic
-        if not is_media_topic(topic):
-            message = f"{topic} is not a media topic: publish JSON on it"
-            queue.refuse(None, _refusal("invalid", message, "topic"))
-            return
-        refusal = write_refusal(unit.vehicle_id, topic)
-        if refusal is not None:
-            queue.refuse(None, _refusal("forbidden", refusal, "topic"))
+        if (refused := media_refusal(unit.vehicle_id, topic)) is not None:
+            queue.refuse(None, refused)
             return
         delivery = self.router.publish(unit, topic, media=True)
         for other in delivery.local:
@@ -334,9 +337,11 @@ class UnitServer:
 
     async def _replay(self) -> None:
         """After a (re)connection: which vehicles the token acts for, then the units'
-        registrations and subscriptions again (each vehicle's once)."""
+        registrations and subscriptions again (each vehicle's once); what the server
+        refuses of them is let go of and told."""
         await self._learn_vehicles()
-        await self.topic_ops.replay()
+        for vehicle_id, topic, error in await self.topic_ops.replay():
+            self._let_go(vehicle_id, topic, dropped(topic, error.code, error.message))
 
     async def _learn_vehicles(self) -> None:
         """Ask the server whom the token acts for; close the units of other vehicles (their
@@ -353,6 +358,22 @@ class UnitServer:
             if unit.vehicle_id not in self.acts_for:
                 log.warning("local unit %s: %s", unit, not_listed(unit.vehicle_id))
                 await queue.conn.close(CLOSE_FORBIDDEN, not_listed(unit.vehicle_id))
+        # A subscription taken while the link was down, before the vehicles were known.
+        for unit, held in list(self.router.units.items()):
+            for topic in list(held.consumes):
+                if (reason := read_refusal(topic, self.acts_for)) is not None:
+                    self._let_go(unit.vehicle_id, topic, dropped(topic, "forbidden", reason))
+
+    def _let_go(self, vehicle_id: str, topic: str, error: ErrorBody) -> None:
+        """The units of ``vehicle_id`` subscribed to ``topic`` are no longer, here (it is
+        not replayed again), each told with an ``error`` push naming it."""
+        for unit in self.router.subscribers(topic):
+            if unit.vehicle_id == vehicle_id:
+                self.router.unsubscribe(unit, [topic])
+                log.warning("local unit %s: %s", unit, error.message)
+                if (queue := self._queues.get(unit)) is not None:
+                    queue.forget([topic])
+                    queue.refuse(None, error)
 
     def _put(self, unit: LocalUnit, frame: str) -> None:
         queue = self._queues.get(unit)
@@ -369,13 +390,6 @@ class UnitServer:
         queue = self._queues.get(unit)
         if queue is not None:
             queue.put_media(topic, frame)
-
-
-def _refusal(code: str, message: str, field: str, detail: str | None = None) -> ErrorBody:
-    """An op refused for one of its fields, named as the server names it (``detail``: the
-    field's own sentence, when it is not ``message``)."""
-    said = detail if detail is not None else message
-    return ErrorBody(code=code, message=message, details=[{"field": field, "message": said}])
 
 
 def _frame_bytes(op: dict[str, Any], shown: int) -> int:

@@ -25,6 +25,7 @@ from vehicle_client.errors import (
     Refused,
     RetryableError,
     SessionLost,
+    TokenRefused,
     refused_fields,
 )
 
@@ -119,7 +120,7 @@ class HttpTransport:
         code, message = _error_text(response)
         text = f"{path}: {status} {code}: {message}".rstrip(": ")
         if status == 401:
-            raise FatalError(f"the server refused the token ({text}); " + CHECK_TOKEN)
+            raise TokenRefused(f"the server refused the token ({text}); " + CHECK_TOKEN)
         if status == 403:
             raise FatalError(f"the token may not act for this vehicle ({text})")
         if status == 404 or (status == 409 and code == "instance_finished"):

@@ -25,6 +25,7 @@ from vehicle_client.errors import (
     Refused,
     RetryableError,
     SessionLost,
+    TokenRefused,
     refused_fields,
 )
 
@@ -100,7 +101,7 @@ def close_error(code: int | None, reason: str | None) -> RetryableError | FatalE
     """What a closed socket means for the agent: fatal for 4401/4403/4409, else retry."""
     why = f" ({reason})" if reason else ""
     if code == CLOSE_UNAUTHORIZED:
-        return FatalError(f"the server refused the token{why}; " + CHECK_TOKEN)
+        return TokenRefused(f"the server refused the token{why}; " + CHECK_TOKEN)
     if code == CLOSE_FORBIDDEN:
         return FatalError(f"the token may not act for this vehicle{why}")
     if code == CLOSE_REPLACED:
@@ -117,7 +118,7 @@ def ack_error(ack: AckPush, what: str) -> RetryableError | FatalError:
     code = error.code if error is not None else ""
     text = f"{what}: {code}: {error.message if error else 'refused'}"
     if code == "unauthorized":
-        return FatalError(f"the server refused the token ({text}); " + CHECK_TOKEN)
+        return TokenRefused(f"the server refused the token ({text}); " + CHECK_TOKEN)
     if code == "forbidden":
         return FatalError(f"the token may not act for this vehicle ({text})")
     if code in ("not_found", "instance_finished"):
