@@ -8,6 +8,7 @@ is a deadline on a condition.
 from __future__ import annotations
 
 import asyncio
+import itertools
 import json
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -182,13 +183,29 @@ def test_falls_back_to_http_when_the_upgrade_is_refused_and_returns_to_the_webso
             agent.stop()
 
 
-async def _recv(ws: websockets.ClientConnection, want: Callable[[dict], bool]) -> dict:
+async def _recv(
+    ws: websockets.ClientConnection, want: Callable[[dict], bool], within_s: float = 20
+) -> dict:
     """The first frame ``want`` accepts, within a deadline."""
-    async with asyncio.timeout(20):
+    async with asyncio.timeout(within_s):
         while True:
             frame = json.loads(await ws.recv())
             if want(frame):
                 return frame
+
+
+async def _published_until_heard(
+    unit: websockets.ClientConnection, op: websockets.ClientConnection, topic: str
+) -> dict:
+    """Publish ``{m: 3}``, ``{m: 4}``... on ``topic`` until ``op`` hears one; that event."""
+    async with asyncio.timeout(30):
+        for m in itertools.count(3):
+            await unit.send(json.dumps({"op": "publish", "topic": topic, "data": {"m": m}}))
+            try:
+                return await _recv(op, _event_on(topic), within_s=0.5)
+            except TimeoutError:
+                continue
+    raise AssertionError("unreachable")
 
 
 def _event_on(topic: str) -> Callable[[dict], bool]:
@@ -239,12 +256,17 @@ def test_gateway_forwards_its_units_topics_on_demand(
                 await _recv(
                     a, lambda f: f["op"] == "routes" and "user:op-gwu" in f["produces"][sonar]
                 )
+                # Asked above, but a unit below consumes it: it stays below (API.md).
                 await a.send(json.dumps({"op": "publish", "topic": sonar, "data": {"m": 2}}))
-                assert (await _recv(op, _event_on(sonar)))["data"] == {"m": 2}
                 assert (await _recv(b, _event_on(sonar)))["data"] == {"m": 2}
                 # Downward: what the unit subscribed to, from above.
                 await op.send(json.dumps({"op": "publish", "topic": plan, "data": [1, 2]}))
                 assert (await _recv(b, _event_on(plan)))["data"] == [1, 2]
+                # No unit below consumes it any more: up it goes, once the gateway hears.
+                await b.send(json.dumps({"op": "unsubscribe", "id": "u", "topics": [sonar]}))
+                assert (await _recv(b, lambda f: f["op"] == "ack"))["ok"] is True
+                first = await _published_until_heard(a, op, sonar)
+                assert first["data"]["m"] >= 3, first  # m 2 never went up
             # Outside its namespace: refused by the gateway, even kept local.
             await b.send(json.dumps({"op": "publish", "id": "p", "topic": sonar, "data": 0}))
             refused = await _recv(b, lambda f: f["op"] == "ack" and f["id"] == "p")
