@@ -36,7 +36,8 @@ def error_on(topic: str) -> Callable[[Frame], bool]:
     return lambda f: (
         f["op"] == "error"
         and any(
-            d["field"] == "topic" and d["message"].startswith(f"{topic}: ")
+            (d["field"] == "topic" or d["field"].startswith("topics."))
+            and d["message"].startswith(f"{topic}: ")
             for d in f["error"].get("details") or []
         )
     )

@@ -241,12 +241,12 @@ async def test_a_unit_name_must_be_an_identifier_and_its_vehicle_listed(
             assert "vehicle_id is given more than once" in two_vehicles.close_reason
         async with w.unit(w.a, "sonar") as ua:  # the link up: the server said whom it lists
             assert (await ack(ua, "register", "r", topics=[f"vehicle/{w.a}/x"]))["ok"] is True
-            # Refused as the server refuses it: the field topic, a sentence naming it.
+            # Refused as the server refuses it: the field (topics.1), a sentence naming it.
             theirs = f"vehicle/{w.b}/x"
             refused = await ack(ua, "register", "r2", topics=[f"vehicle/{w.a}/y", theirs])
             assert refused["ok"] is False and refused["error"]["code"] == "forbidden"
             [detail] = refused["error"]["details"]
-            assert detail["field"] == "topic" and detail["message"].startswith(f"{theirs}: ")
+            assert detail["field"] == "topics.1" and detail["message"].startswith(f"{theirs}: ")
         async with w.unit("usv-not-ours", "sonar") as stranger:
             assert await closed_with(stranger) == CLOSE_FORBIDDEN
 

@@ -36,14 +36,17 @@ def op_refusal(vehicle_id: str, op: object, acts_for: frozenset[str] | None) -> 
     anywhere (``None``: it does not): a topic the unit may not write (``publish``,
     ``register``) or the gateway may not read (``subscribe``; ``acts_for``: the
     vehicles its token acts for, ``None`` while not known), JSON on a media topic."""
-    if isinstance(op, PublishOp | RegisterOp):
-        for topic in [op.topic] if isinstance(op, PublishOp) else op.topics:
+    if isinstance(op, PublishOp):
+        if (reason := write_refusal(vehicle_id, op.topic)) is not None:
+            return refusal("forbidden", reason, "topic", f"{op.topic}: {reason}")
+    if isinstance(op, RegisterOp):
+        for index, topic in enumerate(op.topics):  # a list's field named as the server does
             if (reason := write_refusal(vehicle_id, topic)) is not None:
-                return refusal("forbidden", reason, "topic", f"{topic}: {reason}")
+                return refusal("forbidden", reason, f"topics.{index}", f"{topic}: {reason}")
     if isinstance(op, SubscribeOp):
-        for topic in op.topics:
+        for index, topic in enumerate(op.topics):
             if (reason := read_refusal(topic, acts_for)) is not None:
-                return refusal("forbidden", reason, "topic", f"{topic}: {reason}")
+                return refusal("forbidden", reason, f"topics.{index}", f"{topic}: {reason}")
     if isinstance(op, PublishOp) and is_media_topic(op.topic):
         return refusal("invalid", f"{op.topic} is a media topic: send binary frames on it", "topic")
     return None
