@@ -241,8 +241,11 @@ export class ControlPanel {
     // Asked on every control, view or event change of any vehicle, most of which (a
     // position, another boat's link) change nothing here: the panel is replaced only
     // when what it shows has changed, so a button is not swapped under a finger or a
-    // pointer for nothing.
-    const html = drawn.innerHTML;
+    // pointer for nothing. A countdown ("in 9 min") is left out of the comparison: the
+    // clock's tick keeps it current in place, and its minute turning is no change.
+    const probe = drawn.cloneNode(true);
+    for (const el of probe.querySelectorAll("small.until")) el.textContent = "";
+    const html = probe.innerHTML;
     if (html === this.shown) return;
     this.shown = html;
     // What the manager has chosen or typed in its forms (a duration, a user, the grant
