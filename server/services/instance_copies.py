@@ -187,9 +187,10 @@ class InstanceCopies:
         if self._by_vehicle.get(state.vehicle_id) is state:
             self._by_vehicle.pop(state.vehicle_id)
 
-    def _adopt(self, doc: dict[str, Any]) -> InstanceState:
-        """This replica's copy of a stored instance, caught up with ``doc``. An unfinished
-        one is kept (it may be the vehicle's newest: an older copy of the vehicle goes)."""
+    def _adopt(self, doc: dict[str, Any], read_at: float | None = None) -> InstanceState:
+        """This replica's copy of a stored instance, caught up with ``doc`` (read from the
+        store from ``read_at``, monotonic, when known). An unfinished one is kept (it may
+        be the vehicle's newest: an older copy of the vehicle goes)."""
         state = self._by_id.get(doc["instance_id"])
         if state is None:
             state = InstanceState.from_doc(doc)
@@ -203,18 +204,19 @@ class InstanceCopies:
                 self._unindex(former)  # finished elsewhere: the store has the newer one
             self._index(state)
             return state
-        state.merge(doc)
+        state.merge(doc, read_at)
         if state.finished:
             self._unindex(state)
         return state
 
     async def refresh(self, instance_id: str) -> bool:
         """Another replica changed the instance: catch up. Whether it is finished (or gone)."""
+        read_at = time.monotonic()
         doc = await self.repo.get(instance_id)
         if doc is None:
             if (gone := self._by_id.get(instance_id)) is not None:
                 self._unindex(gone)
             return True
         if instance_id in self._by_id:
-            self._adopt(doc)
+            self._adopt(doc, read_at)
         return doc.get("finished_at") is not None

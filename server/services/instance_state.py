@@ -47,6 +47,9 @@ class InstanceState:
     #: The server's clock minus the vehicle's, in seconds, as the vehicle last said
     #: (``clock_offset_s`` of its calls; memory only). Its samples are dated by its clock.
     clock_offset_s: float = 0.0
+    #: Monotonic time this replica's write of the name or type ended (memory only): a
+    #: read of the store begun before it may hold the former ones.
+    named_at: float = 0.0
 
     @property
     def finished(self) -> bool:
@@ -125,14 +128,18 @@ class InstanceState:
         if seq > self.presence_seq and doc.get("presence") and not self.finished:
             self.presence, self.presence_seq = doc["presence"], seq
 
-    def merge(self, doc: dict[str, Any]) -> None:
+    def merge(self, doc: dict[str, Any], read_at: float | None = None) -> None:
         """Catch up with the store's copy, written by another replica (several replicas).
 
         What this replica changed and has not written yet (``dirty``) stays. The name
-        and type are the store's: they are written at once wherever they change.
+        and type are the store's: they are written at once wherever they change; but
+        not from a read begun (``read_at``, monotonic) before this replica's own write
+        of them ended, which may hold the former ones (an admin's rename was undone in
+        the copy so: seen under load with two replicas on FerretDB).
         """
         stored = InstanceState.from_doc(doc)
-        self.name, self.vehicle_type = stored.name, stored.vehicle_type
+        if read_at is None or read_at >= self.named_at:
+            self.name, self.vehicle_type = stored.name, stored.vehicle_type
         if not self.dirty:
             self.capabilities, self.params = stored.capabilities, stored.params
             self.params_updated_at, self.control_mode = (

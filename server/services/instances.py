@@ -167,9 +167,12 @@ class InstanceService(InstanceCopies):
         if not changed:
             return
         if state is not None:
+            await self.repo.save(state.instance_id, changed)  # these fields alone
+            # Into the copy once written: a refresh that read the store before then does
+            # not put the former name back (``InstanceState.merge``).
             state.name = changed.get("name", state.name)
             state.vehicle_type = changed.get("vehicle_type", state.vehicle_type)
-            await self.repo.save(state.instance_id, changed)  # these fields alone
+            state.named_at = time.monotonic()
             self.messages.emit_now(StateWritten(state.instance_id, "instance"))
         await self.events.record(
             "vehicle_changed",
