@@ -360,30 +360,36 @@ def test_the_control_panel_is_drawn_again_only_when_what_it_shows_changes(
     """The panel was drawn again on every vehicle's news (each position, another boat's
     link), its buttons swapped under the pointer several times a second for nothing."""
     page, lease = ana_s_lease_in_mia_s_control_panel(world, open_console)
-    page.evaluate(
-        """() => {
-            window.revokeButton = [...document.querySelectorAll(
-                'li.lease[data-vehicle="demo-usv-1"] button')].find(
-                (b) => b.textContent.includes("Revoke"));
-            const v = fleetConsole.fleet.vehicles.get("demo-usv-1");
-            window.positionBefore = v.view.position.ts;
-            // Two minutes on: the lease's countdown ("in 60 min") turns, kept current
-            // in place by the clock's tick, which is no reason to draw the panel again
-            // (it was, once a minute; seen failing make test under load).
-            const real = Date.now.bind(Date);
-            Date.now = () => real() + 120_000;
-        }"""
-    )
-    page.evaluate(  # news the panel does not show: another boat's link, this one's position
-        "fleetConsole.fleet.applyFleet({vehicles: [{vehicle_id: 'demo-usv-2', link_rtt_ms: 42}]})"
-    )
-    page.wait_for_function(  # a new position from the boat itself (its agent runs at 1 Hz)
-        "() => fleetConsole.fleet.vehicles.get('demo-usv-1').view.position.ts"
-        " !== window.positionBefore",
-        timeout=15_000,
-    )
-    next_frames(page)  # the redraws asked have run
-    assert page.evaluate("window.revokeButton.isConnected")
+    # Two minutes on: the lease's countdown ("in 60 min") turns, kept current in place by
+    # the clock's tick, which is no reason to draw the panel again (it was, once a minute;
+    # seen failing make test under load).
+    page.evaluate("() => { const real = Date.now.bind(Date); Date.now = () => real() + 120_000; }")
+    for _ in range(3):  # a loaded machine may make the boat stale meanwhile: shown, so again
+        page.evaluate(
+            """() => {
+                window.revokeButton = [...document.querySelectorAll(
+                    'li.lease[data-vehicle="demo-usv-1"] button')].find(
+                    (b) => b.textContent.includes("Revoke"));
+                const v = fleetConsole.fleet.vehicles.get("demo-usv-1");
+                window.positionBefore = v.view.position.ts;
+                window.presenceBefore = v.view.presence;
+            }"""
+        )
+        other_link = "{vehicles: [{vehicle_id: 'demo-usv-2', link_rtt_ms: 42}]}"
+        # News the panel does not show: another boat's link, this one's position.
+        page.evaluate(f"fleetConsole.fleet.applyFleet({other_link})")
+        page.wait_for_function(  # a new position from the boat itself (its agent runs at 1 Hz)
+            "() => fleetConsole.fleet.vehicles.get('demo-usv-1').view.position.ts"
+            " !== window.positionBefore",
+            timeout=15_000,
+        )
+        next_frames(page)  # the redraws asked have run
+        if page.evaluate("window.revokeButton.isConnected"):
+            break
+        presence = "fleetConsole.fleet.vehicles.get('demo-usv-1').view.presence"
+        assert page.evaluate(f"{presence} !== window.presenceBefore"), "drawn again for nothing"
+    else:
+        raise AssertionError("the boat's presence changed at every try")
     page.evaluate(  # news it shows: the boat's presence
         "fleetConsole.fleet.applyFleet({vehicles: [{vehicle_id: 'demo-usv-1', presence: 'stale'}]})"
     )
