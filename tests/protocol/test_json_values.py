@@ -32,12 +32,9 @@ from fleet_protocol.served import json_safe, safe_dumps
 from fleet_protocol.text import check_text
 from fleet_protocol.topics import validate_topic
 from fleet_protocol.values import json_problem
-from fleet_protocol.ws import (
-    EventPush,
-    PublishOp,
-    _Push,
-)
+from fleet_protocol.ws import EventPush, PublishOp
 from fleet_protocol.ws_frames import FrameError, field_errors, parse_client_op, parse_vehicle_op
+from fleet_protocol.ws_pushes import _Push
 
 TS = "2026-11-22T10:00:00.000Z"
 

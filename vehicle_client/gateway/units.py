@@ -40,7 +40,6 @@ from __future__ import annotations
 import asyncio
 import itertools
 import logging
-from typing import Any
 
 from websockets.asyncio.server import Server, ServerConnection, serve
 from websockets.exceptions import ConnectionClosed
@@ -74,7 +73,7 @@ from vehicle_client.gateway.uplink import (
     MediaUplink,
     PublishBudget,
 )
-from vehicle_client.transport.wire import op_frame
+from vehicle_client.transport.wire import op_frame_bytes
 from vehicle_client.transport.ws import WsLink
 
 log = logging.getLogger(__name__)
@@ -265,7 +264,7 @@ class UnitServer:
             "topic": op.topic,
             "data": op.data,
         }
-        if (size := _frame_bytes(upstream, len(frame))) > MAX_TEXT_FRAME_BYTES:
+        if (size := op_frame_bytes(upstream, len(frame))) > MAX_TEXT_FRAME_BYTES:
             message = (
                 f"sent up it would take {size} bytes (at most {MAX_TEXT_FRAME_BYTES}): "
                 "the local units got it, nobody above did"
@@ -390,12 +389,3 @@ class UnitServer:
         queue = self._queues.get(unit)
         if queue is not None:
             queue.put_media(topic, frame)
-
-
-def _frame_bytes(op: dict[str, Any], shown: int) -> int:
-    """The bytes ``op`` takes as the link sends it (ASCII JSON); not measured when the
-    event's own frame (``shown`` characters) is far from the bound, as most are: a
-    character is at most 6 bytes escaped."""
-    if 6 * shown + 512 < MAX_TEXT_FRAME_BYTES:
-        return 0
-    return len(op_frame(op))

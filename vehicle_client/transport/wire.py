@@ -16,6 +16,7 @@ from fleet_protocol.links import (
     CLOSE_FORBIDDEN,
     CLOSE_REPLACED,
     CLOSE_UNAUTHORIZED,
+    MAX_TEXT_FRAME_BYTES,
     websocket_url,
 )
 from fleet_protocol.ws import MAX_BATCH_OPS, AckPush, Push
@@ -83,6 +84,15 @@ class IdSource:
 def op_frame(op: dict[str, Any]) -> str:
     """An op dict as a compact JSON text frame."""
     return json.dumps(op, separators=(",", ":"))
+
+
+def op_frame_bytes(op: dict[str, Any], shown: int) -> int:
+    """The bytes ``op`` takes as the link sends it (ASCII JSON); 0, not measured, when
+    what it carries (``shown`` characters) is far from the frame's bound, as most are: a
+    character is at most 6 bytes escaped."""
+    if 6 * shown + 512 < MAX_TEXT_FRAME_BYTES:
+        return 0
+    return len(op_frame(op))
 
 
 def batches(ops: Iterable[dict[str, Any]], limit: int = MAX_BATCH_OPS) -> Iterator[str]:
