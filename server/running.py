@@ -127,7 +127,7 @@ def _start_background(runtime: Runtime) -> None:
     runtime.spawn("presence", services.instances.sweep, 0.25)
     runtime.spawn("leases", services.control.sweep, 0.2)
     runtime.spawn("commands", services.commands.sweep, 0.2)
-    runtime.spawn("safety", services.safety.tick, 1.0)
+    runtime.spawn("safety", services.safety.tick, settings.rules_every_s)
     runtime.spawn("forecast", services.forecast.tick, settings.forecast_every_s)
     runtime.spawn("telemetry", services.telemetry.writer_step, services.telemetry.writer_tick_s())
     if services.store.kind == "embedded" and runtime.owns_store:

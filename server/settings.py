@@ -102,6 +102,13 @@ class Settings(BaseSettings):
     forecast_every_s: float = Field(
         default=1.0, gt=0, le=60, description="how often the collision forecast runs"
     )
+    rules_every_s: float = Field(
+        default=1.0,
+        gt=0,
+        le=60,
+        description="how often a replica reads the zones and failsafe policies again "
+        "(another replica's change is heard on the bus at once; this is when it is not)",
+    )
     token_ttl_s: int = Field(
         default=12 * 3600, ge=60, description="lifetime of a token from /auth/token"
     )

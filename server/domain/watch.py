@@ -16,6 +16,11 @@ The rules change too: a zone drawn, changed or deleted, a threshold set or lifte
 latest position is then judged again by the new rules, and what ends so is told for
 what it is: a zone that no longer applies (:func:`cleared_data`), a low battery whose
 threshold moved (``low_battery_cleared``, :func:`battery_event`), not a recovery.
+
+Each replica judges by the rules as it last read them, and another may have read newer
+ones: a stored state names the rules it was judged by (:class:`RulesSeen`, the zones'
+version and the vehicle's policy version), and a judgement by older rules
+(:func:`behind`) is not written over it; it would bring back what the newer rules ended.
 """
 
 from __future__ import annotations
@@ -23,7 +28,7 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from datetime import datetime
-from typing import Any
+from typing import Any, NamedTuple
 
 from fleet_protocol import EventKind
 from server.domain.zones import LatLon, ZoneSet, breaches
@@ -40,6 +45,20 @@ class WatchState:
     #: before dates were kept)
     breach_since: Mapping[str, datetime] = field(default_factory=dict, compare=False)
     battery_since: datetime | None = field(default=None, compare=False)
+
+
+class RulesSeen(NamedTuple):
+    """The rules a watch state was judged by: the zones' version, the policy's version
+    (0 and 0 in a state stored before they were kept)."""
+
+    zones: int = 0
+    policy: int = 0
+
+
+def behind(mine: RulesSeen, stored: RulesSeen) -> bool:
+    """Whether rules ``mine`` are older than those ``stored`` was judged by (either
+    version lower): a judgement by them must not replace it."""
+    return mine.zones < stored.zones or mine.policy < stored.policy
 
 
 @dataclass(frozen=True)

@@ -22,7 +22,11 @@ replica's change heard on the bus, or the tick's reading), each unfinished insta
 touch is judged again against its latest position as the store and this replica have
 it, a vehicle that stopped reporting too. The same compare and set records what changed,
 once of all replicas (``reason`` in the event's data: ``zones_changed`` or
-``failsafe_changed``); each write of a watch state is announced
+``failsafe_changed``). A replica judges by the rules as it last read them: a stored
+state names the rules it was judged by, and one judged by newer rules than this
+replica's is not written over (that would bring back an alarm the newer rules ended);
+the instance is judged again once the rules are read here. Each write of a watch state
+is announced
 (:class:`~server.domain.events.StateWritten`, part ``watch``), so that a replica that
 kept a copy of it reads it again.
 """
@@ -40,8 +44,10 @@ from server.domain.clock import Clock, said_time
 from server.domain.events import FailsafeChanged, SamplesStored, StateWritten, ZonesChanged
 from server.domain.failsafe import breach_command
 from server.domain.watch import (
+    RulesSeen,
     WatchState,
     battery_event,
+    behind,
     breach_data,
     change,
     cleared_data,
@@ -58,7 +64,7 @@ from server.services.messagebus import MessageBus
 from server.services.zones import ZoneService
 from server.settings import Settings
 from server.storage.backends import Doc
-from server.storage.safety import SafetyRepo, watch_state
+from server.storage.safety import SafetyRepo, judged_by, watch_state
 
 
 class StoredWatch(NamedTuple):
@@ -70,14 +76,37 @@ class StoredWatch(NamedTuple):
 
 class Judged(NamedTuple):
     """What one judgement of the watch was made on: the position, its battery reading, the
-    time a new alarm is dated by, and whether the rules moved (``rules``; else a new
+    time a new alarm is dated by, and which rules moved (``zones_moved``,
+    ``threshold_moved``: what changes by them is told so; neither: a new
     sample came)."""
 
     lat: float
     lon: float
     battery_pct: float | None
     at: datetime
-    rules: bool = False
+    zones_moved: bool = False
+    threshold_moved: bool = False
+
+    @property
+    def point(self) -> tuple[float, float]:
+        return (self.lat, self.lon)
+
+
+class JudgedBy(NamedTuple):
+    """The rules one judgement is made by, as this replica has them: the zones and the
+    vehicle's policy (its battery threshold)."""
+
+    zones: ZoneSet
+    policy: FailsafePolicy
+
+    @property
+    def seen(self) -> RulesSeen:
+        return RulesSeen(self.zones.version, self.policy.version)
+
+    def next(self, was: WatchState, vehicle_id: str, judged: Judged) -> WatchState:
+        """The state after ``was`` for the judged position and reading."""
+        threshold = self.policy.low_battery_pct
+        return next_state(was, self.zones, vehicle_id, judged.point, judged.battery_pct, threshold)
 
 
 class Rules(NamedTuple):
@@ -126,6 +155,9 @@ class SafetyService(FailsafePolicies):
         #: gone since is named by them); None until first read.
         self._rules: Rules | None = None
         self._former: ZoneSet = ZoneSet()
+        #: Instances whose stored state was judged by newer rules than this replica's:
+        #: judged again at the next reading of the rules.
+        self._behind: set[str] = set()
         self._judging = asyncio.Lock()
 
     # ---- what is wrong with a vehicle now ----------------------------------------------
@@ -183,30 +215,28 @@ class SafetyService(FailsafePolicies):
         if state is None or state.finished:
             return None
         was = self._watch.get(state.instance_id)
+        judged, by = self._judged(state, sample), self._by(state.vehicle_id)
         if was is None:
-            return self._first(state, sample)
-        now = self._next(state, was, sample)
+            return self._first(state, judged, by)
+        now = by.next(was, state.vehicle_id, judged)
         if now is was or now == was:
             return None
-        return self._record(state, self._judged(state, sample), now)
+        return self._record(state, judged, by)
 
-    def _next(self, state: InstanceState, was: WatchState, sample: Doc) -> WatchState:
-        threshold = self.known_policy(state.vehicle_id).low_battery_pct
-        point = (float(sample["lat"]), float(sample["lon"]))
-        return next_state(
-            was, self.zones.known(), state.vehicle_id, point, sample.get("battery_pct"), threshold
-        )
+    def _by(self, vehicle_id: str) -> JudgedBy:
+        return JudgedBy(self.zones.known(), self.known_policy(vehicle_id))
 
     def _judged(self, state: InstanceState, sample: Doc) -> Judged:
         at = said_time(sample["ts"], self.clock(), state.started_at)
-        return Judged(float(sample["lat"]), float(sample["lon"]), sample.get("battery_pct"), at)
+        pct = sample.get("battery_pct")
+        reading = float(pct) if isinstance(pct, int | float) else None
+        return Judged(float(sample["lat"]), float(sample["lon"]), reading, at)
 
-    async def _first(self, state: InstanceState, sample: Doc) -> None:
+    async def _first(self, state: InstanceState, judged: Judged, by: JudgedBy) -> None:
         """The instance's watch state, read (or begun, with its home) once."""
         doc = await self.repo.watch_of(state.instance_id)
         if doc is None:
-            home = (float(sample["lat"]), float(sample["lon"]))
-            await self.repo.begin_watch(state.instance_id, state.vehicle_id, home)
+            await self.repo.begin_watch(state.instance_id, state.vehicle_id, judged.point)
             doc = await self.repo.watch_of(state.instance_id)
         was = watch_state(doc)
         self._watch[state.instance_id] = was
@@ -214,36 +244,46 @@ class SafetyService(FailsafePolicies):
             self._home[state.instance_id] = (doc["home"]["lat"], doc["home"]["lon"])
         if doc is not None and doc.get("failsafe_version") is not None:
             self._acked[state.instance_id] = int(doc["failsafe_version"])
-        now = self._next(state, was, sample)
-        if now != was:
-            await self._record(state, self._judged(state, sample), now)
+        if by.next(was, state.vehicle_id, judged) != was:
+            await self._record(state, judged, by)
 
     async def _record(
-        self, state: InstanceState, judged: Judged, now: WatchState, *, keep: bool = True
+        self, state: InstanceState, judged: Judged, by: JudgedBy, *, keep: bool = True
     ) -> None:
-        """Write the new state if it is still news (compare and set), each new alarm dated
-        ``judged.at``; record what changed. ``keep``: this replica keeps the state as its
-        copy (it takes the instance's samples)."""
+        """Judge the stored state by ``by`` and write the next one if it moved (compare
+        and set), each new alarm dated ``judged.at``; record what changed. A state judged
+        by newer rules than ``by`` is left as it is: the instance is judged again once
+        this replica has read them (:meth:`judge_again`). ``keep``: this replica keeps
+        the state as its copy (it takes the instance's samples)."""
         for _ in range(CAS_TRIES):
             doc = await self.repo.watch_of(state.instance_id)
-            stored = watch_state(doc)
+            stored, stored_by = watch_state(doc), judged_by(doc)
+            if behind(by.seen, stored_by):
+                self._behind.add(state.instance_id)
+                return
+            now = by.next(stored, state.vehicle_id, judged)
             moved = change(stored, now)
+            rev = int(doc["rev"]) if doc is not None else None
             if not moved:
+                if doc is not None and by.seen != stored_by:
+                    # Said by the newer rules: older ones may not undo it.
+                    await self.repo.move_watch(
+                        state.instance_id, state.vehicle_id, rev, stored, by.seen
+                    )
                 if keep or state.instance_id in self._watch:
                     self._watch[state.instance_id] = stored  # another replica recorded it
                 return
             now = dated(stored, now, judged.at)
-            rev = int(doc["rev"]) if doc is not None else None
-            if await self.repo.move_watch(state.instance_id, state.vehicle_id, rev, now):
+            if await self.repo.move_watch(state.instance_id, state.vehicle_id, rev, now, by.seen):
                 break
         else:
             return
         if keep or state.instance_id in self._watch:
             self._watch[state.instance_id] = now
         self.messages.emit_now(StateWritten(state.instance_id, "watch"))
-        zones = self.zones.known()
+        zones = by.zones
         where: dict[str, Any] = {"lat": judged.lat, "lon": judged.lon}
-        zone_where = {**where, "reason": "zones_changed"} if judged.rules else where
+        zone_where = {**where, "reason": "zones_changed"} if judged.zones_moved else where
         for zone_id in sorted(moved.entered):
             data = {**breach_data(zones, state.vehicle_id, zone_id, entered=True), **zone_where}
             action = await self._act_on_breach(state, zone_id, data)
@@ -253,10 +293,12 @@ class SafetyService(FailsafePolicies):
             data = {**cleared_data(named_by, state.vehicle_id, zone_id), **zone_where}
             await self._event("zone_cleared", state, data)
         if moved.battery is not None:
-            threshold = self.known_policy(state.vehicle_id).low_battery_pct
-            kind = battery_event(moved.battery, judged.battery_pct, threshold, rule=judged.rules)
+            threshold = by.policy.low_battery_pct
+            kind = battery_event(
+                moved.battery, judged.battery_pct, threshold, rule=judged.threshold_moved
+            )
             data = {"battery_pct": judged.battery_pct, "threshold_pct": threshold, **where}
-            if judged.rules:
+            if judged.threshold_moved:
                 data["reason"] = "failsafe_changed"
             await self._event(kind, state, data)
 
@@ -325,33 +367,40 @@ class SafetyService(FailsafePolicies):
                     for v in rules.thresholds.keys() | was.thresholds.keys()
                     if self._threshold(rules, v) != self._threshold(was, v)
                 }
-            if zones_moved or vehicles:
+            pending, self._behind = self._behind, set()
+            if zones_moved or vehicles or pending:
                 # A failure (the store away) leaves the rules as they were: the next tick
                 # judges again. Meanwhile a zone gone is named by ``self._rules``.
-                for state in await self.instances.everyone():
-                    if zones_moved or state.vehicle_id in vehicles:
-                        await self._again(state)
+                try:
+                    for state in await self.instances.everyone():
+                        threshold_moved = state.vehicle_id in vehicles
+                        if zones_moved or threshold_moved or state.instance_id in pending:
+                            await self._again(state, zones_moved, threshold_moved)
+                except BaseException:
+                    self._behind |= pending
+                    raise
             if was is not None and zones_moved:
                 self._former = was.zones
             self._rules = rules
 
-    async def _again(self, state: InstanceState) -> None:
-        """One instance judged again by the rules now (see :meth:`judge_again`)."""
+    async def _again(self, state: InstanceState, zones_moved: bool, threshold_moved: bool) -> None:
+        """One instance judged again by the rules now (see :meth:`judge_again`): they
+        moved, or a judgement by older ones was not written."""
         position = state.position
         if position is None:
             return  # no position: nothing was judged, nothing is
-        was = watch_state(await self.repo.watch_of(state.instance_id))
         pct = position.get("battery_pct")
         reading = float(pct) if isinstance(pct, int | float) else None
         point = (float(position["lat"]), float(position["lon"]))
-        threshold = self.known_policy(state.vehicle_id).low_battery_pct
-        now = next_state(was, self.zones.known(), state.vehicle_id, point, reading, threshold)
-        if now == was:
-            if state.instance_id in self._watch:
-                self._watch[state.instance_id] = was
-            return
-        judged = Judged(point[0], point[1], reading, self.clock(), rules=True)
-        await self._record(state, judged, now, keep=False)
+        now = self.clock()
+        # A new alarm is dated when the rule changed, or else by the sample it came from.
+        at = (
+            now
+            if zones_moved or threshold_moved or "ts" not in position
+            else said_time(position["ts"], now, state.started_at)
+        )
+        judged = Judged(*point, reading, at, zones_moved, threshold_moved)
+        await self._record(state, judged, self._by(state.vehicle_id), keep=False)
 
     def forget_watch(self, instance_id: str) -> None:
         """Another replica wrote the instance's watch state: the copy here is read again

@@ -3,7 +3,10 @@ choice between them (:func:`open_store`).
 
 - **MongoDB** (``FLEET_MONGO_URL``): PyMongo's ``AsyncMongoClient``, created in the
   app's lifespan. Every write carries the configured write concern (default
-  ``w: "majority", j: true``); a write it acknowledged is durable.
+  ``w: "majority", j: true``); a write it acknowledged is durable. The repositories'
+  compare-and-set writes need a single-document write to be atomic, as MongoDB's is;
+  FerretDB 1.x's is not, and there each such write holds a lock in the store
+  (:class:`_DocLocks`).
 - **Embedded** (no URL): :mod:`server.storage.embedded`, mongomock-motor's
   in-process collections with a journal and ordered indexes of its own.
 
@@ -15,8 +18,13 @@ truncated to the millisecond as BSON stores them).
 
 from __future__ import annotations
 
+import asyncio
 import logging
-from collections.abc import Iterable, Mapping, Sequence
+import secrets
+import time
+from collections.abc import AsyncIterator, Iterable, Mapping, Sequence
+from contextlib import asynccontextmanager
+from datetime import UTC, datetime, timedelta
 from typing import Any
 
 from pymongo.errors import (
@@ -97,11 +105,97 @@ class _MongoCall:
 
 _GUARD = _MongoCall()
 
+#: A document lock held longer than this was left by a replica that died: taken over.
+LOCK_STALE_S = 5.0
+#: How long a write waits for a document's lock before the store is called busy (503).
+LOCK_WAIT_S = 10.0
+
+
+class _DocLocks:
+    """FerretDB 1.x (over SQLite) applies an update or a replace as a read, then a write of
+    the whole document, not as one step: two compare-and-set writes of one document both
+    match (measured on 1.24.2: four at once, several won in 198 races of 200), and a
+    write of one field can undo another's. So on FerretDB each single-document write
+    (update, replace, a delete with a condition) holds the document's lock: a document
+    of ``_doc_locks`` whose ``_id`` names the collection and the document, inserted (a
+    unique key is atomic there), deleted after the write. A lock left by a replica that
+    died is taken over after :data:`LOCK_STALE_S`. MongoDB writes one document
+    atomically: no lock is taken there. Which server it is, ``buildInfo`` says
+    (``ferretdbVersion``), asked once."""
+
+    def __init__(self, db: Any) -> None:
+        self._db = db
+        self._locks: Any = None
+        self._known = False
+        self._asking = asyncio.Lock()
+
+    async def needed(self) -> bool:
+        if not self._known:
+            async with self._asking:
+                if not self._known:
+                    async with _GUARD:
+                        info = await self._db.client.admin.command("buildInfo")
+                    if "ferretdbVersion" in info:
+                        self._locks = self._db["_doc_locks"]
+                    self._known = True
+        return self._locks is not None
+
+    @asynccontextmanager
+    async def held(self, collection: str, _id: Any) -> AsyncIterator[None]:
+        key, token = f"{collection}/{_id}", secrets.token_hex(8)
+        deadline = time.monotonic() + LOCK_WAIT_S
+        pause = 0.002
+        while True:
+            try:
+                async with _GUARD:
+                    await self._locks.insert_one({"_id": key, "token": token, "at": _now()})
+                break
+            except Duplicate:
+                left = _now() - timedelta(seconds=LOCK_STALE_S)
+                async with _GUARD:
+                    taken = await self._locks.delete_one({"_id": key, "at": {"$lt": left}})
+                if taken.deleted_count:
+                    log.warning("store: took over the lock left on %s", key)
+                    continue
+                if time.monotonic() > deadline:
+                    raise Unavailable("the store is busy with this record; try again") from None
+                await asyncio.sleep(pause)
+                pause = min(pause * 2, 0.05)
+        try:
+            yield
+        finally:
+            async with _GUARD:
+                await self._locks.delete_one({"_id": key, "token": token})
+
+
+def _now() -> datetime:
+    return datetime.now(UTC)
+
+
+def _one_document(flt: Filter, *, any_condition: bool) -> Any:
+    """The ``_id`` a write with this filter is to one document of (None: not so, or,
+    unless ``any_condition``, a filter of the ``_id`` alone)."""
+    _id = flt.get("_id")
+    if _id is None or isinstance(_id, Mapping):
+        return None
+    return _id if any_condition or len(flt) > 1 else None
+
 
 class MongoCollection(Collection):
-    def __init__(self, raw: Any) -> None:
+    def __init__(self, raw: Any, locks: _DocLocks) -> None:
         self._raw = raw
+        self._doc_locks = locks
         self.name = raw.name
+
+    @asynccontextmanager
+    async def _locked(self, flt: Filter, *, any_condition: bool = True) -> AsyncIterator[None]:
+        """The document's lock held, where the server needs it (:class:`_DocLocks`)."""
+        _id = _one_document(flt, any_condition=any_condition)
+        if _id is None or not await self._doc_locks.needed():
+            yield
+            return
+        async with self._doc_locks.held(self.name, _id):
+            yield
 
     async def get(self, _id: Any) -> Doc | None:
         async with _GUARD:
@@ -152,17 +246,19 @@ class MongoCollection(Collection):
         update = update_doc(set, max, unset)
         if not update:
             return await self.count(flt) > 0
-        async with _GUARD:
+        async with self._locked(flt), _GUARD:
             result = await self._raw.update_one(dict(flt), update, upsert=upsert)
         return bool(result.matched_count) or result.upserted_id is not None
 
     async def replace(self, flt: Filter, doc: Doc, *, upsert: bool = False) -> bool:
-        async with _GUARD:
+        async with self._locked(flt), _GUARD:
             result = await self._raw.replace_one(dict(flt), doc, upsert=upsert)
         return bool(result.matched_count) or result.upserted_id is not None
 
     async def delete(self, flt: Filter) -> int:
-        async with _GUARD:
+        # A delete by ``_id`` alone is atomic on FerretDB too; one with a condition must
+        # not run between another write's read and write.
+        async with self._locked(flt, any_condition=False), _GUARD:
             result = await self._raw.delete_many(dict(flt))
         return int(result.deleted_count)
 
@@ -197,9 +293,10 @@ class MongoStore(Store):
             journal=journal,
         )
         self._db = self._client[db_name]
+        self._doc_locks = _DocLocks(self._db)
 
     def _open(self, name: str) -> Collection:
-        return MongoCollection(self._db[name])
+        return MongoCollection(self._db[name], self._doc_locks)
 
     async def ping(self) -> str | None:
         try:

@@ -9,12 +9,13 @@ it reported), the zones it is in breach of and whether its battery is low, each 
 since when (``breach_since``: zone id -> time, ``battery_since``; absent in documents
 written before they were kept), and the failsafe version it acknowledged; ``rev``
 raised by each write, written by compare and set, so that of several replicas seeing
-one change only one records it.
+one change only one records it; ``rules_zones`` and ``rules_policy``, the versions of the
+rules it was judged by (absent: 0).
 """
 
 from __future__ import annotations
 
-from server.domain.watch import WatchState
+from server.domain.watch import RulesSeen, WatchState
 from server.storage.backends import Doc, Duplicate, Store
 
 
@@ -28,6 +29,13 @@ def watch_state(doc: Doc | None) -> WatchState:
         dict(doc.get("breach_since") or {}),
         doc.get("battery_since"),
     )
+
+
+def judged_by(doc: Doc | None) -> RulesSeen:
+    """The rules the stored watch state was judged by."""
+    if doc is None:
+        return RulesSeen()
+    return RulesSeen(int(doc.get("rules_zones") or 0), int(doc.get("rules_policy") or 0))
 
 
 class SafetyRepo:
@@ -91,13 +99,17 @@ class SafetyRepo:
         vehicle_id: str,
         read_rev: int | None,
         state: WatchState,
+        rules: RulesSeen,
     ) -> bool:
-        """Write the new state if it is still the one read (``read_rev``; None: none)."""
+        """Write the new state, judged by ``rules``, if it is still the one read
+        (``read_rev``; None: none)."""
         fields = {
             "breaches": sorted(state.breaches),
             "low_battery": state.low_battery,
             "breach_since": dict(state.breach_since),
             "battery_since": state.battery_since,
+            "rules_zones": rules.zones,
+            "rules_policy": rules.policy,
         }
         if read_rev is None:
             try:

@@ -21,6 +21,9 @@ from tests.server.test_watch_now import AREA
 
 pytestmark = pytest.mark.usefixtures("store_backend")
 
+#: A no-go zone 500 m east of the origin (the vehicle starts at it, in open water).
+SQUARE_AT_500 = [(450.0, -50.0), (550.0, -50.0), (550.0, 50.0), (450.0, 50.0)]
+
 
 async def test_alarms_follow_the_vehicle_from_replica_to_replica(
     make_settings: Callable[..., Settings], redis_server: RedisServer
@@ -224,3 +227,50 @@ async def test_a_rule_changed_on_one_replica_judges_the_vehicle_again_on_both(
         assert await alarms_everywhere([])
         assert len(await events("zone_cleared")) == 1
         assert await events("battery_recovered") == []
+
+
+async def test_a_replica_with_older_rules_does_not_bring_back_what_newer_ones_ended(
+    make_settings: Callable[..., Settings], redis_server: RedisServer
+) -> None:
+    """Redis away, B lifts the vehicle's battery threshold: B ends the low battery. A,
+    which takes the vehicle's samples, has not heard (it reads the rules every 2 s) and
+    still judges by the threshold: its next sample, into a no-go zone, must not raise the
+    low battery again. Once A has read the rules it records the breach, and only it."""
+    async with two_replicas(make_settings, redis_server, rules_every_s=2.0) as (api_a, api_b, _):
+        vid, vh = await make_vehicle(api_a)
+        reef = {"name": "reef", "kind": "no_go", "polygon": polygon(SQUARE_AT_500)}
+        assert (await api_a.post("/api/zones", headers=ADMIN, json=reef)).status_code == 201
+        await _threshold_on_both((api_a, api_b), vid, 50.0)
+        iid = await _started(api_a, vid, vh)
+
+        async def report(seq: int, x: float) -> None:
+            lat, lon = at(x, 0).values()
+            s = sample(seq, ts=datetime.now(UTC), lat=lat, lon=lon, battery_pct=30.0)
+            sent = {"instance_id": iid, "samples": [s]}
+            assert (await api_a.post("/upper/update_param", headers=vh, json=sent)).is_success
+
+        async def alarms_everywhere(want: list[str]) -> bool:
+            for api in (api_a, api_b):
+                view = (await api.get(f"/api/vehicles/{vid}", headers=ADMIN)).json()
+                if [a["kind"] for a in view["alarms"]] != want:
+                    return False
+            return True
+
+        async def kinds() -> list[str]:
+            r = await api_b.get("/api/events", headers=ADMIN, params={"vehicle_id": vid})
+            watched = {"zone_breach", "low_battery", "low_battery_cleared", "battery_recovered"}
+            return [e["kind"] for e in r.json()["events"] if e["kind"] in watched]
+
+        await report(1, 0.0)  # in open water, the battery low by 50 %
+        await _until(lambda: alarms_everywhere(["low_battery"]), 10)
+        await _until(lambda: _battery_reading_seen(api_b, vid, 1), 10)
+
+        redis_server.stop()  # A hears nothing of B from now on
+        lifted = await api_b.put(f"/api/vehicles/{vid}/failsafe", headers=ADMIN, json={})
+        assert lifted.status_code == 200, lifted.text
+        assert await kinds() == ["low_battery", "low_battery_cleared"]  # B judged at once
+
+        await report(2, 500.0)  # into the reef, judged on A by the threshold it still has
+        assert await kinds() == ["low_battery", "low_battery_cleared"]
+        await _until(lambda: alarms_everywhere(["no_go_zone"]), 10)  # A read the rules
+        assert await kinds() == ["low_battery", "low_battery_cleared", "zone_breach"]

@@ -12,9 +12,11 @@ from server.domain.geo import from_local, to_local
 from server.domain.plan_frame import corridor
 from server.domain.planning import NoPath, plan_path
 from server.domain.watch import (
+    RulesSeen,
     WatchState,
     battery_event,
     battery_low,
+    behind,
     change,
     cleared_data,
     next_state,
@@ -326,3 +328,13 @@ def test_a_second_plan_keeps_the_separation_from_the_first_or_is_refused(
         return
     distance = local_line(way).distance(local_line([at(*b0), *second]))
     assert distance >= SEPARATION * 0.99
+
+
+def test_a_judgement_by_older_rules_is_behind_one_by_newer() -> None:
+    """Either version older is behind (a state judged by it may not replace the stored
+    one); the same or newer in both is not."""
+    stored = RulesSeen(zones=4, policy=2)
+    assert behind(RulesSeen(3, 2), stored) and behind(RulesSeen(4, 1), stored)
+    assert behind(RulesSeen(9, 1), stored)  # newer zones, older policy: still behind
+    assert not behind(RulesSeen(4, 2), stored) and not behind(RulesSeen(5, 3), stored)
+    assert not behind(RulesSeen(), RulesSeen())  # a state stored before they were kept

@@ -3,6 +3,7 @@ MongoDB driver path). The same calls must give the same answers and the same err
 
 from __future__ import annotations
 
+import asyncio
 import random
 from collections.abc import AsyncIterator
 from datetime import UTC, datetime, timedelta
@@ -232,3 +233,47 @@ async def test_equalities_match_as_mongodb_matches_them(store: Store) -> None:
     assert await ids({"done": T0}) == ["set"]
     assert await ids({"done": "2026-11-24T12:00:00Z"}) == ["other"]
     assert await ids({"tag": "a", "done": None}) == ["missing"]
+
+
+@pytest.fixture
+async def other_replica(
+    tmp_path: Path, store_backend: StoreBackend, store: Store
+) -> AsyncIterator[Store]:
+    """The store as a second replica has it: its own client on the same database (the
+    embedded store lives in one process: the same store)."""
+    if store_backend.name == "embedded":
+        yield store
+        return
+    settings = Settings(_env_file=None, **store_backend.settings)  # type: ignore[call-arg]
+    opened = open_store(settings)
+    try:
+        yield opened
+    finally:
+        await opened.close()
+
+
+async def test_a_compare_and_set_has_one_winner_however_many_replicas_race(
+    store: Store, other_replica: Store
+) -> None:
+    """Four writers, two per replica, each changing one document from the revision they
+    read: one wins each round. And writes of other fields of the document at the same
+    time are all kept (none undoes another)."""
+    colls = [store["cas"], other_replica["cas"]]
+    for doc_id in range(40):
+        await colls[0].insert({"_id": doc_id, "rev": 0})
+        won = await asyncio.gather(
+            *(
+                colls[i % 2].update({"_id": doc_id, "rev": 0}, set={"rev": 1, "by": i})
+                for i in range(4)
+            )
+        )
+        assert sum(won) == 1, (doc_id, won)
+        moved = await asyncio.gather(
+            *(colls[i % 2].update({"_id": doc_id}, set={f"f{i}": i}) for i in range(4)),
+            *(colls[i % 2].update({"_id": doc_id, "rev": 1}, set={"rev": 2}) for i in range(2)),
+        )
+        assert moved[:4] == [True] * 4 and sum(moved[4:]) == 1, (doc_id, moved)
+        got = await colls[0].get(doc_id) or {}
+        assert got["rev"] == 2 and {k: v for k, v in got.items() if k[0] == "f"} == {
+            f"f{i}": i for i in range(4)
+        }, got
