@@ -19,8 +19,10 @@ latest-wins delivery. A topic is a media topic when one of its segments
 after the namespace and its owner is a media kind: ``vehicle/usv-1/camera``,
 ``vehicle/usv-1/camera/front``, ``user/seg-worker/image/mask``.
 
-Pure functions only; the server's permission rules live in
-``server.domain.topics``.
+Who may read which topic (:func:`read_refusal`) is here too, as one rule: the server
+judges every subscription by it, and a gateway judges by it what it can tell before
+the server does (its units subscribe while its link is down). Who may write is the
+server's alone (``server.domain.topics``). Pure functions only.
 """
 
 from __future__ import annotations
@@ -28,7 +30,8 @@ from __future__ import annotations
 import functools
 import re
 from collections import OrderedDict
-from typing import Annotated, Generic, TypeVar
+from collections.abc import Mapping
+from typing import Annotated, Generic, Protocol, TypeVar
 
 from pydantic import AfterValidator
 
@@ -40,8 +43,11 @@ __all__ = [
     "NAMESPACES",
     "SERVER_ONLY_VEHICLE_TOPICS",
     "Kept",
+    "Reader",
     "Topic",
     "is_media_topic",
+    "read_refusal",
+    "shape_problem",
     "split_topic",
     "topic_owner",
     "validate_topic",
@@ -112,6 +118,82 @@ def is_media_topic(topic: str) -> bool:
     """Whether a (valid) topic carries media, delivered as binary frames, latest wins."""
     segments = topic.split("/")
     return any(segment in MEDIA_KINDS for segment in segments[2:])
+
+
+def shape_problem(topic: str) -> str | None:
+    """Why ``topic`` names no topic anybody may read or write (the same for every caller:
+    a 422, not a refusal of rights); ``None`` for one of a known shape."""
+    segments = split_topic(topic)
+    namespace = segments[0]
+    if namespace in ("fleet", "zones"):
+        if len(segments) > 1:
+            return f"there are no topics under '{namespace}/': '{namespace}' is one topic"
+        return None
+    if namespace not in ("vehicle", "user", "gateway"):
+        return (
+            f"there are no topics under '{namespace}/': a topic is fleet, zones, or under "
+            "vehicle/<id>/, user/<username>/ or gateway/<id>/"
+        )
+    if len(segments) < 3:
+        return f"a topic under '{namespace}/' is '{namespace}/<id>/<name>'"
+    return None
+
+
+class Reader(Protocol):
+    """Who subscribes, as far as the read rule cares."""
+
+    @property
+    def kind(self) -> str: ...  # "user" | "vehicle" | "gateway"
+
+    @property
+    def name(self) -> str: ...
+
+    @property
+    def is_admin(self) -> bool: ...
+
+    def reads_vehicle(self, vehicle_id: str) -> bool | None:
+        """Whether it may read what vehicle ``vehicle_id`` produces (a user assigned to
+        it or an admin, the vehicle itself, a gateway listing it); ``None``: that
+        cannot be told here."""
+        ...
+
+
+def read_refusal(
+    reader: Reader, topic: str, gateway_units: Mapping[str, frozenset[str]] | None
+) -> str | None:
+    """Why ``reader`` may not subscribe to ``topic``; ``None`` if it may, or if that
+    cannot be told here (a vehicle the reader cannot judge, ``gateway_units`` None).
+
+    - ``fleet`` and ``zones`` are for users;
+    - ``vehicle/<id>/...`` needs read access to that vehicle;
+    - ``user/<username>/...``: that user and admins, and a user's topic about a
+      vehicle (``user/<username>/<name>/<vehicle_id>[/...]``) whoever reads that vehicle;
+    - ``gateway/<gateway_id>/...``: that gateway, admins, and whoever reads one of the
+      gateway's vehicles (``gateway_units``: the vehicles of each gateway named; one
+      missing has none)."""
+    if (problem := shape_problem(topic)) is not None:
+        return problem
+    segments = split_topic(topic)
+    namespace = segments[0]
+    if namespace in ("fleet", "zones"):
+        return None if reader.kind == "user" else f"'{namespace}' is for users"
+    owner = segments[1]
+    if namespace == "vehicle":
+        may = reader.reads_vehicle(owner) is not False
+        return None if may else f"no read access to vehicle {owner}"
+    if reader.is_admin:
+        return None
+    if namespace == "user":
+        if reader.kind == "user" and reader.name == owner:
+            return None
+        if len(segments) >= 4 and reader.reads_vehicle(segments[3]) is not False:
+            return None  # a user's results about a vehicle its readers may read
+        return f"only {owner} (and admins) read 'user/{owner}/', but for a vehicle's readers"
+    if (reader.kind == "gateway" and reader.name == owner) or gateway_units is None:
+        return None
+    if any(reader.reads_vehicle(v) is not False for v in gateway_units.get(owner, ())):
+        return None
+    return f"only gateway {owner}, its units and their readers read 'gateway/{owner}/'"
 
 
 def vehicle_topic(vehicle_id: str, kind: str) -> str:

@@ -35,6 +35,10 @@ class Principal:
             return vehicle_id == self.name
         return self.is_admin or vehicle_id in self.vehicles
 
+    def reads_vehicle(self, vehicle_id: str) -> bool:
+        """Whether it reads what the vehicle produces: it sees the vehicle or acts for it."""
+        return self.can_see(vehicle_id) or self.acts_for(vehicle_id)
+
     def acts_for(self, vehicle_id: str) -> bool:
         """A vehicle token acts for its vehicle; a gateway token for those it lists."""
         if self.kind == "vehicle":

@@ -11,18 +11,9 @@ Writing:
 - under ``gateway/<gateway_id>/`` only that gateway;
 - nothing else.
 
-Reading (every namespace has an owner):
-
-- ``vehicle/<id>/...`` needs read access to that vehicle (a user assigned to
-  it or an admin, the vehicle itself, a gateway listing it);
-- ``user/<username>/...``: that user and admins; and a user's topic about a
-  vehicle, ``user/<username>/<name>/<vehicle_id>[/...]`` (a cloud worker's
-  results, the multilayer paper's offloading), also whoever may read that
-  vehicle: that is how a worker's results reach the vehicle and its operators;
-- ``gateway/<gateway_id>/...``: that gateway, its units (the vehicles it
-  lists), whoever may read one of them, and admins;
-- ``fleet`` is for users (the server filters presence per user), and ``zones``
-  too (it says only that the zones changed: each reads its own again).
+Reading: the one rule the gateway applies too,
+:func:`fleet_protocol.topics.read_refusal` (every namespace has an owner; ``fleet`` and
+``zones`` are for users).
 
 The caller is anything shaped like :class:`Actor` (``server.domain.access.Principal``
 is). Unit identities for the routing table come from :func:`unit_for`.
@@ -34,7 +25,8 @@ from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
 from typing import Literal, Protocol
 
-from fleet_protocol.topics import SERVER_ONLY_VEHICLE_TOPICS, split_topic
+from fleet_protocol.topics import SERVER_ONLY_VEHICLE_TOPICS, Reader, shape_problem, split_topic
+from fleet_protocol.topics import read_refusal as shared_read_refusal
 from server.errors import Forbidden, Invalid
 
 __all__ = [
@@ -53,17 +45,11 @@ __all__ = [
 UnitKind = Literal["vehicle", "gateway", "worker", "operator"]
 
 
-class Actor(Protocol):
-    """The authenticated caller, as far as topics care."""
+class Actor(Reader, Protocol):
+    """The authenticated caller, as far as topics care (who reads is
+    :class:`fleet_protocol.topics.Reader`; the server can always tell)."""
 
-    @property
-    def kind(self) -> str: ...  # "user" | "vehicle" | "gateway"
-
-    @property
-    def name(self) -> str: ...
-
-    @property
-    def is_admin(self) -> bool: ...
+    def reads_vehicle(self, vehicle_id: str) -> bool: ...
 
     def can_see(self, vehicle_id: str) -> bool: ...
 
@@ -79,25 +65,6 @@ def vehicle_written(topic: str) -> bool:
         and segments[0] == "vehicle"
         and segments[2] not in SERVER_ONLY_VEHICLE_TOPICS
     )
-
-
-def shape_problem(topic: str) -> str | None:
-    """Why ``topic`` names no topic anybody may read or write (the same for every caller:
-    a 422, not a refusal of rights); ``None`` for one of a known shape."""
-    segments = split_topic(topic)
-    namespace = segments[0]
-    if namespace in ("fleet", "zones"):
-        if len(segments) > 1:
-            return f"there are no topics under '{namespace}/': '{namespace}' is one topic"
-        return None
-    if namespace not in ("vehicle", "user", "gateway"):
-        return (
-            f"there are no topics under '{namespace}/': a topic is fleet, zones, or under "
-            "vehicle/<id>/, user/<username>/ or gateway/<id>/"
-        )
-    if len(segments) < 3:
-        return f"a topic under '{namespace}/' is '{namespace}/<id>/<name>'"
-    return None
 
 
 def write_refusal(actor: Actor, topic: str, as_vehicle: str | None = None) -> str | None:
@@ -131,35 +98,10 @@ Gateways = Mapping[str, frozenset[str]]
 
 
 def read_refusal(actor: Actor, topic: str, gateways: Gateways | None = None) -> str | None:
-    """Why ``actor`` may not subscribe to ``topic``; ``None`` if it may. ``gateways``: the
-    vehicles of each gateway a ``gateway/...`` topic names (unknown ones: none)."""
-    if (problem := shape_problem(topic)) is not None:
-        return problem
-    segments = split_topic(topic)
-    namespace = segments[0]
-    if namespace in ("fleet", "zones"):
-        return None if actor.kind == "user" else f"'{namespace}' is for users"
-    owner = segments[1]
-    if namespace == "vehicle":
-        return None if _reads_vehicle(actor, owner) else f"no read access to vehicle {owner}"
-    if actor.is_admin:
-        return None
-    if namespace == "user":
-        if actor.kind == "user" and actor.name == owner:
-            return None
-        if len(segments) >= 4 and _reads_vehicle(actor, segments[3]):
-            return None  # a user's results about a vehicle its readers may read
-        return f"only {owner} (and admins) read 'user/{owner}/', but for a vehicle's readers"
-    units = (gateways or {}).get(owner, frozenset())
-    if actor.kind == "gateway" and actor.name == owner:
-        return None
-    if any(_reads_vehicle(actor, vehicle_id) for vehicle_id in units):
-        return None
-    return f"only gateway {owner}, its units and their readers read 'gateway/{owner}/'"
-
-
-def _reads_vehicle(actor: Actor, vehicle_id: str) -> bool:
-    return actor.can_see(vehicle_id) or actor.acts_for(vehicle_id)
+    """Why ``actor`` may not subscribe to ``topic``; ``None`` if it may (the rule:
+    :func:`fleet_protocol.topics.read_refusal`). ``gateways``: the vehicles of each
+    gateway a ``gateway/...`` topic names (unknown ones: none)."""
+    return shared_read_refusal(actor, topic, gateways or {})
 
 
 def can_write(actor: Actor, topic: str) -> bool:

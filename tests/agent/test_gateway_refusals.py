@@ -117,6 +117,32 @@ async def test_a_unit_may_not_subscribe_to_a_vehicle_the_gateway_does_not_act_fo
             assert theirs not in held and f"vehicle/{w.b}/y" not in held  # the op, whole
 
 
+async def test_a_topic_of_no_known_shape_is_invalid_at_the_gateway_as_at_the_server(
+    make_settings: Callable[..., Settings],
+) -> None:
+    """A unit's subscribe, register or publish naming a topic nobody may read or write
+    (no such namespace, a namespace's bare owner) is ``invalid`` with the field named,
+    the link down too: it was acked ``local_only`` or refused ``forbidden`` here, where
+    the server says ``invalid``."""
+    async with gateway(make_settings) as w, w.unit(w.a) as ua:
+        w.units.link.url = DOWN
+        await w.units.link.aclose()
+        ops = [
+            ("subscribe", {"topics": [f"vehicle/{w.b}/y", "weather/x/y"]}, "topics.1"),
+            ("register", {"topics": [f"vehicle/{w.a}/z", f"vehicle/{w.a}"]}, "topics.1"),
+            ("publish", {"topic": "gateway/gw", "data": {}}, "topic"),
+        ]
+        for index, (op, fields, field) in enumerate(ops):
+            bad = fields["topics"][1] if "topics" in fields else fields["topic"]
+            refused = await ack(ua, op, f"o{index}", **fields)
+            assert refused["ok"] is False and refused["error"]["code"] == "invalid", refused
+            assert refused["error"]["details"] == [
+                {"field": field, "message": refused["error"]["message"]}
+            ], refused
+            assert refused["error"]["message"].startswith(f"{bad}: "), refused
+        assert f"vehicle/{w.b}/y" not in w.units.router.held(w.a).consumes  # the op, whole
+
+
 async def test_subscriptions_refused_as_the_link_comes_back_are_told_and_let_go_of(
     make_settings: Callable[..., Settings],
 ) -> None:

@@ -38,6 +38,9 @@ class Caller:
             return vehicle_id == self.name
         return self.kind == "gateway" and vehicle_id in self.vehicles
 
+    def reads_vehicle(self, vehicle_id: str) -> bool:
+        return self.can_see(vehicle_id) or self.acts_for(vehicle_id)
+
 
 def vehicle(name: str = "usv-1") -> Caller:
     return Caller("vehicle", name)

@@ -39,6 +39,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from fleet_protocol.topics import SERVER_ONLY_VEHICLE_TOPICS, Kept, is_media_topic, topic_owner
+from fleet_protocol.topics import read_refusal as shared_read_refusal
 from fleet_protocol.ws import MAX_TOPICS_PER_OP
 
 #: What a gateway keeps of its topics' states at most; the topics written longest ago go.
@@ -263,31 +264,29 @@ def write_refusal(vehicle_id: str, topic: str) -> str | None:
     return None
 
 
+@dataclass(frozen=True)
+class GatewayToken:
+    """The gateway's token as a reader of topics (:class:`fleet_protocol.topics.Reader`):
+    the vehicles it acts for (``None``: not known yet); its own id is not known here."""
+
+    acts_for: frozenset[str] | None
+    kind: str = "gateway"
+    name: str = ""
+    is_admin: bool = False
+
+    def reads_vehicle(self, vehicle_id: str) -> bool | None:
+        return None if self.acts_for is None else vehicle_id in self.acts_for
+
+
 def read_refusal(topic: str, acts_for: frozenset[str] | None) -> str | None:
     """Why the gateway may not subscribe to ``topic`` for its units, as far as it can
     tell here (``None``: it may, or the server alone can tell); ``acts_for``: the
-    vehicles its token acts for (``None``: not known yet).
-
-    The server's rule for a gateway's token (``server.domain.topics.read_refusal``):
-    ``fleet`` and ``zones`` are for users; ``vehicle/<id>/...`` and a user's topic
-    about a vehicle (``user/<name>/<topic>/<id>/...``) need a vehicle it acts for; no
-    other ``user/`` topic is its to read. Checked here because a subscription taken
-    while the link is down is acked ``local_only`` and refused above only later,
+    vehicles its token acts for (``None``: not known yet). The server's rule
+    (:func:`fleet_protocol.topics.read_refusal`), checked here because a subscription
+    taken while the link is down is acked ``local_only`` and refused above only later,
     where its unit no longer hears of it. Who reads ``gateway/<id>/...`` depends on
     that gateway's vehicles, which the server alone knows."""
-    segments = topic.split("/")
-    namespace = segments[0]
-    if namespace in ("fleet", "zones") and len(segments) == 1:
-        return f"'{namespace}' is for users"
-    if namespace not in ("vehicle", "user") or len(segments) < 3:
-        return None
-    if namespace == "user" and len(segments) < 4:
-        owner = segments[1]
-        return f"only {owner} (and admins) read 'user/{owner}/', but for a vehicle's readers"
-    vehicle_id = segments[1] if namespace == "vehicle" else segments[3]
-    if acts_for is None or vehicle_id in acts_for:
-        return None
-    return f"no read access to vehicle {vehicle_id}: this gateway's token does not act for it"
+    return shared_read_refusal(GatewayToken(acts_for), topic, None)
 
 
 def has_state(topic: str) -> bool:

@@ -13,7 +13,7 @@ and so is what the vehicles the token acts for turn out not to allow. Pure.
 from __future__ import annotations
 
 from fleet_protocol import ErrorBody
-from fleet_protocol.topics import is_media_topic
+from fleet_protocol.topics import is_media_topic, shape_problem
 from fleet_protocol.ws import PublishOp, RegisterOp, SubscribeOp
 from vehicle_client.gateway.forwarding import read_refusal, write_refusal
 
@@ -35,7 +35,17 @@ def op_refusal(vehicle_id: str, op: object, acts_for: frozenset[str] | None) -> 
     """Why the gateway refuses a topic op of a unit of ``vehicle_id`` before it goes
     anywhere (``None``: it does not): a topic the unit may not write (``publish``,
     ``register``) or the gateway may not read (``subscribe``; ``acts_for``: the
-    vehicles its token acts for, ``None`` while not known), JSON on a media topic."""
+    vehicles its token acts for, ``None`` while not known), JSON on a media topic. A
+    topic of no known shape is ``invalid``, as the server says, whoever asks."""
+    if isinstance(op, PublishOp):
+        named = [("topic", op.topic)]
+    elif isinstance(op, RegisterOp | SubscribeOp):
+        named = [(f"topics.{index}", topic) for index, topic in enumerate(op.topics)]
+    else:
+        named = []
+    for field, topic in named:
+        if (problem := shape_problem(topic)) is not None:
+            return refusal("invalid", f"{topic}: {problem}", field)
     if isinstance(op, PublishOp):
         if (reason := write_refusal(vehicle_id, op.topic)) is not None:
             return refusal("forbidden", reason, "topic", f"{op.topic}: {reason}")
