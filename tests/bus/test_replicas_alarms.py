@@ -4,7 +4,7 @@ however often the vehicle moves between them."""
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Awaitable, Callable
 from datetime import UTC, datetime, timedelta
 from typing import Any
 
@@ -55,12 +55,8 @@ async def test_alarms_follow_the_vehicle_from_replica_to_replica(
             r = await api_a.put(f"/api/vehicles/{vid}/failsafe", headers=ADMIN, json=body)
             assert r.status_code == 200, r.text
 
-        async def alarms_everywhere(want: list[str]) -> bool:
-            for api in (api_a, api_b):
-                view = (await api.get(f"/api/vehicles/{vid}", headers=ADMIN)).json()
-                if [a["kind"] for a in view["alarms"]] != want:
-                    return False
-            return True
+        def alarms_everywhere(want: list[str]) -> Awaitable[bool]:
+            return _alarms_on_both((api_a, api_b), vid, want)
 
         await threshold(80.0)
         await on(api_a)  # 50 % under 80: low, seen by A
@@ -86,6 +82,27 @@ async def test_alarms_follow_the_vehicle_from_replica_to_replica(
         for api in (api_a, api_b):
             view = (await api.get(f"/api/vehicles/{vid}", headers=ADMIN)).json()
             assert view["failsafe_acked"] is True, view
+
+
+async def _alarms_on_both(
+    apis: tuple[httpx.AsyncClient, httpx.AsyncClient], vehicle_id: str, want: list[str]
+) -> bool:
+    """Whether both replicas say these alarms of the vehicle, in this order."""
+    for api in apis:
+        view = (await api.get(f"/api/vehicles/{vehicle_id}", headers=ADMIN)).json()
+        if [a["kind"] for a in view["alarms"]] != want:
+            return False
+    return True
+
+
+async def _report_at(
+    api: httpx.AsyncClient, headers: dict[str, str], instance_id: str, seq: int, x: float
+) -> None:
+    """Sample ``seq``, ``x`` metres east of the origin, the battery at 30 %."""
+    lat, lon = at(x, 0).values()
+    s = sample(seq, ts=datetime.now(UTC), lat=lat, lon=lon, battery_pct=30.0)
+    sent = {"instance_id": instance_id, "samples": [s]}
+    assert (await api.post("/upper/update_param", headers=headers, json=sent)).is_success
 
 
 async def _policy_is(api: httpx.AsyncClient, vehicle_id: str, pct: float | None) -> bool:
@@ -186,17 +203,10 @@ async def test_a_rule_changed_on_one_replica_judges_the_vehicle_again_on_both(
         async def report() -> None:
             nonlocal seq
             seq += 1
-            lat, lon = at(500.0, 0).values()  # out of the area
-            s = sample(seq, ts=datetime.now(UTC), lat=lat, lon=lon, battery_pct=30.0)
-            sent = {"instance_id": iid, "samples": [s]}
-            assert (await api_a.post("/upper/update_param", headers=vh, json=sent)).is_success
+            await _report_at(api_a, vh, iid, seq, 500.0)  # out of the area
 
-        async def alarms_everywhere(want: list[str]) -> bool:
-            for api in (api_a, api_b):
-                view = (await api.get(f"/api/vehicles/{vid}", headers=ADMIN)).json()
-                if [a["kind"] for a in view["alarms"]] != want:
-                    return False
-            return True
+        def alarms_everywhere(want: list[str]) -> Awaitable[bool]:
+            return _alarms_on_both((api_a, api_b), vid, want)
 
         async def events(kind: str) -> list[dict[str, Any]]:
             r = await api_b.get(
@@ -243,18 +253,11 @@ async def test_a_replica_with_older_rules_does_not_bring_back_what_newer_ones_en
         await _threshold_on_both((api_a, api_b), vid, 50.0)
         iid = await _started(api_a, vid, vh)
 
-        async def report(seq: int, x: float) -> None:
-            lat, lon = at(x, 0).values()
-            s = sample(seq, ts=datetime.now(UTC), lat=lat, lon=lon, battery_pct=30.0)
-            sent = {"instance_id": iid, "samples": [s]}
-            assert (await api_a.post("/upper/update_param", headers=vh, json=sent)).is_success
+        def report(seq: int, x: float) -> Awaitable[None]:
+            return _report_at(api_a, vh, iid, seq, x)
 
-        async def alarms_everywhere(want: list[str]) -> bool:
-            for api in (api_a, api_b):
-                view = (await api.get(f"/api/vehicles/{vid}", headers=ADMIN)).json()
-                if [a["kind"] for a in view["alarms"]] != want:
-                    return False
-            return True
+        def alarms_everywhere(want: list[str]) -> Awaitable[bool]:
+            return _alarms_on_both((api_a, api_b), vid, want)
 
         async def kinds() -> list[str]:
             r = await api_b.get("/api/events", headers=ADMIN, params={"vehicle_id": vid})
