@@ -19,6 +19,7 @@ def _once_each(ids: list[str]) -> list[str]:
 VehicleIds = Annotated[list[Identifier], AfterValidator(_once_each)]
 
 __all__ = [
+    "SERVER_ACTOR",
     "CallerView",
     "CreateGateway",
     "CreateUser",
@@ -51,6 +52,21 @@ def _not_a_server_id(vehicle_id: str) -> str:
             "request), which it would hide wherever either may be named: choose another"
         )
     return vehicle_id
+
+
+#: The name the server acts under: ``issued_by`` of the commands it sends on its own, the
+#: ``actor`` of what it records. No user may have it: the user would pass for the server,
+#: and the end of its lease would cancel the server's commands as that user's.
+SERVER_ACTOR = "system"
+
+
+def _not_the_server(username: str) -> str:
+    if username == SERVER_ACTOR:
+        raise ValueError(
+            f"{SERVER_ACTOR!r} is the name the server's own commands and records carry: "
+            "choose another"
+        )
+    return username
 
 
 class CreateVehicle(WireModel):
@@ -104,7 +120,7 @@ MIN_PASSWORD_CHARS = 8
 
 
 class CreateUser(WireModel):
-    username: Identifier
+    username: Annotated[Identifier, AfterValidator(_not_the_server)]
     role: Role
     vehicles: VehicleIds = Field(default_factory=list, max_length=10000)
     password: Text | None = Field(default=None, min_length=MIN_PASSWORD_CHARS, max_length=256)

@@ -18,6 +18,7 @@ from datetime import datetime
 from typing import Any
 
 from fleet_protocol import SubmitControl
+from fleet_protocol.admin import SERVER_ACTOR
 from server.domain import arbitration
 from server.domain import command_ends as ends
 from server.domain import commands as life
@@ -46,7 +47,7 @@ __all__ = ["CommandService"]
 #: on a zone breach) waits this long for the vehicle at most.
 SYSTEM_TTL_S = 300
 #: Who issues them.
-SYSTEM = "system"
+SYSTEM = SERVER_ACTOR
 
 
 class CommandService(CommandDelivery):

@@ -323,3 +323,17 @@ async def test_a_vehicle_id_shaped_like_an_instance_id_is_refused(
         assert r.json()["error"]["details"][0]["field"] == "vehicle_id"
     body = {"vehicle_id": "i-boat", "name": "x", "vehicle_type": "usv"}  # not the shape
     assert (await client.post("/api/vehicles", headers=ADMIN, json=body)).status_code == 201
+
+
+async def test_no_user_may_be_named_system_the_name_of_the_server_s_own_commands(
+    client: httpx.AsyncClient,
+) -> None:
+    """``issued_by: "system"`` and the actor ``system`` mark what the server does on its own
+    (the hold after a lease ends, a failsafe on a breach); a user of that name would pass
+    for the server there, and the end of its lease would cancel the server's commands."""
+    body = {"username": "system", "role": "operator", "vehicles": []}
+    r = await client.post("/api/users", headers=ADMIN, json=body)
+    assert r.status_code == 422, r.text
+    assert r.json()["error"]["details"][0]["field"] == "username"
+    body["username"] = "system-2"  # only the name itself
+    assert (await client.post("/api/users", headers=ADMIN, json=body)).status_code == 201
