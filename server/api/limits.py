@@ -43,8 +43,10 @@ def _wide(start: bytes) -> bool:
     """Whether a body's first bytes are UTF-16 or UTF-32, which Python's ``json.loads``
     reads (it guesses them from a byte order mark or the zero bytes of the first
     character) where JSON on this server is UTF-8 (no JSON text in UTF-8 starts with a
-    zero byte or those marks)."""
-    return start[:2] in (b"\xff\xfe", b"\xfe\xff") or b"\x00" in start[:4]
+    zero byte or those marks). A zero in the first two bytes, as ``json.detect_encoding``
+    looks: every JSON text in UTF-16 or UTF-32 has one there, a gzip body (``1f 8b 08 00``)
+    none, and it is not valid UTF-8, not text in another encoding."""
+    return start[:2] in (b"\xff\xfe", b"\xfe\xff") or b"\x00" in start[:2]
 
 
 def _repeated(query: bytes) -> str | None:
