@@ -251,15 +251,15 @@ class FleetClient(ControlCalls, LiveCalls, AdminCalls):
         return answer
 
     async def stop(
-        self, instance_ids: Sequence[str] | None = None, ttl_s: int = STOP_TTL_S
+        self, instance_ids: str | Sequence[str] | None = None, ttl_s: int = STOP_TTL_S
     ) -> Body:
-        """Stop these instances, or, given None, every vehicle the caller can see (no lease
-        needed). An empty list is a ``ValueError``: a filter that matched nothing never
-        stops the whole fleet. The stop waits for a vehicle out of reach an hour (the
+        """Stop this instance or these, or, given None, every vehicle the caller can see (no
+        lease needed). An empty list is a ``ValueError``: a filter that matched nothing
+        never stops the whole fleet. The stop waits for a vehicle out of reach an hour (the
         longest a command may), not the contract's default 30 s."""
         if instance_ids is not None and not instance_ids:
             raise ValueError("stop: no instance given (None stops every vehicle you can see)")
-        ids = ["*"] if instance_ids is None else list(instance_ids)
+        ids = ["*"] if instance_ids is None else _instances("stop", instance_ids)
         return await self.submit(ids, {"type": "stop", "args": {}}, ttl_s)
 
     async def go_to(
@@ -279,16 +279,18 @@ class FleetClient(ControlCalls, LiveCalls, AdminCalls):
 
     async def keep_station(
         self,
-        instance_ids: Sequence[str],
+        instance_ids: str | Sequence[str],
         *,
         lat: float | None = None,
         lon: float | None = None,
         radius_m: float | None = None,
         ttl_s: int = 30,
     ) -> Body:
-        """Hold ``lat, lon`` (both or neither: where each vehicle is) within ``radius_m``."""
+        """Hold ``lat, lon`` (both or neither: where each vehicle is) within ``radius_m``.
+        One instance, or several."""
         args = given(lat=lat, lon=lon, radius_m=radius_m)
-        return await self.submit(instance_ids, {"type": "keep_station", "args": args}, ttl_s)
+        ids = _instances("keep_station", instance_ids)
+        return await self.submit(ids, {"type": "keep_station", "args": args}, ttl_s)
 
     async def follow_path(
         self,

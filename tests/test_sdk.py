@@ -82,6 +82,24 @@ async def test_missions_and_control_through_the_sdk(client: httpx.AsyncClient) -
     assert not_manager.value.status == 403
 
 
+async def test_stop_and_keep_station_take_one_instance_id_as_go_to_does(
+    client: httpx.AsyncClient,
+) -> None:
+    """``stop(iid)`` and ``keep_station(iid)``, as ``go_to(iid, ...)``: the one instance
+    (a str was taken as a list of its characters: 404 "no instance i", nothing stopped)."""
+    vid, vh = await make_vehicle(client)
+    iid = (await start_instance(client, vid, vh))["instance_id"]
+    admin = FleetClient("http://test", ADMIN_TOKEN, client=client)
+    await admin.grant_control(iid, "admin", 600)
+
+    held = await admin.keep_station(iid, radius_m=4.0)
+    assert [c["instance_id"] for c in held["commands"]] == [iid]
+    stopped = await admin.stop(iid)
+    assert [c["instance_id"] for c in stopped["commands"]] == [iid]
+    with pytest.raises(ValueError, match="no instance given"):
+        await admin.keep_station([])
+
+
 async def test_telemetry_pages_cover_every_sample_once(client: httpx.AsyncClient) -> None:
     vid, vh = await make_vehicle(client)
     iid = (await start_instance(client, vid, vh))["instance_id"]
