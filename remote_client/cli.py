@@ -40,7 +40,7 @@ from remote_client.cli_safety import alive, audit_app, failsafe_app
 from remote_client.cli_users import users_app
 from remote_client.cli_zones import obstacles_app, zones_app
 from remote_client.output import console
-from remote_client.sdk import STOP_TTL_S, FleetClient, shown_status
+from remote_client.sdk import STOP_TTL_S, FleetApiError, FleetClient, shown_status
 from remote_client.times import short_time
 
 app = typer.Typer(
@@ -72,6 +72,17 @@ TtlOpt = typer.Option(30, callback=between(1, 3600), help="seconds the order sta
 SpeedOpt = typer.Option(None, callback=between(0, 50, above=True), help="m/s (above 0, at most 50)")
 
 
+async def _instances_of(fleet: FleetClient, vehicles: list[str], nothing_sent: str) -> list[str]:
+    """The instances a mission's vehicles name. One name that fits no vehicle (or several)
+    sends the mission to none: the refusal says so, not only which name it was (``stop
+    alpha typo`` stopped nothing, and said only that ``typo`` fits no vehicle)."""
+    try:
+        return await fleet.instance_ids_of(vehicles)
+    except FleetApiError as exc:
+        exc.message += f"; {nothing_sent}"
+        raise
+
+
 @app.command()
 def stop(
     vehicles: list[str] = typer.Argument(None, help="vehicles to stop; none: every vehicle"),
@@ -90,7 +101,9 @@ def stop(
     """
 
     async def act(fleet: FleetClient) -> dict[str, Any]:
-        ids = await fleet.instance_ids_of(vehicles) if vehicles else None
+        ids = None
+        if vehicles:
+            ids = await _instances_of(fleet, vehicles, "nothing sent: no vehicle stopped")
         return await with_names(fleet, await fleet.stop(ids, ttl))
 
     print_queued(run(server, token, act), as_json)
@@ -117,7 +130,7 @@ def goto(
     lat, lon = position(lat_text, lon_text)
 
     async def act(fleet: FleetClient) -> dict[str, Any]:
-        ids = await fleet.instance_ids_of(vehicles)
+        ids = await _instances_of(fleet, vehicles, "nothing sent to any vehicle")
         sent = await fleet.go_to(ids, lat, lon, speed_mps=speed, ttl_s=ttl)
         return await with_names(fleet, sent)
 
@@ -146,7 +159,7 @@ def station(
         fail("give both --lat and --lon, or neither")
 
     async def act(fleet: FleetClient) -> dict[str, Any]:
-        ids = await fleet.instance_ids_of(vehicles)
+        ids = await _instances_of(fleet, vehicles, "nothing sent to any vehicle")
         sent = await fleet.keep_station(ids, lat=lat, lon=lon, radius_m=radius, ttl_s=ttl)
         return await with_names(fleet, sent)
 
@@ -180,7 +193,7 @@ def path(
             fail(f"not a LAT,LON pair (-90 to 90, -180 to 180): {text!r}")
 
     async def act(fleet: FleetClient) -> dict[str, Any]:
-        ids = await fleet.instance_ids_of(vehicles)
+        ids = await _instances_of(fleet, vehicles, "nothing sent to any vehicle")
         sent = await fleet.follow_path(ids, points, speed_mps=speed, plan=plan, ttl_s=ttl)
         return await with_names(fleet, sent)
 

@@ -51,3 +51,24 @@ async def test_goto_and_path_send_one_mission_to_several_vehicles(
 
         one_unheld = await fleetctl(base, ADMIN_TOKEN, "goto", ia, ib, "43.95", "15.45")
         assert one_unheld.exit_code == 1 and "control_not_held" in one_unheld.stderr
+
+
+async def test_a_name_that_fits_no_vehicle_sends_nothing_and_says_so(
+    make_settings: Callable[..., Settings],
+) -> None:
+    """``stop alpha typo``: no vehicle is stopped (the names are resolved before anything
+    is sent), and the refusal says so: it named the typo alone, and a team took alpha for
+    stopped."""
+    async with serve(make_settings()) as base, httpx.AsyncClient(base_url=base) as c:
+        a, ah = await make_vehicle(c)
+        ia = (await start_instance(c, a, ah))["instance_id"]
+
+        stopped = await fleetctl(base, ADMIN_TOKEN, "stop", a, "no-such-boat")
+        assert stopped.exit_code == 1
+        assert "'no-such-boat'" in stopped.stderr
+        assert "nothing sent: no vehicle stopped" in stopped.stderr
+        listed = await c.get("/client/get_fbmessage", headers=ADMIN, params={"instance_id": ia})
+        assert listed.json()["commands"] == []  # as it said
+
+        went = await fleetctl(base, ADMIN_TOKEN, "goto", a, "no-such-boat", "43.9", "15.4")
+        assert went.exit_code == 1 and "nothing sent" in went.stderr
