@@ -255,7 +255,10 @@ def cancel(
 ) -> None:
     """Cancel a command that is not final yet."""
     data = run(server, token, lambda fleet: fleet.cancel(command_id))
-    say(data, as_json, f"{data['command_id']} {shown_status(data)}")
+    status = shown_status(data)
+    # A final command is answered as it is (docs/api.md): say it was not cancelled.
+    late = "" if status == "cancelled" else ": final already, not cancelled"
+    say(data, as_json, f"{data['command_id']} {status}{late}")
 
 
 for control in (  # after the missions in the help's list, as the README lists them

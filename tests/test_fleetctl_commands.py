@@ -263,3 +263,27 @@ async def test_control_commands_name_the_vehicle_not_its_instance(
         assert revoked.stdout == f"control of {boat} revoked\n", revoked.output
         nobody = await fleetctl(base, ADMIN_TOKEN, "revoke", vid)
         assert nobody.stdout == f"nobody held {boat}\n", nobody.output
+
+
+async def test_cancel_of_a_command_already_final_says_it_was_not_cancelled(
+    make_settings: Callable[..., Settings],
+) -> None:
+    """The server answers a cancel of a final command with the command (``docs/api.md``);
+    ``fleetctl cancel`` printed ``c-... done`` as it prints ``c-... cancelled``, and a stop
+    that had already ended read as one cancelled."""
+    async with served_vehicle(make_settings()) as (base, c, _, vh, iid):
+        stopped = await fleetctl(base, ADMIN_TOKEN, "stop", iid, "--json")
+        [command] = json.loads(stopped.stdout)["commands"]
+        r = await c.get("/upper/get_control", headers=vh, params={"instance_id": iid})
+        assert r.status_code == 200, r.text
+        ack = {"command_id": command["command_id"], "status": "done"}
+        r = await c.post("/upper/update_fbmessage", headers=vh,
+                         json={"instance_id": iid, "acks": [ack]})  # fmt: skip
+        assert r.status_code == 200, r.text
+
+        late = await fleetctl(base, ADMIN_TOKEN, "cancel", command["command_id"])
+        assert late.exit_code == 0, late.output  # answered, not refused
+        assert late.stdout.split() == [command["command_id"], "done:", "final", "already,",
+                                       "not", "cancelled"]  # fmt: skip
+        as_json = await fleetctl(base, ADMIN_TOKEN, "cancel", command["command_id"], "--json")
+        assert json.loads(as_json.stdout)["status"] == "done"  # the answer, as it was
