@@ -25,7 +25,7 @@ from remote_client.names import AmbiguousName, UnknownVehicle, pick_named, pick_
 from remote_client.sdk_admin import AdminCalls
 from remote_client.sdk_control import ControlCalls
 from remote_client.sdk_live import LiveCalls
-from remote_client.sdk_session import Body, FleetApiError, given
+from remote_client.sdk_session import Body, FleetApiError, OneOrMany, given, listed
 from remote_client.times import when_text
 
 __all__ = [
@@ -91,26 +91,26 @@ class FleetClient(ControlCalls, LiveCalls, AdminCalls):
         answer: Body = await self.call("POST", "/client/connect_instance", json=body)
         return answer
 
-    async def params(self, instance_id: str, names: Sequence[str] | None = None) -> Body:
+    async def params(self, instance_id: str, names: OneOrMany | None = None) -> Body:
         """``get_param``: ``{"params", "position", "updated_at"}`` (``names``: only those)."""
         query = {"instance_id": instance_id}
         if names:
-            query["names"] = ",".join(names)
+            query["names"] = ",".join(listed(names))
         body: Body = await self.call("GET", "/client/get_param", params=query)
         return body
 
     # ---- names: a vehicle's display name works wherever its id does --------------
-    async def resolve_vehicles(self, refs: Sequence[str]) -> list[Body]:
+    async def resolve_vehicles(self, refs: OneOrMany) -> list[Body]:
         """The view of the vehicle each of ``refs`` names: its ``vehicle_id``, else its
         display name (exactly, then ignoring case). One ``GET /api/vehicles`` for all.
         Raises :class:`UnknownVehicle` or :class:`AmbiguousName`."""
         fleet = (await self.vehicles())["vehicles"]
-        return [pick_vehicle(ref, fleet) for ref in refs]
+        return [pick_vehicle(ref, fleet) for ref in listed(refs)]
 
     async def vehicle_id_of(self, ref: str) -> str:
         return str((await self.resolve_vehicles([ref]))[0]["vehicle_id"])
 
-    async def instance_ids_of(self, refs: Sequence[str]) -> list[str]:
+    async def instance_ids_of(self, refs: OneOrMany) -> list[str]:
         """The instance each of ``refs`` names: a vehicle (id or display name) stands for
         its current instance; an instance id is itself. Raises :class:`UnknownVehicle`
         (nothing by that name, or a vehicle that never started an instance) or
@@ -118,7 +118,7 @@ class FleetClient(ControlCalls, LiveCalls, AdminCalls):
         fleet = (await self.vehicles())["vehicles"]
         current = {v["instance_id"] for v in fleet if v.get("instance_id")}
         out = []
-        for ref in refs:
+        for ref in listed(refs):
             if ref in current and not any(v["vehicle_id"] == ref for v in fleet):
                 out.append(ref)
                 continue
@@ -244,9 +244,9 @@ class FleetClient(ControlCalls, LiveCalls, AdminCalls):
         return body
 
     # ---- missions --------------------------------------------------------------
-    async def submit(self, instance_ids: Sequence[str], command: Body, ttl_s: int = 30) -> Body:
+    async def submit(self, instance_ids: OneOrMany, command: Body, ttl_s: int = 30) -> Body:
         """``submit_control``: ``{"commands": [{instance_id, command_id, status}, ...]}``."""
-        body = {"instance_ids": list(instance_ids), "command": command, "ttl_s": ttl_s}
+        body = {"instance_ids": listed(instance_ids), "command": command, "ttl_s": ttl_s}
         answer: Body = await self.call("POST", "/client/submit_control", json=body)
         return answer
 
@@ -345,9 +345,9 @@ class TrackPage:
     next_from: str | None
 
 
-def _instances(kind: str, given_ids: str | Sequence[str]) -> list[str]:
+def _instances(kind: str, given_ids: OneOrMany) -> list[str]:
     """A command's instances: one id, or several; none is a ``ValueError`` (not sent)."""
-    ids = [given_ids] if isinstance(given_ids, str) else list(given_ids)
+    ids = listed(given_ids)
     if not ids:
         raise ValueError(f"{kind}: no instance given")
     return ids

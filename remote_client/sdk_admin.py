@@ -4,11 +4,10 @@ zones, obstacles, failsafes and the dead letters. A part of
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from typing import Any
 
 from remote_client.names import pick_named
-from remote_client.sdk_session import Body, Session, given
+from remote_client.sdk_session import Body, OneOrMany, Session, given, listed
 
 __all__ = ["AdminCalls"]
 
@@ -26,12 +25,12 @@ class AdminCalls(Session):
         self,
         username: str,
         role: str,
-        vehicles: Sequence[str] = (),
+        vehicles: OneOrMany = (),
         *,
         password: str | None = None,
     ) -> Body:
         """``{username, role, token, vehicles}``: the token is shown this once."""
-        body = given(username=username, role=role, vehicles=list(vehicles), password=password)
+        body = given(username=username, role=role, vehicles=listed(vehicles), password=password)
         answer: Body = await self.call("POST", "/api/users", json=body)
         return answer
 
@@ -40,13 +39,13 @@ class AdminCalls(Session):
         username: str,
         *,
         role: str | None = None,
-        vehicles: Sequence[str] | None = None,
+        vehicles: OneOrMany | None = None,
         disabled: bool | None = None,
         password: str | None = None,
     ) -> Body:
         """``PATCH /api/users/{username}``: only the fields given change; the user's view."""
-        listed = list(vehicles) if vehicles is not None else None
-        body = given(role=role, vehicles=listed, disabled=disabled, password=password)
+        ids = listed(vehicles) if vehicles is not None else None
+        body = given(role=role, vehicles=ids, disabled=disabled, password=password)
         answer: Body = await self.call("PATCH", f"/api/users/{username}", json=body)
         return answer
 
@@ -72,9 +71,9 @@ class AdminCalls(Session):
         body: Body = await self.call("GET", "/api/gateways")
         return body
 
-    async def create_gateway(self, gateway_id: str, vehicles: Sequence[str]) -> Body:
+    async def create_gateway(self, gateway_id: str, vehicles: OneOrMany) -> Body:
         """``{gateway_id, token, vehicles}``: the gateway's token, shown this once."""
-        body = {"gateway_id": gateway_id, "vehicles": list(vehicles)}
+        body = {"gateway_id": gateway_id, "vehicles": listed(vehicles)}
         answer: Body = await self.call("POST", "/api/gateways", json=body)
         return answer
 
@@ -100,7 +99,7 @@ class AdminCalls(Session):
         name: str,
         kind: str,
         polygon: Body,
-        vehicles: Sequence[str] = (),
+        vehicles: OneOrMany = (),
         clearance_m: float | None = None,
     ) -> Body:
         """(admin) A zone: ``kind`` ``no_go`` or ``operating_area``, ``polygon`` GeoJSON."""
@@ -108,7 +107,7 @@ class AdminCalls(Session):
         body: Body = await self.call(
             "POST",
             "/api/zones",
-            json={"name": name, "kind": kind, "polygon": polygon, "vehicles": list(vehicles)}
+            json={"name": name, "kind": kind, "polygon": polygon, "vehicles": listed(vehicles)}
             | fields,
         )
         return body

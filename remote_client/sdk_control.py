@@ -4,9 +4,8 @@ or release it, and keep a lease alive. A part of :class:`~remote_client.sdk.Flee
 from __future__ import annotations
 
 import asyncio
-from collections.abc import Sequence
 
-from remote_client.sdk_session import Body, Session, given
+from remote_client.sdk_session import Body, OneOrMany, Session, given, listed
 
 __all__ = ["ControlCalls"]
 
@@ -61,11 +60,11 @@ class ControlCalls(Session):
         body: Body = await self.call("GET", "/api/me")
         return body
 
-    async def heartbeat(self, instance_ids: Sequence[str]) -> list[str]:
+    async def heartbeat(self, instance_ids: OneOrMany) -> list[str]:
         """This client is alive: for the leases the caller holds on these instances; the
         instances where it holds one."""
         body: Body = await self.call(
-            "POST", "/client/heartbeat", json={"instance_ids": list(instance_ids)}
+            "POST", "/client/heartbeat", json={"instance_ids": listed(instance_ids)}
         )
         return list(body["held"])
 

@@ -4,7 +4,7 @@
 from __future__ import annotations
 
 import json
-from collections.abc import AsyncGenerator, Sequence
+from collections.abc import AsyncGenerator
 from typing import Any
 
 import websockets
@@ -16,7 +16,7 @@ from fleet_protocol.links import (
     MAX_BINARY_FRAME_BYTES,
     websocket_url,
 )
-from remote_client.sdk_session import Body, FleetApiError, Session
+from remote_client.sdk_session import Body, FleetApiError, OneOrMany, Session, listed
 
 __all__ = ["LiveCalls"]
 
@@ -58,7 +58,7 @@ class LiveCalls(Session):
                 raise
 
     async def events(
-        self, topics: Sequence[str], *, throttle_ms: int = 0
+        self, topics: OneOrMany, *, throttle_ms: int = 0
     ) -> AsyncGenerator[Body, None]:
         """Subscribe on ``/ws/client`` and yield its ``event`` and ``lagging`` pushes (each
         topic's current state first, ``snapshot: true``) until the server closes.
@@ -69,7 +69,7 @@ class LiveCalls(Session):
         topics subscribed again, each one's state coming first once more; a subscription
         the new rights refuse raises.
         """
-        subscribe: Body = {"op": "subscribe", "id": "events", "topics": list(topics)}
+        subscribe: Body = {"op": "subscribe", "id": "events", "topics": listed(topics)}
         if throttle_ms:
             subscribe["throttle_ms"] = throttle_ms
         reopens = 0

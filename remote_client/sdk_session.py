@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from types import TracebackType
 from typing import Any, Self
 
@@ -88,6 +89,15 @@ class Session:
         if response.status_code >= 400:
             raise FleetApiError.of(response)
         return response.json()
+
+
+#: One id (a vehicle, an instance, a topic, a name) or several: a plain string is one.
+OneOrMany = str | Sequence[str]
+
+
+def listed(value: OneOrMany) -> list[str]:
+    """``value`` as a list: a string is one id, never its characters."""
+    return [value] if isinstance(value, str) else list(value)
 
 
 def given(**fields: Any) -> Body:

@@ -26,6 +26,7 @@ from tests.factories import (
     make_vehicle,
     sample,
     start_instance,
+    unique,
 )
 
 # Each test runs on the embedded store and on FerretDB (the real MongoDB driver).
@@ -98,6 +99,28 @@ async def test_stop_and_keep_station_take_one_instance_id_as_go_to_does(
     assert [c["instance_id"] for c in stopped["commands"]] == [iid]
     with pytest.raises(ValueError, match="no instance given"):
         await admin.keep_station([])
+
+
+async def test_one_id_given_as_a_string_is_one_id_everywhere(client: httpx.AsyncClient) -> None:
+    """Where the SDK takes ids (a user's or a gateway's vehicles, a submit's instances,
+    the parameter names read), a plain string is one id, not a list of its characters
+    (``create_user(name, role, "usv4")`` was assigned vehicles u, s, v and 4)."""
+    vid, vh = await make_vehicle(client)
+    iid = (await start_instance(client, vid, vh))["instance_id"]
+    body = {"instance_id": iid, "params": {"depth_limit": 5, "gain": 2}, "samples": [sample(1)]}
+    assert (await client.post("/upper/update_param", headers=vh, json=body)).is_success
+    admin = FleetClient("http://test", ADMIN_TOKEN, client=client)
+
+    made = await admin.create_user(unique("ana"), "operator", vid)
+    assert made["vehicles"] == [vid]
+    moved = await admin.update_user(made["username"], vehicles=vid)
+    assert moved["vehicles"] == [vid]
+    gateway = await admin.create_gateway(unique("gw"), vid)
+    assert gateway["vehicles"] == [vid]
+    await admin.grant_control(iid, "admin", 600)
+    sent = await admin.submit(iid, {"type": "stop", "args": {}})
+    assert [c["instance_id"] for c in sent["commands"]] == [iid]
+    assert (await admin.params(iid, "depth_limit"))["params"] == {"depth_limit": 5}
 
 
 async def test_telemetry_pages_cover_every_sample_once(client: httpx.AsyncClient) -> None:
