@@ -37,7 +37,7 @@ from remote_client.cli_common import (
     with_names,
 )
 from remote_client.cli_safety import alive, audit_app, failsafe_app
-from remote_client.cli_users import users_app
+from remote_client.cli_users import login, logout, users_app
 from remote_client.cli_zones import obstacles_app, zones_app
 from remote_client.output import console
 from remote_client.sdk import STOP_TTL_S, FleetApiError, FleetClient, shown_status
@@ -60,6 +60,8 @@ app.add_typer(obstacles_app, name="obstacles")
 app.add_typer(failsafe_app, name="failsafe")
 app.add_typer(audit_app, name="audit")
 app.command()(alive)
+app.command()(login)
+app.command()(logout)
 app.command()(cli_live.watch)
 app.command()(cli_live.publish)
 for command in (cli_data.params, cli_data.events, cli_data.export, cli_data.track, cli_data.sync):

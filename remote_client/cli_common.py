@@ -12,7 +12,7 @@ from __future__ import annotations
 import asyncio
 import json
 import math
-from collections.abc import Awaitable, Callable, Sequence
+from collections.abc import Awaitable, Callable, Coroutine, Sequence
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any, Final, NoReturn, TypeVar
@@ -89,8 +89,14 @@ def run(server: str, token: str, action: Callable[[FleetClient], Awaitable[T]]) 
         async with FleetClient(server, token) as fleet:
             return await action(fleet)
 
+    return handled(server, session)
+
+
+def handled(server: str, work: Callable[[], Coroutine[Any, Any, T]]) -> T:
+    """``work`` run; a refusal or a network failure printed on stderr and made the exit
+    code (as :func:`run` does)."""
     try:
-        return asyncio.run(session())
+        return asyncio.run(work())
     except httpx.HTTPError as exc:
         errors.print(f"cannot reach {server}: {exc}", style="red", markup=False)
         raise typer.Exit(UNREACHABLE) from None

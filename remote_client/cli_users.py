@@ -4,6 +4,7 @@ disable them, and issue and revoke their tokens (a new token is printed as
 
 from __future__ import annotations
 
+import sys
 from collections.abc import Sequence
 from typing import Any, get_args
 
@@ -19,13 +20,14 @@ from remote_client.cli_common import (
     TokenOpt,
     dump,
     fail,
+    handled,
     list_when_bare,
     new_token,
     run,
     say,
     sent_as,
 )
-from remote_client.output import console
+from remote_client.output import answer_line, console, errors
 from remote_client.sdk import FleetClient
 from remote_client.times import plain_time
 
@@ -194,6 +196,60 @@ def _user_said(data: dict[str, Any], as_json: bool) -> None:
 def _check_role(role: str) -> None:
     if role not in ROLES:
         fail(f"--role is one of {', '.join(ROLES)}, not {role!r}")
+
+
+# ---- a person's own session -----------------------------------------------------------
+def login(
+    username: str = typer.Argument(..., help="your username"),
+    password_stdin: bool = typer.Option(
+        False, "--password-stdin", help="read the password from stdin's first line (scripts)"
+    ),
+    server: str = ServerOpt,
+    as_json: bool = JsonOpt,
+) -> None:
+    """Log in with your password: prints a session token (give it as FLEET_TOKEN).
+
+    The password is asked on stderr, so export FLEET_TOKEN=$(fleetctl login ana) keeps
+    the token alone. It lasts as long as the server's sessions do (12 h unless set
+    otherwise); fleetctl logout ends it.
+    """
+    if password_stdin:
+        password = sys.stdin.readline().rstrip("\r\n")
+    else:
+        password = typer.prompt("password", hide_input=True, err=True)
+    if not password:
+        fail("no password given")
+
+    async def session() -> dict[str, Any]:
+        async with await FleetClient.login(server, username, password) as fleet:
+            token, expires_in = fleet.token, fleet.expires_in
+        return {"access_token": token, "token_type": "bearer", "expires_in": expires_in}
+
+    data = handled(server, session)
+    if as_json:
+        dump(data)
+        return
+    hours = f"{data['expires_in'] / 3600:g} h" if data["expires_in"] else "a while"
+    errors.print(
+        f"logged in as {username} for {hours}. Your session token (give it as FLEET_TOKEN):",
+        markup=False,
+        highlight=False,
+    )
+    answer_line(data["access_token"])
+
+
+def logout(server: str = ServerOpt, token: str = TokenOpt, as_json: bool = JsonOpt) -> None:
+    """End the session of FLEET_TOKEN (one from fleetctl login): it stops working at once.
+
+    An API token (from users add or users token) is left valid: users revoke ends those.
+    """
+    ended = run(server, token, lambda fleet: fleet.logout())
+    said = (
+        "session ended: the token no longer works"
+        if ended
+        else "an API token, not a session: it stays valid (fleetctl users revoke ends it)"
+    )
+    say({"ended": ended}, as_json, said)
 
 
 def _ask_password() -> str:

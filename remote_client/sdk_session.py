@@ -63,9 +63,46 @@ class Session:
         timeout_s: float = 30.0,
     ) -> None:
         self.server = server.rstrip("/")
+        #: The token calls carry; ``expires_in``: its life in seconds, from a login.
+        self.token = token
+        self.expires_in: int | None = None
         self._headers = {"Authorization": f"Bearer {token}"}
         self._own_client = client is None
         self._http = client or httpx.AsyncClient(base_url=self.server, timeout=timeout_s)
+
+    @classmethod
+    async def login(
+        cls,
+        server: str,
+        username: str,
+        password: str,
+        *,
+        client: httpx.AsyncClient | None = None,
+        timeout_s: float = 30.0,
+    ) -> Self:
+        """A session of a user who has a password (``POST /auth/token``): the token lasts
+        ``expires_in`` seconds (the server's ``FLEET_TOKEN_TTL_S``, 12 h by default), and
+        :meth:`logout` ends it. A wrong password is :class:`FleetApiError` 401, too many
+        tries 429."""
+        http = client or httpx.AsyncClient(base_url=server.rstrip("/"), timeout=timeout_s)
+        try:
+            credentials = {"username": username, "password": password}
+            response = await http.post("/auth/token", json=credentials)
+        finally:
+            if client is None:
+                await http.aclose()
+        if response.status_code >= 400:
+            raise FleetApiError.of(response)
+        answer = response.json()
+        session = cls(server, answer["access_token"], client=client, timeout_s=timeout_s)
+        session.expires_in = answer.get("expires_in")
+        return session
+
+    async def logout(self) -> bool:
+        """``POST /auth/logout``: a session's token ends at once (True); an API token is
+        left valid (False)."""
+        answer = await self.call("POST", "/auth/logout")
+        return bool(answer.get("ended"))
 
     async def __aenter__(self) -> Self:
         return self

@@ -256,3 +256,51 @@ async def test_a_vehicles_name_and_type_are_put_right_by_name_or_id(
         assert refused.exit_code != 0 and "admin" in refused.output
         bad = await fleetctl(base, ADMIN_TOKEN, "vehicles", "set", vid, "--type", "")
         assert bad.exit_code != 0 and "vehicle_type" in bad.output
+
+
+async def test_a_user_with_a_password_logs_in_works_with_the_session_and_logs_out(
+    make_settings: Callable[..., Settings],
+) -> None:
+    """``fleetctl login`` (the password asked, or from stdin): the session token alone on
+    stdout, which works as FLEET_TOKEN until ``fleetctl logout``; a wrong password is
+    refused (exit 1, 401) and prints no token; an API token outlives a logout."""
+    async with serve(make_settings()) as base:
+        made = await fleetctl(
+            base,
+            ADMIN_TOKEN,
+            "users",
+            "add",
+            "ben",
+            "--role",
+            "operator",
+            "--ask-password",
+            input="s3cret-pass\ns3cret-pass\n",
+        )
+        assert made.exit_code == 0, made.output
+        api_token = made.stdout.strip()
+
+        wrong = await fleetctl(base, "", "login", "ben", input="nope-nope\n")
+        # (the test runner echoes the hidden input's newline on stdout; a terminal does not)
+        assert wrong.exit_code == 1 and wrong.stdout.strip() == "", wrong.output
+        assert "401" in wrong.stderr
+
+        asked = await fleetctl(base, "", "login", "ben", input="s3cret-pass\n")
+        assert asked.exit_code == 0, asked.output
+        session = asked.stdout.strip()
+        assert asked.stdout.split() == [session] and session != api_token  # the token alone
+        assert "logged in as ben for 12 h" in asked.stderr
+        piped = await fleetctl(
+            base, "", "login", "ben", "--password-stdin", "--json", input="s3cret-pass\n"
+        )
+        assert json.loads(piped.stdout)["expires_in"] == 12 * 3600, piped.output
+
+        listed = await fleetctl(base, session, "vehicles")
+        assert listed.exit_code == 0, listed.output
+        ended = await fleetctl(base, session, "logout")
+        assert ended.exit_code == 0 and "session ended" in ended.stdout, ended.output
+        after = await fleetctl(base, session, "vehicles")
+        assert after.exit_code == 1 and "401" in after.stderr, after.output
+
+        kept = await fleetctl(base, api_token, "logout")
+        assert kept.exit_code == 0 and "stays valid" in kept.stdout, kept.output
+        assert (await fleetctl(base, api_token, "vehicles")).exit_code == 0

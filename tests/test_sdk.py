@@ -123,6 +123,29 @@ async def test_one_id_given_as_a_string_is_one_id_everywhere(client: httpx.Async
     assert (await admin.params(iid, "depth_limit"))["params"] == {"depth_limit": 5}
 
 
+async def test_a_user_logs_in_with_a_password_and_out(client: httpx.AsyncClient) -> None:
+    """``FleetClient.login``: a session as the user (its rights), ``expires_in`` said; a
+    wrong password is a 401 ``FleetApiError``; ``logout`` ends the session at once."""
+    admin = FleetClient("http://test", ADMIN_TOKEN, client=client)
+    name = unique("cy")
+    await admin.create_user(name, "viewer", password="long-enough-1")
+    with pytest.raises(FleetApiError) as wrong:
+        await FleetClient.login("http://test", name, "not-it-at-all", client=client)
+    assert wrong.value.status == 401
+
+    fleet = await FleetClient.login("http://test", name, "long-enough-1", client=client)
+    assert fleet.expires_in == 12 * 3600
+    assert (await fleet.vehicles())["vehicles"] == []  # a viewer of no vehicle
+    with pytest.raises(FleetApiError) as not_admin:
+        await fleet.users()
+    assert not_admin.value.status == 403
+    assert await fleet.logout() is True
+    with pytest.raises(FleetApiError) as ended:
+        await fleet.vehicles()
+    assert ended.value.status == 401
+    assert await admin.logout() is False  # an API token outlives it
+
+
 async def test_telemetry_pages_cover_every_sample_once(client: httpx.AsyncClient) -> None:
     vid, vh = await make_vehicle(client)
     iid = (await start_instance(client, vid, vh))["instance_id"]
