@@ -73,6 +73,11 @@ def params(
     for key in sorted(data["params"]):
         table.add_row(key, json.dumps(data["params"][key], ensure_ascii=False))
     console.print(table)
+    if missing := [n for n in dict.fromkeys(names or []) if n not in data["params"]]:
+        # Asked for, and not among what the vehicle reported: said, not left out quietly.
+        errors.print(
+            f"not reported by {vehicle}: {', '.join(missing)}", markup=False, highlight=False
+        )
     pos = data.get("position")
     where = position_text(pos) + (f" at {pos['ts']}" if pos else "")
     console.print(

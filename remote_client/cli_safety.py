@@ -158,6 +158,8 @@ def audit_show(
     if as_json:
         dump(entries)
         return
+    if not entries:  # said on stderr: stdout holds the entries alone, for a pipe
+        errors.print(f"no control log entries for {vehicle} yet", markup=False, highlight=False)
     for e in entries:
         d = e["data"]
         what = d.get("status") or d.get("holder") or d.get("action") or ""

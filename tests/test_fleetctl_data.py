@@ -227,6 +227,9 @@ async def test_params_events_and_export_with_names_and_relative_times(
         only = await fleetctl(base, ADMIN_TOKEN, "params", "Osprey", "mode", "--json")
         answer = json.loads(only.stdout)
         assert answer["params"] == {"mode": "survey"} and answer["position"]["seq"] == 600
+        typo = await fleetctl(base, ADMIN_TOKEN, "params", "Osprey", "mode", "gian")
+        assert typo.exit_code == 0 and '"survey"' in typo.stdout, typo.output
+        assert "not reported by Osprey: gian" in typo.stderr  # not an empty row, quietly
 
         assert (await fleetctl(base, ADMIN_TOKEN, "stop", "Osprey")).exit_code == 0
         log = await fleetctl(base, ADMIN_TOKEN, "events", "Osprey", "--since", "10m")

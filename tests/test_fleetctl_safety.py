@@ -85,6 +85,9 @@ async def test_audit_verify_holds_then_fails_after_one_stored_entry_is_altered(
     async with serve(make_settings(), app=app) as base, httpx.AsyncClient(base_url=base) as c:
         vid, vh = await make_vehicle(c)
         iid = (await start_instance(c, vid, vh))["instance_id"]
+        empty = await fleetctl(base, ADMIN_TOKEN, "audit", "show", vid)
+        assert empty.exit_code == 0 and empty.stdout == "", empty.output
+        assert f"no control log entries for {vid} yet" in empty.stderr  # not silence
         user, op = await make_user(c, "operator", [vid])
         grant = {"instance_id": iid, "user": user, "duration_s": 600}
         assert (await c.post("/client/grant_control", headers=ADMIN, json=grant)).is_success
