@@ -126,6 +126,9 @@ def grant(
     text = f"{data['holder']} holds {boat(instance)} until {data['expires_at']}"
     if parse_ts(data["expires_at"]) > asked + timedelta(seconds=5):  # the lease ran longer
         text += " (held already: a grant never shortens a lease; revoke it to end it sooner)"
+    former = (instance.get("control") or {}).get("holder")
+    if former and former != data["holder"]:  # taken from someone: said, as the log says it
+        text += f"; {former}'s lease ended, its commands not yet acknowledged cancelled"
     say(data, as_json, text)
 
 

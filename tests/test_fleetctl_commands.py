@@ -119,6 +119,8 @@ async def test_missions_requests_and_the_lease_from_the_command_line(
         after = await fleetctl(base, op_token, "station", iid)
         assert after.exit_code == 1 and "control_not_held" in after.stderr
         assert (await fleetctl(base, ADMIN_TOKEN, "grant", iid, "piet")).exit_code == 0
+        taken = await fleetctl(base, ADMIN_TOKEN, "grant", iid, "admin")
+        assert taken.exit_code == 0 and "piet's lease ended" in taken.stdout, taken.output
         revoked = await fleetctl(base, ADMIN_TOKEN, "revoke", iid, "--json")
         assert revoked.exit_code == 0 and json.loads(revoked.stdout)["revoked"] is True
         nobody = await fleetctl(base, ADMIN_TOKEN, "revoke", iid)
