@@ -109,6 +109,13 @@ export function describeEvent(e, known = () => null) {
     }
     return said.join(", ");
   }
+  if (e.kind === "zones_changed") {  // an admin drew, changed or removed a zone
+    const kind = d.kind === "no_go" ? "no-go zone" : d.kind === "operating_area"
+      ? "operating area" : "zone";
+    const who = e.actor ? e.actor.replace(/^user:/, "") : "";
+    return `${kind} ${d.name || d.zone_id || ""} ${d.action || "changed"}` +
+      `${who ? ` by ${who === "system" ? "the server" : who}` : ""}`;
+  }
   if (e.kind === "presence") return d.presence || "";
   if (e.kind === "instance") return d.action || "";
   if (e.kind === "failsafe_acked") {
@@ -129,6 +136,7 @@ const KIND_NAMES = {
   control_expired: "control expired for", control_deny: "request declined for",
   hold_station: "told to hold station:", instance: "instance",
   low_battery_cleared: "battery alarm lifted", vehicle_changed: "vehicle record changed:",
+  zones_changed: "zones changed:",
 };
 
 export function kindName(kind) {
