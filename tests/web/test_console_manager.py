@@ -31,7 +31,8 @@ def test_a_manager_takes_control_where_an_operator_requests_it(
     world: World, open_console: Any, shots: Shots
 ) -> None:
     """mia manages every vehicle: the vehicle panel, the lease list and a refused command
-    offered her "Request control" (a request only she would answer)."""
+    offered her "Request control" (a request only she would answer); her own lease offered
+    Revoke beside Release."""
     page, guard = open_console()
     log_in(page, "mia")
     marker(page, "demo-usv-2").click()
@@ -56,6 +57,9 @@ def test_a_manager_takes_control_where_an_operator_requests_it(
     ok.click()
     expect(lease).to_contain_text("you until")
     expect(lease.locator("button", has_text="Release")).to_be_visible()
+    # her own lease: Release, not also "Revoke" ("Revoke mia's control of Bravo?", asked of
+    # mia), as the vehicle panel offers it
+    expect(lease.locator("button", has_text="Revoke")).to_have_count(0)
     assert holder_of(world, "demo-usv-2") == "mia"
     shots(page, "taken")
     # a command refused for want of control offers her to take it, not to ask

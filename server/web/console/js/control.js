@@ -354,7 +354,8 @@ export class ControlPanel {
                   : "")))
             : h("div.hint", {}, "nobody holds control"),
           h("div.row", {},
-            c && this.managed(v.id)
+            // another's lease: one's own is released (as in the vehicle panel)
+            c && !mine && this.managed(v.id)
               ? h("button", { ...sends(`revoke/${v.id}`), onclick: () => this.revoke(v) }, "Revoke")
               : null,
             mine ? h("button", {
