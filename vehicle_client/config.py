@@ -10,6 +10,7 @@ of the file and one ``[[vehicles]]`` table per vehicle (see
 from __future__ import annotations
 
 import difflib
+import logging
 import math
 import tomllib
 from pathlib import Path
@@ -104,6 +105,16 @@ class LinkOptions(BaseSettings):
     transport: Literal["auto", "ws", "http"] = "auto"
     #: Seconds on HTTP (``auto``) before the WebSocket is tried again.
     retry_ws_s: float = Field(default=60.0, gt=0, le=3600)
+
+    @field_validator("log_level")
+    @classmethod
+    def _log_level(cls, value: str) -> str:
+        """Checked here, with the rest: logging's own ValueError came out as a traceback."""
+        if value.upper() not in logging.getLevelNamesMapping():
+            raise ValueError(
+                f"{value!r} is no log level: give DEBUG, INFO, WARNING, ERROR or CRITICAL"
+            )
+        return value
 
     @field_validator("server")
     @classmethod

@@ -169,3 +169,22 @@ def test_an_outbox_that_cannot_be_opened_is_said_in_a_line_not_a_traceback(
     said = " ".join(result.output.split())
     assert f"fleet-agent: error: the outbox {tmp_path} cannot be opened: Is a directory" in said
     assert "Traceback" not in result.output
+
+
+def test_a_log_level_that_is_none_is_refused_with_the_rest_of_the_settings(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """``--log-level LOUD`` was logging's ValueError, a traceback and exit 1, once every
+    other setting had passed; it is a bad setting like the others now (exit 2, a line)."""
+    assert load(AgentSettings, None, log_level="debug").log_level == "debug"
+    assert load(AgentSettings, None, log_level="WARN").log_level == "WARN"
+    said = "log_level: 'LOUD' is no log level: give DEBUG, INFO, WARNING, ERROR or CRITICAL"
+    with pytest.raises(FatalError, match=said):
+        load(AgentSettings, None, vehicle_id="usv-1", log_level="LOUD")
+    config = tmp_path / "gateway.toml"
+    config.write_text('log_level = "verbose"\n' + EXAMPLE.read_text())
+    with pytest.raises(FatalError, match="log_level: 'verbose' is no log level"):
+        load(GatewaySettings, config)
+    monkeypatch.setenv("FLEET_AGENT_LOG_LEVEL", "loud")
+    with pytest.raises(FatalError, match="log_level: 'loud' is no log level"):
+        load(AgentSettings, None, vehicle_id="usv-1")
