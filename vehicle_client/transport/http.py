@@ -41,7 +41,7 @@ def _error_text(response: httpx.Response) -> tuple[str, str]:
         body = response.json()["error"]
         return str(body.get("code", "")), str(body.get("message", ""))
     except (ValueError, KeyError, TypeError, AttributeError):
-        return "", response.text[:200]
+        return "", " ".join(response.text[:200].split())  # a web page's lines: one line
 
 
 def _error_details(response: httpx.Response) -> object:
@@ -118,7 +118,7 @@ class HttpTransport:
             except (ValueError, ValidationError) as exc:
                 raise RetryableError(f"{path}: unreadable answer: {exc}") from exc
         code, message = _error_text(response)
-        text = f"{path}: {status} {code}: {message}".rstrip(": ")
+        text = f"{path}: {status}{f' {code}' if code else ''}: {message}".rstrip(": ")
         if status == 401:
             raise TokenRefused(f"the server refused the token ({text}); " + CHECK_TOKEN)
         if status == 403:
