@@ -49,26 +49,29 @@ class InstanceCopies:
 
     async def load(self) -> None:
         await self.repo.ensure_indexes()
+        read_at = time.monotonic()
         for doc in await self.repo.unfinished():
-            self._adopt(doc)
+            self._adopt(doc, read_at)
 
     # ---- lookups --------------------------------------------------------
     async def find(self, instance_id: str) -> InstanceState:
         """The instance: this replica's copy, or the store's."""
         state = self._by_id.get(instance_id)
         if state is None:
+            read_at = time.monotonic()
             doc = await self.repo.get(instance_id)
             if doc is None:
                 raise NotFound(f"no instance {instance_id}")
-            state = self._adopt(doc)
+            state = self._adopt(doc, read_at)
         return state
 
     async def fresh(self, instance_id: str) -> InstanceState:
         """The instance as the store has it now (this replica's copy caught up)."""
+        read_at = time.monotonic()
         doc = await self.repo.get(instance_id)
         if doc is None:
             raise NotFound(f"no instance {instance_id}")
-        return self._adopt(doc)
+        return self._adopt(doc, read_at)
 
     async def for_vehicle_caller(self, principal: Principal, instance_id: str) -> InstanceState:
         """The instance a vehicle (or its gateway) calls about; it must be live. Another
@@ -111,8 +114,9 @@ class InstanceCopies:
         state = self._by_vehicle.get(vehicle_id)
         if state is not None:
             return state
+        read_at = time.monotonic()
         doc = await self.repo.latest_for_vehicle(vehicle_id)
-        return self._adopt(doc) if doc is not None else None
+        return self._adopt(doc, read_at) if doc is not None else None
 
     def live(self) -> list[InstanceState]:
         """The unfinished instances this replica keeps a copy of."""
@@ -120,7 +124,9 @@ class InstanceCopies:
 
     async def everyone(self) -> list[InstanceState]:
         """Every unfinished instance in the store."""
-        return [s for doc in await self.repo.unfinished() if not (s := self._adopt(doc)).finished]
+        read_at = time.monotonic()
+        docs = await self.repo.unfinished()
+        return [s for doc in docs if not (s := self._adopt(doc, read_at)).finished]
 
     async def online_positions(self) -> list[tuple[str, str, dict[str, Any]]]:
         """``(vehicle_id, instance_id, latest sample)`` of every online instance with a

@@ -50,6 +50,10 @@ class InstanceState:
     #: Monotonic time this replica's write of the name or type ended (memory only): a
     #: read of the store begun before it may hold the former ones.
     named_at: float = 0.0
+    #: Monotonic time this replica's last write of the whole record ended, infinite
+    #: while one is under way (memory only): a read of the store begun before it may
+    #: hold the former parameters, capabilities and control mode.
+    written_at: float = 0.0
 
     @property
     def finished(self) -> bool:
@@ -131,7 +135,8 @@ class InstanceState:
     def merge(self, doc: dict[str, Any], read_at: float | None = None) -> None:
         """Catch up with the store's copy, written by another replica (several replicas).
 
-        What this replica changed and has not written yet (``dirty``) stays. The name
+        What this replica changed and has not written yet (``dirty``), or was writing
+        when the read began (``written_at``), stays. The name
         and type are the store's: they are written at once wherever they change; but
         not from a read begun (``read_at``, monotonic) before this replica's own write
         of them ended, which may hold the former ones (an admin's rename was undone in
@@ -140,7 +145,10 @@ class InstanceState:
         stored = InstanceState.from_doc(doc)
         if read_at is None or read_at >= self.named_at:
             self.name, self.vehicle_type = stored.name, stored.vehicle_type
-        if not self.dirty:
+        # Nor from a read begun before this replica's own write of them ended (a
+        # vehicle's parameters read back empty while their write was under way: seen
+        # under load on FerretDB).
+        if not self.dirty and (read_at is None or read_at >= self.written_at):
             self.capabilities, self.params = stored.capabilities, stored.params
             self.params_updated_at, self.control_mode = (
                 stored.params_updated_at,

@@ -17,6 +17,7 @@ algorithm is this one.
 
 from __future__ import annotations
 
+import math
 import secrets
 import time
 from datetime import datetime, timedelta
@@ -109,9 +110,10 @@ class InstanceService(InstanceCopies):
         for _ in range(_CLAIM_TRIES):
             current = await self.repo.current_id(vehicle_id)
             if current is not None:
+                read_at = time.monotonic()
                 doc = await self.repo.get(current)
                 if doc is not None and doc.get("finished_at") is None:
-                    return self._adopt(doc), False
+                    return self._adopt(doc, read_at), False
                 await self.repo.release(vehicle_id, current)  # a claim left by a crash
                 continue
             # A new instance goes on from the vehicle's last one: the name, type and
@@ -358,7 +360,19 @@ class InstanceService(InstanceCopies):
             fields.pop("vehicle_type", None)
         state.dirty = state.moved = False
         state.saved_at = tick
-        await self.repo.save(state.instance_id, fields)
+        if whole:
+            state.written_at = math.inf  # a read begun now may not see it
+        try:
+            await self.repo.save(state.instance_id, fields)
+        except BaseException:
+            # Not written: written again at the next pass (the store away), unless the
+            # caller sets the record aside.
+            state.dirty = state.dirty or whole
+            state.moved = True
+            raise
+        finally:
+            if whole:
+                state.written_at = time.monotonic()
         if whole:
             self.messages.emit_now(StateWritten(state.instance_id, "instance"))
 

@@ -150,7 +150,12 @@ class _DocLocks:
                 async with _GUARD:
                     await self._locks.insert_one({"_id": key, "token": token, "at": _now()})
                 break
-            except Duplicate:
+            except BaseException as exc:
+                if not isinstance(exc, Duplicate):
+                    # Cut off (cancelled, the store away) when the insert may have been
+                    # made: let go of it, whatever happened, before giving up.
+                    await self._let_go(key, token)
+                    raise
                 left = _now() - timedelta(seconds=LOCK_STALE_S)
                 async with _GUARD:
                     taken = await self._locks.delete_one({"_id": key, "at": {"$lt": left}})
@@ -164,8 +169,18 @@ class _DocLocks:
         try:
             yield
         finally:
-            async with _GUARD:
-                await self._locks.delete_one({"_id": key, "token": token})
+            await self._let_go(key, token)
+
+    async def _let_go(self, key: str, token: str) -> None:
+        """The lock deleted, if it is ours, even when the task is cancelled meanwhile (a
+        lock left would hold every writer of the document up for LOCK_STALE_S)."""
+        release = asyncio.ensure_future(self._locks.delete_one({"_id": key, "token": token}))
+        try:
+            await asyncio.shield(release)
+        except asyncio.CancelledError:
+            raise
+        except PyMongoError as exc:  # the store away: the lock is taken over when stale
+            log.warning("store: a lock on %s not let go of: %s", key, type(exc).__name__)
 
 
 def _now() -> datetime:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import asyncio
 from collections.abc import Callable
 from datetime import UTC, datetime
 
@@ -389,3 +390,41 @@ async def test_a_start_without_capabilities_keeps_the_ones_the_vehicle_gave(
     )
     assert r.status_code == 200 and r.json()["resumed"] is True, r.text
     assert await shown(fresh) == []
+
+
+async def test_parameters_read_while_the_record_is_being_written_are_the_latest(
+    client: httpx.AsyncClient,
+) -> None:
+    """A vehicle's parameters, read as the replica writes the instance's record back to
+    the store, came back as the store had them before the write (empty, the first time):
+    seen under load on FerretDB. Each read after an update says that update or a later
+    one, for as long as the record is written back (every 0.25 s) meanwhile."""
+    vid, vh = await make_vehicle(client)
+    iid = (await start_instance(client, vid, vh))["instance_id"]
+    acknowledged = 0
+    stale: list[tuple[int, object]] = []
+    done = asyncio.Event()
+
+    async def reader() -> None:
+        while not done.is_set():  # each read ends: one cut off would hold the app's stop
+            floor = acknowledged
+            r = await client.get("/client/get_param", headers=ADMIN, params={"instance_id": iid})
+            got = r.json()["params"].get("n")
+            if floor and (got is None or got < floor):
+                stale.append((floor, got))
+            await asyncio.sleep(0)  # a read that never waits on the store lets others run
+
+    readers = [asyncio.create_task(reader()) for _ in range(3)]
+    try:
+        deadline = asyncio.get_running_loop().time() + 3.0  # a dozen write-backs
+        n = 0
+        while asyncio.get_running_loop().time() < deadline:
+            n += 1
+            body = {"instance_id": iid, "params": {"n": n}}
+            assert (await client.post("/upper/update_param", headers=vh, json=body)).is_success
+            acknowledged = n
+            await asyncio.sleep(0.01)  # the vehicle's cadence, not a wait for a result
+    finally:
+        done.set()
+        await asyncio.gather(*readers)
+    assert not stale, f"{len(stale)} reads older than the update before them: {stale[:5]}"
