@@ -274,6 +274,9 @@ async def test_a_replica_with_older_rules_does_not_bring_back_what_newer_ones_en
         assert await kinds() == ["low_battery", "low_battery_cleared"]  # B judged at once
 
         await report(2, 500.0)  # into the reef, judged on A by the threshold it still has
-        assert await kinds() == ["low_battery", "low_battery_cleared"]
+        # (unless A read the rules again meanwhile, as a loaded machine may let it: then
+        # it records the breach at once; either way the low battery is not raised again)
+        assert (await kinds())[:2] == ["low_battery", "low_battery_cleared"]
+        assert "low_battery" not in (await kinds())[2:]
         await _until(lambda: alarms_everywhere(["no_go_zone"]), 10)  # A read the rules
         assert await kinds() == ["low_battery", "low_battery_cleared", "zone_breach"]
