@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 from datetime import datetime
 from typing import Any, NamedTuple
 
-from fleet_protocol import EventKind
+from fleet_protocol import EventKind, FailsafePolicy
 from server.domain.zones import LatLon, ZoneSet, breaches
 
 #: Points above the threshold the battery must come back to before it is no longer low.
@@ -94,6 +94,49 @@ def next_state(
     if low == was.low_battery and now == was.breaches:
         return was  # as it was (most samples): no new state
     return WatchState(now, low)
+
+
+class Judged(NamedTuple):
+    """What one judgement of the watch was made on: the position, its battery reading, the
+    time a new alarm is dated by, and which rules moved (``zones_moved``,
+    ``threshold_moved``: what changes by them is told so; neither: a new
+    sample came)."""
+
+    lat: float
+    lon: float
+    battery_pct: float | None
+    at: datetime
+    zones_moved: bool = False
+    threshold_moved: bool = False
+
+    @property
+    def point(self) -> tuple[float, float]:
+        return (self.lat, self.lon)
+
+
+class JudgedBy(NamedTuple):
+    """The rules one judgement is made by, as this replica has them: the zones and the
+    vehicle's policy (its battery threshold)."""
+
+    zones: ZoneSet
+    policy: FailsafePolicy
+
+    @property
+    def seen(self) -> RulesSeen:
+        return RulesSeen(self.zones.version, self.policy.version)
+
+    def next(self, was: WatchState, vehicle_id: str, judged: Judged) -> WatchState:
+        """The state after ``was`` for the judged position and reading."""
+        threshold = self.policy.low_battery_pct
+        return next_state(was, self.zones, vehicle_id, judged.point, judged.battery_pct, threshold)
+
+
+class Rules(NamedTuple):
+    """What the watch judges by: the zones, and each vehicle's battery threshold (those
+    with a policy of their own; the others have the default's)."""
+
+    zones: ZoneSet
+    thresholds: dict[str, float | None]
 
 
 def change(was: WatchState, now: WatchState) -> Change:

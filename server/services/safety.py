@@ -35,7 +35,6 @@ from __future__ import annotations
 
 import asyncio
 from collections.abc import Awaitable
-from datetime import datetime
 from typing import Any, NamedTuple
 
 from fleet_protocol import Alarm, EventKind, FailsafePolicy
@@ -44,7 +43,9 @@ from server.domain.clock import Clock, said_time
 from server.domain.events import FailsafeChanged, SamplesStored, StateWritten, ZonesChanged
 from server.domain.failsafe import breach_command
 from server.domain.watch import (
-    RulesSeen,
+    Judged,
+    JudgedBy,
+    Rules,
     WatchState,
     battery_event,
     behind,
@@ -52,7 +53,6 @@ from server.domain.watch import (
     change,
     cleared_data,
     dated,
-    next_state,
 )
 from server.domain.zones import ZoneSet
 from server.services.auth import AuthService
@@ -72,49 +72,6 @@ class StoredWatch(NamedTuple):
 
     state: WatchState
     acked_version: int | None
-
-
-class Judged(NamedTuple):
-    """What one judgement of the watch was made on: the position, its battery reading, the
-    time a new alarm is dated by, and which rules moved (``zones_moved``,
-    ``threshold_moved``: what changes by them is told so; neither: a new
-    sample came)."""
-
-    lat: float
-    lon: float
-    battery_pct: float | None
-    at: datetime
-    zones_moved: bool = False
-    threshold_moved: bool = False
-
-    @property
-    def point(self) -> tuple[float, float]:
-        return (self.lat, self.lon)
-
-
-class JudgedBy(NamedTuple):
-    """The rules one judgement is made by, as this replica has them: the zones and the
-    vehicle's policy (its battery threshold)."""
-
-    zones: ZoneSet
-    policy: FailsafePolicy
-
-    @property
-    def seen(self) -> RulesSeen:
-        return RulesSeen(self.zones.version, self.policy.version)
-
-    def next(self, was: WatchState, vehicle_id: str, judged: Judged) -> WatchState:
-        """The state after ``was`` for the judged position and reading."""
-        threshold = self.policy.low_battery_pct
-        return next_state(was, self.zones, vehicle_id, judged.point, judged.battery_pct, threshold)
-
-
-class Rules(NamedTuple):
-    """What the watch judges by: the zones, and each vehicle's battery threshold (those
-    with a policy of their own; the others have the default's)."""
-
-    zones: ZoneSet
-    thresholds: dict[str, float | None]
 
 
 class SafetyService(FailsafePolicies):

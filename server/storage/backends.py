@@ -177,8 +177,6 @@ class _DocLocks:
         release = asyncio.ensure_future(self._locks.delete_one({"_id": key, "token": token}))
         try:
             await asyncio.shield(release)
-        except asyncio.CancelledError:
-            raise
         except PyMongoError as exc:  # the store away: the lock is taken over when stale
             log.warning("store: a lock on %s not let go of: %s", key, type(exc).__name__)
 
