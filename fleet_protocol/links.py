@@ -15,6 +15,7 @@ __all__ = [
     "MAX_BINARY_FRAME_BYTES",
     "MAX_TEXT_FRAME_BYTES",
     "server_root_problem",
+    "shown_url",
     "websocket_url",
 ]
 
@@ -57,14 +58,36 @@ def websocket_url(server: str, path: str) -> str:
 
 def server_root_problem(value: str) -> str | None:
     """Why ``value`` is not a server's root URL (``http://127.0.0.1:8000``, or one behind
-    a proxy's path prefix), in words that end "..., not <value>"; None when it is one.
-    Without a scheme it was taken for a server out of reach; ending in ``/api`` every
-    call asked for ``/api/api/...`` and was answered 404."""
+    a proxy's path prefix), in words that end ", not <value>" (its password hidden);
+    None when it is one. Without a scheme it was taken for a server out of reach; ending
+    in ``/api`` every call asked for ``/api/api/...`` and was answered 404; a user name
+    or password in it was sent to no one (the token is what signs in) and shown in logs
+    and errors wherever the URL is."""
     if "://" not in value:
-        return f"a URL with its scheme: give http://{value}"
+        return f"a URL with its scheme: give http://{value}, not {value!r}"
     url = urlsplit(value)
     if url.scheme not in ("http", "https") or not url.hostname:
-        return "an http:// or https:// URL with a host (http://127.0.0.1:8000)"
+        example = "http://127.0.0.1:8000"
+        return f"an http:// or https:// URL with a host ({example}), not {shown_url(value)!r}"
+    if url.username is not None or url.password is not None:
+        bare = url._replace(netloc=url.netloc.rpartition("@")[2]).geturl()
+        return (
+            "a URL without a user name or password (the token is what signs in, and the "
+            f"URL is shown in logs): give {bare}, not {shown_url(value)!r}"
+        )
     if url.path.rstrip("/").endswith("/api"):
-        return f"the server's address, without /api: give {value.rstrip('/').removesuffix('/api')}"
+        root = value.rstrip("/").removesuffix("/api")
+        return f"the server's address, without /api: give {root}, not {value!r}"
     return None
+
+
+def shown_url(value: str) -> str:
+    """``value`` with whatever stands before an ``@`` in its host part replaced by
+    ``***`` (a user name and password never reach a log or an error)."""
+    scheme, sep, rest = value.partition("://")
+    if not sep:
+        return value
+    netloc, slash, path = rest.partition("/")
+    if "@" not in netloc:
+        return value
+    return f"{scheme}://***@{netloc.rpartition('@')[2]}{slash}{path}"

@@ -43,7 +43,7 @@ def server_url(ctx: typer.Context, param: typer.CallbackParam, value: str) -> st
     source = ctx.get_parameter_source(param.name or "server")
     given = "FLEET_SERVER" if source is not None and source.name == "ENVIRONMENT" else "--server"
     if (problem := server_root_problem(value)) is not None:
-        fail(f"{given} is {problem}, not {value!r}")
+        fail(f"{given} is {problem}")
     return value
 
 

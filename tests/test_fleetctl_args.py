@@ -95,6 +95,11 @@ def test_a_position_out_of_range_or_an_unknown_kind_is_refused_before_anything_i
         ("http://", "FLEET_SERVER is an http:// or https:// URL"),
         ("http://127.0.0.1:8741/api", "without /api: give http://127.0.0.1:8741"),
         ("https://fleet.example.org/api/", "without /api: give https://fleet.example.org"),
+        (
+            "https://ops:s3cret@fleet.example.org/",
+            "without a user name or password (the token is what signs in, and the URL is "
+            "shown in logs): give https://fleet.example.org/, not 'https://***@fleet.example.org/'",
+        ),
     ],
 )
 @pytest.mark.parametrize("args", [("vehicles",), ("watch", "--seconds", "1"), ("alive",)])

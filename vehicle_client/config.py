@@ -122,7 +122,7 @@ class LinkOptions(BaseSettings):
         """The server's root URL: one ending in /api was retried for ever (every call
         answered 404); one without a scheme is refused here too, before any link."""
         if (problem := server_root_problem(value)) is not None:
-            raise ValueError(f"{problem}, not {value!r}")
+            raise ValueError(problem)
         return value
 
 

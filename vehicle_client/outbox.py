@@ -39,6 +39,7 @@ power cut may lose the last moments.
 
 from __future__ import annotations
 
+import fcntl
 import json
 import logging
 import os
@@ -98,6 +99,36 @@ class OutboxTaken(FatalError):
         self.owner = owner
 
 
+class OutboxInUse(FatalError):
+    """Another process has the outbox open for its vehicle."""
+
+    def __init__(self, path: Path, holder: str) -> None:
+        by = f"process {holder}" if holder.isdigit() else "another process"
+        super().__init__(
+            f"the outbox {path} is in use by {by}: stop that agent, or give this one "
+            "its own outbox (--outbox, or outbox in its config file)"
+        )
+
+
+def _hold(path: Path) -> int:
+    """The lock beside ``path``, held (its file descriptor), with this process's id in
+    it; :class:`OutboxInUse` when another holds it."""
+    lock = path.with_name(path.name + ".lock")
+    fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o600)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        holder = os.pread(fd, 20, 0).decode(errors="replace").strip()
+        os.close(fd)
+        raise OutboxInUse(path, holder) from None
+    except BaseException:
+        os.close(fd)
+        raise
+    os.ftruncate(fd, 0)
+    os.pwrite(fd, str(os.getpid()).encode(), 0)
+    return fd
+
+
 class Outbox:
     def __init__(
         self,
@@ -107,22 +138,27 @@ class Outbox:
         *,
         vehicle_id: str | None = None,
     ) -> None:
-        """``vehicle_id``: the vehicle it is for (:class:`OutboxTaken` if another owns it;
-        None: not checked, as in tests of the outbox alone)."""
+        """``vehicle_id``: the vehicle it is for (:class:`OutboxTaken` if another owns it,
+        :class:`OutboxInUse` if another process has it open for one; None: neither
+        checked, as in tests of the outbox alone)."""
         if max_samples < 1 or max_seen < 1:
             raise ValueError("max_samples and max_seen must be at least 1")
         self.path = Path(path)
         self.max_samples = max_samples
         self.max_seen = max_seen
         self._lock = threading.Lock()
+        self._held: int | None = None
         try:
             if str(path) != ":memory:":
                 _private_file(self.path)
+                if vehicle_id is not None:
+                    self._held = _hold(self.path)
             self._db = sqlite3.connect(str(path), check_same_thread=False, isolation_level=None)
             self._db.execute("PRAGMA journal_mode=WAL")
             self._db.execute("PRAGMA synchronous=NORMAL")
             self._db.executescript(_SCHEMA)
         except (OSError, sqlite3.Error) as exc:
+            self._let_go()
             why = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
             raise OutboxUnusable(f"the outbox {path} cannot be opened: {why}") from None
         if vehicle_id is not None:
@@ -139,11 +175,18 @@ class Outbox:
         owner = self._db.execute("SELECT value FROM meta WHERE key = 'vehicle_id'").fetchone()[0]
         if owner != vehicle_id:
             self._db.close()
+            self._let_go()
             raise OutboxTaken(self.path, owner, vehicle_id)
 
     def close(self) -> None:
         with self._lock:
             self._db.close()
+            self._let_go()
+
+    def _let_go(self) -> None:
+        if self._held is not None:
+            os.close(self._held)  # the lock goes with it
+            self._held = None
 
     # -- meta --------------------------------------------------------------
     def _meta(self, key: str, default: int) -> int:

@@ -77,6 +77,17 @@ def test_bad_configuration_exits_2_with_a_clear_message(args: list[str], message
     assert message in result.output
 
 
+def test_a_server_url_with_a_password_is_refused_without_showing_the_password() -> None:
+    """A user name and password in --server were sent to no one (the token signs in) and
+    shown in the agent's logs: refused at start, the URL shown without them."""
+    given = ["run", "--vehicle-id", "usv-1", "--token", "t"]
+    result = runner.invoke(app, [*given, "--server", "https://ana:s3cret@fleet.example.org:8443"])
+    assert result.exit_code == 2, result.output
+    assert "without a user name or password" in result.output
+    assert "give https://fleet.example.org:8443," in result.output
+    assert "s3cret" not in result.output and "ana" not in result.output
+
+
 def _float_settings(cls: type[BaseModel]) -> list[str]:
     return [name for name, f in cls.model_fields.items() if f.annotation in (float, float | None)]
 
@@ -156,6 +167,25 @@ def test_an_outbox_of_another_vehicle_is_refused(tmp_path: Path) -> None:
     assert result.exit_code == 2, result.output
     assert f"the outbox {path} holds vehicle usv-7's samples" in " ".join(result.output.split())
     Outbox(path, vehicle_id="usv-7").close()  # its own vehicle opens it again
+
+
+def test_an_outbox_another_agent_has_open_is_refused_until_it_lets_go(tmp_path: Path) -> None:
+    """Two agents of one vehicle on one outbox numbered their samples alike and deleted
+    each other's: the second is refused at start, naming the first's process."""
+    import os
+
+    path = tmp_path / "usv-7.db"
+    first = Outbox(path, vehicle_id="usv-7")  # an agent of usv-7 running
+    args = ["run", "--vehicle-id", "usv-7", "--token", "t", "--server", "http://127.0.0.1:9"]
+    result = runner.invoke(app, [*args, "--outbox", str(path)])
+    assert result.exit_code == 2, result.output
+    said = " ".join(result.output.split())
+    assert f"the outbox {path} is in use by process {os.getpid()}: stop that agent" in said
+    first.append({"ts": "2026-01-01T00:00:00Z", "lat": 43.9, "lon": 15.4})
+    first.close()
+    again = Outbox(path, vehicle_id="usv-7")  # let go of: its vehicle opens it again
+    assert [s["seq"] for s in again.batch()] == [1]
+    again.close()
 
 
 def test_an_outbox_that_cannot_be_opened_is_said_in_a_line_not_a_traceback(
