@@ -13,6 +13,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import time
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field
 from datetime import timedelta
@@ -181,10 +182,17 @@ async def shutdown(runtime: Runtime) -> None:
     if runtime.owns_store:
         steps.append(("store", services.store.close))
     for name, step in steps:
+        started = time.monotonic()
         try:
             await step()
         except Exception:
             log.exception("shutdown: %s failed; the rest goes on", name)
+        if (took := time.monotonic() - started) > SLOW_STEP_S:
+            log.warning("shutdown: %s took %.1f s", name, took)
+
+
+#: A shutdown step longer than this is logged (what held the stop up, and how long).
+SLOW_STEP_S = 1.0
 
 
 #: How long shutdown waits for a background loop to end.
