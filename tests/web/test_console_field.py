@@ -104,6 +104,31 @@ def test_the_replay_window_is_typed_and_read_in_24_hour_local_time(
     shots(page, "refused-time")
 
 
+def test_back_to_live_returns_to_the_live_view_the_replay_left(
+    world: World, open_console: Any, shots: Shots
+) -> None:
+    """A replay fits the map to its tracks; Back to live left the map there, zoomed in on
+    the replay's window. It returns to the view the manager had before the replay."""
+    page, _ = open_console()
+    log_in(page, "ana")
+    replay_up(page)
+    marker(page, "demo-usv-1").wait_for()
+    view = "() => { const m = fleetConsole.map.map, c = m.getCenter(); "
+    view += "return [c.lat, c.lng, m.getZoom()]; }"
+    page.evaluate("fleetConsole.map.map.setView([43.5, 15.9], 9, {animate: false})")
+    before = page.evaluate(view)
+    page.click('[data-tab="replay"]')
+    page.click('#replay-form [data-minutes="5"]')
+    page.click("#replay-load")
+    expect(page.locator("#replay-bar")).to_be_visible()
+    assert page.evaluate(view)[2] > 12, "the replay fits the map to its tracks"
+    page.click("#replay-exit")
+    expect(page.locator("#replay-bar")).to_be_hidden()
+    lat, lon, zoom = page.evaluate(view)
+    assert zoom == before[2] and abs(lat - before[0]) < 1e-6 and abs(lon - before[1]) < 1e-6
+    shots(page, "back-to-live-view")
+
+
 def test_a_superseded_command_names_the_newer_one_not_its_id(
     world: World, open_console: Any, shots: Shots
 ) -> None:

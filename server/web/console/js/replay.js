@@ -227,6 +227,11 @@ export class Replay {
   }
 
   enter() {
+    if (this.ctx.app.dataset.replay !== "on") {
+      // The live view as it was (a replay of another window keeps the first's): Back to
+      // live returns to it, not to wherever the replay's tracks took the map.
+      this.liveView = { center: this.map.map.getCenter(), zoom: this.map.map.getZoom() };
+    }
     this.map.showLive(false);
     this.layer.clearLayers();
     this.layer.addTo(this.map.map);
@@ -273,6 +278,10 @@ export class Replay {
     delete this.ctx.app.dataset.replay;
     this.ctx.selectionChanged();
     this.map.map.invalidateSize(false);
+    if (this.liveView) {
+      this.map.map.setView(this.liveView.center, this.liveView.zoom, { animate: false });
+      this.liveView = null;
+    }
   }
 
   drawTimeline() {
