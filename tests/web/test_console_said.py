@@ -252,6 +252,11 @@ def test_a_zone_drawn_changed_and_removed_reads_as_words(
     lines = page.locator("#replay-events")
     expect(lines).to_contain_text("H2OmniX Charlie zones changed: no-go zone Far rocks created")
     expect(lines).not_to_contain_text(re.compile(r"zone id|no_go|version \d"))
+    # the map draws the zones of now (the rocks are gone from it): said under the summary
+    expect(page.locator("#replay-info .zones-now")).to_have_text(
+        re.compile(r"^Zones are drawn as they are now, not as they were then: ([3-9]|\d\d+) "
+                   r"zone changes in this window \(in the list\)\.$")
+    )  # fmt: skip
     shots(page, "replay-zones-in-words")
     page.click("#replay-exit")
 

@@ -149,6 +149,7 @@ export class Replay {
       `${counted(ids.length, "vehicle")}, ${counted(total, "stored position")}, ` +
         `${counted(this.events.length, "event")}, ${dateTime(start)} to ${dateTime(end)}`,
       ...this.missing.map((text) => h("div.no-positions", {}, text)),
+      h("div.zones-now", {}, zonesNow(this.events)),
     );
     this.choice.hold();
     this.enter();
@@ -412,4 +413,13 @@ export class Replay {
     this.playButton.textContent = "Play";
     this.playButton.setAttribute("aria-label", "play");
   }
+}
+
+/** The map's zones are the ones of now (the server keeps no zone's past shapes): said
+ * under the replay's summary, with the window's zone changes counted when it has some. */
+function zonesNow(events) {
+  const changes = new Set(events.filter((e) => e.kind === "zones_changed") // one per boat listed
+    .map((e) => `${e.data && e.data.zone_id}/${e.data && e.data.version}`)).size;
+  const said = "Zones are drawn as they are now, not as they were then";
+  return changes ? `${said}: ${counted(changes, "zone change")} in this window (in the list).` : `${said}.`;
 }
