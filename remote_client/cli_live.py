@@ -14,7 +14,7 @@ from fleet_protocol.topics import validate_topic
 from remote_client import streams
 from remote_client.cli_common import JsonOpt, ServerOpt, TokenOpt, fail, finite, run, say
 from remote_client.output import errors
-from remote_client.sdk import FleetClient, UnknownVehicle, pick_vehicle
+from remote_client.sdk import FleetApiError, FleetClient, UnknownVehicle, pick_vehicle
 
 __all__ = ["publish", "watch"]
 
@@ -82,16 +82,28 @@ async def _vehicle_topics(fleet: FleetClient, topics: list[str]) -> list[str]:
                 except ValueError as exc:
                     fail(f"not a topic: {topic!r}: no vehicle you can see goes by {ref!r}, "
                          f"and as a vehicle id: {exc}")  # fmt: skip
-                errors.print(  # an admin's watch would otherwise wait in silence
-                    f"warning: no vehicle {ref!r} among those you can see: {topic} has "
-                    "nothing to show until one registers under that id",
-                    style="yellow",
-                    markup=False,
-                    highlight=False,
-                )
+                if await _may_see_later(fleet, ref):  # else the server's refusal says it
+                    errors.print(  # an admin's watch would otherwise wait in silence
+                        f"warning: no vehicle {ref!r} among those you can see: {topic} has "
+                        "nothing to show until one registers under that id",
+                        style="yellow",
+                        markup=False,
+                        highlight=False,
+                    )
             topic = f"{head}/{ref}/{rest}"
         out.append(topic)
     return out
+
+
+async def _may_see_later(fleet: FleetClient, vehicle_id: str) -> bool:
+    """Whether the caller would see a vehicle ``vehicle_id`` that registers later: an
+    admin sees every vehicle, another user those of its list. Any other caller (one
+    /api/me does not answer) is not told it may: the server judges its watch."""
+    try:
+        me = await fleet.me()
+    except FleetApiError:
+        return False
+    return me.get("role") == "admin" or vehicle_id in (me.get("vehicles") or ())
 
 
 def publish(

@@ -184,6 +184,14 @@ async def test_watch_prints_a_readable_line_per_event_and_takes_names(
         nothing = await fleetctl(base, ADMIN_TOKEN, "watch", "vehicle/nosuch/telemetry",
                                   "--seconds", "0.5")  # fmt: skip
         assert nothing.exit_code == 0 and "no vehicle 'nosuch'" in nothing.stderr
+        # an operator sees only its own vehicles: the server's refusal, not told to wait
+        _, op = await make_user(c, "operator", [vid])
+        token = op["Authorization"].removeprefix("Bearer ")
+        refused = await fleetctl(base, token, "watch", "vehicle/nosuch/telemetry",
+                                 "--seconds", "0.5")  # fmt: skip
+        assert refused.exit_code == 1, refused.output
+        assert "warning" not in refused.stderr and "registers" not in refused.stderr
+        assert "nosuch" in refused.stderr and refused.stdout == ""
 
 
 async def test_a_vehicle_segment_that_is_neither_a_name_nor_an_id_is_refused_unwarned(
