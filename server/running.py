@@ -86,7 +86,13 @@ async def _try_load(runtime: Runtime) -> bool:
             readiness.failed(reason)
             return False
         await services.dead_letters.repo.ensure_indexes()
-        for part in (services.auth, services.events, services.instances, services.control):
+        for part in (
+            services.auth,
+            services.events,
+            services.instances,
+            services.control,
+            services.zones,
+        ):
             await part.load()
         await services.commands.load()
         await services.telemetry.load()
@@ -151,6 +157,7 @@ async def _retention(services: Services) -> None:
         ("telemetry", lambda: services.telemetry.drop_before(before)),
         ("instances", lambda: services.instances.drop_finished_before(before)),
         ("dead_letters", lambda: services.dead_letters.drop_before(before)),
+        ("zone_versions", lambda: services.zones.repo.drop_versions_before(before)),
         ("tokens", lambda: services.auth.repo.drop_expired_tokens(now)),
         ("login_attempts", lambda: services.auth.drop_old_login_attempts(now)),
     ]

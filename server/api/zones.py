@@ -3,9 +3,11 @@ those that concern the vehicles they see (a zone for every vehicle concerns ever
 
 from __future__ import annotations
 
-from fastapi import APIRouter
+from typing import Annotated
 
-from fleet_protocol import CreateZone, PatchZone, ZoneList, ZoneView
+from fastapi import APIRouter, Query
+
+from fleet_protocol import CreateZone, PatchZone, TimeBound, ZoneList, ZoneView
 from server.api.deps import Admin, ServicesDep, Viewer
 from server.domain.access import Principal
 from server.errors import NotFound
@@ -25,8 +27,15 @@ def _seen(doc: Doc, user: Principal) -> ZoneView | None:
 
 
 @router.get("/api/zones")
-async def list_zones(user: Viewer, s: ServicesDep) -> ZoneList:
-    docs, version = await s.zones.all()
+async def list_zones(
+    user: Viewer,
+    s: ServicesDep,
+    at: Annotated[
+        TimeBound | None,
+        Query(description="the zones as they were then (**extension**; a replay's)"),
+    ] = None,
+) -> ZoneList:
+    docs, version = await s.zones.all() if at is None else await s.zones.at(at)
     views = [v for d in docs if (v := _seen(d, user)) is not None]
     return ZoneList(zones=views, version=version)
 

@@ -12,6 +12,7 @@ again; the other replicas hear of it on the bus).
 from __future__ import annotations
 
 import secrets
+from datetime import datetime
 from typing import Any
 
 from fleet_protocol import CreateZone, PatchZone
@@ -61,6 +62,9 @@ class ZoneService:
         self.clock = clock
         self._set = ZoneSet()
 
+    async def load(self) -> None:
+        await self.repo.ensure_indexes()
+
     async def current(self) -> ZoneSet:
         """The set as the store has it now (read again only when its version moved)."""
         version = await self.repo.version()
@@ -75,6 +79,27 @@ class ZoneService:
 
     async def all(self) -> tuple[list[Doc], int]:
         return await self.repo.all(), await self.repo.version()
+
+    async def at(self, when: datetime) -> tuple[list[Doc], int]:
+        """The set as it was at ``when``, in its order, and its version then: each zone
+        as its latest kept version up to then made it (none if deleted); a zone with
+        no version kept (drawn before versions were, unchanged since) as it is, from
+        when it was drawn."""
+        latest: dict[str, Doc] = {}
+        version = 0
+        for kept in await self.repo.versions_until(when):
+            latest[kept["zone_id"]] = kept
+            version = max(version, int(kept["version"]))
+        zones = [v["zone"] for v in latest.values() if not v["deleted"]]
+        now = await self.repo.all()
+        unkept = [d for d in now if d["zone_id"] not in latest]
+        with_versions = await self.repo.zones_with_versions(d["zone_id"] for d in unkept)
+        for doc in unkept:
+            if doc["zone_id"] not in with_versions and doc["created_at"] <= when:
+                zones.append(doc)
+                version = max(version, int(doc["created_version"]))
+        zones.sort(key=lambda d: (int(d["created_version"]), d["zone_id"]))
+        return zones, version
 
     async def get(self, zone_id: str) -> Doc:
         doc = await self.repo.get(zone_id)
@@ -102,6 +127,7 @@ class ZoneService:
             "updated_at": now,
         }
         await self.repo.insert(doc)
+        await self.repo.add_version(doc, _to_ms(now))
         await self._changed(doc, "created", actor)
         return doc
 
@@ -121,22 +147,34 @@ class ZoneService:
         )
         if not changes:
             return doc  # nothing changes: the same version, the same updated_at
+        await self._kept_before(doc)
         doc.update(changes)
         await self._check(doc["kind"], doc["vehicles"])
         doc["version"] = await self.repo.next_version()
         doc["updated_at"] = self.clock()
         if not await self.repo.replace(doc):
             raise NotFound(f"no zone {zone_id}")
+        await self.repo.add_version(doc, _to_ms(doc["updated_at"]))
         await self._changed(doc, "changed", actor)
         return doc
 
     async def delete(self, zone_id: str, actor: Any) -> Doc:
         doc = await self.get(zone_id)
+        await self._kept_before(doc)
         if not await self.repo.delete(zone_id):
             raise NotFound(f"no zone {zone_id}")
         doc["version"] = await self.repo.next_version()
+        await self.repo.add_version(doc, _to_ms(self.clock()), deleted=True)
         await self._changed(doc, "deleted", actor)
         return doc
+
+    async def _kept_before(self, doc: Doc) -> None:
+        """A zone drawn before versions were kept: its shape until this change, kept
+        from when it last changed (its past before that is not known)."""
+        if not await self.repo.has_versions(doc["zone_id"]):
+            await self.repo.add_version(
+                dict(doc), _to_ms(doc.get("updated_at") or doc["created_at"])
+            )
 
     async def _check(self, kind: str, vehicles: list[str]) -> None:
         if kind == "operating_area" and not vehicles:
@@ -164,3 +202,9 @@ class ZoneService:
         for vehicle_id in doc.get("vehicles") or ():
             await self.events.record("zones_changed", vehicle_id=vehicle_id, actor=actor, data=data)
         await self.messages.emit(ZonesChanged(int(doc["version"])))
+
+
+def _to_ms(when: datetime) -> datetime:
+    """``when`` to the millisecond, as the wire says times (and MongoDB keeps them): a
+    version asked for at a time the server said is found at that time."""
+    return when.replace(microsecond=when.microsecond // 1000 * 1000)

@@ -252,11 +252,17 @@ def test_a_zone_drawn_changed_and_removed_reads_as_words(
     lines = page.locator("#replay-events")
     expect(lines).to_contain_text("H2OmniX Charlie zones changed: no-go zone Far rocks created")
     expect(lines).not_to_contain_text(re.compile(r"zone id|no_go|version \d"))
-    # the map draws the zones of now (the rocks are gone from it): said under the summary
-    expect(page.locator("#replay-info .zones-now")).to_have_text(
-        re.compile(r"^Zones are drawn as they are now, not as they were then: ([3-9]|\d\d+) "
-                   r"zone changes in this window \(in the list\)\.$")
+    # the map draws the zones of the cursor's time, said under the summary: the rocks are
+    # on it from their drawing to their removal, and not before nor after
+    expect(page.locator("#replay-info .zones-then")).to_have_text(
+        re.compile(r"^Zones are drawn as they were at the cursor's time: ([3-9]|\d\d+) "
+                   r"zone changes in this window\.$")
     )  # fmt: skip
+    no_go = "() => document.querySelectorAll('#map path.zone-no_go').length"
+    lines.locator("li", has_text="Far rocks created").first.click()
+    with_rocks = page.evaluate(no_go)
+    lines.locator("li", has_text="Outer rocks deleted").first.click()
+    page.wait_for_function(f"() => ({no_go})() === {with_rocks - 1}")
     shots(page, "replay-zones-in-words")
     page.click("#replay-exit")
 

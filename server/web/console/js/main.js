@@ -253,7 +253,9 @@ class Console {
   /** Zones (when the server has them), obstacles. */
   async loadShapes() {
     try {
-      this.map.setZones((await this.api.get("/api/zones")).zones || []);
+      this.liveZones = (await this.api.get("/api/zones")).zones || [];
+      // a replay draws the zones of its time; Back to live draws these
+      if (this.app.dataset.replay !== "on") this.map.setZones(this.liveZones);
     } catch (e) {
       if (e.status !== 404) console.warn("zones:", e.message);
     }

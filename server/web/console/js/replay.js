@@ -13,6 +13,7 @@ import { clock, counted, dateTime, h, sending, toast } from "./ui.js";
 
 const MAX_EVENTS_PER_VEHICLE = 100000;
 const MAX_POINTS_PER_VEHICLE = 50000; // five pages of the track route
+const MAX_ZONE_FRAMES = 200; // the zones read again at most this often in one window
 const HOLD_GAP_MS = 30000; // samples further apart than this: the marker waits, not glides
 const FLASH_MS = 1500;
 
@@ -123,8 +124,13 @@ export class Replay {
     this.clear();
     this.info.textContent = "loading…";
     let got;
+    let zoneFrames = null;
     try {
       got = await Promise.all(ids.map((id) => this.fetchVehicle(id, start, end)));
+      zoneFrames = await this.fetchZones(start, end).catch((e) => {
+        console.warn("replay zones:", e.message); // the zones of now stay, said so
+        return null;
+      });
     } catch (e) {
       this.info.textContent = "";
       return toast(`replay: ${e.message}`, "error");
@@ -140,6 +146,7 @@ export class Replay {
     this.start = start;
     this.end = end;
     this.ids = ids;
+    this.zoneFrames = zoneFrames;
     this.tracks = new Map(got.map((g) => [g.id, g.points]));
     this.events = got.flatMap((g) => g.events).sort((a, b) => a.t - b.t);
     this.offline = new Map(got.map((g) => [g.id, offlinePeriods(g.events, g.points, start, end)]));
@@ -149,7 +156,7 @@ export class Replay {
       `${counted(ids.length, "vehicle")}, ${counted(total, "stored position")}, ` +
         `${counted(this.events.length, "event")}, ${dateTime(start)} to ${dateTime(end)}`,
       ...this.missing.map((text) => h("div.no-positions", {}, text)),
-      h("div.zones-now", {}, zonesNow(this.events)),
+      ...zonesSaid(zoneFrames, this.events),
     );
     this.choice.hold();
     this.enter();
@@ -179,6 +186,7 @@ export class Replay {
     this.events = [];
     this.offline = new Map();
     this.missing = [];
+    this.zoneFrames = null;
     this.ids = null;
     this.list.replaceChildren();
     this.list.hidden = false;
@@ -225,6 +233,36 @@ export class Replay {
       points,
       events: events.map((e) => ({ ...e, t: Date.parse(e.at), vehicle: id })),
     };
+  }
+
+  /** The zones as they were at the window's start, and again after each change in it
+   * (``/api/zones?at=``): ``[{t, zones}]`` in time order. */
+  async fetchZones(start, end) {
+    const api = this.ctx.api;
+    const iso = (t) => new Date(t).toISOString();
+    const frames = [{ t: start, zones: (await api.get("/api/zones", { at: iso(start) })).zones || [] }];
+    const query = { kind: "zones_changed", from: iso(start), to: iso(end), limit: 10000 };
+    const first = new Map(); // each change once (told to each of its boats too): its first time
+    for (const e of (await api.get("/api/events", query)).events) {
+      const key = e.data && e.data.version != null ? e.data.version : e.at;
+      const t = Date.parse(e.at);
+      if (!first.has(key) || t < first.get(key)) first.set(key, t);
+    }
+    const times = [...first.values()].sort((a, b) => a - b).slice(0, MAX_ZONE_FRAMES);
+    for (const t of times) {
+      frames.push({ t, zones: (await api.get("/api/zones", { at: iso(t) })).zones || [] });
+    }
+    return frames;
+  }
+
+  /** The zones of the cursor's time on the map (drawn again only when they change). */
+  drawZones() {
+    if (!this.zoneFrames) return;
+    let frame = this.zoneFrames[0];
+    for (const f of this.zoneFrames) if (f.t <= this.cursor) frame = f;
+    if (frame === this.zoneFrame) return;
+    this.zoneFrame = frame;
+    this.map.setZones(frame.zones);
   }
 
   enter() {
@@ -277,6 +315,8 @@ export class Replay {
     this.map.showLive(true);
     this.bar.hidden = true;
     delete this.ctx.app.dataset.replay;
+    if (this.zoneFrame) this.map.setZones(this.ctx.liveZones || []); // the zones of now
+    this.zoneFrame = null;
     this.ctx.selectionChanged();
     this.map.map.invalidateSize(false);
     if (this.liveView) {
@@ -309,6 +349,7 @@ export class Replay {
     this.cursor = Math.min(Math.max(t, this.start), this.end);
     this.slider.value = String(this.cursor - this.start);
     this.timeOut.value = `${dateTime(this.cursor)}`;
+    this.drawZones();
     const away = [];
     for (const [id, marker] of this.markers) {
       const points = this.tracks.get(id);
@@ -415,11 +456,16 @@ export class Replay {
   }
 }
 
-/** The map's zones are the ones of now (the server keeps no zone's past shapes): said
- * under the replay's summary, with the window's zone changes counted when it has some. */
-function zonesNow(events) {
-  const changes = new Set(events.filter((e) => e.kind === "zones_changed") // one per boat listed
-    .map((e) => `${e.data && e.data.zone_id}/${e.data && e.data.version}`)).size;
-  const said = "Zones are drawn as they are now, not as they were then";
-  return changes ? `${said}: ${counted(changes, "zone change")} in this window (in the list).` : `${said}.`;
+/** What the summary says of the zones: those of the cursor's time are drawn (counted
+ * when the window has changes); when they could not be read, the zones of now are, said. */
+function zonesSaid(frames, events) {
+  if (!frames) {
+    const changes = new Set(events.filter((e) => e.kind === "zones_changed") // one per boat listed
+      .map((e) => `${e.data && e.data.zone_id}/${e.data && e.data.version}`)).size;
+    const said = "Zones are drawn as they are now, not as they were then";
+    return [h("div.zones-now", {}, changes ? `${said}: ${counted(changes, "zone change")} in this window.` : `${said}.`)];
+  }
+  const changes = frames.length - 1;
+  if (!changes) return [];
+  return [h("div.zones-then", {}, `Zones are drawn as they were at the cursor's time: ${counted(changes, "zone change")} in this window.`)];
 }
