@@ -22,9 +22,11 @@ from remote_client.cli_common import (
     list_when_bare,
     run,
     say,
+    window,
 )
 from remote_client.output import console
 from remote_client.sdk import FleetClient
+from remote_client.times import plain_time
 
 zones_app = typer.Typer(
     rich_markup_mode=HELP_MARKUP,
@@ -93,19 +95,26 @@ def _geometry_type(value: Any) -> str:
 @zones_app.callback()
 def zones(
     ctx: typer.Context,
+    at: str | None = typer.Option(
+        None, "--at", help="the zones as they were then (10m, 2h, ISO 8601), as a replay draws them"
+    ),
     server: str = ServerOpt,
     token: str | None = GroupTokenOpt,
     as_json: bool = JsonOpt,
 ) -> None:
-    list_when_bare(ctx, server, token, as_json, _list_zones)
+    then, _ = window(at, None)
+    if at is not None and ctx.invoked_subcommand is not None:
+        fail(f"--at lists the zones of a past time: not with {ctx.invoked_subcommand}")
+    list_when_bare(ctx, server, token, as_json, lambda s, t, j: _list_zones(s, t, j, then))
 
 
-def _list_zones(server: str, token: str, as_json: bool) -> None:
-    data = run(server, token, lambda fleet: fleet.zones())
+def _list_zones(server: str, token: str, as_json: bool, at: str | None = None) -> None:
+    data = run(server, token, lambda fleet: fleet.zones(at))
     if as_json:
         dump(data)
         return
-    table = Table(title=f"zones (version {data['version']})")
+    when = f", as at {plain_time(at)} UTC" if at else ""
+    table = Table(title=f"zones (version {data['version']}{when})")
     for name in ("zone", "name", "kind", "vehicles", "clearance m"):
         table.add_column(name, no_wrap=name == "zone")
     for z in data["zones"]:

@@ -89,9 +89,10 @@ class AdminCalls(Session):
         return body
 
     # ---- safety: zones, failsafes, operator liveness, the control log --------------
-    async def zones(self) -> Body:
-        """``{"zones": [...], "version"}``: the operating areas and no-go zones."""
-        body: Body = await self.call("GET", "/api/zones")
+    async def zones(self, at: str | None = None) -> Body:
+        """``{"zones": [...], "version"}``: the operating areas and no-go zones; ``at``
+        (ISO 8601): as they were then."""
+        body: Body = await self.call("GET", "/api/zones", params=given(at=at))
         return body
 
     async def create_zone(

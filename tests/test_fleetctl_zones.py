@@ -61,6 +61,18 @@ async def test_a_zone_is_edited_and_removed_by_its_name(
         assert removed.stdout.strip() == f"{zone_id} (reef) removed"
         assert (await c.get("/api/zones", headers=ADMIN)).json()["zones"] == []
 
+        # the zones as they were: the reef before it was removed, nothing before it was drawn
+        then = await fleetctl(base, ADMIN_TOKEN, "zones", "--at", zone["updated_at"], "--json")
+        assert then.exit_code == 0, then.output
+        [past] = json.loads(then.stdout)["zones"]
+        assert past["zone_id"] == zone_id and past["name"] == "reef"
+        table = await fleetctl(base, ADMIN_TOKEN, "zones", "--at", zone["updated_at"])
+        assert table.exit_code == 0 and "reef" in table.stdout and "as at 20" in table.stdout
+        before = await fleetctl(base, ADMIN_TOKEN, "zones", "--at", "2000-01-01", "--json")
+        assert before.exit_code == 0 and json.loads(before.stdout)["zones"] == []
+        bad = await fleetctl(base, ADMIN_TOKEN, "zones", "--at", "yesterday")
+        assert bad.exit_code == 2 and "yesterday" in bad.stderr, bad.output
+
 
 async def test_two_zones_of_one_name_are_named_by_id(
     make_settings: Callable[..., Settings], tmp_path: Path
