@@ -139,6 +139,10 @@ class ControlRequestList(WireModel):
 
 
 class GrantControl(InstanceRef):
+    # A field it does not know is a 422 naming it (``operator_timeout`` for
+    # ``operator_timeout_s`` would grant a lease with no liveness guard).
+    model_config = ConfigDict(extra="forbid")
+
     user: Identifier
     duration_s: StrictInt = Field(ge=1, le=86400)
     #: The lease lapses (and the vehicle holds station) when the holder's client sends no

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Annotated, Literal
+from typing import Annotated, Any, Literal
 
 from pydantic import ConfigDict, Field, StrictBool, StrictFloat, StrictInt
 
@@ -89,13 +89,20 @@ class FailsafePolicy(WireModel):
 
 class SetFailsafe(WireModel):
     """``PUT /api/vehicles/{vehicle_id}/failsafe``: the vehicle's whole policy (a field
-    left out takes the server's default: ``FLEET_FAILSAFE_AFTER_S``, ``FLEET_FAILSAFE_ACTION``)."""
+    left out takes the server's default: ``FLEET_FAILSAFE_AFTER_S``, ``FLEET_FAILSAFE_ACTION``).
+    A field it does not know is a 422 naming it: ``acton`` for ``action`` would otherwise
+    set the default policy in place of the one meant."""
+
+    model_config = ConfigDict(extra="forbid")
 
     after_s: StrictFloat | None = Field(default=None, gt=0, le=86_400, allow_inf_nan=False)
     action: FailsafeAction | None = None
     home: LatLon | None = None
     on_breach: StrictBool = False
     low_battery_pct: StrictFloat | None = Field(default=None, ge=0, le=100, allow_inf_nan=False)
+    #: The policy as read may be sent back: its version is taken and ignored (the server
+    #: numbers each policy it stores).
+    version: Any = Field(default=None, exclude=True, description="ignored (the policy as read)")
 
 
 class FailsafeView(WireModel):

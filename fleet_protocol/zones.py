@@ -11,9 +11,9 @@ it is handed out.
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Any, Literal
 
-from pydantic import Field, StrictFloat
+from pydantic import ConfigDict, Field, StrictFloat
 
 from fleet_protocol.common import Identifier, Timestamp, WireModel
 from fleet_protocol.obstacles import PolygonGeometry
@@ -24,7 +24,21 @@ __all__ = ["CreateZone", "PatchZone", "ZoneKind", "ZoneList", "ZoneView"]
 ZoneKind = Literal["no_go", "operating_area"]
 
 
-class CreateZone(WireModel):
+class _ZoneBody(WireModel):
+    """A zone's body: a field it does not know is a 422 naming it (``clearance`` for
+    ``clearance_m``, ``vehicle`` for ``vehicles``: a no-go zone would otherwise hold every
+    vehicle, at the default clearance). The fields a zone is read with that no body sets
+    are taken and ignored: a client may send back the zone it read."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    zone_id: Any = Field(default=None, exclude=True, description="ignored (the zone as read)")
+    version: Any = Field(default=None, exclude=True, description="ignored (the zone as read)")
+    created_at: Any = Field(default=None, exclude=True, description="ignored (the zone as read)")
+    updated_at: Any = Field(default=None, exclude=True, description="ignored (the zone as read)")
+
+
+class CreateZone(_ZoneBody):
     name: Label = Field(min_length=1, max_length=128)
     kind: ZoneKind
     polygon: PolygonGeometry
@@ -40,7 +54,7 @@ class CreateZone(WireModel):
     )
 
 
-class PatchZone(WireModel):
+class PatchZone(_ZoneBody):
     """The fields to change; one left out (or null) is kept. A patch that changes
     nothing leaves the zone, its version and ``updated_at`` as they are."""
 
