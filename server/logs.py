@@ -86,6 +86,23 @@ class RedactSecrets(logging.Filter):
 _EXCEPTIONS = logging.Formatter()
 
 
+class RefusedHandshakes(logging.Filter):
+    """uvicorn logs ``ASGI callable returned without completing handshake.`` at ERROR for
+    every WebSocket the app refuses with an HTTP answer (``websocket.http.response``: a
+    404 in the envelope for a path that serves no socket), which any client may ask for.
+    The app completes or refuses every handshake it is given, so that line is such a
+    refusal: told at INFO, as an answer to a client's mistake, never as a server error."""
+
+    MESSAGE = "ASGI callable returned without completing handshake."
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        if record.msg == self.MESSAGE and record.levelno == logging.ERROR:
+            record.levelno, record.levelname = logging.INFO, "INFO"
+            record.msg = "a WebSocket refused before its handshake (answered over HTTP)"
+            return record.levelno >= logging.getLogger(record.name).getEffectiveLevel()
+        return True
+
+
 def _redact_arg(value: Any) -> Any:
     """A string redacted; a number as it is (a formatter may want one: ``%d``); anything
     else as its text, redacted (its ``str`` is what ``%s`` would have written)."""
@@ -142,7 +159,10 @@ def log_config(level: str, fmt: Literal["text", "json"] = "text") -> dict[str, A
     from uvicorn.config import LOGGING_CONFIG
 
     config: dict[str, Any] = copy.deepcopy(LOGGING_CONFIG)
-    config["filters"] = {"redact": {"()": RedactSecrets}}
+    config["filters"] = {
+        "redact": {"()": RedactSecrets},
+        "refused_handshakes": {"()": RefusedHandshakes},
+    }
     config["formatters"]["fleet"] = {"format": "%(asctime)s %(levelname)s %(name)s: %(message)s"}
     config["handlers"]["fleet"] = {
         "class": "logging.StreamHandler",
@@ -158,4 +178,5 @@ def log_config(level: str, fmt: Literal["text", "json"] = "text") -> dict[str, A
     config["root"] = {"handlers": ["fleet"], "level": level.upper()}
     for logger in config["loggers"].values():
         logger["level"] = level.upper()
+    config["loggers"]["uvicorn.error"]["filters"] = ["refused_handshakes"]
     return config

@@ -66,3 +66,23 @@ async def test_a_token_in_a_socket_url_or_frame_is_not_written_to_the_log(
     for start in range(0, len(ADMIN_TOKEN) - 8):  # nor any piece of the token
         assert ADMIN_TOKEN[start : start + 8] not in log, ADMIN_TOKEN[start : start + 8]
     assert "fct_wrong-token-xyz" not in log
+
+
+@pytest.mark.slow
+async def test_a_socket_asked_where_none_is_served_is_no_error_in_the_log(tmp_path: Path) -> None:
+    """Anyone could write ERROR lines to the log: uvicorn called each socket refused with
+    its 404 a callable that "returned without completing handshake". It is told at INFO."""
+    server = ServerProcess(tmp_path)
+    server.env["FLEET_LOG_LEVEL"] = "info"
+    await asyncio.to_thread(server.start)
+    try:
+        for path in ("/ws/nope", "/ws/client/"):
+            with pytest.raises(websockets.InvalidStatus) as refused:
+                async with websockets.connect(server.url.replace("http", "ws") + path):
+                    pass
+            assert refused.value.response.status_code == 404
+    finally:
+        await asyncio.to_thread(server.stop)
+    log = server.log.read_text()
+    assert "ERROR" not in log and "without completing handshake" not in log, log
+    assert log.count("INFO") and "a WebSocket refused before its handshake" in log, log
