@@ -57,6 +57,10 @@ class FleetApp(FastAPI):
             scope["app"] = self
             await serve_live(self.state.services, self.state.hub, scope, receive, send)
             return
+        if scope["type"] == "http" and scope["method"] == "HEAD":
+            # HEAD wherever GET (monitors probe /healthz so): answered as the GET, whose
+            # body the server does not write for a HEAD (its own scope says HEAD).
+            scope = {**scope, "method": "GET", errors.HEAD_SCOPE_KEY: True}
         await super().__call__(scope, receive, send)
 
 

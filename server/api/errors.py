@@ -114,8 +114,9 @@ _METHODS = ("DELETE", "GET", "HEAD", "PATCH", "POST", "PUT")
 
 def path_methods(routes: Sequence[BaseRoute], scope: Scope) -> list[str]:
     """The methods the routes (not the mounted files) take at a request's path, together:
-    a path may have a route per method, and Starlette's 405 names only the first one's."""
-    return [
+    a path may have a route per method, and Starlette's 405 names only the first one's.
+    HEAD wherever GET (the app answers it as GET without the body: ``HEAD_SCOPE_KEY``)."""
+    taken = [
         method
         for method in _METHODS
         if any(
@@ -124,6 +125,13 @@ def path_methods(routes: Sequence[BaseRoute], scope: Scope) -> list[str]:
             for route in routes
         )
     ]
+    if "GET" in taken and "HEAD" not in taken:
+        taken.insert(taken.index("GET") + 1, "HEAD")
+    return taken
+
+
+#: Set in the scope of a HEAD request the app answers as a GET (the server writes no body).
+HEAD_SCOPE_KEY = "fleet.head"
 
 
 def _long_integers(body: object) -> list[FieldError]:
@@ -183,9 +191,8 @@ def install(app: FastAPI) -> None:
             allowed = path_methods(request.app.router.routes, request.scope)
             if allowed:  # a route's: the methods of every route of the path, not its own
                 headers = {**(headers or {}), "Allow": ", ".join(allowed)}
-                message = (
-                    f"{request.method} is not allowed here; this path takes {', '.join(allowed)}"
-                )
+                method = "HEAD" if request.scope.get(HEAD_SCOPE_KEY) else request.method
+                message = f"{method} is not allowed here; this path takes {', '.join(allowed)}"
         return envelope(exc.status_code, code, message, headers=headers)
 
     @app.exception_handler(ClientDisconnect)

@@ -19,7 +19,7 @@ import websockets
 from fleet_protocol import ClientOp, VehicleOp
 from server.app import create_app
 from server.settings import Settings
-from tests.factories import sample
+from tests.factories import ADMIN_TOKEN, sample
 from tests.live import recv_until, serve, ws_url
 from tests.server.access_world import CALLERS, World, build
 
@@ -179,3 +179,18 @@ async def test_a_socket_asked_where_none_is_served_is_404_in_the_envelope(
             assert "/ws/vehicle and /ws/client" in error["message"], error
             if path == "/ws/client/":
                 assert "did you mean /ws/client?" in error["message"], error
+
+
+async def test_head_is_answered_wherever_get_is(make_settings: Callable[..., Settings]) -> None:
+    """Monitors probe with HEAD: /healthz answered 405. HEAD is answered as GET is (the
+    same status and headers, no body); a path that takes no GET still refuses it."""
+    async with serve(make_settings()) as base, httpx.AsyncClient(base_url=base) as c:
+        admin = {"Authorization": f"Bearer {ADMIN_TOKEN}"}
+        for path, headers in (("/healthz", {}), ("/readyz", {}), ("/api/vehicles", admin)):
+            got, head = await c.get(path, headers=headers), await c.head(path, headers=headers)
+            assert head.status_code == got.status_code == 200, (path, head.status_code)
+            assert head.content == b"" and head.headers["content-length"] == str(len(got.content))
+            assert head.headers["content-type"] == got.headers["content-type"]
+        assert (await c.head("/api/vehicles")).status_code == 401  # as GET without a token
+        refused = await c.head("/upper/heartbeat")
+        assert refused.status_code == 405 and refused.headers["allow"] == "POST"
