@@ -26,12 +26,16 @@ from pydantic_core import PydanticCustomError
 
 __all__ = [
     "BIDI_CONTROLS",
+    "INVISIBLES",
+    "LINE_SEPARATORS",
     "SURROGATE",
+    "UNSHOWN",
     "Label",
     "Note",
     "Text",
     "check_text",
     "escape_controls",
+    "escape_unshown",
     "screen_rule",
     "shown_text",
 ]
@@ -68,8 +72,32 @@ _CONTROL = re.compile("[\x00-\x1f\x7f-\x9f]")
 
 
 #: Characters that reorder the text around them on a screen (bidirectional embeddings,
-#: overrides and isolates): a name holding one can read as another.
-BIDI_CONTROLS = re.compile("[\u202a-\u202e\u2066-\u2069]")
+#: overrides and isolates, and the marks that set a direction: the Arabic letter mark,
+#: the left-to-right and right-to-left marks): a name holding one can read as another.
+BIDI_CONTROLS = re.compile("[\u061c\u200e\u200f\u202a-\u202e\u2066-\u2069]")
+
+#: The line and paragraph separators: line breaks that are no control characters.
+LINE_SEPARATORS = re.compile("[\u2028\u2029]")
+
+#: Characters a screen does not show (the zero-width space, the word joiner and the
+#: invisible operators, the byte-order mark, the soft hyphen, the Mongolian vowel
+#: separator, the interlinear annotations, the tags): two names that read alike differ
+#: by one. The zero-width joiner and non-joiner are kept: scripts and emoji need them.
+INVISIBLES = re.compile("[\u00ad\u180e\u200b\u2060-\u2064\ufeff\ufff9-\ufffb\U000e0000-\U000e007f]")
+
+#: What a terminal is given escaped (``\u2028``) rather than as it is, besides the
+#: control characters (:func:`escape_controls`).
+UNSHOWN = re.compile(f"{BIDI_CONTROLS.pattern}|{LINE_SEPARATORS.pattern}|{INVISIBLES.pattern}")
+
+
+def escape_unshown(text: str) -> str:
+    """``text`` with each character of :data:`UNSHOWN` as its escape (``\\u202e``)."""
+    return UNSHOWN.sub(_escaped, text)
+
+
+def _escaped(found: re.Match[str]) -> str:
+    code = ord(found.group())
+    return f"\\u{code:04x}" if code <= 0xFFFF else f"\\U{code:08x}"
 
 
 def screen_rule(what: str) -> Callable[[object], object]:
@@ -80,15 +108,22 @@ def screen_rule(what: str) -> Callable[[object], object]:
     def check(value: object) -> object:
         if not isinstance(value, str):
             return value
-        if _CONTROL.search(value) is not None:
+        if _CONTROL.search(value) is not None or LINE_SEPARATORS.search(value) is not None:
             raise PydanticCustomError(
-                "string_control", f"{what} is shown on screens: no control characters"
+                "string_control",
+                f"{what} is shown on screens: no control characters nor line breaks",
             )
         if BIDI_CONTROLS.search(value) is not None:
             raise PydanticCustomError(
                 "string_bidi",
                 f"{what} is shown on screens: no characters that reorder the text "
-                "(U+202A to U+202E, U+2066 to U+2069)",
+                "(U+061C, U+200E, U+200F, U+202A to U+202E, U+2066 to U+2069)",
+            )
+        if (found := INVISIBLES.search(value)) is not None:
+            raise PydanticCustomError(
+                "string_invisible",
+                f"{what} is shown on screens: no characters a screen does not show "
+                f"(U+{ord(found.group()):04X} here)",
             )
         return value
 

@@ -24,7 +24,7 @@ from typing import Any
 from rich.console import Console
 from rich.text import Text
 
-from fleet_protocol import BIDI_CONTROLS, escape_controls
+from fleet_protocol.text import escape_controls, escape_unshown
 
 __all__ = [
     "OutputClosed",
@@ -40,9 +40,9 @@ __all__ = [
 def shown(text: str) -> str:
     """``text`` as a terminal may show it: each control character (C0 with the line
     break and escape, DEL, C1) as its escape (``\\x1b``), each character that reorders
-    the line around it (U+202A to U+202E, U+2066 to U+2069) as ``\\u202e``."""
-    text = escape_controls(text)
-    return BIDI_CONTROLS.sub(lambda m: f"\\u{ord(m.group()):04x}", text)
+    the line around it, breaks it (U+2028, U+2029) or is not seen (``fleet_protocol.text``,
+    ``UNSHOWN``) as ``\\u202e``."""
+    return escape_unshown(escape_controls(text))
 
 
 class OutputClosed(Exception):

@@ -42,7 +42,29 @@ BAD = [
     "c1\x9bx",
     "ab\u202ec",
     "x\u2066y",
+    # line breaks that are no control characters; marks that set a direction
+    "Good\u2028Name",
+    "Good\u2029Name",
+    "a\u200eb",
+    "a\u200fb",
+    "a\u061cb",
+    # characters a screen does not show: two names that read alike would differ by one
+    "a\u200bb",
+    "\ufeffab",
+    "a\u00adb",
+    "a\u180eb",
+    "a\u2060b",
+    "a\U000e0001b",
 ]
+
+#: Invisible joiners that scripts and emoji need are kept.
+PERSIAN = "\u0645\u06cc\u200c\u062e\u0648\u0627\u0647\u0645"  # a non-joiner inside
+KEPT = [PERSIAN, "🧑\u200d🚀", "नमस्ते", "Ålesund — Pier 3"]
+
+
+@pytest.mark.parametrize("text", KEPT)
+def test_joiners_scripts_need_are_taken(text: str) -> None:
+    assert CreateVehicle.model_validate({"vehicle_id": "v-1", "name": text}).name == text
 
 
 @pytest.mark.parametrize(("model", "body", "field"), SHOWN)
@@ -63,3 +85,12 @@ def test_each_shown_field_refuses_control_and_reordering_characters(
     (error,) = caught.value.errors()
     assert error["loc"] == (field,)
     assert "is shown on screens" in error["msg"]
+
+
+def test_a_terminal_is_given_the_unseen_characters_escaped() -> None:
+    from remote_client.output import shown
+
+    assert shown("Good\u2028Name\u200f\u200b\U000e0001\x1b") == (
+        "Good\\u2028Name\\u200f\\u200b\\U000e0001\\x1b"
+    )
+    assert shown("🧑\u200d🚀 نمس") == "🧑\u200d🚀 نمس"
