@@ -235,6 +235,7 @@ class InstanceService(InstanceCopies):
 
     async def finish(self, principal: Principal, state: InstanceState) -> None:
         state.finished_at = self.clock()
+        self.touch(state, state.finished_at)  # the call is contact too (last_seen moves)
         state.presence = "finished"
         await self.repo.save(state.instance_id, {**state.to_doc(), "presence": "finished"})
         await self.repo.release(state.vehicle_id, state.instance_id)

@@ -8,6 +8,7 @@ from datetime import UTC, datetime
 import httpx
 import pytest
 
+from fleet_protocol import parse_ts
 from server.settings import Settings
 from tests.factories import ADMIN, FakeClock, make_user, make_vehicle, sample, start_instance
 from tests.live import call, connect, recv_until, serve
@@ -82,6 +83,18 @@ async def test_finish_is_for_good(client: httpx.AsyncClient) -> None:
     assert view.json()["instance"]["presence"] == "finished"
     fresh = await start_instance(client, vid, vh)
     assert fresh["resumed"] is False and fresh["instance_id"] != iid
+
+
+async def test_finish_is_contact_too(clocked_client: httpx.AsyncClient, clock: FakeClock) -> None:
+    """Every /upper/* call moves last_seen, finish_instance too (it did not)."""
+    client = clocked_client
+    vid, vh = await make_vehicle(client)
+    iid = (await start_instance(client, vid, vh))["instance_id"]
+    clock.advance(3)
+    r = await client.post("/upper/finish_instance", headers=vh, json={"instance_id": iid})
+    assert r.status_code == 200, r.text
+    view = await client.post("/client/connect_instance", headers=ADMIN, json={"instance_id": iid})
+    assert parse_ts(view.json()["instance"]["last_seen"]) == clock()
 
 
 async def test_unknown_instance_is_404(client: httpx.AsyncClient) -> None:
