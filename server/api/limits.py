@@ -76,6 +76,20 @@ def _refusal(field: str, message: str) -> bytes:
     return json.dumps({"error": error}).encode()
 
 
+def _encoded(encoding: str) -> bytes:
+    """The 415 of a body sent compressed (the server reads every body as it comes)."""
+    message = (
+        f"the body is sent with Content-Encoding: {encoding[:40]}; the server reads bodies "
+        "as they are: send it uncompressed, without Content-Encoding"
+    )
+    error = {
+        "code": "unsupported_media_type",
+        "message": message,
+        "details": [{"field": "Content-Encoding", "message": message}],
+    }
+    return json.dumps({"error": error}).encode()
+
+
 def _json_body(scope: Scope) -> bool:
     for name, value in scope.get("headers", []):
         if name == b"content-type":
@@ -104,12 +118,18 @@ class BodyLimit:
             await _answer(send, 422, _refusal(twice, said))
             return
         length = None
+        encoding = b""
         for name, value in scope.get("headers", []):
             if name == b"content-length":
                 try:
                     length = int(value)
                 except ValueError:
                     length = None
+            elif name == b"content-encoding":
+                encoding = value.strip().lower()
+        if encoding not in (b"", b"identity"):
+            await _answer(send, 415, _encoded(encoding.decode("latin-1")))
+            return
         if length is not None:
             if length > self.max_bytes:
                 await self._reject(send)

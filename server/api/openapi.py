@@ -21,6 +21,7 @@ ERROR_STATUSES = {
     "404": "Not found, or not the caller's to see",
     "409": "Conflicts with the state (control not held, exists already, finished)",
     "413": "Body over FLEET_MAX_BODY_BYTES",
+    "415": "A body sent with a Content-Encoding (the server reads bodies uncompressed)",
     "422": "Invalid input; details names each field",
     "429": "Rate limited; see Retry-After",
     "503": "The store or the server is not ready; see Retry-After",

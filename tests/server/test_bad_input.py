@@ -97,20 +97,23 @@ async def test_every_unreadable_body_is_422_naming_body_and_saying_why(
             assert why in error["message"], (path, why, error)
 
 
-async def test_a_compressed_body_is_not_said_to_be_utf_16(client: httpx.AsyncClient) -> None:
+async def test_a_compressed_body_is_415_naming_its_encoding(client: httpx.AsyncClient) -> None:
     """A gzip body (a client sending ``Content-Encoding: gzip``, which the server does not
-    take) starts ``1f 8b 08 00``: the zero byte in its first four was read as UTF-16 or
-    UTF-32, and the 422 told the client to send UTF-8 instead of that encoding."""
+    take) was read as UTF-16 (its first bytes ``1f 8b 08 00``), then said not to be UTF-8:
+    the encoding is what is refused, and said."""
     vid, vh = await make_vehicle(client)
     iid = (await start_instance(client, vid, vh))["instance_id"]
     body = gzip.compress(json.dumps({"instance_id": iid}).encode(), mtime=0)
     headers = {**vh, "content-type": "application/json", "content-encoding": "gzip"}
     r = await client.post("/upper/heartbeat", headers=headers, content=body)
-    assert r.status_code == 422, r.text
+    assert r.status_code == 415, r.text
     error = r.json()["error"]
-    assert [d["field"] for d in error["details"]] == ["body"]
-    assert "not valid UTF-8" in error["message"]
-    assert "UTF-16" not in error["message"], error
+    assert error["code"] == "unsupported_media_type"
+    assert [d["field"] for d in error["details"]] == ["Content-Encoding"]
+    assert "Content-Encoding: gzip" in error["message"] and "uncompressed" in error["message"]
+    plain = {**vh, "content-encoding": "identity"}  # no encoding at all: taken
+    r = await client.post("/upper/heartbeat", headers=plain, json={"instance_id": iid})
+    assert r.status_code == 200, r.text
 
 
 async def test_a_query_parameter_given_twice_is_422_naming_it(client: httpx.AsyncClient) -> None:
