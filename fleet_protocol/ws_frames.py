@@ -126,6 +126,11 @@ def parse_client_op(frame: str | bytes) -> Any:
 
 
 def _parse(adapter: TypeAdapter[Any], frame: str | bytes) -> Any:
+    # A UTF-8 byte order mark before the JSON is read past, as an HTTP body's is.
+    if isinstance(frame, str) and frame.startswith("\ufeff"):
+        frame = frame[1:]
+    elif isinstance(frame, bytes) and frame.startswith(b"\xef\xbb\xbf"):
+        frame = frame[3:]
     try:
         # The core validator itself: TypeAdapter.validate_json only adds Python-side checks.
         return adapter.validator.validate_json(frame)
@@ -134,8 +139,8 @@ def _parse(adapter: TypeAdapter[Any], frame: str | bytes) -> Any:
     if error.errors(include_url=False)[0]["type"] != "json_invalid":
         raise FrameError(error_body(error), _salvage_id(frame))
     value = read_leniently(frame)
-    if value is NOT_READ:
-        raise FrameError(error_body(error), None)
+    if value is NOT_READ:  # not JSON at all, or nested past what a reader goes to
+        raise FrameError(error_body(error), _top_level_id(frame))
     if long := long_integers(value):  # past what Python's json reads: named all the same
         summary = "; ".join(f"{d.field}: {d.message}" for d in long[:3])
         body = ErrorBody(code="invalid", message=f"invalid op ({summary})", details=long)
@@ -209,6 +214,44 @@ def _salvage_id(frame: str | bytes) -> str | None:
     """The frame's ``id``, when it has a usable one, so a failure can be acked."""
     value = read_leniently(frame)
     return None if value is NOT_READ else _id_of(value)
+
+
+def _top_level_id(frame: str | bytes) -> str | None:
+    """The ``id`` of a frame no reader takes whole (nested too deep), found by walking its
+    text: a string key ``"id"`` of the outermost object, its value read alone. None when
+    there is none, or the text is no JSON object."""
+    text = frame.decode("utf-8", "replace") if isinstance(frame, bytes) else frame
+    decoder = json.JSONDecoder()
+    depth, i, n = 0, 0, len(text)
+    while i < n:
+        c = text[i]
+        if c == '"':
+            try:
+                key, end = decoder.raw_decode(text, i)
+            except ValueError:
+                return None
+            if depth == 1 and key == "id":
+                colon = end
+                while colon < n and text[colon] in " \t\r\n":
+                    colon += 1
+                if colon < n and text[colon] == ":":
+                    start = colon + 1
+                    while start < n and text[start] in " \t\r\n":
+                        start += 1
+                    if start < n and text[start] == '"':
+                        try:
+                            value, _ = decoder.raw_decode(text, start)
+                        except ValueError:
+                            return None
+                        return _id_of({"id": value})
+            i = end
+            continue
+        if c in "{[":
+            depth += 1
+        elif c in "}]":
+            depth -= 1
+        i += 1
+    return None
 
 
 def _id_of(value: Any) -> str | None:

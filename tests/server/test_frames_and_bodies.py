@@ -70,7 +70,7 @@ async def test_a_frame_nested_too_deep_is_refused_as_such_not_as_bad_json(base: 
     """Valid JSON nested past what the frame reader goes is refused saying so (in an
     unknown field too), not as "not valid JSON"; bad JSON still says that."""
     async with await connect(base, "/ws/client", ADMIN_TOKEN) as ws:
-        for depth, op_id in ((5000, None), (300, "u")):
+        for depth, op_id in ((5000, None), (300, "u"), (1200, "n1200"), (5000, "deep")):
             deep = "[" * depth + "]" * depth
             head = '{"op": "subscribe", ' + (f'"id": "{op_id}", ' if op_id else "")
             await ws.send(head + '"topics": ["fleet"], "x": ' + deep + "}")
@@ -85,6 +85,23 @@ async def test_a_frame_nested_too_deep_is_refused_as_such_not_as_bad_json(base: 
             {"field": "frame", "message": "the frame is not valid JSON"}
         ]
         assert (await call(ws, "subscribe", "s", topics=["fleet"]))["ok"] is True  # goes on
+
+
+async def test_an_id_past_a_part_nested_too_deep_is_still_acked(base: str) -> None:
+    """The id read from the frame's text when no reader takes it whole: at its end too."""
+    deep = "[" * 1500 + "]" * 1500
+    async with await connect(base, "/ws/client", ADMIN_TOKEN) as ws:
+        await ws.send('{"op": "publish", "topic": "user/admin/x", "data": ' + deep + ', "id": "z"}')
+        reply = await recv_until(ws, lambda f: f["op"] in ("error", "ack"))
+        assert reply["op"] == "ack" and reply["id"] == "z" and reply["ok"] is False, reply
+        assert "nested too deep" in reply["error"]["message"], reply
+
+
+async def test_a_frame_after_a_byte_order_mark_is_read_as_a_body_is(base: str) -> None:
+    async with await connect(base, "/ws/client", ADMIN_TOKEN) as ws:
+        await ws.send('\ufeff{"op": "subscribe", "id": "bom", "topics": ["fleet"]}')
+        reply = await recv_until(ws, lambda f: f.get("id") == "bom" or f["op"] == "error")
+        assert reply["op"] == "ack" and reply["ok"] is True, reply
 
 
 async def test_every_frame_counts_toward_the_rate_malformed_ones_too(base: str) -> None:
