@@ -44,4 +44,12 @@ def _battery_text(pct: float | None, threshold: float | None) -> str:
     # to a tenth, down: a reading below the threshold never reads as at it
     reading = f": {math.floor(float(pct) * 10) / 10:g} %" if pct is not None else ""
     below = f" (alarm below {threshold:g} %)" if threshold is not None else ""
+    if pct is not None and threshold is not None and pct >= threshold:
+        # back over the threshold, not yet past the margin that ends the alarm
+        below = f" (alarm below {threshold:g} %, kept until {threshold + HYSTERESIS_PCT:g} %)"
     return f"battery low{reading}{below}"
+
+
+#: How far above its threshold a battery must come back for its alarm to end (the watch's
+#: ``server.domain.watch.BATTERY_HYSTERESIS_PCT``, said in the alarm's words).
+HYSTERESIS_PCT = 2.0

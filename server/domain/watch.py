@@ -31,10 +31,11 @@ from datetime import datetime
 from typing import Any, NamedTuple
 
 from fleet_protocol import EventKind, FailsafePolicy
+from server.domain.alarms import HYSTERESIS_PCT
 from server.domain.zones import LatLon, ZoneSet, breaches
 
 #: Points above the threshold the battery must come back to before it is no longer low.
-BATTERY_HYSTERESIS_PCT = 2.0
+BATTERY_HYSTERESIS_PCT = HYSTERESIS_PCT
 
 
 @dataclass(frozen=True)

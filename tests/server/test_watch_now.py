@@ -106,6 +106,12 @@ async def test_a_battery_reading_dated_far_ahead_raises_no_alarm(w: World) -> No
     await report(w, me, 3, w.clock() + timedelta(seconds=1), battery_pct=40.0)
     [low] = (await view(w, me))["alarms"]
     assert low["message"] == "battery low: 40 % (alarm below 50 %)"
+    # back over the threshold, not past its margin: still low, and said why
+    await report(w, me, 4, w.clock() + timedelta(seconds=2), battery_pct=51.0)
+    [low] = (await view(w, me))["alarms"]
+    assert low["message"] == "battery low: 51 % (alarm below 50 %, kept until 52 %)"
+    await report(w, me, 5, w.clock() + timedelta(seconds=3), battery_pct=52.0)
+    assert (await view(w, me))["alarms"] == []
 
 
 async def test_a_late_sample_newer_than_the_position_but_stale_is_not_judged(w: World) -> None:
