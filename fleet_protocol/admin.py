@@ -5,9 +5,9 @@ from __future__ import annotations
 import re
 from typing import Annotated, Literal
 
-from pydantic import AfterValidator, ConfigDict, Field, StrictBool
+from pydantic import AfterValidator, ConfigDict, Field, StrictBool, field_validator
 
-from fleet_protocol.common import Identifier, Timestamp, WireModel
+from fleet_protocol.common import Identifier, Timestamp, WireModel, refuse_null
 from fleet_protocol.text import Label, Text
 
 
@@ -84,6 +84,8 @@ class PatchVehicle(WireModel):
 
     name: Label | None = Field(default=None, min_length=1, max_length=128)
     vehicle_type: Label | None = Field(default=None, min_length=1, max_length=32)
+
+    _no_null = field_validator("name", "vehicle_type", mode="before")(refuse_null)
 
 
 class VehicleCreated(WireModel):
@@ -166,6 +168,10 @@ class PatchUser(WireModel):
     vehicles: VehicleIds | None = Field(default=None, max_length=10000)
     disabled: StrictBool | None = None
     password: Text | None = Field(default=None, min_length=MIN_PASSWORD_CHARS, max_length=256)
+
+    _no_null = field_validator("role", "vehicles", "disabled", "password", mode="before")(
+        refuse_null
+    )
 
 
 class LoginRequest(WireModel):

@@ -13,9 +13,9 @@ from __future__ import annotations
 
 from typing import Any, Literal
 
-from pydantic import ConfigDict, Field, StrictFloat
+from pydantic import ConfigDict, Field, StrictFloat, field_validator
 
-from fleet_protocol.common import Identifier, Timestamp, WireModel
+from fleet_protocol.common import Identifier, Timestamp, WireModel, refuse_null
 from fleet_protocol.obstacles import PolygonGeometry
 from fleet_protocol.text import Label, Text
 
@@ -55,8 +55,8 @@ class CreateZone(_ZoneBody):
 
 
 class PatchZone(_ZoneBody):
-    """The fields to change; one left out (or null) is kept. A patch that changes
-    nothing leaves the zone, its version and ``updated_at`` as they are."""
+    """The fields to change; one left out is kept (``null`` is a 422 naming it). A patch
+    that changes nothing leaves the zone, its version and ``updated_at`` as they are."""
 
     #: Only the zone's own kind is taken (a client may send back the zone it read): a
     #: zone's kind cannot change, another is a 422 naming ``kind``.
@@ -69,6 +69,10 @@ class PatchZone(_ZoneBody):
     polygon: PolygonGeometry | None = None
     vehicles: list[Identifier] | None = Field(default=None, max_length=1000)
     clearance_m: StrictFloat | None = Field(default=None, ge=0, le=10_000, allow_inf_nan=False)
+
+    _no_null = field_validator("kind", "name", "polygon", "vehicles", "clearance_m", mode="before")(
+        refuse_null
+    )
 
 
 class ZoneView(WireModel):

@@ -312,6 +312,25 @@ async def test_a_misspelt_field_of_a_user_patch_is_422_naming_it(
     assert (await client.get(f"/api/users/{name}", headers=ADMIN)).json()["role"] == "operator"
 
 
+async def test_a_null_in_a_patch_is_422_naming_it_not_a_change_not_made(
+    client: httpx.AsyncClient,
+) -> None:
+    """Left out, a field keeps its value; null kept it too, and a client meaning "none"
+    (no vehicles, not disabled) took a 200 for a change made."""
+    vid, _ = await make_vehicle(client)
+    name, _ = await make_user(client, "operator", [vid])
+    for url, body in (
+        (f"/api/users/{name}", {"disabled": None}),
+        (f"/api/users/{name}", {"vehicles": None}),
+        (f"/api/vehicles/{vid}", {"vehicle_type": None}),
+    ):
+        r = await client.patch(url, headers=ADMIN, json=body)
+        assert r.status_code == 422, (body, r.text)
+        [detail] = r.json()["error"]["details"]
+        assert detail["field"] == next(iter(body)) and "leave the field out" in detail["message"]
+    assert (await client.get(f"/api/users/{name}", headers=ADMIN)).json()["vehicles"] == [vid]
+
+
 async def test_a_vehicle_id_shaped_like_an_instance_id_is_refused(
     client: httpx.AsyncClient,
 ) -> None:
