@@ -160,7 +160,9 @@ class DenyControl(InstanceRef):
 class OperatorHeartbeat(WireModel):
     """The holder's client is alive: for each lease it holds on these instances."""
 
-    instance_ids: list[Text] = Field(min_length=1, max_length=1000)
+    instance_ids: list[Annotated[Text, Field(min_length=1, max_length=128)]] = Field(
+        min_length=1, max_length=1000
+    )
 
 
 class OperatorHeartbeatResult(WireModel):

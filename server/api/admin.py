@@ -30,7 +30,7 @@ from fleet_protocol import (
     VehicleCreated,
     VehicleView,
 )
-from server.api.deps import Admin, ServicesDep, Viewer
+from server.api.deps import Admin, PathId, ServicesDep, Viewer
 from server.errors import Invalid
 
 router = APIRouter(tags=["admin"])
@@ -48,7 +48,7 @@ async def create_vehicle(body: CreateVehicle, _: Admin, s: ServicesDep) -> Vehic
 
 @router.patch("/api/vehicles/{vehicle_id}")
 async def patch_vehicle(
-    vehicle_id: str, body: PatchVehicle, admin: Admin, s: ServicesDep
+    vehicle_id: PathId, body: PatchVehicle, admin: Admin, s: ServicesDep
 ) -> VehicleView:
     """Change a vehicle's name or type (**extension**); the fleet's view of it after."""
     await s.instances.change_vehicle(admin, vehicle_id, body)
@@ -56,14 +56,14 @@ async def patch_vehicle(
 
 
 @router.post("/api/vehicles/{vehicle_id}/rotate_token")
-async def rotate_vehicle_token(vehicle_id: str, _: Admin, s: ServicesDep) -> VehicleCreated:
+async def rotate_vehicle_token(vehicle_id: PathId, _: Admin, s: ServicesDep) -> VehicleCreated:
     return VehicleCreated(
         vehicle_id=vehicle_id, token=await s.auth.rotate_vehicle_token(vehicle_id)
     )
 
 
 @router.post("/api/vehicles/{vehicle_id}/revoke_tokens")
-async def revoke_vehicle_tokens(vehicle_id: str, _: Admin, s: ServicesDep) -> dict[str, bool]:
+async def revoke_vehicle_tokens(vehicle_id: PathId, _: Admin, s: ServicesDep) -> dict[str, bool]:
     await s.auth.revoke_vehicle_tokens(vehicle_id)
     return {"ok": True}
 
@@ -83,14 +83,14 @@ async def list_gateways(_: Admin, s: ServicesDep) -> GatewayList:
 
 
 @router.post("/api/gateways/{gateway_id}/rotate_token")
-async def rotate_gateway_token(gateway_id: str, _: Admin, s: ServicesDep) -> GatewayCreated:
+async def rotate_gateway_token(gateway_id: PathId, _: Admin, s: ServicesDep) -> GatewayCreated:
     token = await s.auth.rotate_gateway_token(gateway_id)
     gateway = await s.auth.get_gateway(gateway_id)
     return GatewayCreated(gateway_id=gateway_id, token=token, vehicles=gateway["vehicles"])
 
 
 @router.post("/api/gateways/{gateway_id}/revoke_tokens")
-async def revoke_gateway_tokens(gateway_id: str, _: Admin, s: ServicesDep) -> dict[str, bool]:
+async def revoke_gateway_tokens(gateway_id: PathId, _: Admin, s: ServicesDep) -> dict[str, bool]:
     await s.auth.revoke_gateway_tokens(gateway_id)
     return {"ok": True}
 
@@ -107,17 +107,17 @@ async def list_users(_: Admin, s: ServicesDep) -> UserList:
 
 
 @router.get("/api/users/{username}")
-async def get_user(username: str, _: Admin, s: ServicesDep) -> UserView:
+async def get_user(username: PathId, _: Admin, s: ServicesDep) -> UserView:
     return _user_view(await s.auth.get_user(username))
 
 
 @router.patch("/api/users/{username}")
-async def patch_user(username: str, body: PatchUser, admin: Admin, s: ServicesDep) -> UserView:
+async def patch_user(username: PathId, body: PatchUser, admin: Admin, s: ServicesDep) -> UserView:
     return _user_view(await s.auth.patch_user(username, body, admin))
 
 
 @router.post("/api/users/{username}/rotate_token")
-async def rotate_user_token(username: str, _: Admin, s: ServicesDep) -> UserCreated:
+async def rotate_user_token(username: PathId, _: Admin, s: ServicesDep) -> UserCreated:
     user = await s.auth.get_user(username)
     token = await s.auth.rotate_user_token(username)
     return UserCreated(
@@ -126,7 +126,7 @@ async def rotate_user_token(username: str, _: Admin, s: ServicesDep) -> UserCrea
 
 
 @router.post("/api/users/{username}/revoke_tokens")
-async def revoke_user_tokens(username: str, _: Admin, s: ServicesDep) -> dict[str, bool]:
+async def revoke_user_tokens(username: PathId, _: Admin, s: ServicesDep) -> dict[str, bool]:
     await s.auth.revoke_user_tokens(username)
     return {"ok": True}
 

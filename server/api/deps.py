@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from typing import Annotated, Any
 
-from fastapi import Depends, Request
+from fastapi import Depends, Path, Request
 from starlette.types import Scope
 
 from server.api.live_hub import LiveHub
@@ -90,3 +90,8 @@ Operator = Annotated[Principal, Depends(_require_user("operator"))]
 Manager = Annotated[Principal, Depends(_require_user("manager"))]
 Admin = Annotated[Principal, Depends(_require_user("admin"))]
 VehicleCaller = Annotated[Principal, Depends(vehicle_caller)]
+
+
+#: An id in a path (a vehicle's, a user's, a zone's...): at most 64 characters, as every
+#: id is; a longer one is a 422 naming it, not a 404 that writes it back whole.
+PathId = Annotated[str, Path(min_length=1, max_length=64)]

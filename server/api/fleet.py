@@ -16,7 +16,7 @@ from fleet_protocol import (
     VehicleList,
     VehicleView,
 )
-from server.api.deps import ServicesDep, Viewer
+from server.api.deps import PathId, ServicesDep, Viewer
 
 router = APIRouter(tags=["fleet"])
 InstanceId = Annotated[str, Query(min_length=1, max_length=64)]
@@ -28,7 +28,7 @@ async def list_vehicles(user: Viewer, s: ServicesDep) -> VehicleList:
 
 
 @router.get("/api/vehicles/{vehicle_id}")
-async def get_vehicle(vehicle_id: str, user: Viewer, s: ServicesDep) -> VehicleView:
+async def get_vehicle(vehicle_id: PathId, user: Viewer, s: ServicesDep) -> VehicleView:
     return await s.views.vehicle(user, vehicle_id)
 
 

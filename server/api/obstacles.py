@@ -5,7 +5,7 @@ from __future__ import annotations
 from fastapi import APIRouter
 
 from fleet_protocol import CreateObstacle, ObstacleList, ObstacleView
-from server.api.deps import Admin, ServicesDep, Viewer
+from server.api.deps import Admin, PathId, ServicesDep, Viewer
 
 router = APIRouter(tags=["admin"])
 
@@ -21,5 +21,5 @@ async def list_obstacles(_: Viewer, s: ServicesDep) -> ObstacleList:
 
 
 @router.delete("/api/obstacles/{obstacle_id}")
-async def delete_obstacle(obstacle_id: str, _: Admin, s: ServicesDep) -> ObstacleView:
+async def delete_obstacle(obstacle_id: PathId, _: Admin, s: ServicesDep) -> ObstacleView:
     return ObstacleView.model_validate(await s.obstacles.delete(obstacle_id))

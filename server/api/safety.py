@@ -8,7 +8,7 @@ from typing import Annotated
 from fastapi import APIRouter, Query
 
 from fleet_protocol import AuditPage, FailsafeView, SetFailsafe
-from server.api.deps import Manager, ServicesDep, Viewer
+from server.api.deps import Manager, PathId, ServicesDep, Viewer
 from server.api.fleet_telemetry import VisibleVehicle
 from server.services.audit import MAX_PAGE
 
@@ -16,13 +16,13 @@ router = APIRouter(tags=["fleet"])
 
 
 @router.get("/api/vehicles/{vehicle_id}/failsafe")
-async def get_failsafe(vehicle_id: str, user: Viewer, s: ServicesDep) -> FailsafeView:
+async def get_failsafe(vehicle_id: PathId, user: Viewer, s: ServicesDep) -> FailsafeView:
     return FailsafeView.model_validate(await s.safety.view(user, vehicle_id))
 
 
 @router.put("/api/vehicles/{vehicle_id}/failsafe")
 async def set_failsafe(
-    vehicle_id: str, body: SetFailsafe, user: Manager, s: ServicesDep
+    vehicle_id: PathId, body: SetFailsafe, user: Manager, s: ServicesDep
 ) -> FailsafeView:
     """The whole policy: ``none``, ``keep_station``, ``stop`` or ``return_home`` after
     ``after_s`` without the server (``home``: the instance's first position unless set);

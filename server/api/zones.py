@@ -8,7 +8,7 @@ from typing import Annotated
 from fastapi import APIRouter, Query
 
 from fleet_protocol import CreateZone, PatchZone, TimeBound, ZoneList, ZoneView
-from server.api.deps import Admin, ServicesDep, Viewer
+from server.api.deps import Admin, PathId, ServicesDep, Viewer
 from server.domain.access import Principal
 from server.errors import NotFound
 from server.storage.backends import Doc
@@ -41,7 +41,7 @@ async def list_zones(
 
 
 @router.get("/api/zones/{zone_id}")
-async def get_zone(zone_id: str, user: Viewer, s: ServicesDep) -> ZoneView:
+async def get_zone(zone_id: PathId, user: Viewer, s: ServicesDep) -> ZoneView:
     view = _seen(await s.zones.get(zone_id), user)
     if view is None:
         raise NotFound(f"no zone {zone_id}")  # as an unknown one (docs/security.md)
@@ -54,10 +54,10 @@ async def create_zone(body: CreateZone, admin: Admin, s: ServicesDep) -> ZoneVie
 
 
 @router.patch("/api/zones/{zone_id}")
-async def patch_zone(zone_id: str, body: PatchZone, admin: Admin, s: ServicesDep) -> ZoneView:
+async def patch_zone(zone_id: PathId, body: PatchZone, admin: Admin, s: ServicesDep) -> ZoneView:
     return ZoneView.model_validate(await s.zones.patch(zone_id, body, admin))
 
 
 @router.delete("/api/zones/{zone_id}")
-async def delete_zone(zone_id: str, admin: Admin, s: ServicesDep) -> ZoneView:
+async def delete_zone(zone_id: PathId, admin: Admin, s: ServicesDep) -> ZoneView:
     return ZoneView.model_validate(await s.zones.delete(zone_id, admin))

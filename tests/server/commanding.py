@@ -169,7 +169,9 @@ def _headers(who: Person | dict[str, str]) -> dict[str, str]:
 async def world(settings: Settings, clock: FakeClock | None = None) -> AsyncIterator[World]:
     clock = clock or FakeClock()
     app = create_app(settings, clock=clock)
-    async with LifespanManager(app) as manager:
+    # A stop may wait for a background pass under way on a loaded machine (FerretDB
+    # beside the browsers of CI): past asgi-lifespan's 5 s, twice; a hang still fails.
+    async with LifespanManager(app, shutdown_timeout=30) as manager:
         transport = httpx.ASGITransport(app=manager.app)
         async with httpx.AsyncClient(transport=transport, base_url="http://test") as http:
             yield World(http, clock, app)

@@ -321,7 +321,7 @@ async def test_a_string_too_long_is_told_in_characters(client: httpx.AsyncClient
 
 async def test_a_message_never_sends_a_long_or_raw_id_back(client: httpx.AsyncClient) -> None:
     r = await client.get("/api/vehicles/" + "x" * 5000, headers=ADMIN)
-    assert r.status_code == 404 and len(r.json()["error"]["message"]) <= 300
+    assert r.status_code == 422 and len(r.json()["error"]["message"]) <= 300
     r = await client.get("/api/vehicles/a%00b%1b%5B2J", headers=ADMIN)
     assert r.status_code == 404
     message = r.json()["error"]["message"]
@@ -402,3 +402,22 @@ async def test_a_reading_past_any_real_one_is_422_naming_it(
         json={"instance_id": iid, "samples": [{**sample, field: good}]},
     )
     assert r.status_code == 200 and r.json()["accepted"] == 1, r.text
+
+
+async def test_an_id_too_long_to_be_one_is_422_naming_it(client: httpx.AsyncClient) -> None:
+    """Every id is at most 64 characters: a longer one in a path was a 404 that wrote it
+    back whole (5,000 characters); in an operator's heartbeat it was taken (200)."""
+    long = "x" * 5000
+    for path, field in (
+        (f"/api/vehicles/{long}", "vehicle_id"),
+        (f"/api/vehicles/{long}/failsafe", "vehicle_id"),
+        (f"/api/zones/{long}", "zone_id"),
+        (f"/api/users/{long}", "username"),
+    ):
+        r = await client.get(path, headers=ADMIN)
+        assert r.status_code == 422, (path, r.status_code)
+        assert [d["field"] for d in r.json()["error"]["details"]] == [field]
+        assert long not in r.text
+    r = await client.post("/client/heartbeat", headers=ADMIN, json={"instance_ids": [long]})
+    assert r.status_code == 422 and r.json()["error"]["details"][0]["field"] == "instance_ids.0"
+    assert (await client.get("/api/zones/z-0123", headers=ADMIN)).status_code == 404
