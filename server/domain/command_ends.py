@@ -9,7 +9,14 @@ from collections.abc import Collection, Iterable
 from datetime import datetime
 
 from fleet_protocol import MOTION_TYPES
-from server.domain.commands import ABORT_STATUSES, RANK, UNACKNOWLEDGED, Command, rank
+from server.domain.commands import (
+    ABORT_STATUSES,
+    RANK,
+    SUPERSEDED_BY,
+    UNACKNOWLEDGED,
+    Command,
+    rank,
+)
 from server.errors import ControlNotHeld, Forbidden
 
 
@@ -33,6 +40,21 @@ def supersede(cmds: list[Command], stop: Command, now: datetime) -> list[Command
             and (stop.by_manager or not cmd.by_manager)
         ):
             cmd.move("cancelled", now, "superseded_by_stop")
+            gone.append(cmd)
+    return gone
+
+
+def supersede_holds(cmds: list[Command], hold: Command, now: datetime) -> list[Command]:
+    """A hold the server sends (its ``keep_station``: where the vehicle is, when it starts)
+    replaces the ones of its own queued before it and never handed out: leases ended one
+    after the other queue one hold, not one each. Their detail names it
+    (``superseded_by keep_station <command_id>``)."""
+    gone = []
+    for cmd in cmds:
+        if cmd is hold or (cmd.issued_at, cmd.seq) > (hold.issued_at, hold.seq):
+            continue
+        if cmd.type == hold.type and cmd.issued_by == hold.issued_by and cmd.status == "queued":
+            cmd.move("cancelled", now, f"{SUPERSEDED_BY}{hold.type} {hold.command_id}")
             gone.append(cmd)
     return gone
 

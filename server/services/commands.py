@@ -17,7 +17,7 @@ import secrets
 from datetime import datetime
 from typing import Any
 
-from fleet_protocol import SubmitControl
+from fleet_protocol import KeepStationArgs, SubmitControl
 from fleet_protocol.admin import SERVER_ACTOR
 from server.domain import arbitration
 from server.domain import command_ends as ends
@@ -48,6 +48,11 @@ __all__ = ["CommandService"]
 SYSTEM_TTL_S = 300
 #: Who issues them.
 SYSTEM = SERVER_ACTOR
+
+
+#: The server's hold: where the vehicle is when it starts, in the default radius (the
+#: arguments an operator's ``keep_station`` with none given is stored with).
+HOLD_ARGS = KeepStationArgs().model_dump(exclude_none=True)
 
 
 class CommandService(CommandDelivery):
@@ -268,8 +273,9 @@ class CommandService(CommandDelivery):
         state = await self.instances.find(instance_id)
         if state.finished or state.control_mode == "local":
             return None
-        kind = "keep_station" if "keep_station" in state.capabilities else "stop"
-        return await self.system_command(state, kind, {}, why)
+        if "keep_station" in state.capabilities:  # with its radius, as an operator's has it
+            return await self.system_command(state, "keep_station", HOLD_ARGS, why)
+        return await self.system_command(state, "stop", {}, why)
 
     async def system_command(
         self, state: InstanceState, kind: str, args: dict[str, Any], why: str
@@ -296,11 +302,13 @@ class CommandService(CommandDelivery):
         await self._sync(state.instance_id)
         lane = self._lane(state.instance_id)
         lane.add(cmd)
-        superseded = (
-            ends.supersede([c for c in lane.active.values() if c is not cmd], cmd, now)
-            if cmd.is_stop
-            else []
-        )
+        others = [c for c in lane.active.values() if c is not cmd]
+        if cmd.is_stop:
+            superseded = ends.supersede(others, cmd, now)
+        elif kind == "keep_station" and "lat" not in args:  # a hold where it is
+            superseded = ends.supersede_holds(others, cmd, now)
+        else:
+            superseded = []
         await self.repo.insert_active([cmd.to_doc()])
         self.messages.emit_now(StateWritten(cmd.instance_id, "commands"))
         self._ready(lane)

@@ -183,6 +183,34 @@ async def test_a_grant_to_someone_else_ends_the_lease_and_cancels_its_queue(w: W
     assert (await w.submit(second, [v], GO_TO)).status_code == 202
 
 
+async def test_leases_changed_in_a_row_queue_one_hold(w: World) -> None:
+    """Granted to one, another, a third, then revoked: each end of a lease queued a
+    hold of its own (three keep_station, args {} where an operator's have a radius). The
+    newest replaces the ones never handed out: the vehicle gets one, as an operator's."""
+    v = await w.vehicle()
+    boss = await w.person("manager", v)
+    for who in ("operator", "operator", "manager"):
+        person = await w.person(who, v)
+        assert (await w.grant(v, person.username)).status_code == 200
+        w.clock.advance(1)
+    r = await post(w, "revoke_control", boss.headers, instance_id=v.instance_id)
+    assert r.status_code == 200, r.text
+    [hold] = await w.poll(v)
+    assert hold["type"] == "keep_station" and hold["issued_by"] == "system"
+    assert hold["args"] == {"radius_m": 2.0}
+    listed = await w.http.get(
+        "/client/get_fbmessage", headers=boss.headers, params={"instance_id": v.instance_id}
+    )
+    holds = [c for c in listed.json()["commands"] if c["type"] == "keep_station"]
+    replaced = [c for c in holds if c["command_id"] != hold["command_id"]]
+    assert len(replaced) == 2 and all(c["status"] == "cancelled" for c in replaced), holds
+    newer = {c["command_id"] for c in holds}  # each by the next: the last by the one held
+    assert all(
+        c["history"][-1]["detail"].removeprefix("superseded_by keep_station ") in newer
+        for c in replaced
+    ), replaced
+
+
 async def test_revoke_ends_the_lease_cancels_motion_and_keeps_stops(w: World) -> None:
     v = await w.vehicle()
     op = await w.operator_in_control(v)
