@@ -14,6 +14,7 @@ import typer
 from rich import box
 from rich.table import Table
 
+from fleet_protocol.links import server_root_problem
 from remote_client import cli_control, cli_data, cli_live
 from remote_client.cli_admin import gateways_app, vehicles_app
 from remote_client.cli_common import (
@@ -52,6 +53,27 @@ app = typer.Typer(
     "export and copy telemetry, administer users and vehicles. A vehicle's name works "
     "wherever its id does.",
 )
+
+
+@app.callback()
+def _everywhere(
+    server: str | None = typer.Option(
+        None, "--server", help="server URL, for the command that follows (as FLEET_SERVER)"
+    ),
+    token: str | None = typer.Option(
+        None, "--token", help="API token, for the command that follows (as FLEET_TOKEN)"
+    ),
+) -> None:
+    """``fleetctl --server URL --token T vehicles``: given before the command, they stand
+    for FLEET_SERVER and FLEET_TOKEN (a command's own --server, --token still win)."""
+    if server is not None:
+        if (problem := server_root_problem(server)) is not None:
+            fail(f"--server is {problem}")
+        os.environ["FLEET_SERVER"] = server
+    if token is not None:
+        os.environ["FLEET_TOKEN"] = token
+
+
 app.add_typer(vehicles_app, name="vehicles")
 app.add_typer(users_app, name="users")
 app.add_typer(gateways_app, name="gateways")

@@ -114,6 +114,19 @@ def test_a_server_address_that_is_no_servers_root_is_refused_before_anything_is_
     assert_refused(refused, said)
 
 
+def test_server_and_token_may_come_before_the_command() -> None:
+    """``fleetctl --server URL vehicles`` was "No such option: --server": given before the
+    command they stand for FLEET_SERVER and FLEET_TOKEN (env restored after each run)."""
+    env = {"FLEET_SERVER": None, "FLEET_TOKEN": None}
+    bad = runner.invoke(app, ["--server", "127.0.0.1:8741", "vehicles"], env=env)
+    assert_refused(bad, "--server is a URL with its scheme: give http://127.0.0.1:8741")
+    args = ["--server", "http://127.0.0.1:9", "--token", ADMIN_TOKEN, "vehicles"]
+    away = runner.invoke(app, args, env=env)
+    assert away.exit_code == 3 and "cannot reach http://127.0.0.1:9" in away.stderr, away.output
+    no_token = runner.invoke(app, ["--server", "http://127.0.0.1:9", "vehicles"], env=env)
+    assert no_token.exit_code == 2 and "FLEET_TOKEN" in no_token.output, no_token.output
+
+
 def test_a_server_given_as_an_option_is_named_so() -> None:
     env = {"FLEET_SERVER": "http://127.0.0.1:8741", "FLEET_TOKEN": ADMIN_TOKEN}
     given = runner.invoke(app, ["users", "--server", "127.0.0.1:8741"], env=env)
