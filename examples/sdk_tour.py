@@ -4,9 +4,10 @@
         python examples/sdk_tour.py "H2OmniX Alpha"
 
 It lists the fleet, reads one vehicle's parameters and latest position (by its name or
-id), its last hour of events and samples, asks for control, sends a ``go_to`` 50 m
-north if control is granted (else prints the refusal), then prints the vehicle's
-latest sample and the next one as they come live. ``docs/sdk.md`` walks through it.
+id), its last hour of events and samples, asks for control (unless the token holds it
+already), sends a ``go_to`` 50 m north if control is granted (else prints the refusal),
+then prints the vehicle's latest sample and the next one as they come live.
+``docs/sdk.md`` walks through it.
 """
 
 from __future__ import annotations
@@ -38,6 +39,10 @@ async def tour(server: str, token: str, boat: str) -> None:
 
         try:
             await fleet.request_control(instance_id)  # a manager grants it (or not)
+        except FleetApiError as asked:
+            if asked.code != "control_held":  # held already (a grant): nothing to ask
+                print("request refused:", asked.status, asked.code, asked.message)
+        try:
             here = state["position"]
             sent = await fleet.go_to(instance_id, here["lat"] + NORTH_50_M, here["lon"])
             print("go_to:", sent["commands"][0]["status"], sent["warnings"])
