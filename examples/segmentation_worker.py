@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import contextlib
 import json
 import logging
 from collections import deque
@@ -183,7 +184,8 @@ def main() -> None:
     parser.add_argument("--vehicle", required=True)
     args = parser.parse_args()
     logging.basicConfig(level=logging.INFO)
-    asyncio.run(run(args.server, args.token, args.user, args.vehicle))
+    with contextlib.suppress(KeyboardInterrupt):  # Ctrl-C stops it, quietly
+        asyncio.run(run(args.server, args.token, args.user, args.vehicle))
 
 
 if __name__ == "__main__":

@@ -13,6 +13,7 @@ compact JSON); printing them escapes what a terminal would obey
 from __future__ import annotations
 
 import json
+import math
 from typing import Any
 
 from remote_client.sdk import shown_status
@@ -85,6 +86,9 @@ def _telemetry(sample: dict[str, Any]) -> list[str]:
     ):
         value = sample.get(key)
         if isinstance(value, int | float):
+            if key == "battery_pct" and math.isfinite(value):
+                # whole percent, down, as the console shows it: 99.96 is not a full battery
+                value = math.floor(value)
             words.append(fmt.format(value))
     if sample.get("data"):
         words.append(f"data={_compact(sample['data'])}")

@@ -116,6 +116,8 @@ def test_events_read_as_one_line_each() -> None:
     assert event_lines(sample) == [
         "10:00:01Z usv-1 telemetry #7 43.94000,15.44000 1.5 m/s 90° 88% battery (replayed)"
     ]
+    nearly_full = {**sample, "data": {**sample["data"], "battery_pct": 99.96}}
+    assert "99% battery" in event_lines(nearly_full)[0]  # down, as the console: not full
     moved = {
         "op": "event",
         "topic": "vehicle/usv-1/commands",
