@@ -76,7 +76,9 @@ class _Answers(_Shown):
 
 
 console = _Answers()
-errors = _Shown(stderr=True)  # stdout stays the answer alone (what --json scripts read)
+# stdout stays the answer alone (what --json scripts read); a message on stderr is one line
+# however long (a terminal wraps it; a log or a pipe keeps it whole)
+errors = _Shown(stderr=True, soft_wrap=True)
 
 
 def answer_line(text: str) -> None:
