@@ -19,7 +19,15 @@ from fleet_protocol.common import Identifier, Timestamp, WireModel, refuse_null
 from fleet_protocol.obstacles import PolygonGeometry
 from fleet_protocol.text import Label, Text
 
-__all__ = ["CreateZone", "PatchZone", "ZoneKind", "ZoneList", "ZoneView"]
+__all__ = [
+    "CreateZone",
+    "PatchZone",
+    "ZoneChange",
+    "ZoneChanges",
+    "ZoneKind",
+    "ZoneList",
+    "ZoneView",
+]
 
 ZoneKind = Literal["no_go", "operating_area"]
 
@@ -92,3 +100,20 @@ class ZoneList(WireModel):
     zones: list[ZoneView]
     #: The version of the whole set (it rises with every change).
     version: int
+
+
+class ZoneChange(WireModel):
+    """One change of a zone the caller sees (**extension**): when, the set's version it
+    made, and whether it removed the zone."""
+
+    at: Timestamp
+    version: int
+    zone_id: Text
+    deleted: bool
+
+
+class ZoneChanges(WireModel):
+    """``GET /api/zones/changes``: the changes in a window, oldest first (a replay reads
+    the set again after each: ``GET /api/zones?at=``)."""
+
+    changes: list[ZoneChange]

@@ -7,7 +7,15 @@ from typing import Annotated
 
 from fastapi import APIRouter, Query
 
-from fleet_protocol import CreateZone, PatchZone, TimeBound, ZoneList, ZoneView
+from fleet_protocol import (
+    CreateZone,
+    PatchZone,
+    TimeBound,
+    ZoneChange,
+    ZoneChanges,
+    ZoneList,
+    ZoneView,
+)
 from server.api.deps import Admin, PathId, ServicesDep, Viewer
 from server.domain.access import Principal
 from server.errors import NotFound
@@ -38,6 +46,25 @@ async def list_zones(
     docs, version = await s.zones.all() if at is None else await s.zones.at(at)
     views = [v for d in docs if (v := _seen(d, user)) is not None]
     return ZoneList(zones=views, version=version)
+
+
+@router.get("/api/zones/changes")
+async def zone_changes(
+    user: Viewer,
+    s: ServicesDep,
+    start: Annotated[TimeBound, Query(alias="from")],
+    end: Annotated[TimeBound, Query(alias="to")],
+) -> ZoneChanges:
+    """(**extension**) The changes of the zones the caller sees, after ``from`` and up to
+    ``to``: what a replay reads the set again after (``?at=``)."""
+    kept = await s.zones.changes(start, end)
+    return ZoneChanges(
+        changes=[
+            ZoneChange(at=k["at"], version=k["version"], zone_id=k["zone_id"], deleted=k["deleted"])
+            for k in kept
+            if _seen(k["zone"], user) is not None
+        ]
+    )
 
 
 @router.get("/api/zones/{zone_id}")

@@ -101,6 +101,10 @@ class ZoneService:
         zones.sort(key=lambda d: (int(d["created_version"]), d["zone_id"]))
         return zones, version
 
+    async def changes(self, start: datetime, end: datetime) -> list[Doc]:
+        """Each change kept after ``start`` and up to ``end`` (the zone as it left it)."""
+        return await self.repo.versions_between(start, end)
+
     async def get(self, zone_id: str) -> Doc:
         doc = await self.repo.get(zone_id)
         if doc is None:

@@ -99,6 +99,13 @@ class ZonesRepo:
         docs = await self.versions.find({"at": {"$lte": when}}, sort=[("version", 1)])
         return [_version(d) for d in docs]
 
+    async def versions_between(self, start: datetime, end: datetime) -> list[Doc]:
+        """The versions kept after ``start`` and up to ``end``, oldest first."""
+        docs = await self.versions.find(
+            {"at": {"$gt": start, "$lte": end}}, sort=[("at", 1), ("version", 1)]
+        )
+        return [_version(d) for d in docs]
+
     async def zones_with_versions(self, zone_ids: Iterable[str]) -> set[str]:
         wanted = list(zone_ids)
         if not wanted:

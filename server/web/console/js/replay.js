@@ -236,17 +236,16 @@ export class Replay {
   }
 
   /** The zones as they were at the window's start, and again after each change in it
-   * (``/api/zones?at=``): ``[{t, zones}]`` in time order. */
+   * (``/api/zones/changes``, then ``/api/zones?at=``): ``[{t, zones}]`` in time order. */
   async fetchZones(start, end) {
     const api = this.ctx.api;
     const iso = (t) => new Date(t).toISOString();
     const frames = [{ t: start, zones: (await api.get("/api/zones", { at: iso(start) })).zones || [] }];
-    const query = { kind: "zones_changed", from: iso(start), to: iso(end), limit: 10000 };
-    const first = new Map(); // each change once (told to each of its boats too): its first time
-    for (const e of (await api.get("/api/events", query)).events) {
-      const key = e.data && e.data.version != null ? e.data.version : e.at;
-      const t = Date.parse(e.at);
-      if (!first.has(key) || t < first.get(key)) first.set(key, t);
+    // the changes of the zones this user sees (a zone for every vehicle too): their times
+    const query = { from: iso(start), to: iso(end) };
+    const first = new Map(); // each version once: its time
+    for (const c of (await api.get("/api/zones/changes", query)).changes) {
+      if (!first.has(c.version)) first.set(c.version, Date.parse(c.at));
     }
     const times = [...first.values()].sort((a, b) => a - b).slice(0, MAX_ZONE_FRAMES);
     for (const t of times) {
