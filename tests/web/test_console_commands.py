@@ -217,6 +217,8 @@ def test_stop_needs_its_confirmation(world: World, open_console: Any, shots: Sho
     # Stop all: its own confirmation, then a stop for every vehicle
     page.click("#stop-all")
     expect(page.locator("#confirm-title")).to_have_text("Stop every vehicle?")
+    # the vehicles counted as vehicles, not "running" (read as under way: some are idle)
+    expect(page.locator("#confirm-text")).to_contain_text("Every vehicle you can see (3 vehicles")
     expect(ok).to_be_disabled()
     shots(page, "stop-all-confirm")
     expect(ok).to_be_enabled()

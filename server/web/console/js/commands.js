@@ -176,7 +176,8 @@ export class Commands {
     const away = running.filter((v) => v.view.presence !== "online").length;
     const ok = await confirmAction({
       title: "Stop every vehicle?",
-      text: `Every vehicle you can see (${running.length} running` +
+      // "running" read as under way: these are the vehicles with an instance, idle or not
+      text: `Every vehicle you can see (${running.length === 1 ? "1 vehicle" : `${running.length} vehicles`}` +
         (away ? `, ${away} of them not online: each gets it when back, within an hour` : "") +
         "); missions queued and not yet started are cancelled.",
       confirm: "Stop all vehicles",
