@@ -125,7 +125,7 @@ class Console {
       this.wasLost = true;
       const s = Math.ceil(info.retryInMs / 1000);
       // on a phone short enough for the header's one row
-      link.textContent = PHONE.matches ? `link lost · ${s} s` : `link lost · reconnecting in ${s} s`;
+      link.textContent = PHONE.matches ? `link lost · retry ${s} s` : `link lost · reconnecting in ${s} s`;
     } else if (state === "refused") {
       link.textContent = "refused: log in again";
       endSession(1500);
