@@ -100,6 +100,7 @@ EventKind = Literal[
     "failsafe_entered",
     "failsafe_left",
     "zones_changed",
+    "obstacles_changed",
     "zone_breach",
     "zone_cleared",
     "low_battery",

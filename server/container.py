@@ -99,7 +99,7 @@ async def build(
     control = ControlService(
         settings, ControlRepo(store), instances, auth, events, messages, dead_letters, clock
     )
-    obstacles = ObstacleService(settings, ObstaclesRepo(store), clock)
+    obstacles = ObstacleService(settings, ObstaclesRepo(store), events, clock)
     zones = ZoneService(settings, ZonesRepo(store), auth, events, messages, clock)
     commands = CommandService(
         settings,

@@ -11,8 +11,8 @@ router = APIRouter(tags=["admin"])
 
 
 @router.post("/api/obstacles", status_code=201)
-async def create_obstacle(body: CreateObstacle, _: Admin, s: ServicesDep) -> ObstacleView:
-    return ObstacleView.model_validate(await s.obstacles.create(body))
+async def create_obstacle(body: CreateObstacle, admin: Admin, s: ServicesDep) -> ObstacleView:
+    return ObstacleView.model_validate(await s.obstacles.create(body, admin))
 
 
 @router.get("/api/obstacles")
@@ -21,5 +21,5 @@ async def list_obstacles(_: Viewer, s: ServicesDep) -> ObstacleList:
 
 
 @router.delete("/api/obstacles/{obstacle_id}")
-async def delete_obstacle(obstacle_id: PathId, _: Admin, s: ServicesDep) -> ObstacleView:
-    return ObstacleView.model_validate(await s.obstacles.delete(obstacle_id))
+async def delete_obstacle(obstacle_id: PathId, admin: Admin, s: ServicesDep) -> ObstacleView:
+    return ObstacleView.model_validate(await s.obstacles.delete(obstacle_id, admin))

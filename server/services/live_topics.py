@@ -106,6 +106,9 @@ class ServerTopics:
                 data = doc.get("data") or {}
                 said = {k: data.get(k) for k in ("zone_id", "action", "version")}
                 return self.emit("zones", said)
+            if doc["kind"] == "obstacles_changed":  # the planner's shapes: on ``zones`` too
+                data = doc.get("data") or {}
+                return self.emit("zones", {k: data.get(k) for k in ("obstacle_id", "action")})
             return None
         entry = _jsonable(doc)
         first = self.emit(f"vehicle/{vehicle_id}/events", {"events": [entry]})

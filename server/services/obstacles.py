@@ -17,6 +17,7 @@ from fleet_protocol import CreateObstacle, PolygonGeometry
 from server.domain.clock import Clock
 from server.domain.plan_frame import Zone
 from server.errors import Conflict, Invalid, NotFound
+from server.services.events import EventService
 from server.settings import Settings
 from server.storage.backends import Doc
 from server.storage.obstacles import ObstaclesRepo
@@ -55,12 +56,21 @@ def zone_of(doc: Doc) -> Zone:
 
 
 class ObstacleService:
-    def __init__(self, settings: Settings, repo: ObstaclesRepo, clock: Clock) -> None:
+    def __init__(
+        self, settings: Settings, repo: ObstaclesRepo, events: EventService, clock: Clock
+    ) -> None:
         self.settings = settings
         self.repo = repo
+        self.events = events
         self.clock = clock
 
-    async def create(self, body: CreateObstacle) -> Doc:
+    async def _changed(self, doc: Doc, action: str, actor: Any) -> None:
+        """Recorded (``obstacles_changed``, the fleet's), and so told on the ``zones``
+        topic: a console open draws the obstacles again."""
+        data = {"obstacle_id": doc["obstacle_id"], "name": doc["name"], "action": action}
+        await self.events.record("obstacles_changed", actor=actor, data=data)
+
+    async def create(self, body: CreateObstacle, actor: Any = None) -> Doc:
         check_polygon(body.polygon)
         if await self.repo.count() >= self.settings.max_obstacles:
             raise Conflict(
@@ -76,15 +86,17 @@ class ObstacleService:
             "created_at": self.clock(),
         }
         await self.repo.insert(doc)
+        await self._changed(doc, "created", actor)
         return doc
 
     async def all(self) -> list[Doc]:
         return await self.repo.all()
 
-    async def delete(self, obstacle_id: str) -> Doc:
+    async def delete(self, obstacle_id: str, actor: Any = None) -> Doc:
         doc = await self.repo.get(obstacle_id)
         if doc is None or not await self.repo.delete(obstacle_id):
             raise NotFound(f"no obstacle {obstacle_id}")
+        await self._changed(doc, "deleted", actor)
         return doc
 
     async def zones(self) -> list[Zone]:

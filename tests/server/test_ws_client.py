@@ -370,6 +370,15 @@ async def test_zones_says_to_users_that_the_zones_changed(
         made = (await api.post("/api/zones", headers=ADMIN, json=zone)).json()
         said = await recv_until(w, lambda f: f["op"] == "event" and f["topic"] == "zones")
         assert said["data"] == {"zone_id": made["zone_id"], "action": "created", "version": 1}
+        # a fixed obstacle added or removed: said here too (a console drew none till reload)
+        rock = {"name": "rock", "polygon": zone["polygon"]}
+        added = (await api.post("/api/obstacles", headers=ADMIN, json=rock)).json()
+        said = await recv_until(w, lambda f: f["op"] == "event" and f["topic"] == "zones")
+        assert said["data"] == {"obstacle_id": added["obstacle_id"], "action": "created"}
+        oid = added["obstacle_id"]
+        assert (await api.delete(f"/api/obstacles/{oid}", headers=ADMIN)).is_success
+        said = await recv_until(w, lambda f: f["op"] == "event" and f["topic"] == "zones")
+        assert said["data"] == {"obstacle_id": oid, "action": "deleted"}
         refused = await call(car, "subscribe", "v", topics=["zones"])
         assert refused["ok"] is False and refused["error"]["code"] == "forbidden"
         written = await call(w, "publish", "p", topic="zones", data={})

@@ -109,6 +109,10 @@ export function describeEvent(e, known = () => null) {
     }
     return said.join(", ");
   }
+  if (e.kind === "obstacles_changed") {  // an admin added or removed a fixed obstacle
+    const who = e.actor ? e.actor.replace(/^user:/, "") : "";
+    return `obstacle ${d.name || d.obstacle_id || ""} ${d.action || "changed"}${who ? ` by ${who}` : ""}`;
+  }
   if (e.kind === "zones_changed") {  // an admin drew, changed or removed a zone
     const kind = d.kind === "no_go" ? "no-go zone" : d.kind === "operating_area"
       ? "operating area" : "zone";
@@ -137,6 +141,7 @@ const KIND_NAMES = {
   hold_station: "told to hold station:", instance: "instance",
   low_battery_cleared: "battery alarm lifted", vehicle_changed: "vehicle record changed:",
   zones_changed: "zones changed:",
+  obstacles_changed: "obstacles changed:",
 };
 
 export function kindName(kind) {
