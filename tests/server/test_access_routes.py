@@ -151,6 +151,10 @@ ROWS: dict[tuple[str, str], tuple[Call, dict[str, int]]] = {
     ),
     ("GET", "/api/vehicles/{vehicle_id}/audit"): (get("/api/vehicles/{w.vid}/audit"), users()),
     ("GET", "/api/zones"): (get("/api/zones"), users()),
+    ("GET", "/api/zones/changes"): (
+        get("/api/zones/changes", **{"from": "2026-01-01T00:00:00Z", "to": "2099-01-01T00:00:00Z"}),
+        users(),
+    ),
     ("GET", "/api/zones/{zone_id}"): (get("/api/zones/{w.zone_id}"), users()),
     ("POST", "/api/zones"): (
         post(
