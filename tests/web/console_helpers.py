@@ -139,3 +139,8 @@ def local_times(page: Any, *hours_ago: float) -> list[str]:
         list(hours_ago),
     )
     return texts
+
+
+def replay_up(page: Any) -> None:
+    """Until the replay's module is loaded (after the page: its form is not yet handled)."""
+    page.wait_for_function("() => Boolean(window.fleetConsole && fleetConsole.replay)")

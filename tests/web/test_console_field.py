@@ -18,16 +18,11 @@ import pytest
 from playwright.sync_api import expect
 
 from tests.web.conftest import PASSWORD, Shots, World
-from tests.web.console_helpers import command_item, log_in, marker
+from tests.web.console_helpers import command_item, log_in, marker, replay_up
 
 pytestmark = [pytest.mark.slow, pytest.mark.browser]
 
 STAMP = "%Y-%m-%d %H:%M:%S"
-
-
-def replay_up(page: Any) -> None:
-    """Until the replay's module is loaded (after the page: its form is not yet handled)."""
-    page.wait_for_function("() => Boolean(window.fleetConsole && fleetConsole.replay)")
 
 
 def type_into(page: Any, field: Any, text: str) -> None:

@@ -18,6 +18,7 @@ from playwright.sync_api import expect
 
 from tests.web import console_helpers as console
 from tests.web.conftest import Shots, World
+from tests.web.console_helpers import replay_up
 
 pytestmark = [pytest.mark.slow, pytest.mark.browser]
 
@@ -47,11 +48,6 @@ def focused(page: Any) -> str:
                 return `${el.tagName} ${el.getAttribute("aria-label") || el.textContent}`; }"""
         )
     )
-
-
-def replay_up(page: Any) -> None:
-    """Until the replay's module is loaded (after the page: its form is not yet handled)."""
-    page.wait_for_function("() => Boolean(window.fleetConsole && fleetConsole.replay)")
 
 
 def test_a_tick_box_keeps_the_focus_while_samples_come_in(

@@ -17,7 +17,7 @@ from playwright.sync_api import expect
 from server.demo import VEHICLES
 from tests.agent.procs import wait_until
 from tests.web.conftest import Shots, World
-from tests.web.console_helpers import ALL, local_times, log_in, marker, ms, position
+from tests.web.console_helpers import ALL, local_times, log_in, marker, ms, position, replay_up
 
 pytestmark = [pytest.mark.slow, pytest.mark.browser]
 
@@ -32,11 +32,6 @@ def toasts(page: Any) -> Any:
 
 def presence(world: World) -> str:
     return str(world.fleet.call("GET", f"/api/vehicles/{VEHICLE}")["presence"])
-
-
-def replay_up(page: Any) -> None:
-    """Until the replay's module is loaded (after the page: its form is not yet handled)."""
-    page.wait_for_function("() => Boolean(window.fleetConsole && fleetConsole.replay)")
 
 
 def test_a_revoke_of_a_boat_out_of_contact_says_once_that_the_hold_is_queued(

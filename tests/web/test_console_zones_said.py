@@ -1,0 +1,73 @@
+"""Zones in what people read, in a real browser (as test_console_wording): a zone drawn,
+renamed and removed reads as words in a vehicle's events and the replay's list, and the
+replay draws the zones of its cursor's time. A world of its own (the module's)."""
+
+from __future__ import annotations
+
+import re
+from typing import Any
+
+import pytest
+from playwright.sync_api import expect
+
+from tests.web import console_helpers as console
+from tests.web.conftest import Shots, World
+from tests.web.console_helpers import replay_up
+from vehicle_client.geo import LocalFrame
+
+pytestmark = [pytest.mark.slow, pytest.mark.browser]
+
+
+def test_a_zone_drawn_changed_and_removed_reads_as_words(
+    world: World, open_console: Any, shots: Shots
+) -> None:
+    """A zone an admin drew, renamed and removed read, in the vehicle panel's recent events
+    and the replay's list, as the event's data: "zones changed zone id z-590c… · name survey
+    box · kind operating_area · action created · version 2"."""
+    vehicle = "demo-usv-3"
+    here = console.position(world, vehicle)
+    far = LocalFrame(here["lat"], here["lon"])  # 2 km off: nothing sails near it
+    ring = [far.to_latlon(east, north) for east, north in ((0, 2000), (50, 2000), (50, 2050))]
+    coords = [[lon, lat] for lat, lon in ring]
+    body = {
+        "name": "Far rocks",
+        "kind": "no_go",
+        "vehicles": [vehicle],
+        "polygon": {"type": "Polygon", "coordinates": [[*coords, coords[0]]]},
+    }
+    zone_id = world.fleet.call("POST", "/api/zones", json=body)["zone_id"]
+    world.fleet.call("PATCH", f"/api/zones/{zone_id}", json={"name": "Outer rocks"})
+    world.fleet.call("DELETE", f"/api/zones/{zone_id}")
+
+    page, _ = open_console()
+    console.log_in(page, "mia")
+    console.marker(page, vehicle).click()
+    page.click('[data-tab="vehicle"]')
+    events = page.locator("#vehicle-pane ol.events")
+    expect(events).to_contain_text("zones changed: no-go zone Far rocks created by admin")
+    expect(events).to_contain_text("zones changed: no-go zone Outer rocks changed by admin")
+    expect(events).to_contain_text("zones changed: no-go zone Outer rocks deleted by admin")
+    expect(events).not_to_contain_text(re.compile(r"zone id|no_go|version \d"))
+    shots(page, "zones-in-words")
+
+    replay_up(page)
+    page.click('[data-tab="replay"]')
+    page.click('#replay-form [data-minutes="5"]')
+    page.click("#replay-load")
+    expect(page.locator("#replay-bar")).to_be_visible()
+    lines = page.locator("#replay-events")
+    expect(lines).to_contain_text("H2OmniX Charlie zones changed: no-go zone Far rocks created")
+    expect(lines).not_to_contain_text(re.compile(r"zone id|no_go|version \d"))
+    # the map draws the zones of the cursor's time, said under the summary: the rocks are
+    # on it from their drawing to their removal, and not before nor after
+    expect(page.locator("#replay-info .zones-then")).to_have_text(
+        re.compile(r"^Zones are drawn as they were at the cursor's time: ([3-9]|\d\d+) "
+                   r"zone changes in this window\.$")
+    )  # fmt: skip
+    no_go = "() => document.querySelectorAll('#map path.zone-no_go').length"
+    lines.locator("li", has_text="Far rocks created").first.click()
+    with_rocks = page.evaluate(no_go)
+    lines.locator("li", has_text="Outer rocks deleted").first.click()
+    page.wait_for_function(f"() => ({no_go})() === {with_rocks - 1}")
+    shots(page, "replay-zones-in-words")
+    page.click("#replay-exit")
