@@ -30,7 +30,10 @@ async def update_param(
     body: UpdateParamDocs, caller: VehicleCaller, s: ServicesDep
 ) -> ModelResponse:
     """``UpdateParam``, its samples read as plain dicts: they are stored as they come."""
-    counts = await s.link.update_param(caller, body, "http")
+    # Most calls are done within this one (no coroutine of the link's to run).
+    counts = s.link.update_param_now(caller, body, "http")
+    if counts is None:
+        counts = await s.link.update_param(caller, body, "http")
     return ModelResponse(dumps(counts))  # plain counters and the server's time, as text
 
 

@@ -1,12 +1,17 @@
 """Telemetry buckets: one document per vehicle per time window, written whole, never updated.
 
 A bucket is ``{vehicle_id, start, end, min_seq, max_seq, n, bytes, samples}``
-where ``start``/``end`` are the earliest and latest sample ``ts`` in it and
-the samples are in ``seq`` order, packed as one BSON binary (read them with
-:func:`samples_of`): queries select buckets by their metadata only, and a
-packed bucket costs a tenth of the memory of a list of documents and is
-inserted without the driver walking every field. A bucket holds at most the
-service's sample and byte bounds (well under BSON's 16 MiB).
+where ``start``/``end`` are the earliest and latest sample ``ts`` in it (the store
+keeps their milliseconds, and those of a query's times alike) and the samples are
+in ``seq`` order, packed as one binary (read them with :func:`samples_of`): queries
+select buckets by their metadata only, and a packed bucket costs a tenth of the
+memory of a list of documents and is inserted without the driver walking every
+field. The packing is JSON text (orjson; binary subtype :data:`PACKED_JSON`), the times as
+ISO 8601 with their microseconds: about a fifth of the time BSON takes to pack
+and to read (an aware ``datetime`` is BSON's slowest value). Buckets stored
+before it hold one BSON document ``{"s": [...]}`` (subtype 0) and are read as
+such. A bucket holds at most the service's sample and byte bounds (well under
+BSON's 16 MiB).
 
 The buckets one replica writes for a vehicle hold disjoint, rising ``seq``
 ranges. With several replicas a sample the vehicle sent to two of them may
@@ -29,8 +34,9 @@ from datetime import UTC, datetime
 from typing import Any
 
 import bson
+import orjson
 
-from server.storage.backends import ENCODE_ERRORS, Doc, Rejected, Store
+from server.storage.backends import Doc, Rejected, Store
 
 COLLECTION = "telemetry"
 MARKS = "telemetry_marks"
@@ -40,19 +46,31 @@ _META = {"samples": 0}
 _CODEC: bson.CodecOptions[Any] = bson.CodecOptions(tz_aware=True)
 
 
+#: The binary subtype of samples packed as JSON text (one of BSON's user-defined ones).
+PACKED_JSON = 0x80
+_from_iso = datetime.fromisoformat
+
+
 def pack(samples: list[Doc]) -> bson.Binary:
-    """The samples as one BSON binary; :class:`Rejected` when BSON cannot hold them."""
+    """The samples as one binary of JSON text; :class:`Rejected` when it cannot hold them
+    (checked samples always fit: what JSON and the store cannot hold is refused first)."""
     try:
-        return bson.Binary(bson.encode({"s": samples}))
-    except ENCODE_ERRORS as exc:
+        return bson.Binary(orjson.dumps(samples), PACKED_JSON)
+    except orjson.JSONEncodeError as exc:
         raise Rejected(f"{type(exc).__name__}: {exc}") from exc
 
 
 def samples_of(bucket: Mapping[str, Any]) -> list[Doc]:
-    """A bucket's samples, in ``seq`` order (packed, or a list in older stores)."""
+    """A bucket's samples, in ``seq`` order: packed as JSON, as BSON (buckets stored
+    before), or a list (older stores)."""
     raw = bucket["samples"]
     if isinstance(raw, bytes):
-        samples: list[Doc] = bson.decode(raw, _CODEC)["s"]
+        if getattr(raw, "subtype", 0) == PACKED_JSON:
+            samples: list[Doc] = orjson.loads(memoryview(raw))  # Binary: a bytes subclass
+            for sample in samples:
+                sample["ts"] = _from_iso(sample["ts"])
+            return samples
+        samples = bson.decode(raw, _CODEC)["s"]
         return samples
     return list(raw)
 

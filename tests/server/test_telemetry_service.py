@@ -10,6 +10,7 @@ from datetime import UTC, datetime, timedelta
 from pathlib import Path
 from typing import Any
 
+import bson
 import pytest
 
 from fleet_protocol import Sample
@@ -357,3 +358,38 @@ async def test_the_writer_takes_the_buckets_that_aged_and_only_those(
         assert seqs_of(page) == list(range(1, 8))
     finally:
         await w.store.close()
+
+
+async def test_buckets_packed_as_bson_before_are_read_beside_new_ones(world: World) -> None:
+    """Buckets stored before samples were packed as JSON hold one BSON document: they are
+    read as they were, in order with the buckets written since."""
+    old = [s.model_dump(exclude_none=True) for s in samples(range(1, 4), battery_pct=50.0)]
+    bucket = TelemetryRepo.make_bucket("usv-1", old)
+    bucket["samples"] = bson.Binary(bson.encode({"s": old}))  # the packing before
+    await world.svc.repo.insert(bucket)
+    assert (await world.svc.last_seq("usv-1")) == 3
+    await world.svc.ingest("usv-1", "i1", samples(range(4, 11)))
+    await world.svc.flush_all()
+    page, _ = await world.svc.page("usv-1", limit=100)
+    assert seqs_of(page) == list(range(1, 11))
+    assert [d.get("battery_pct") for d in page[:4]] == [50.0, 50.0, 50.0, None]
+    assert page[0]["ts"] == T0 + timedelta(seconds=1)
+    track = await world.svc.track("usv-1", T0, T0 + timedelta(hours=1))
+    assert [p["seq"] for p in track.points] == list(range(1, 11))
+
+
+async def test_a_window_from_within_a_samples_millisecond_finds_it(world: World) -> None:
+    """A stored sample keeps its microseconds (the store keeps milliseconds of the bucket's
+    bounds, and of a query's): a window opening within the sample's millisecond, before
+    it, finds it once it is stored; one opening after it does not."""
+    at = T0 + timedelta(seconds=5, microseconds=123_456)
+    sample = Sample(seq=1, ts=at, lat=43.9, lon=15.4)
+    await world.svc.ingest("usv-1", "i1", [sample])
+    await world.svc.flush_all()
+    world.svc = await world.restart()  # read back from the store, not the open bucket
+    for start, found in ((at - timedelta(microseconds=400), [1]), (at, [1])):
+        track = await world.svc.track("usv-1", start, at + timedelta(seconds=1))
+        assert [p["seq"] for p in track.points] == found, start
+        assert track.points[0]["ts"] == at
+    after = await world.svc.track("usv-1", at + timedelta(microseconds=1), at + timedelta(1))
+    assert after.points == []
