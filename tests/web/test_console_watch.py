@@ -230,21 +230,63 @@ def test_a_lost_link_shows_and_comes_back(world: World, open_console: Any, shots
             timeout=10_000,
         )
 
+    def readings_greyed(want: bool) -> None:
+        """Every battery reading and link delay in the fleet list greyed (``want``) or not:
+        while the link is lost they are as last heard, like the presence badges."""
+        page.wait_for_function(
+            """want => {
+                 const probe = document.createElement('span');
+                 probe.style.color = 'var(--muted)';
+                 document.getElementById('app').append(probe);
+                 const muted = getComputedStyle(probe).color;
+                 probe.remove();
+                 const cells = [...document.querySelectorAll(
+                   '.fleet-table td.reading, .fleet-table .link-delay')];
+                 return cells.length >= 2
+                   && cells.every(el => (getComputedStyle(el).color === muted) === want);
+               }""",
+            arg=want,
+            timeout=10_000,
+        )
+
     marked("none")
+    readings_greyed(False)
+    # What the whole console says on each change of the link's state, recorded as it is made.
+    page.evaluate(
+        """() => {
+             window.linkSeen = [];
+             new MutationObserver(() => window.linkSeen.push([
+               document.getElementById('link').dataset.state,
+               document.getElementById('app').dataset.link,
+             ])).observe(document.getElementById('link'), { attributes: true });
+           }"""
+    )
     world.server.stop(grace_s=5.0)
     expect(page.locator("#link")).to_have_attribute("data-state", "lost")
     expect(page.locator("#link")).to_contain_text("link lost")
     marked('"?"')  # presence as last heard, not vouched for
+    readings_greyed(True)
+    # a try to connect again is made within a second or two: the view stays "lost" meanwhile
+    page.wait_for_function(
+        "() => window.linkSeen.some(([state]) => state === 'connecting')", timeout=10_000
+    )
+    marked('"?"')
+    readings_greyed(True)
     shots(page, "link-lost")
     world.server.start()  # the same port and store; the agents find it again
     expect(page.locator("#link")).to_have_attribute("data-state", "live", timeout=30_000)
     expect(page.locator("#link")).to_have_text("live")
+    seen = page.evaluate("() => window.linkSeen")
+    assert [app for state, app in seen if state == "connecting"] and all(
+        app == "lost" for state, app in seen if state == "connecting"
+    ), seen
     # the vehicles come back online in the view, from the socket again
     for vehicle_id in console.ALL:
         expect(console.marker(page, vehicle_id)).to_have_attribute(
             "data-presence", "online", timeout=30_000
         )
     marked("none")
+    readings_greyed(False)
     shots(page, "link-back")
 
 

@@ -112,7 +112,8 @@ class Console {
   linkState(state, info) {
     const link = $("link");
     link.dataset.state = state;
-    this.app.dataset.link = state;
+    // Lost until live again: the tries between ("connecting") still show nothing new.
+    this.app.dataset.link = state === "connecting" && this.wasLost ? "lost" : state;
     if (state === "live") {
       link.textContent = "live";
       if (this.wasLost) {

@@ -177,7 +177,7 @@ export class FleetTable {
           : null),
       // a reading of a vehicle not online is greyed and dated, as in its panel
       d.presence === "online"
-        ? h("td", {}, batteryText(d.battery))
+        ? h("td.reading", {}, batteryText(d.battery))
         : h("td.stale", { title: d.asOf ? `as of ${clock(d.asOf)}` : null }, batteryText(d.battery)),
       h("td", {}, d.holder),
       h("td", {}, chip(d.cmd)),
