@@ -1,8 +1,8 @@
 """The console's control and its panels, in a real browser (as test_console_commands): a
 field manager grants control on a phone, a lease that needs a live console lapses when it
 closes, people are told when control changes, a go_to cancelled from the panel stops the
-boat, and the vehicle panel dates its readings. A world of its own (the module's), in file
-order."""
+boat, the vehicle panel dates its readings, and "What happened" keeps its lines through a
+reconnect. A world of its own (the module's), in file order."""
 
 from __future__ import annotations
 
@@ -316,3 +316,47 @@ def test_the_field_manager_revokes_from_the_vehicle_panel(world: World, open_con
     line = other.locator("#vehicle-pane .control-line")
     expect(line).to_contain_text("ben holds control")
     expect(line.locator("button", has_text="Revoke")).to_have_count(0)
+
+
+def test_what_happened_keeps_its_lines_through_a_reconnect(world: World, open_console: Any) -> None:
+    """A reconnect brings each vehicle's last 20 events again: "What happened" keeps what
+    it listed before them (a stop, followed by 25 routine changes of the boat's name, was
+    gone from it after the link came back)."""
+    vehicle_id, instance = "demo-usv-2", world.instances["demo-usv-2"]
+    world.fleet.grant(instance, "ben")
+    page, _ = open_console()
+    log_in(page, "mia")
+    page.click('[data-tab="control"]')
+    world.fleet.submit(world.tokens["ben"], instance, "stop", {})
+    stop = page.locator(
+        f'section.safety-log li[data-kind="command"][data-vehicle="{vehicle_id}"]'
+    ).first
+    expect(stop).to_contain_text("stop")
+    name = world.fleet.call("GET", f"/api/vehicles/{vehicle_id}")["name"]
+    for n in range(25):  # routine events, not listed: the server's last 20 are these
+        body = {"name": f"{name} {n}" if n < 24 else name}
+        world.fleet.call("PATCH", f"/api/vehicles/{vehicle_id}", json=body)
+    page.wait_for_function(
+        """id => fleetConsole.fleet.vehicles.get(id).events
+             .filter(e => e.kind === 'vehicle_changed').length >= 25""",
+        arg=vehicle_id,
+        timeout=15_000,
+    )
+    page.evaluate(
+        """() => {
+             const told = fleetConsole.live.onEvent;
+             window.snapshots = [];
+             fleetConsole.live.onEvent = (topic, data, snapshot) => {
+               if (snapshot) window.snapshots.push(topic);
+               return told(topic, data, snapshot);
+             };
+             fleetConsole.live.reconnectNow();
+           }"""
+    )
+    page.wait_for_function(
+        "topic => window.snapshots.includes(topic)",
+        arg=f"vehicle/{vehicle_id}/events",
+        timeout=15_000,
+    )
+    next_frames(page)
+    expect(stop).to_contain_text("stop")

@@ -236,7 +236,8 @@ export class Fleet extends EventTarget {
 
   applyEvents(id, data, snapshot) {
     const v = this.vehicle(id);
-    if (snapshot) v.events = [];
+    // A snapshot (after every reconnect) holds the server's last few events: merged with
+    // those this console had, never in their place (what happened before would vanish).
     for (const e of data.events || []) {
       if (!v.events.some((x) => x.event_id === e.event_id)) v.events.push(e);
     }
