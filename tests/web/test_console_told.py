@@ -1,8 +1,9 @@
 """What the people at the consoles are told without looking for it, in a real browser (as
 test_console_watch): a stop someone else sent to the boat you command, and who sent it;
 an alarm, whatever tab is open; a revoke of a boat out of contact (the hold waits for
-it), a command that expired unacknowledged, the boat back online; and control that
-ended while your console was out of contact. Each was found missing by a field test.
+it), a command that expired unacknowledged, the boat back online; control that
+ended while your console was out of contact; a command that failed on the boat, live or
+while the console was out of contact. Each was found missing by a field test.
 A world of its own (the module's): an agent is stopped and started again."""
 
 from __future__ import annotations
@@ -164,3 +165,44 @@ def test_all_boats_brings_every_boat_back_into_view(
     page.get_by_role("button", name="All boats").click()
     wait_until(lambda: all(inside(v[0]) for v in VEHICLES), "every boat in view", 10)
     shots(page, "all-boats")
+
+
+def test_a_command_that_failed_on_the_boat_is_told_live_and_after_a_reconnect(
+    world: World, open_console: Any, shots: Shots
+) -> None:
+    """A go_to the boat's agent reported failed ("agent restarted") was shown only in the
+    panels, and not at all when it failed while the console was out of contact with the
+    server (found in a field test: the server restarted, and the agent with it)."""
+    vehicle = "demo-usv-1"
+    agent = world.agents[[v[0] for v in VEHICLES].index(vehicle)]
+    instance = world.instances[vehicle]
+    page, _ = open_console()
+    log_in(page, "ana")  # she holds Alpha (the world's grants)
+
+    def status(command_id: str) -> str:
+        answer = world.fleet.call("GET", "/client/get_fbmessage", params={"instance_id": instance})
+        return str(next(c["status"] for c in answer["commands"] if c["command_id"] == command_id))
+
+    def go_to_then_restart(live: bool) -> None:
+        here = world.fleet.position(instance)
+        target = {"lat": here["lat"] + 0.005, "lon": here["lon"]}  # half a kilometre north
+        cid = world.fleet.submit(world.tokens["ana"], instance, "go_to", target)
+        wait_until(lambda: status(cid) in ("accepted", "executing"), "the go_to under way", 20)
+        if not live:
+            page.evaluate("fleetConsole.live.stop()")  # this console out of contact
+        agent.stop()
+        agent.start()
+        wait_until(lambda: status(cid) == "failed", "the go_to failed", 30)
+        if not live:
+            page.evaluate("fleetConsole.live.start()")
+            expect(page.locator("#link")).to_have_attribute("data-state", "live")
+
+    told = toasts(page).filter(has_text="go to for H2OmniX Alpha failed: agent restarted")
+    go_to_then_restart(live=True)
+    expect(told).to_have_count(1, timeout=10_000)
+    shots(page, "failed-live")
+    page.evaluate("document.querySelectorAll('#toasts .toast').forEach(t => t.dismiss())")
+    expect(told).to_have_count(0)
+    go_to_then_restart(live=False)
+    expect(told).to_have_count(1, timeout=10_000)
+    shots(page, "failed-while-away")

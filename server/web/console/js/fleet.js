@@ -188,9 +188,13 @@ export class Fleet extends EventTarget {
   /** ``vehicle/<id>/commands``: whole command objects (snapshot) or one step of one. */
   applyCommands(id, data, snapshot) {
     const v = this.vehicle(id);
+    // A snapshot (after a reconnect) replaces what was known: what it ended meanwhile is
+    // said as if it had come live.
+    const before = snapshot ? new Map([...v.commands].map(([k, c]) => [k, c.status])) : null;
     if (snapshot) v.commands.clear();
     for (const c of data.commands || []) {
       const had = v.commands.get(c.command_id);
+      const was = snapshot ? before.get(c.command_id) : had && had.status;
       const cmd = had || { command_id: c.command_id, type: c.type, stages: [], args: null };
       if (c.history) {
         cmd.stages = stagesFromHistory(c.history);
@@ -201,7 +205,7 @@ export class Fleet extends EventTarget {
       if (c.args) cmd.args = c.args;
       if (c.progress != null) cmd.progress = c.progress;
       if (c.issued_by) cmd.issued_by = c.issued_by;
-      const expired = had && !snapshot && c.status === "expired" && cmd.status !== "expired";
+      const ended = was !== undefined && !FINAL.has(was) && FINAL.has(c.status);
       cmd.status = c.status;
       if (c.detail !== undefined) cmd.detail = c.detail;
       cmd.stage = stageOf(cmd.status, cmd.detail);
@@ -210,7 +214,11 @@ export class Fleet extends EventTarget {
       if (!cmd.issued_at) cmd.issued_at = new Date().toISOString();
       v.commands.set(cmd.command_id, cmd);
       if (!had) this.dispatchEvent(new CustomEvent("command", { detail: { id, cmd } }));
-      if (expired) this.dispatchEvent(new CustomEvent("expired", { detail: { id, cmd } }));
+      if (ended && c.status === "expired") {
+        this.dispatchEvent(new CustomEvent("expired", { detail: { id, cmd } }));
+      } else if (ended && cmd.stage !== "superseded" && ["failed", "rejected"].includes(c.status)) {
+        this.dispatchEvent(new CustomEvent("failed", { detail: { id, cmd } }));
+      }
     }
     for (const old of this.recentCommands(id).slice(RECENT_COMMANDS)) {
       v.commands.delete(old.command_id);

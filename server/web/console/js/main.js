@@ -66,6 +66,7 @@ class Console {
     });
     this.fleet.addEventListener("presence", (e) => this.presenceChanged(e.detail));
     this.fleet.addEventListener("expired", (e) => this.expired(e.detail));
+    this.fleet.addEventListener("failed", (e) => this.failed(e.detail));
     this.fleet.addEventListener("alarms", (e) => { // what went wrong, whatever tab is open
       const name = this.fleet.vehicles.get(e.detail.id).view.name || e.detail.id;
       for (const a of e.detail.raised) toast(`${name}: ${alarmText(a)}`, "error");
@@ -161,12 +162,30 @@ class Console {
    * boat's managers, and everyone for the server's own (a hold at a lease's end that
    * never reached a boat out of contact). */
   expired({ id, cmd }) {
+    const said = this.commandSaid(id, cmd);
+    if (!said) return;
+    const why = cmd.detail ? ` (${cmd.detail})` : "";
+    toast(`${said.what} for ${said.name} expired${why}: the boat never acknowledged it`, "error");
+  }
+
+  /** A command that failed on the boat or that it refused, said to the same people (it
+   * was shown only in the panels: its sender, on another tab, was not told). */
+  failed({ id, cmd }) {
+    const said = this.commandSaid(id, cmd);
+    if (!said) return;
+    const why = cmd.detail ? `: ${cmd.detail}` : "";
+    const how = cmd.status === "rejected" ? "was refused by the boat" : "failed";
+    toast(`${said.what} for ${said.name} ${how}${why}`, "error");
+  }
+
+  /** Whom a command's end concerns (its sender, the boat's managers, everyone for the
+   * server's own), and how it is named to them; null: not this user. */
+  commandSaid(id, cmd) {
     const mine = cmd.issued_by === this.me.username;
-    if (!mine && cmd.issued_by !== "system" && !this.controlPanel.managed(id)) return;
+    if (!mine && cmd.issued_by !== "system" && !this.controlPanel.managed(id)) return null;
     const name = this.fleet.vehicles.get(id).view.name || id;
     const what = `${cmd.issued_by === "system" ? "the server's " : ""}${cmd.type.replace(/_/g, " ")}`;
-    const why = cmd.detail ? ` (${cmd.detail})` : "";
-    toast(`${what} for ${name} expired${why}: the boat never acknowledged it`, "error");
+    return { name, what };
   }
 
   presenceChanged({ id, was, now }) {
