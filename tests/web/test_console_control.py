@@ -141,6 +141,14 @@ def test_a_lease_needing_a_live_console_lapses_when_it_closes(
         held = lease_now()
         assert held and held["holder"] == "ben", held
         operator.wait_for_timeout(500)  # the page runs (its heartbeats) meanwhile
+    # logging out would end it too: asked first, in those words (cancelled here)
+    operator.click("#logout")
+    dialog = operator.locator("dialog[open]")
+    expect(dialog).to_contain_text(
+        f"Control of H2OmniX Charlie lapses {timeout_s} s after this console goes quiet"
+    )
+    operator.locator("#confirm-cancel").click()
+    expect(dialog).to_have_count(0)
     operator.goto("about:blank")  # the console closes
     wait_until(lambda: lease_now() is None, "the lease lapsed once the console closed", 25)
     log = manager.locator("section.safety-log")

@@ -121,9 +121,17 @@ def test_logging_out_while_holding_control_asks_first_and_ends_the_session(
     page, _ = open_console()
     log_in(page, "ana")  # with her password: a session token
     token = page.evaluate("() => window.fleetConsole.api.token")
+    # her leases were granted with no lapse on silence: the card and the question say so
+    page.click('[data-tab="control"]')
+    allows = page.locator('li.lease[data-vehicle="demo-usv-1"] .allows')
+    expect(allows).to_contain_text(
+        "It never lapses on silence: it stays yours with your console closed"
+    )
     page.click("#logout")
     dialog = page.locator("dialog[open]")
     expect(dialog).to_contain_text("Log out while you hold control of H2OmniX Alpha")
+    expect(dialog).to_contain_text("Control stays yours until it ends, with nobody at this")
+    expect(dialog).not_to_contain_text("lapse")
     shots(page, "logout-asks")
     dialog.get_by_role("button", name="Log out").click()
     expect(page.locator("#login")).to_be_visible()

@@ -351,7 +351,9 @@ export class ControlPanel {
                   ? ` It lapses (and the vehicle holds station) if ${mine ? "your" : "their"}` +
                     ` client is silent for ${c.operator_timeout_s} s` +
                     (mine ? ": this console keeps it alive while it is open." : ".")
-                  : "")))
+                  : ` It never lapses on silence: it stays ${mine ? "yours" : "theirs"} with ` +
+                    `${mine ? "your" : "their"} console closed, until it ends, is released or ` +
+                    "is revoked.")))
             : h("div.hint", {}, "nobody holds control"),
           h("div.row", {},
             // another's lease: one's own is released (as in the vehicle panel)

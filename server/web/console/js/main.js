@@ -17,6 +17,7 @@ import { ago, clock, confirmAction, h, sending, toast, until, zoneText } from ".
 
 const $ = (id) => document.getElementById(id);
 const REPLAY_RETRY_MS = 3000; // the replay's module not loaded: tried again after this
+const namesOf = (vehicles) => vehicles.map((v) => v.view.name || v.id).join(", ");
 
 /** The console once logged in: ``me`` (from /api/me) decides what it offers. */
 class Console {
@@ -144,11 +145,20 @@ class Console {
   async logOut() {
     const held = this.held();
     if (held.length) {
-      const names = held.map((v) => v.view.name || v.id).join(", ");
+      const names = namesOf(held);
+      // what happens to each lease once this console is gone, as it was granted
+      const lapsing = held.filter((v) => v.control.operator_timeout_s);
+      const kept = held.filter((v) => !v.control.operator_timeout_s);
+      const said = [
+        kept.length ? `${kept.length === held.length ? "Control" : `Control of ${namesOf(kept)}`} ` +
+          "stays yours until it ends, with nobody at this console" : null,
+        ...lapsing.map((v) => `control of ${v.view.name || v.id} lapses ` +
+          `${v.control.operator_timeout_s} s after this console goes quiet, and the boat holds station`),
+      ].filter(Boolean).join("; ");
       const ok = await confirmAction({
         title: `Log out while you hold control of ${names}?`,
-        text: "Control stays yours until it ends (or lapses, if you chose a lapse when this " +
-          "console is silent): release it first if nobody is to command them from here.",
+        text: `${said.charAt(0).toUpperCase()}${said.slice(1)}: release it first if nobody ` +
+          "is to command them from here.",
         confirm: "Log out",
       });
       if (!ok) return;
