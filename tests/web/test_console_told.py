@@ -3,7 +3,7 @@ test_console_watch): a stop someone else sent to the boat you command, and who s
 an alarm, whatever tab is open; a revoke of a boat out of contact (the hold waits for
 it), a command that expired unacknowledged, the boat back online; control that
 ended while your console was out of contact; a command that failed on the boat, live or
-while the console was out of contact. Each was found missing by a field test.
+while the console was out of contact; "went offline" taken down when the boat is back. Each was found missing by a field test.
 A world of its own (the module's): an agent is stopped and started again."""
 
 from __future__ import annotations
@@ -214,3 +214,27 @@ def test_a_command_that_failed_on_the_boat_is_told_live_and_after_a_reconnect(
     go_to_then_restart(live=False)
     expect(told).to_have_count(1, timeout=10_000)
     shots(page, "failed-while-away")
+
+
+def test_went_offline_is_taken_down_when_the_boat_is_back(
+    world: World, open_console: Any, shots: Shots
+) -> None:
+    """ "went offline during go to" stayed up beside "is back online", saying the opposite."""
+    vehicle = "demo-usv-1"
+    agent = world.agents[[v[0] for v in VEHICLES].index(vehicle)]
+    instance = world.instances[vehicle]
+    page, _ = open_console()
+    log_in(page, "ana")
+    here = world.fleet.position(instance)
+    target = {"lat": here["lat"] + 0.005, "lon": here["lon"]}
+    cid = world.fleet.submit(world.tokens["ana"], instance, "go_to", target)
+    marker(page, vehicle).click()
+    expect(command_item(page, cid)).to_contain_text(re.compile("acked|executing"))
+    agent.stop()
+    gone = toasts(page).filter(has_text="H2OmniX Alpha went offline during go to")
+    expect(gone).to_have_count(1, timeout=60_000)
+    agent.start()
+    back = toasts(page).filter(has_text="H2OmniX Alpha is back online")
+    expect(back).to_have_count(1, timeout=60_000)
+    expect(gone).to_have_count(0)
+    shots(page, "back-not-offline")

@@ -11,7 +11,7 @@ import { LiveLink } from "./live.js";
 import { FleetTable, VehiclePanel } from "./panels.js";
 import { endSession, logOut, startSession } from "./session.js";
 import { PHONE, Tabs } from "./tabs.js";
-import { openLog } from "./toasts.js";
+import { dismissTagged, openLog } from "./toasts.js";
 import { Tools } from "./tools.js";
 import { ago, clock, confirmAction, h, sending, toast, until, zoneText } from "./ui.js";
 
@@ -201,6 +201,7 @@ class Console {
   presenceChanged({ id, was, now }) {
     if (now === "online" && was === "offline") {
       const v = this.fleet.vehicles.get(id);
+      dismissTagged(`offline/${id}`); // "went offline during ..." is stale now
       toast(`${v.view.name || id} is back online`, "ok");
     }
     if (now !== "offline") return;
@@ -212,6 +213,8 @@ class Console {
       `${v.view.name || id} went offline during ${cmd.type.replace(/_/g, " ")} (${cmd.stage}); ` +
         `last heard ${Number.isFinite(heard) ? clock(heard) : "–"}: what it does now is unknown`,
       "error",
+      null,
+      `offline/${id}`,
     );
   }
 

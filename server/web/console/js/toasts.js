@@ -12,14 +12,15 @@ const log = []; // {at, message, kind}, newest last
 /** A toast; ``action`` ({label, run, sends}) adds a button to it. The same message again
  * while its toast is up is counted on it ("×5"), which becomes the newest and starts its
  * time again: five refusals in a row are one toast, not three and "+2 more". */
-export function toast(message, kind = "info", action = null) {
+export function toast(message, kind = "info", action = null, tag = null) {
   const box = document.getElementById("toasts");
   reserve(box);
   const same = [...box.querySelectorAll(".toast")]
     .find((el) => el.dataset.message === message && el.dataset.kind === kind);
   if (same) return again(box, same);
   const item = h(`div.toast.${kind}`, {
-    role: kind === "error" ? "alert" : "status", dataset: { message, kind, count: 1 },
+    role: kind === "error" ? "alert" : "status",
+    dataset: { message, kind, count: 1, ...(tag ? { tag } : {}) },
   }, h("span.msg", { title: message }, message), h("span.count", { hidden: true }));
   if (action) {
     item.append(h("button", { ...(action.sends ? sends(action.sends) : {}), onclick: action.run },
@@ -37,6 +38,14 @@ export function toast(message, kind = "info", action = null) {
   arrange(box);
   item.timer = setTimeout(remove, lasts(kind));
   return item;
+}
+
+/** The toasts up with this ``tag`` taken down (what they said no longer holds; the log
+ * keeps them). */
+export function dismissTagged(tag) {
+  for (const el of document.querySelectorAll("#toasts .toast")) {
+    if (el.dataset.tag === tag && el.dismiss) el.dismiss();
+  }
 }
 
 function lasts(kind) {
