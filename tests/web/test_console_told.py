@@ -3,8 +3,9 @@ test_console_watch): a stop someone else sent to the boat you command, and who s
 an alarm, whatever tab is open; a revoke of a boat out of contact (the hold waits for
 it), a command that expired unacknowledged, the boat back online; control that
 ended while your console was out of contact; a command that failed on the boat, live or
-while the console was out of contact; "went offline" taken down when the boat is back. Each was found missing by a field test.
-A world of its own (the module's): an agent is stopped and started again."""
+while the console was out of contact; "went offline" taken down when the boat is back.
+Each was found missing by a field test. A world of its own (the module's): an agent is
+stopped and started again."""
 
 from __future__ import annotations
 
