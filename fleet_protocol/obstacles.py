@@ -69,6 +69,9 @@ class ObstacleView(WireModel):
     polygon: PolygonGeometry
     clearance_m: float
     created_at: Timestamp
+    #: When it was removed (**extension**: only in a list of a past time or window, which
+    #: holds the obstacles removed since; null for one still there).
+    deleted_at: Timestamp | None = None
 
 
 class ObstacleList(WireModel):

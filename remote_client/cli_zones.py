@@ -220,19 +220,28 @@ def zones_remove(
 @obstacles_app.callback()
 def obstacles(
     ctx: typer.Context,
+    at: str | None = typer.Option(
+        None,
+        "--at",
+        help="the obstacles there were then (10m, 2h, ISO 8601), as a replay draws them",
+    ),
     server: str = ServerOpt,
     token: str | None = GroupTokenOpt,
     as_json: bool = JsonOpt,
 ) -> None:
-    list_when_bare(ctx, server, token, as_json, _list_obstacles)
+    then, _ = window(at, None)
+    if at is not None and ctx.invoked_subcommand is not None:
+        fail(f"--at lists the obstacles of a past time: not with {ctx.invoked_subcommand}")
+    list_when_bare(ctx, server, token, as_json, lambda s, t, j: _list_obstacles(s, t, j, then))
 
 
-def _list_obstacles(server: str, token: str, as_json: bool) -> None:
-    data = run(server, token, lambda fleet: fleet.obstacles())
+def _list_obstacles(server: str, token: str, as_json: bool, at: str | None = None) -> None:
+    data = run(server, token, lambda fleet: fleet.obstacles(at))
     if as_json:
         dump(data)
         return
-    table = Table(title="fixed obstacles")
+    when = f", as at {plain_time(at)} UTC" if at else ""
+    table = Table(title=f"fixed obstacles{when}")
     for name in ("obstacle", "name", "vertices", "clearance m"):
         table.add_column(name, no_wrap=name == "obstacle")
     for o in data["obstacles"]:

@@ -128,9 +128,10 @@ class AdminCalls(Session):
         return str(pick_named(ref, (await self.zones())["zones"], "zone")["zone_id"])
 
     # ---- fixed obstacles (the planner keeps clear of them) ---------------------------
-    async def obstacles(self) -> Body:
-        """``{"obstacles": [...]}``: the known fixed obstacles."""
-        body: Body = await self.call("GET", "/api/obstacles")
+    async def obstacles(self, at: str | None = None) -> Body:
+        """``{"obstacles": [...]}``: the known fixed obstacles; ``at`` (ISO 8601): those
+        there were then (one removed since with its ``deleted_at``)."""
+        body: Body = await self.call("GET", "/api/obstacles", params=given(at=at))
         return body
 
     async def create_obstacle(

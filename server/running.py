@@ -158,6 +158,7 @@ async def _retention(services: Services) -> None:
         ("instances", lambda: services.instances.drop_finished_before(before)),
         ("dead_letters", lambda: services.dead_letters.drop_before(before)),
         ("zone_versions", lambda: services.zones.repo.drop_versions_before(before)),
+        ("obstacles_removed", lambda: services.obstacles.repo.drop_removed_before(before)),
         ("tokens", lambda: services.auth.repo.drop_expired_tokens(now)),
         ("login_attempts", lambda: services.auth.drop_old_login_attempts(now)),
     ]

@@ -121,6 +121,22 @@ async def test_obstacles_listed_added_and_removed(
         gone = await fleetctl(base, ADMIN_TOKEN, "obstacles", "remove", "rock")
         assert gone.exit_code == 1 and "no obstacle with the id or name 'rock'" in gone.stderr
 
+        # the obstacles there were: the rock when it stood, with when it was removed
+        then = await fleetctl(
+            base, token_of(operator), "obstacles", "--at", obstacle["created_at"], "--json"
+        )
+        assert then.exit_code == 0, then.output
+        [past] = json.loads(then.stdout)["obstacles"]
+        assert past["obstacle_id"] == obstacle["obstacle_id"] and past["deleted_at"]
+        table = await fleetctl(
+            base, token_of(operator), "obstacles", "--at", obstacle["created_at"]
+        )
+        assert table.exit_code == 0 and "rock" in table.stdout and "as at 20" in table.stdout
+        before = await fleetctl(base, ADMIN_TOKEN, "obstacles", "--at", "2000-01-01", "--json")
+        assert before.exit_code == 0 and json.loads(before.stdout)["obstacles"] == []
+        bad = await fleetctl(base, ADMIN_TOKEN, "obstacles", "--at", "yesterday")
+        assert bad.exit_code == 2 and "yesterday" in bad.stderr, bad.output
+
 
 async def test_a_feature_collection_of_one_polygon_draws_a_zone_and_others_are_refused(
     make_settings: Callable[..., Settings], tmp_path: Path

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import itertools
 import secrets
+from datetime import datetime
 from typing import Any
 
 import shapely
@@ -94,10 +95,20 @@ class ObstacleService:
 
     async def delete(self, obstacle_id: str, actor: Any = None) -> Doc:
         doc = await self.repo.get(obstacle_id)
-        if doc is None or not await self.repo.delete(obstacle_id):
+        if doc is None or not await self.repo.delete(doc, self.clock()):
             raise NotFound(f"no obstacle {obstacle_id}")
         await self._changed(doc, "deleted", actor)
         return doc
+
+    async def during(self, start: datetime, end: datetime) -> list[Doc]:
+        """The obstacles there were at some time of the window (a replay's): those still
+        there and those removed since ``start`` (kept for the retention)."""
+        if end < start:
+            raise Invalid(
+                "to is before from",
+                details=[{"field": "to", "message": "before from"}],
+            )
+        return await self.repo.during(start, end)
 
     async def zones(self) -> list[Zone]:
         """What the planner keeps clear of."""

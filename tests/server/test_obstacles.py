@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import AsyncIterator, Callable
+from datetime import datetime, timedelta
 from typing import Any
 
 import httpx
@@ -11,10 +12,11 @@ import shapely
 from asgi_lifespan import LifespanManager
 from shapely.geometry import shape
 
+from fleet_protocol import format_ts
 from server.app import create_app
 from server.domain.geo import from_local
 from server.settings import Settings
-from tests.factories import ADMIN, make_user
+from tests.factories import ADMIN, FakeClock, make_user
 from tests.server.commanding import World, world
 
 # Each test runs on the embedded store and on FerretDB (the real MongoDB driver).
@@ -35,6 +37,7 @@ def polygon(corners: list[tuple[float, float]]) -> dict[str, Any]:
 
 
 PIER = [(40.0, -30.0), (60.0, -30.0), (60.0, 30.0), (40.0, 30.0)]
+BUOY = [(-60.0, -5.0), (-50.0, -5.0), (-50.0, 5.0), (-60.0, 5.0)]
 
 
 async def create(http: httpx.AsyncClient, body: dict[str, Any]) -> httpx.Response:
@@ -232,3 +235,75 @@ async def test_a_straight_way_into_a_known_obstacle_is_queued_and_said(w: World)
         assert "runs into pier 3" in warning and "plan: true" in warning
     clear = await w.submit(op, [me], {"type": "go_to", "args": at(0, 100)})  # north: clear
     assert clear.json()["warnings"] == []
+
+
+async def test_the_obstacles_of_a_past_time_or_window_are_read_back(
+    clocked_client: httpx.AsyncClient, clock: FakeClock
+) -> None:
+    """A replay draws the obstacles there were at its time: a pier removed since is still
+    read at a time before its removal, with when it was removed; one drawn later is not."""
+    http = clocked_client
+    start = clock()
+    clock.advance(10)
+    pier = (await create(http, {"name": "pier", "polygon": polygon(PIER)})).json()
+    clock.advance(10)
+    buoy = (await create(http, {"name": "buoy", "polygon": polygon(BUOY)})).json()
+    clock.advance(10)
+    both = clock()
+    clock.advance(10)
+    assert (await http.delete(f"/api/obstacles/{pier['obstacle_id']}", headers=ADMIN)).is_success
+    removed = clock()
+    clock.advance(10)
+    _, viewer = await make_user(http, "viewer")
+
+    async def names(**query: datetime) -> list[tuple[str, str | None]]:
+        params = {k.rstrip("_"): format_ts(v) for k, v in query.items()}
+        r = await http.get("/api/obstacles", headers=viewer, params=params)
+        assert r.status_code == 200, r.text
+        return [(o["name"], o["deleted_at"]) for o in r.json()["obstacles"]]
+
+    gone = format_ts(removed)
+    assert await names() == [("buoy", None)]
+    assert await names(at=start) == []
+    assert await names(at=both) == [("pier", gone), ("buoy", None)]
+    assert await names(at=removed) == [("buoy", None)]  # removed then: not there any more
+    assert await names(from_=start, to=both) == [("pier", gone), ("buoy", None)]
+    assert await names(from_=removed, to=clock()) == [("buoy", None)]
+    assert buoy["deleted_at"] is None
+    for params, field in (
+        ({"from": format_ts(start)}, "to"),
+        ({"to": format_ts(start)}, "from"),
+        ({"at": format_ts(start), "from": format_ts(start), "to": format_ts(both)}, "at"),
+        ({"from": format_ts(both), "to": format_ts(start)}, "to"),
+        ({"at": "yesterday"}, "at"),
+    ):
+        r = await http.get("/api/obstacles", headers=viewer, params=params)
+        assert r.status_code == 422, (params, r.text)
+        assert field in r.text, (params, r.text)
+
+
+async def test_retention_forgets_removed_obstacles_only(
+    make_settings: Callable[..., Settings], clock: FakeClock
+) -> None:
+    app = create_app(make_settings(retention_s=3600), clock=clock)
+    async with LifespanManager(app) as manager:
+        transport = httpx.ASGITransport(app=manager.app)
+        async with httpx.AsyncClient(transport=transport, base_url="http://test") as http:
+            old = (await create(http, {"name": "old", "polygon": polygon(PIER)})).json()
+            clock.advance(1)
+            kept = (await create(http, {"name": "kept", "polygon": polygon(BUOY)})).json()
+            await http.delete(f"/api/obstacles/{old['obstacle_id']}", headers=ADMIN)
+            before = clock()
+            services = app.state.services
+            clock.advance(1800)
+            await services.obstacles.repo.drop_removed_before(clock() - timedelta(seconds=3600))
+            r = await http.get("/api/obstacles", headers=ADMIN, params={"at": format_ts(before)})
+            assert [o["name"] for o in r.json()["obstacles"]] == ["kept"]  # removed by then
+            window = {"from": format_ts(before - timedelta(seconds=1)), "to": format_ts(before)}
+            r = await http.get("/api/obstacles", headers=ADMIN, params=window)
+            assert [o["name"] for o in r.json()["obstacles"]] == ["old", "kept"]
+            clock.advance(3600)
+            await services.obstacles.repo.drop_removed_before(clock() - timedelta(seconds=3600))
+            r = await http.get("/api/obstacles", headers=ADMIN, params=window)
+            assert [o["name"] for o in r.json()["obstacles"]] == ["kept"]
+            assert kept["deleted_at"] is None

@@ -1,18 +1,21 @@
 """Zones in what people read, in a real browser (as test_console_wording): a zone drawn,
 renamed and removed reads as words in a vehicle's events and the replay's list, and the
-replay draws the zones of its cursor's time. A world of its own (the module's)."""
+replay draws the zones and the obstacles of its cursor's time. A world of its own (the
+module's)."""
 
 from __future__ import annotations
 
 import re
+import time
 from typing import Any
 
 import pytest
 from playwright.sync_api import expect
 
+from tests.agent.procs import wait_until
 from tests.web import console_helpers as console
 from tests.web.conftest import Shots, World
-from tests.web.console_helpers import replay_up
+from tests.web.console_helpers import ms, replay_up
 from vehicle_client.geo import LocalFrame
 
 pytestmark = [pytest.mark.slow, pytest.mark.browser]
@@ -71,3 +74,44 @@ def test_a_zone_drawn_changed_and_removed_reads_as_words(
     page.wait_for_function(f"() => ({no_go})() === {with_rocks - 1}")
     shots(page, "replay-zones-in-words")
     page.click("#replay-exit")
+
+
+def test_a_replay_draws_the_obstacles_of_its_cursors_time(
+    world: World, open_console: Any, shots: Shots
+) -> None:
+    """The replay drew the obstacles of now (found by a field-manager test): one removed
+    since was missing from the time it stood, and one drawn later stood there before it."""
+    here = console.position(world, "demo-usv-1")
+    near = LocalFrame(here["lat"], here["lon"])
+    ring = [near.to_latlon(east, north) for east, north in ((80, 0), (120, 0), (120, 40))]
+    coords = [[lon, lat] for lat, lon in ring]
+    body = {
+        "name": "Old wreck",
+        "polygon": {"type": "Polygon", "coordinates": [[*coords, coords[0]]]},
+    }
+    made = world.fleet.call("POST", "/api/obstacles", json=body)
+    drawn = ms(made["created_at"])
+    wait_until(lambda: time.time() * 1000 > drawn + 1500, "the wreck to stand a while", 5)
+    world.fleet.call("DELETE", f"/api/obstacles/{made['obstacle_id']}")
+
+    page, _ = open_console()
+    console.log_in(page, "mia")
+    wrecks = "() => document.querySelectorAll('#map path.obstacle').length"
+    expect(page.locator("#map path.obstacle")).to_have_count(0)  # removed: not drawn now
+    replay_up(page)
+    page.click('[data-tab="replay"]')
+    page.click('#replay-form [data-minutes="5"]')
+    page.click("#replay-load")
+    expect(page.locator("#replay-bar")).to_be_visible()
+    expect(page.locator("#replay-info .obstacles-then")).to_have_text(
+        "Obstacles are drawn as they were at the cursor's time: 2 obstacle changes in this window."
+    )
+    page.evaluate("t => fleetConsole.replay.seek(t)", drawn + 750)
+    page.wait_for_function(f"() => ({wrecks})() === 1")
+    shots(page, "replay-wreck-then")
+    page.evaluate("t => fleetConsole.replay.seek(t)", drawn - 1000)
+    page.wait_for_function(f"() => ({wrecks})() === 0")
+    page.evaluate("() => fleetConsole.replay.seek(fleetConsole.replay.end)")
+    page.wait_for_function(f"() => ({wrecks})() === 0")
+    page.click("#replay-exit")
+    expect(page.locator("#map path.obstacle")).to_have_count(0)

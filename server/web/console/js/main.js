@@ -293,7 +293,9 @@ class Console {
       if (e.status !== 404) console.warn("zones:", e.message);
     }
     try {
-      this.map.setObstacles((await this.api.get("/api/obstacles")).obstacles || []);
+      this.liveObstacles = (await this.api.get("/api/obstacles")).obstacles || [];
+      // a replay draws the obstacles of its time; Back to live draws these
+      if (this.app.dataset.replay !== "on") this.map.setObstacles(this.liveObstacles);
     } catch (e) {
       console.warn("obstacles:", e.message);
     }

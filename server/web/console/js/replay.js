@@ -125,10 +125,15 @@ export class Replay {
     this.info.textContent = "loading…";
     let got;
     let zoneFrames = null;
+    let obstacles = null;
     try {
       got = await Promise.all(ids.map((id) => this.fetchVehicle(id, start, end)));
       zoneFrames = await this.fetchZones(start, end).catch((e) => {
         console.warn("replay zones:", e.message); // the zones of now stay, said so
+        return null;
+      });
+      obstacles = await this.fetchObstacles(start, end).catch((e) => {
+        console.warn("replay obstacles:", e.message); // those of now stay, said so
         return null;
       });
     } catch (e) {
@@ -147,6 +152,8 @@ export class Replay {
     this.end = end;
     this.ids = ids;
     this.zoneFrames = zoneFrames;
+    this.obstaclesThen = obstacles;
+    this.obstaclesDrawn = null;
     this.tracks = new Map(got.map((g) => [g.id, g.points]));
     this.events = got.flatMap((g) => g.events).sort((a, b) => a.t - b.t);
     this.offline = new Map(got.map((g) => [g.id, offlinePeriods(g.events, g.points, start, end)]));
@@ -157,6 +164,7 @@ export class Replay {
         `${counted(this.events.length, "event")}, ${dateTime(start)} to ${dateTime(end)}`,
       ...this.missing.map((text) => h("div.no-positions", {}, text)),
       ...zonesSaid(zoneFrames, this.events),
+      ...obstaclesSaid(obstacles, start, end),
     );
     this.choice.hold();
     this.enter();
@@ -254,6 +262,28 @@ export class Replay {
     return frames;
   }
 
+  /** Every obstacle there was at some time of the window, each with ``created_at`` and
+   * ``deleted_at`` (null: still there): ``[{t0, t1, obstacle}]``. */
+  async fetchObstacles(start, end) {
+    const iso = (t) => new Date(t).toISOString();
+    const got = await this.ctx.api.get("/api/obstacles", { from: iso(start), to: iso(end) });
+    return (got.obstacles || []).map((o) => ({
+      t0: Date.parse(o.created_at),
+      t1: o.deleted_at ? Date.parse(o.deleted_at) : Infinity,
+      obstacle: o,
+    }));
+  }
+
+  /** The obstacles of the cursor's time on the map (drawn again only when they change). */
+  drawObstacles() {
+    if (!this.obstaclesThen) return;
+    const now = this.obstaclesThen.filter((o) => o.t0 <= this.cursor && this.cursor < o.t1);
+    const key = now.map((o) => o.obstacle.obstacle_id).join(",");
+    if (key === this.obstaclesDrawn) return;
+    this.obstaclesDrawn = key;
+    this.map.setObstacles(now.map((o) => o.obstacle));
+  }
+
   /** The zones of the cursor's time on the map (drawn again only when they change). */
   drawZones() {
     if (!this.zoneFrames) return;
@@ -316,6 +346,8 @@ export class Replay {
     delete this.ctx.app.dataset.replay;
     if (this.zoneFrame) this.map.setZones(this.ctx.liveZones || []); // the zones of now
     this.zoneFrame = null;
+    if (this.obstaclesDrawn != null) this.map.setObstacles(this.ctx.liveObstacles || []);
+    this.obstaclesDrawn = null;
     this.ctx.selectionChanged();
     this.map.map.invalidateSize(false);
     if (this.liveView) {
@@ -349,6 +381,7 @@ export class Replay {
     this.slider.value = String(this.cursor - this.start);
     this.timeOut.value = `${dateTime(this.cursor)}`;
     this.drawZones();
+    this.drawObstacles();
     const away = [];
     for (const [id, marker] of this.markers) {
       const points = this.tracks.get(id);
@@ -453,6 +486,17 @@ export class Replay {
     this.playButton.textContent = "Play";
     this.playButton.setAttribute("aria-label", "play");
   }
+}
+
+/** What the summary says of the obstacles: those of the cursor's time are drawn (the
+ * window's changes counted); when they could not be read, those of now are, said. */
+function obstaclesSaid(obstacles, start, end) {
+  if (!obstacles) return [h("div.obstacles-now", {}, "Obstacles are drawn as they are now, not as they were then.")];
+  const changes = obstacles.filter((o) => o.t0 > start && o.t0 <= end).length +
+    obstacles.filter((o) => o.t1 > start && o.t1 <= end).length;
+  if (!changes) return [];
+  return [h("div.obstacles-then", {}, "Obstacles are drawn as they were at the cursor's time: " +
+    `${counted(changes, "obstacle change")} in this window.`)];
 }
 
 /** What the summary says of the zones: those of the cursor's time are drawn (counted
