@@ -166,6 +166,16 @@ def test_replay_puts_each_marker_where_the_store_has_it(
             assert abs(box["y"] + box["height"] / 2 - y) < 1.5
         shots(page, f"replay-at-{int(fraction * 100)}")
 
+    # a jump over the whole recording lights only the newest event it passed, not each
+    slider.fill(str(int(first - start)))
+    slider.fill(str(int(last - start)))
+    lit = page.evaluate(
+        """() => [document.querySelectorAll('#timeline-ticks .tick.passed').length,
+                  document.querySelectorAll('#timeline-ticks .tick.hit').length,
+                  document.querySelectorAll('#replay-events li.hit').length]"""
+    )
+    assert lit[0] >= 2 and lit[1:] == [1, 1], lit
+
     # play from the start of the recording at 10x: the cursor moves, events light up
     slider.fill(str(int(first - start)))
     played_from = page.evaluate("fleetConsole.replay.cursor")

@@ -436,26 +436,28 @@ export class Replay {
     }
   }
 
-  /** Events up to the cursor are passed; those the cursor just went over light up. */
+  /** Events up to the cursor are passed; those the cursor just went over while playing
+   * light up. A jump (the slider, a click) lights only the newest it went over: every
+   * tick of an hour lit at once said nothing. */
   markEvents(before, now) {
-    const lo = before;
-    const hi = now;
     const rows = this.list.children;
     const ticks = this.ticks.children;
     let latest = null;
+    const hits = [];
     this.events.forEach((e, i) => {
       const passed = e.t <= now;
       rows[i].classList.toggle("passed", passed);
       ticks[i].classList.toggle("passed", passed);
       if (passed) latest = i;
-      if (now > before && e.t > lo && e.t <= hi) { // passed going forward
-        for (const el of [rows[i], ticks[i]]) {
-          el.classList.add("hit");
-          clearTimeout(el.hitTimer);
-          el.hitTimer = setTimeout(() => el.classList.remove("hit"), FLASH_MS);
-        }
-      }
+      if (now > before && e.t > before && e.t <= now) hits.push(i); // passed going forward
     });
+    for (const i of this.playing ? hits : hits.slice(-1)) {
+      for (const el of [rows[i], ticks[i]]) {
+        el.classList.add("hit");
+        clearTimeout(el.hitTimer);
+        el.hitTimer = setTimeout(() => el.classList.remove("hit"), FLASH_MS);
+      }
+    }
     for (const r of this.list.querySelectorAll(".current")) r.classList.remove("current");
     if (latest !== null) {
       rows[latest].classList.add("current");
