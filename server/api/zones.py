@@ -17,7 +17,7 @@ from fleet_protocol import (
     ZoneView,
 )
 from server.api.deps import Admin, PathId, ServicesDep, Viewer
-from server.domain.access import Principal
+from server.domain.access import Principal, zone_vehicles_seen
 from server.errors import NotFound
 from server.storage.backends import Doc
 
@@ -25,13 +25,10 @@ router = APIRouter(tags=["zones"])
 
 
 def _seen(doc: Doc, user: Principal) -> ZoneView | None:
-    """The zone as this user sees it: only the vehicles they see, or not at all when it
-    concerns none of them."""
-    listed = doc.get("vehicles") or []
-    visible = [v for v in listed if user.can_see(v)]
-    if listed and not visible:
-        return None
-    return ZoneView.model_validate({**doc, "vehicles": visible})
+    """The zone as this user sees it (``zone_vehicles_seen``): only the vehicles they
+    see, or not at all when it concerns none of them."""
+    visible = zone_vehicles_seen(doc.get("vehicles") or [], user)
+    return None if visible is None else ZoneView.model_validate({**doc, "vehicles": visible})
 
 
 @router.get("/api/zones")

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from datetime import datetime
 from typing import Any, Literal
@@ -49,6 +49,14 @@ class Principal:
 
     def label(self) -> str:
         return self.name if self.kind == "user" else f"{self.kind}:{self.name}"
+
+
+def zone_vehicles_seen(listed: Sequence[str], who: Principal) -> list[str] | None:
+    """Of a zone's ``listed`` vehicles, those ``who`` sees; None when it lists vehicles and
+    they see none of them (the zone is not theirs to see). A zone that lists none concerns
+    every vehicle, and everyone sees it."""
+    seen = [v for v in listed if who.can_see(v)]
+    return None if listed and not seen else seen
 
 
 def enabled_admin(user: Mapping[str, Any]) -> bool:

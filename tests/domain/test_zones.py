@@ -8,6 +8,7 @@ import shapely
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
+from server.domain.access import Principal, zone_vehicles_seen
 from server.domain.geo import from_local, to_local
 from server.domain.plan_frame import corridor
 from server.domain.planning import NoPath, plan_path
@@ -338,3 +339,19 @@ def test_a_judgement_by_older_rules_is_behind_one_by_newer() -> None:
     assert behind(RulesSeen(9, 1), stored)  # newer zones, older policy: still behind
     assert not behind(RulesSeen(4, 2), stored) and not behind(RulesSeen(5, 3), stored)
     assert not behind(RulesSeen(), RulesSeen())  # a state stored before they were kept
+
+
+def test_who_sees_a_zone_and_which_of_its_vehicles() -> None:
+    """A zone that lists vehicles is seen by those who see one of them, with only those;
+    one that lists none concerns every vehicle and is everyone's; an admin sees it all."""
+    ana = Principal("user", "ana", "operator", frozenset({"usv-1", "usv-2"}))
+    ben = Principal("user", "ben", "operator", frozenset({"usv-3"}))
+    admin = Principal("user", "root", "admin")
+    listed = ["usv-2", "usv-3", "usv-9"]
+    assert zone_vehicles_seen(listed, ana) == ["usv-2"]
+    assert zone_vehicles_seen(listed, ben) == ["usv-3"]
+    assert zone_vehicles_seen(listed, admin) == listed
+    assert zone_vehicles_seen(["usv-9"], ana) is None
+    assert zone_vehicles_seen([], ana) == [] and zone_vehicles_seen([], ben) == []
+    vehicle = Principal("vehicle", "usv-3", vehicles=frozenset({"usv-3"}))
+    assert zone_vehicles_seen(listed, vehicle) == ["usv-3"]
