@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 from collections import Counter
+from collections.abc import Callable
 from typing import Any
 
 import typer
@@ -102,10 +103,28 @@ def zones(
     token: str | None = GroupTokenOpt,
     as_json: bool = JsonOpt,
 ) -> None:
+    _listed_at(ctx, at, "zones", _list_zones, server, token, as_json)
+
+
+def _listed_at(
+    ctx: typer.Context,
+    at: str | None,
+    what: str,
+    lister: Callable[[str, str, bool, str | None], None],
+    server: str,
+    token: str | None,
+    as_json: bool,
+) -> None:
+    """A group called bare: its list, of now or (``--at``) of a past time, which goes with
+    no subcommand."""
     then, _ = window(at, None)
     if at is not None and ctx.invoked_subcommand is not None:
-        fail(f"--at lists the zones of a past time: not with {ctx.invoked_subcommand}")
-    list_when_bare(ctx, server, token, as_json, lambda s, t, j: _list_zones(s, t, j, then))
+        fail(f"--at lists the {what} of a past time: not with {ctx.invoked_subcommand}")
+    list_when_bare(ctx, server, token, as_json, lambda s, t, j: lister(s, t, j, then))
+
+
+def _as_at(at: str | None) -> str:
+    return f", as at {plain_time(at)} UTC" if at else ""
 
 
 def _list_zones(server: str, token: str, as_json: bool, at: str | None = None) -> None:
@@ -113,8 +132,7 @@ def _list_zones(server: str, token: str, as_json: bool, at: str | None = None) -
     if as_json:
         dump(data)
         return
-    when = f", as at {plain_time(at)} UTC" if at else ""
-    table = Table(title=f"zones (version {data['version']}{when})")
+    table = Table(title=f"zones (version {data['version']}{_as_at(at)})")
     for name in ("zone", "name", "kind", "vehicles", "clearance m"):
         table.add_column(name, no_wrap=name == "zone")
     for z in data["zones"]:
@@ -229,10 +247,7 @@ def obstacles(
     token: str | None = GroupTokenOpt,
     as_json: bool = JsonOpt,
 ) -> None:
-    then, _ = window(at, None)
-    if at is not None and ctx.invoked_subcommand is not None:
-        fail(f"--at lists the obstacles of a past time: not with {ctx.invoked_subcommand}")
-    list_when_bare(ctx, server, token, as_json, lambda s, t, j: _list_obstacles(s, t, j, then))
+    _listed_at(ctx, at, "obstacles", _list_obstacles, server, token, as_json)
 
 
 def _list_obstacles(server: str, token: str, as_json: bool, at: str | None = None) -> None:
@@ -240,8 +255,7 @@ def _list_obstacles(server: str, token: str, as_json: bool, at: str | None = Non
     if as_json:
         dump(data)
         return
-    when = f", as at {plain_time(at)} UTC" if at else ""
-    table = Table(title=f"fixed obstacles{when}")
+    table = Table(title=f"fixed obstacles{_as_at(at)}")
     for name in ("obstacle", "name", "vertices", "clearance m"):
         table.add_column(name, no_wrap=name == "obstacle")
     for o in data["obstacles"]:
