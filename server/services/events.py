@@ -17,6 +17,12 @@ from server.storage.events import EventsRepo
 MAX_EVENTS_PER_QUERY = 10_000
 
 
+#: The kinds of event every mission makes many of (a command's submission and end, the
+#: vehicle's mode changes, its instance, an admin's edits of it or of zones): those a
+#: view of what happened to control and safety can do without.
+ROUTINE_KINDS = ("command", "control_mode", "instance", "vehicle_changed", "zones_changed")
+
+
 class EventService:
     def __init__(self, repo: EventsRepo, messages: MessageBus, clock: Clock) -> None:
         self.repo = repo
@@ -93,9 +99,22 @@ class EventService:
 
     async def latest(self, vehicle_id: str, count: int) -> list[dict[str, Any]]:
         """The vehicle's last ``count`` events of the last day, oldest first (the caller
-        has checked that it sees the vehicle)."""
+        has checked that it sees the vehicle); and its last ``count`` of the day that are
+        not routine (:data:`ROUTINE_KINDS`; a stop is not), which a run of commands and
+        mode changes would otherwise push out: a console opened later lists what happened
+        to control and safety (a revoke, a lapse, a boat gone offline) without a gap."""
         since = self.clock() - timedelta(days=1)
-        return [d for d in await self.repo.latest(vehicle_id, count) if d["at"] >= since]
+        every = await self.repo.latest(vehicle_id, count)
+        notable = await self.repo.latest(vehicle_id, count, besides=ROUTINE_KINDS)
+        seen = {_key(d) for d in every}
+        docs = every + [d for d in notable if _key(d) not in seen]
+        docs.sort(key=lambda d: d["at"])  # stable: events of one instant keep their order
+        return [d for d in docs if d["at"] >= since]
 
     async def drop_before(self, before: datetime) -> int:
         return await self.repo.drop_before(before)
+
+
+def _key(doc: dict[str, Any]) -> str:
+    """An event's identity (one an early version stored has no ``event_id``)."""
+    return str(doc.get("event_id") or (doc["at"], doc["kind"], doc.get("data")))

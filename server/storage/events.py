@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from datetime import datetime
 from typing import Any
 
@@ -44,10 +45,19 @@ class EventsRepo:
             flt["$or"] = [{"at": {"$gt": at}}, {"at": at, "_id": {"$gt": ObjectId(key)}}]
         return await self.events.find(flt, sort=[("at", 1), ("_id", 1)], limit=limit)
 
-    async def latest(self, vehicle_id: str, count: int) -> list[Doc]:
-        """The vehicle's last ``count`` events, oldest first."""
+    async def latest(
+        self, vehicle_id: str, count: int, *, besides: Sequence[str] = ()
+    ) -> list[Doc]:
+        """The vehicle's last ``count`` events, oldest first; with ``besides``, those of
+        other kinds, and its stops (a ``command`` event of type ``stop``)."""
+        flt: Doc = {"vehicle_id": vehicle_id}
+        if besides:
+            flt["$or"] = [
+                {"kind": {"$nin": list(besides)}},
+                {"kind": "command", "data.type": "stop"},
+            ]
         docs = await self.events.find(
-            {"vehicle_id": vehicle_id},
+            flt,
             sort=[("at", -1), ("_id", -1)],
             limit=count,
             projection={"_id": 0},

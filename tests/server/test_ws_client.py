@@ -385,3 +385,33 @@ async def test_zones_says_to_users_that_the_zones_changed(
         assert written["ok"] is False and written["error"]["code"] == "forbidden"
         below = await call(w, "subscribe", "b", topics=["zones/x"])
         assert below["ok"] is False and "'zones' is one topic" in below["error"]["message"]
+
+
+async def test_the_events_snapshot_keeps_what_happened_to_control_past_routine_ones(
+    base: str, api: httpx.AsyncClient
+) -> None:
+    """A console opened after 25 missions still lists the grant and the stop before them:
+    the snapshot holds the last 20 events and the last 20 that are not routine."""
+    vid, _, iid = await _vehicle_with_instance(api)
+    user, op = await make_user(api, "operator", [vid])
+    grant = {"instance_id": iid, "user": user, "duration_s": 600}
+    assert (await api.post("/client/grant_control", headers=ADMIN, json=grant)).is_success
+    stop = {"instance_ids": [iid], "command": {"type": "stop", "args": {}}}
+    assert (await api.post("/client/submit_control", headers=op, json=stop)).is_success
+    for n in range(25):
+        go = {"type": "go_to", "args": {"lat": 43.9 + n * 1e-4, "lon": 15.4}}
+        r = await api.post("/client/submit_control", headers=op, json={**stop, "command": go})
+        assert r.is_success, r.text
+    _, viewer = await make_user(api, "viewer", [vid])
+    async with await connect(base, "/ws/client", tok(viewer)) as ws:
+        ack = await call(ws, "subscribe", "s", topics=[f"vehicle/{vid}/events"])
+        assert ack["ok"] is True
+        snap = await recv_until(ws, lambda f: f["op"] == "event")
+    events = snap["data"]["events"]
+    kinds = [e["kind"] for e in events]
+    assert "control_grant" in kinds
+    stops = [e for e in events if e["kind"] == "command" and e["data"]["type"] == "stop"]
+    assert stops, kinds
+    assert kinds.count("command") >= 20  # the last 20 as before, the missions among them
+    times = [e["at"] for e in events]
+    assert times == sorted(times) and len({e["event_id"] for e in events}) == len(events)
