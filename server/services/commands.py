@@ -264,15 +264,23 @@ class CommandService(CommandDelivery):
                 "reason": event.reason,
                 "command_id": held.command_id if held is not None else None,
                 "type": held.type if held is not None else None,
+                # a stop sent before, still under way, holds it (no hold was sent)
+                **({"stop_kept": True} if held is not None and held.issued_by != SYSTEM else {}),
             },
         )
 
     async def hold(self, instance_id: str, why: str) -> Command | None:
         """Tell the vehicle to hold station where it is (``stop`` if it cannot keep
-        station); None when it is finished or under local control (only its crew acts)."""
+        station); None when it is finished or under local control (only its crew acts).
+        A stop still under way is what holds it: it is kept, and no hold is sent (the
+        hold, newer, would replace the stop on the vehicle)."""
         state = await self.instances.find(instance_id)
         if state.finished or state.control_mode == "local":
             return None
+        lane = await self._sync(instance_id)
+        stop = next((c for c in life.queue_order(list(lane.active.values())) if c.is_stop), None)
+        if stop is not None:  # it brings the vehicle to rest: a hold would replace it there
+            return stop
         if "keep_station" in state.capabilities:  # with its radius, as an operator's has it
             return await self.system_command(state, "keep_station", HOLD_ARGS, why)
         return await self.system_command(state, "stop", {}, why)

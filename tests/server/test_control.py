@@ -228,6 +228,14 @@ async def test_revoke_ends_the_lease_cancels_motion_and_keeps_stops(w: World) ->
     assert (await w.command(stop))["status"] == "queued"
     assert (await w.command(go))["history"][-1]["detail"] == "superseded_by_stop"
     assert (await w.submit(op, [v], GO_TO)).json()["error"]["code"] == "control_not_held"
+    # the stop under way holds the vehicle: no hold is sent to replace it there
+    assert [c["command_id"] for c in await w.poll(v)] == [stop]
+    events = await w.http.get(
+        "/api/events", headers=ADMIN, params={"vehicle_id": v.vehicle_id, "kind": "hold_station"}
+    )
+    [said] = events.json()["events"]
+    assert (said["data"]["command_id"], said["data"]["type"]) == (stop, "stop")
+    assert said["data"]["stop_kept"] is True
 
 
 async def test_revoke_refusals(w: World) -> None:

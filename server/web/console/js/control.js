@@ -124,6 +124,7 @@ export class ControlPanel {
     const v = this.ctx.fleet.vehicles.get(id);
     const why = String(d.reason || "ended").replace(/_/g, " ");
     const whose = d.holder ? `${d.holder}'s control` : "control";
+    if (d.stop_kept) return `${name}: ${whose} ended (${why}); the stop already sent to it holds it`;
     return `${name}: ${whose} ended (${why}); ${holdAfter(name, v && v.view.presence)}`;
   }
 

@@ -97,8 +97,9 @@ export function describeEvent(e, known = () => null) {
     // after "told to hold station": why, not "keeps station" said a second time (the
     // hold reaches a boat out of contact only when it is back)
     const why = String(d.reason || "ended").replace(/_/g, " ");
-    return `${d.holder ? `${d.holder}'s control ended` : "control ended"} (${why})` +
-      `${d.type === "stop" ? "; it is told to stop (it cannot keep station)" : ""}`;
+    const how = d.stop_kept ? "; the stop already sent to it holds it"
+      : d.type === "stop" ? "; it is told to stop (it cannot keep station)" : "";
+    return `${d.holder ? `${d.holder}'s control ended` : "control ended"} (${why})${how}`;
   }
   if (e.kind === "vehicle_changed") {  // an admin put its name or type right
     const was = d.was || {};
