@@ -3,8 +3,9 @@ it, in a real browser (as test_console_told): a revoke told the operator that th
 station and the manager twice, in contradicting words, though the hold was only queued (it
 later expired unheard); a replay showed nothing of a ticked boat with no positions in the
 window; the parameters panel did not say how old the parameters of a boat offline were, nor
-when a refresh read them. A world of its own (the module's), in file order: Bravo's agent
-is stopped in the first test and stays stopped."""
+when a refresh read them; a stop for a boat out of contact was asked, and told to the
+manager, as if it stopped at once. A world of its own (the module's), in file order:
+Bravo's agent is stopped in the first test and stays stopped."""
 
 from __future__ import annotations
 
@@ -131,3 +132,33 @@ def test_the_parameters_of_a_boat_offline_say_how_old_they_are(
     expect(params).not_to_have_text(read)
     expect(params).to_have_text(re.compile(rf"read at {CLOCK}$"))
     shots(page, "params-dated")
+
+
+def test_a_stop_for_a_boat_out_of_contact_says_it_is_queued(
+    world: World, open_console: Any, shots: Shots
+) -> None:
+    """The question before a stop said "H2OmniX Bravo will stop at once" for a boat
+    offline for minutes: it gets the stop only when it is back."""
+    assert presence(world) == "offline"
+    page, _ = open_console()
+    log_in(page, "ana")
+    marker(page, VEHICLE).click()
+    marker(page, "demo-usv-1").click(modifiers=["Shift"])  # and Alpha, online
+    page.click("#stop-selected")
+    text = page.locator("#confirm-text")
+    expect(text).to_contain_text("H2OmniX Alpha will stop at once")
+    expect(text).to_contain_text(
+        "H2OmniX Bravo is out of contact: the stop is queued and reaches it only when back"
+    )
+    expect(text).not_to_contain_text("Bravo will stop at once")
+    shots(page, "stop-offline-asked")
+    page.locator("#confirm-cancel").click()
+    expect(page.locator("#confirm")).to_be_hidden()
+    # the manager is told that it was sent, not that the boat stopped
+    manager, _ = open_console()
+    log_in(manager, "mia")
+    world.fleet.submit(world.tokens["ana"], world.instances[VEHICLE], "stop", {})
+    told = toasts(manager).filter(has_text="ana sent a stop to H2OmniX Bravo, out of contact")
+    expect(told).to_have_count(1)
+    expect(told).to_contain_text("it reaches the boat only when back")
+    expect(toasts(manager).filter(has_text="ana stopped")).to_have_count(0)

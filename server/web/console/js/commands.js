@@ -159,9 +159,19 @@ export class Commands {
     const vehicles = this.targets(this.ctx.selection);
     if (!vehicles.length) return toast("no selected vehicle is running", "error");
     const names = vehicles.map((v) => v.view.name || v.id).join(", ");
+    // a boat out of contact gets the stop only when it is back: not "at once"
+    const here = vehicles.filter((v) => v.view.presence === "online");
+    const away = vehicles.filter((v) => v.view.presence !== "online");
+    const nameList = (list) => list.map((v) => v.view.name || v.id).join(", ");
+    const said = [
+      here.length ? `${nameList(here)} will stop at once` : null,
+      away.length ? `${nameList(away)} ${away.length === 1 ? "is" : "are"} out of contact: ` +
+        `the stop is queued and reaches ${away.length === 1 ? "it" : "each"} only when back, ` +
+        "within an hour" : null,
+    ].filter(Boolean).join("; ");
     const ok = await confirmAction({
       title: vehicles.length > 1 ? `Stop ${vehicles.length} vehicles?` : `Stop ${names}?`,
-      text: `${names} will stop at once; missions queued and not yet started are cancelled.`,
+      text: `${said}; missions queued and not yet started are cancelled.`,
       confirm: vehicles.length > 1 ? `Stop ${vehicles.length} vehicles` : "Stop it",
     });
     if (!ok) return undefined;

@@ -101,7 +101,18 @@ export class ControlPanel {
     setTimeout(() => {
       const all = [...this.stops.get(by)].sort();
       this.stops.delete(by);
-      toast(`${by} stopped ${all.join(", ")}`, "warn");
+      // a boat out of contact gets it only when back: "stopped" would say it had happened
+      const away = all.filter((name) => {
+        const boat = [...this.ctx.fleet.vehicles.values()].find((x) => this.nameOf(x.id) === name);
+        return boat && boat.view.presence !== "online";
+      });
+      const here = all.filter((name) => !away.includes(name));
+      const said = [
+        here.length ? `${by} stopped ${here.join(", ")}` : null,
+        away.length ? `${here.length ? "and sent" : `${by} sent`} a stop to ${away.join(", ")}, ` +
+          "out of contact: it reaches the boat only when back" : null,
+      ].filter(Boolean).join(" ");
+      toast(said, "warn");
     }, 500);
   }
 
