@@ -23,7 +23,7 @@ import time
 from datetime import datetime, timedelta
 from typing import Any
 
-from fleet_protocol import PatchVehicle, StartInstance
+from fleet_protocol import PatchVehicle, StartInstance, format_ts
 from server.domain.access import Principal
 from server.domain.clock import Clock
 from server.domain.events import InstanceFinished, PresenceChanged, StateWritten
@@ -343,7 +343,14 @@ class InstanceService(InstanceCopies):
             "presence",
             vehicle_id=state.vehicle_id,
             instance_id=state.instance_id,
-            data={"presence": presence},
+            # when it was last heard: a change found late (the server was down meanwhile)
+            # is dated when found, and this says since when it was silent
+            data={"presence": presence}
+            | (
+                {"last_seen": format_ts(state.last_seen)}
+                if presence in ("stale", "offline") and state.last_seen is not None
+                else {}
+            ),
         )
         await self.repo.note_presence(state.instance_id, seq, presence)
         self.messages.emit_now(StateWritten(state.instance_id, "instance"))

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from datetime import UTC, datetime
+from typing import Any
 
 import httpx
 import pytest
@@ -12,6 +13,7 @@ from fleet_protocol import parse_ts
 from server.settings import Settings
 from tests.factories import ADMIN, FakeClock, make_user, make_vehicle, sample, start_instance
 from tests.live import call, connect, recv_until, serve
+from tests.server.commanding import eventually
 
 # Each test runs on the embedded store and on FerretDB (the real MongoDB driver).
 pytestmark = pytest.mark.usefixtures("store_backend")
@@ -339,3 +341,36 @@ async def test_a_start_without_capabilities_keeps_the_ones_the_vehicle_gave(
     )
     assert r.status_code == 200 and r.json()["resumed"] is True, r.text
     assert await shown(fresh) == []
+
+
+async def test_a_presence_change_found_late_says_when_the_vehicle_was_last_heard(
+    clocked_client: httpx.AsyncClient, clock: FakeClock
+) -> None:
+    """The server down for an hour finds its vehicles offline when it is back: the event is
+    dated then, and says since when each was silent (it read as a one-second blip)."""
+    client = clocked_client
+    vid, vh = await make_vehicle(client)
+    started = await start_instance(client, vid, vh)
+    clock.advance(3600)
+
+    async def told() -> list[dict[str, Any]]:
+        params = {"vehicle_id": vid, "kind": "presence"}
+        return list(
+            (await client.get("/api/events", headers=ADMIN, params=params)).json()["events"]
+        )
+
+    async def offline_told() -> bool:
+        return any(e["data"]["presence"] == "offline" for e in await told())
+
+    await eventually(offline_told)
+    [offline] = [e for e in await told() if e["data"]["presence"] == "offline"]
+    assert offline["data"]["last_seen"] == started["server_time"]
+    assert parse_ts(offline["at"]) > parse_ts(started["server_time"])
+    await client.post("/upper/heartbeat", headers=vh, json={"instance_id": started["instance_id"]})
+
+    async def online_told() -> bool:
+        return any(e["data"]["presence"] == "online" for e in await told())
+
+    await eventually(online_told)
+    [online] = [e for e in await told() if e["data"]["presence"] == "online"]
+    assert "last_seen" not in online["data"]

@@ -282,6 +282,16 @@ def test_a_lost_link_shows_and_comes_back(world: World, open_console: Any, shots
     )
     marked('"?"')
     readings_greyed(True)
+    # the wait before the next try counts down (it stood still, then jumped)
+    page.wait_for_function(
+        """() => /reconnecting in ([2-9]|\\d\\d) s$/
+                   .test(document.getElementById('link').textContent)""",
+        timeout=30_000,
+    )
+    waiting = int(page.locator("#link").inner_text().split()[-2])
+    expect(page.locator("#link")).to_have_text(
+        f"link lost · reconnecting in {waiting - 1} s", timeout=2_500
+    )
     shots(page, "link-lost")
     world.server.start()  # the same port and store; the agents find it again
     expect(page.locator("#link")).to_have_attribute("data-state", "live", timeout=30_000)

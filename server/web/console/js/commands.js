@@ -6,7 +6,7 @@
 
 import { commandName } from "./fleet.js";
 import { holdAfter, holdText, takeControl } from "./grants.js";
-import { confirmAction, counted, metresBetween, sending, toast } from "./ui.js";
+import { clock, confirmAction, counted, dateTime, metresBetween, sending, toast } from "./ui.js";
 
 const FAR_M = 5000; // a target farther than this from its vehicle is confirmed first
 const TTL_S = 120; // how long a mission waits for its vehicle
@@ -58,8 +58,17 @@ function saidHere(warning, vehicles) {
     return `${names(vehicles)} follow the same path and will come within ${along[1]} m of each ` +
       "other; send each its own path to keep them apart";
   }
-  return warning.replace("(a path planned with plan: true goes round it)",
-    "(a path sent with \u201cplan round obstacles\u201d ticked goes round it)");
+  return localTimes(warning.replace("(a path planned with plan: true goes round it)",
+    "(a path sent with \u201cplan round obstacles\u201d ticked goes round it)"));
+}
+
+/** The contract's times in a server's sentence (2026-11-27T23:49:01.476Z) as the console
+ * writes every time: this browser's clock (a day away, with its date). */
+function localTimes(text) {
+  return text.replace(/\b\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d(\.\d+)?Z\b/g, (iso) => {
+    const t = Date.parse(iso);
+    return Math.abs(Date.now() - t) < 86400000 ? clock(t) : dateTime(t);
+  });
 }
 
 export class Commands {
@@ -140,7 +149,9 @@ export class Commands {
       // its manager takes control (a grant to itself); an operator asks for it
       const ctx = this.ctx;
       const take = ctx.controlPanel.managed(v.id);
-      toast(`${commandName(type)} refused: you do not hold control of ${v.view.name || v.id}`, "error", take
+      // several boats: all or nothing, so none of them got it
+      const none = vehicles.length > 1 ? `; NOT sent to any of the ${vehicles.length}` : "";
+      toast(`${commandName(type)} refused: you do not hold control of ${v.view.name || v.id}${none}`, "error", take
         ? { label: "Take control", run: () => takeControl(ctx, v), sends: `grant/${v.view.instance_id}` }
         : { label: "Request control", run: () => this.requestControl(v.id), sends: `request/${v.id}` });
     } else if (vehicles.length > 1 && Array.isArray(e.details) && e.details.some((d) => d.instance_id)) {
@@ -201,7 +212,7 @@ export class Commands {
         if (v) fleet.noteSubmitted(v.id, c.command_id, "stop", {}, me.username);
       }
       toast(`stop sent to ${counted(made.length, "vehicle")}`, "ok");
-      for (const warning of warnings) toast(`note: ${warning}`, "warn");
+      for (const warning of warnings) toast(`note: ${localTimes(warning)}`, "warn");
     } catch (e) {
       toast(notSent("stop", e), "error");
     }

@@ -121,7 +121,11 @@ export function describeEvent(e, known = () => null) {
     return `${kind} ${d.name || d.zone_id || ""} ${d.action || "changed"}` +
       `${who ? ` by ${who === "system" ? "the server" : who}` : ""}`;
   }
-  if (e.kind === "presence") return d.presence || "";
+  if (e.kind === "presence") { // the server may find it late (it was down): when heard last
+    const heard = d.last_seen ? Date.parse(d.last_seen) : NaN;
+    const late = Number.isFinite(heard) && Date.parse(e.at) - heard > 60000;
+    return `${d.presence || ""}${late ? ` (last heard ${clock(heard)})` : ""}`;
+  }
   if (e.kind === "instance") return d.action || "";
   if (e.kind === "failsafe_acked") {
     if (d.version == null) return "";

@@ -126,9 +126,8 @@ class Console {
       this.wasLost = false;
     } else if (state === "lost") {
       this.wasLost = true;
-      const s = Math.ceil(info.retryInMs / 1000);
-      // on a phone short enough for the header's one row
-      link.textContent = PHONE.matches ? `link lost · retry ${s} s` : `link lost · reconnecting in ${s} s`;
+      this.retryAt = Date.now() + info.retryInMs; // counted down each second (tick)
+      this.sayRetry();
     } else if (state === "refused") {
       link.textContent = "refused: log in again";
       endSession(1500);
@@ -183,7 +182,7 @@ class Console {
   failed({ id, cmd }) {
     const said = this.commandSaid(id, cmd);
     if (!said) return;
-    const why = cmd.detail ? `: ${cmd.detail}` : "";
+    const why = cmd.detail ? `: ${cmd.detail.replace(/_/g, " ")}` : ""; // keep_station: words
     const how = cmd.status === "rejected" ? "was refused by the boat" : "failed";
     toast(`${said.what} for ${said.name} ${how}${why}`, "error");
   }
@@ -218,9 +217,19 @@ class Console {
     );
   }
 
+  /** "link lost · reconnecting in 4 s", as the next try comes nearer. */
+  sayRetry(now = Date.now()) {
+    const link = $("link");
+    if (link.dataset.state !== "lost" || !this.retryAt) return;
+    const s = Math.max(0, Math.ceil((this.retryAt - now) / 1000));
+    // on a phone short enough for the header's one row
+    link.textContent = PHONE.matches ? `link lost · retry ${s} s` : `link lost · reconnecting in ${s} s`;
+  }
+
   /** Once a second: the "ago" and "until" texts move on (no call to the server). */
   tick() {
     const now = Date.now();
+    this.sayRetry(now);
     this.keepLeasesAlive(now);
     this.warnLeasesEnding(now);
     for (const el of document.querySelectorAll("[data-since]")) {
