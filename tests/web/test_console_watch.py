@@ -284,7 +284,7 @@ def test_a_lost_link_shows_and_comes_back(world: World, open_console: Any, shots
     readings_greyed(True)
     # the wait before the next try counts down (it stood still, then jumped)
     page.wait_for_function(
-        """() => /reconnecting in ([2-9]|\\d\\d) s$/
+        """() => /reconnecting in ([3-9]|\\d\\d) s$/
                    .test(document.getElementById('link').textContent)""",
         timeout=30_000,
     )
