@@ -135,6 +135,25 @@ def test_a_lease_needing_a_live_console_lapses_when_it_closes(
     mine = operator.locator('li.lease[data-vehicle="demo-usv-3"]')
     expect(mine.locator(".allows")).to_contain_text("this console keeps it alive")
     shots(operator, "operator-holds")
+    # his vehicle panel says it too, and, while his console's link is lost, that it may
+    # have lapsed (it said "you hold control until ..." as if nothing could end it)
+    marker(operator, "demo-usv-3").click()
+    operator.click('[data-tab="vehicle"]')
+    live = operator.locator("#vehicle-pane .control-line .lapse-live")
+    lost = operator.locator("#vehicle-pane .control-line .lapse-lost")
+    expect(live).to_have_text(f" · lapses if this console is silent for {timeout_s} s")
+    expect(live).to_be_visible()
+    expect(lost).to_be_hidden()
+    operator.evaluate("document.getElementById('app').dataset.link = 'lost'")
+    expect(lost).to_be_visible()
+    expect(lost).to_have_text(
+        f" · this console is out of contact: it lapses {timeout_s} s after the server last "
+        "heard it, and may have"
+    )
+    expect(live).to_be_hidden()
+    operator.evaluate("document.getElementById('app').dataset.link = 'live'")
+    expect(live).to_be_visible()
+    operator.click('[data-tab="control"]')
     # two timeouts pass with the console open: the lease is still ben's
     kept_until = time.monotonic() + 2 * timeout_s
     while time.monotonic() < kept_until:

@@ -163,7 +163,9 @@ export class ControlPanel {
     } else if (event.kind === "control_grant" && d.replaces === me && d.holder !== me && by !== me) {
       toast(`control of ${name} passed to ${d.holder} (granted by ${by}); ${hold}`, "error");
     } else if (event.kind === "control_grant" && d.holder === me && by !== me) {
-      toast(`you now hold control of ${name} (granted by ${by})`, "ok");
+      const lapse = d.operator_timeout_s
+        ? `; it lapses if this console is silent for ${d.operator_timeout_s} s` : "";
+      toast(`you now hold control of ${name} (granted by ${by}${lapse})`, "ok");
     } else if (event.kind === "control_deny" && d.user === me) {
       toast(`${by} declined your request for ${name}${d.reason ? `: ${d.reason}` : ""}`, "error");
     } else if (event.kind === "control_revoke" && d.holder === me && by !== me) {

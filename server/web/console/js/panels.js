@@ -95,6 +95,17 @@ export function controlSaid(control, me) {
     ` ${mine ? "hold" : "holds"} control until ${clock(control.expires_at)}`];
 }
 
+/** A lease that lapses when its holder's console is silent, said beside it; while this
+ * console's own link is lost (CSS), that the holder's may have lapsed already. */
+function lapseSaid(timeoutS, mine) {
+  const whose = mine ? "this console is" : "their console is";
+  return h("small.lapse", {},
+    h("span.lapse-live", {}, ` · lapses if ${whose} silent for ${timeoutS} s`),
+    h("span.lapse-lost", {}, mine
+      ? ` · this console is out of contact: it lapses ${timeoutS} s after the server last heard it, and may have`
+      : ` · lapses if their console is silent for ${timeoutS} s`));
+}
+
 /** Redraw at most once a frame, however many changes come in. */
 export function throttled(fn) {
   let pending = false;
@@ -245,7 +256,8 @@ export class VehiclePanel {
       controlSaid(control, me),
       control
         ? [" ", h("small.until", { dataset: { until: control.expires_at } }, `(${until(control.expires_at)})`),
-          control.granted_by ? h("small", {}, ` granted by ${control.granted_by}`) : null]
+          control.granted_by ? h("small", {}, ` granted by ${control.granted_by}`) : null,
+          control.operator_timeout_s ? lapseSaid(control.operator_timeout_s, mine) : null]
         : null,
       control && !mine && this.ctx.controlPanel.managed(v.id)
         ? h("button", {
