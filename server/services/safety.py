@@ -107,6 +107,9 @@ class SafetyService(FailsafePolicies):
         self._acked: dict[str, int] = {}
         #: instance id -> its watch state, and its home
         self._watch: dict[str, WatchState] = {}
+        #: Each instance's judgements one at a time, in the order their samples came (an
+        #: older one finished last undid a newer one's alarm: :meth:`_in_turn`).
+        self._turns: dict[str, asyncio.Lock] = {}
         self._home: dict[str, tuple[float, float]] = {}
         #: The rules the watch last judged every instance by, and those before (a zone
         #: gone since is named by them); None until first read.
@@ -173,12 +176,23 @@ class SafetyService(FailsafePolicies):
             return None
         was = self._watch.get(state.instance_id)
         judged, by = self._judged(state, sample), self._by(state.vehicle_id)
-        if was is None:
-            return self._first(state, judged, by)
-        now = by.next(was, state.vehicle_id, judged)
-        if now is was or now == was:
-            return None
-        return self._record(state, judged, by)
+        turn = self._turns.get(state.instance_id)
+        if was is not None and (turn is None or not turn.locked()):
+            now = by.next(was, state.vehicle_id, judged)
+            if now is was or now == was:
+                return None  # most samples: nothing changes, nothing waits
+        return self._in_turn(state, judged, by)
+
+    async def _in_turn(self, state: InstanceState, judged: Judged, by: JudgedBy) -> None:
+        """One sample's judgement, after those of the samples before it (a lock per
+        instance: its waiters go in the order they came)."""
+        turn = self._turns.setdefault(state.instance_id, asyncio.Lock())
+        async with turn:
+            was = self._watch.get(state.instance_id)
+            if was is None:
+                await self._first(state, judged, by)
+            elif by.next(was, state.vehicle_id, judged) != was:
+                await self._record(state, judged, by)
 
     def _by(self, vehicle_id: str) -> JudgedBy:
         return JudgedBy(self.zones.known(), self.known_policy(vehicle_id))
@@ -357,7 +371,9 @@ class SafetyService(FailsafePolicies):
             else said_time(position["ts"], now, state.started_at)
         )
         judged = Judged(*point, reading, at, zones_moved, threshold_moved)
-        await self._record(state, judged, self._by(state.vehicle_id), keep=False)
+        turn = self._turns.setdefault(state.instance_id, asyncio.Lock())
+        async with turn:  # not between a sample's reading and writing of the state
+            await self._record(state, judged, self._by(state.vehicle_id), keep=False)
 
     def forget_watch(self, instance_id: str) -> None:
         """Another replica wrote the instance's watch state: the copy here is read again
@@ -368,4 +384,7 @@ class SafetyService(FailsafePolicies):
         """Its watch state and home too (read again at its next sample)."""
         self._watch.pop(instance_id, None)
         self._home.pop(instance_id, None)
+        turn = self._turns.get(instance_id)
+        if turn is not None and not turn.locked():
+            del self._turns[instance_id]
         super().forget(instance_id)

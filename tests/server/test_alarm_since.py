@@ -4,15 +4,20 @@ when it clears; a failsafe from when the vehicle says it entered it."""
 
 from __future__ import annotations
 
+import asyncio
 from collections.abc import AsyncIterator, Callable
 from datetime import datetime, timedelta
 from typing import Any
 
+import httpx
 import pytest
+from asgi_lifespan import LifespanManager
 
 from fleet_protocol import format_ts
+from server.app import create_app
 from server.settings import Settings
-from tests.factories import ADMIN, sample
+from server.storage import open_store
+from tests.factories import ADMIN, FakeClock, sample
 from tests.server.commanding import Vehicle, World, eventually, world
 from tests.server.test_obstacles import at
 from tests.server.test_zones import no_go, zone
@@ -165,3 +170,63 @@ async def test_a_failsafe_is_dated_when_the_vehicle_entered_it(w: World) -> None
     await fb(w, me, "failsafe", None)  # an agent that does not say when: not known
     [alarm] = await alarms(w, me)
     assert alarm["kind"] == "failsafe" and alarm["since"] is None
+
+
+class _SlowFirstRead:
+    """A collection whose first read by id takes a while (a store under load): the
+    judgement of a vehicle's first sample is still reading when its next one comes."""
+
+    def __init__(self, inner: Any) -> None:
+        self.inner = inner
+        self.reads = 0
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.inner, name)
+
+    async def get(self, _id: Any) -> Any:
+        self.reads += 1
+        if self.reads == 1:
+            await asyncio.sleep(0.3)  # the store's delay, not the test's wait
+        return await self.inner.get(_id)
+
+
+async def test_samples_are_judged_in_the_order_they_came(
+    make_settings: Callable[..., Settings],
+) -> None:
+    """The first sample (at home) was still being judged when the second (in the pier)
+    came: the second raised the breach, then the first, finishing last, cleared it, and
+    the boat in the pier had no alarm until its next sample."""
+    settings = make_settings()
+    store = open_store(settings)
+    plain = store._open
+    store._open = lambda name: _SlowFirstRead(plain(name)) if name == "watch" else plain(name)  # type: ignore[method-assign]
+    await store.load()
+    clock = FakeClock()
+    app = create_app(settings, clock=clock, store=store)
+    try:
+        async with LifespanManager(app, shutdown_timeout=30) as manager:
+            transport = httpx.ASGITransport(app=manager.app)
+            async with httpx.AsyncClient(transport=transport, base_url="http://test") as http:
+                w = World(http, clock, app)
+                pier = (await zone(w, no_go()))["zone_id"]
+                me = await w.vehicle()
+                await report(w, me, 1, w.clock(), x=0)  # at home: judged slowly
+                w.clock.advance(1)
+                into_pier = w.clock()
+                await report(w, me, 2, into_pier, x=45)  # in the pier, before that ends
+
+                async def breached() -> bool:
+                    found = await alarms(w, me)
+                    return [(a["kind"], a["zone_id"]) for a in found] == [("no_go_zone", pier)]
+
+                await eventually(breached)
+                await eventually(lambda: _settled(app))
+                assert await breached(), await alarms(w, me)
+    finally:
+        await store.close()
+
+
+async def _settled(app: Any) -> bool:
+    """Every judgement of the samples done (the messages' handlers drained)."""
+    await app.state.services.messages.drain()
+    return True
