@@ -61,6 +61,8 @@ def test_an_alarm_is_a_toast_whatever_tab_is_open(
     expect(said).to_have_count(1, timeout=15_000)
     shots(page, "alarm-told")
     world.fleet.call("PUT", "/api/vehicles/demo-usv-3/failsafe", json={})
+    # the alarm ended: its toast goes with it, well before its 12 s are up
+    expect(said).to_have_count(0, timeout=5_000)
 
 
 def test_a_boat_out_of_contact_revoked_expired_and_back_is_told_as_it_is(

@@ -130,8 +130,11 @@ export class Fleet extends EventTarget {
       const alarmed = new Set((v.view.alarms || []).map((a) => a.kind));
       v.view = { ...v.view, ...view };
       const raised = (view.alarms || []).filter((a) => !alarmed.has(a.kind));
-      if (known && !snapshot && raised.length) {
-        this.dispatchEvent(new CustomEvent("alarms", { detail: { id: v.id, raised } }));
+      // an update that says its alarms: those no longer in it have ended
+      const now = new Set((view.alarms || []).map((a) => a.kind));
+      const cleared = view.alarms ? [...alarmed].filter((kind) => !now.has(kind)) : [];
+      if (known && (raised.length || cleared.length) && !snapshot) {
+        this.dispatchEvent(new CustomEvent("alarms", { detail: { id: v.id, raised, cleared } }));
       }
       if (known && !snapshot && view.presence && view.presence !== was) {
         this.dispatchEvent(new CustomEvent("presence", {

@@ -69,8 +69,11 @@ class Console {
     this.fleet.addEventListener("expired", (e) => this.expired(e.detail));
     this.fleet.addEventListener("failed", (e) => this.failed(e.detail));
     this.fleet.addEventListener("alarms", (e) => { // what went wrong, whatever tab is open
-      const name = this.fleet.vehicles.get(e.detail.id).view.name || e.detail.id;
-      for (const a of e.detail.raised) toast(`${name}: ${alarmText(a)}`, "error");
+      const { id, raised, cleared } = e.detail;
+      const name = this.fleet.vehicles.get(id).view.name || id;
+      // an alarm that ended takes its toast down (it said the boat was in failsafe after)
+      for (const kind of cleared) dismissTagged(`alarm/${id}/${kind}`);
+      for (const a of raised) toast(`${name}: ${alarmText(a)}`, "error", null, `alarm/${id}/${a.kind}`);
     });
     this.live = new LiveLink({
       token: api.token,
