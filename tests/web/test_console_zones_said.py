@@ -1,7 +1,7 @@
 """Zones in what people read, in a real browser (as test_console_wording): a zone drawn,
 renamed and removed reads as words in a vehicle's events and the replay's list, and the
-replay draws the zones and the obstacles of its cursor's time. A world of its own (the
-module's)."""
+replay draws the zones and the obstacles of its cursor's time; a zone or an obstacle
+drawn, changed or removed is told. A world of its own (the module's)."""
 
 from __future__ import annotations
 
@@ -115,3 +115,30 @@ def test_a_replay_draws_the_obstacles_of_its_cursors_time(
     page.wait_for_function(f"() => ({wrecks})() === 0")
     page.click("#replay-exit")
     expect(page.locator("#map path.obstacle")).to_have_count(0)
+
+
+def test_zones_and_obstacles_drawn_or_removed_are_told(
+    world: World, open_console: Any, shots: Shots
+) -> None:
+    """A no-go zone drawn over the boats' water appeared on the map with no word."""
+    page, _ = open_console()
+    console.log_in(page, "mia")
+    here = console.position(world, "demo-usv-2")
+    near = LocalFrame(here["lat"], here["lon"])
+    ring = [near.to_latlon(east, north) for east, north in ((300, 0), (340, 0), (340, 40))]
+    coords = [[lon, lat] for lat, lon in ring]
+    polygon = {"type": "Polygon", "coordinates": [[*coords, coords[0]]]}
+    said = page.locator("#toasts .toast .msg")
+    made = world.fleet.call(
+        "POST", "/api/zones", json={"name": "Kelp bed", "kind": "no_go", "polygon": polygon}
+    )
+    expect(said.filter(has_text="no-go zone Kelp bed drawn on the map")).to_have_count(1)
+    shots(page, "zone-drawn-told")
+    world.fleet.call("PATCH", f"/api/zones/{made['zone_id']}", json={"name": "Kelp forest"})
+    expect(said.filter(has_text="no-go zone Kelp forest changed")).to_have_count(1)
+    world.fleet.call("DELETE", f"/api/zones/{made['zone_id']}")
+    expect(said.filter(has_text="no-go zone Kelp forest removed")).to_have_count(1)
+    buoy = world.fleet.call("POST", "/api/obstacles", json={"name": "Buoy", "polygon": polygon})
+    expect(said.filter(has_text="obstacle Buoy drawn on the map")).to_have_count(1)
+    world.fleet.call("DELETE", f"/api/obstacles/{buoy['obstacle_id']}")
+    expect(said.filter(has_text="obstacle Buoy removed")).to_have_count(1)

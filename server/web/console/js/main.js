@@ -18,6 +18,20 @@ import { ago, clock, confirmAction, h, sending, toast, until, zoneText } from ".
 const $ = (id) => document.getElementById(id);
 const REPLAY_RETRY_MS = 3000; // the replay's module not loaded: tried again after this
 const namesOf = (vehicles) => vehicles.map((v) => v.view.name || v.id).join(", ");
+const zoneName = (z) => `${z.kind === "no_go" ? "no-go zone" : "operating area"} ${z.name}`;
+
+/** Zones or obstacles drawn, changed or removed since the console last read them, said
+ * (a no-go zone appearing over the boats' water came with no word). */
+function sayShapes(before, after, key, named) {
+  const was = new Map(before.map((x) => [x[key], x]));
+  const now = new Map(after.map((x) => [x[key], x]));
+  for (const [id, x] of now) {
+    const old = was.get(id);
+    if (!old) toast(`${named(x)} drawn on the map`, "info");
+    else if (JSON.stringify(old) !== JSON.stringify(x)) toast(`${named(x)} changed`, "info");
+  }
+  for (const [id, x] of was) if (!now.has(id)) toast(`${named(x)} removed`, "info");
+}
 
 /** The console once logged in: ``me`` (from /api/me) decides what it offers. */
 class Console {
@@ -298,14 +312,18 @@ class Console {
   /** Zones (when the server has them), obstacles. */
   async loadShapes() {
     try {
-      this.liveZones = (await this.api.get("/api/zones")).zones || [];
+      const zones = (await this.api.get("/api/zones")).zones || [];
+      if (this.liveZones) sayShapes(this.liveZones, zones, "zone_id", zoneName);
+      this.liveZones = zones;
       // a replay draws the zones of its time; Back to live draws these
       if (this.app.dataset.replay !== "on") this.map.setZones(this.liveZones);
     } catch (e) {
       if (e.status !== 404) console.warn("zones:", e.message);
     }
     try {
-      this.liveObstacles = (await this.api.get("/api/obstacles")).obstacles || [];
+      const obstacles = (await this.api.get("/api/obstacles")).obstacles || [];
+      if (this.liveObstacles) sayShapes(this.liveObstacles, obstacles, "obstacle_id", (o) => `obstacle ${o.name}`);
+      this.liveObstacles = obstacles;
       // a replay draws the obstacles of its time; Back to live draws these
       if (this.app.dataset.replay !== "on") this.map.setObstacles(this.liveObstacles);
     } catch (e) {
