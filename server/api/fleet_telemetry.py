@@ -68,7 +68,8 @@ async def track(
         feature = track_formats.geojson(result, name)
         return SafeJSONResponse(feature, media_type=media, headers=headers)
     if fmt == "gpx":
-        return Response(track_formats.gpx(result, name), media_type=media, headers=headers)
+        gap = s.settings.offline_after_s  # a gap longer: out of contact, a segment ends
+        return Response(track_formats.gpx(result, name, gap), media_type=media, headers=headers)
     if fmt == "csv":
         return Response(track_formats.csv_text(result), media_type=media, headers=headers)
     body = Track.model_construct(  # from the store: checked when it came in

@@ -49,15 +49,21 @@ def geojson(track: TrackResult, name: str) -> dict[str, Any]:
     }
 
 
-def gpx(track: TrackResult, name: str) -> str:
-    """GPX 1.1: one ``trk`` named ``name`` (:func:`track_name`) with one ``trkseg``; depth
-    as negative elevation."""
+def gpx(track: TrackResult, name: str, gap_s: float | None = None) -> str:
+    """GPX 1.1: one ``trk`` named ``name`` (:func:`track_name`), a ``trkseg`` for each run
+    of points no more than ``gap_s`` apart (a vehicle out of contact longer than that, or
+    not recording, starts a new one: no straight line is drawn across the gap); depth as
+    negative elevation."""
     out = [
         '<?xml version="1.0" encoding="UTF-8"?>',
         '<gpx version="1.1" creator="fleet-cloud" xmlns="http://www.topografix.com/GPX/1/1">',
         f"<trk><name>{escape(name)}</name><trkseg>",
     ]
+    last = None
     for p in track.points:
+        if gap_s is not None and last is not None and (p["ts"] - last).total_seconds() > gap_s:
+            out.append("</trkseg><trkseg>")
+        last = p["ts"]
         ele = f"<ele>{_decimal(-p['depth_m'])}</ele>" if "depth_m" in p else ""
         out.append(
             f'<trkpt lat="{_decimal(p["lat"])}" lon="{_decimal(p["lon"])}">'

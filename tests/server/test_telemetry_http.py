@@ -156,6 +156,26 @@ async def test_track_gpx(client: httpx.AsyncClient) -> None:
     assert "e-" not in r.text
 
 
+async def test_a_gpx_track_is_cut_where_the_vehicle_was_out_of_contact(
+    client: httpx.AsyncClient,
+) -> None:
+    """Points farther apart than FLEET_OFFLINE_AFTER_S (10 s) are in two segments: a GPX
+    viewer drew a straight line across the two minutes the boat was not heard."""
+    vid, vh = await make_vehicle(client)
+    iid = (await start_instance(client, vid, vh))["instance_id"]
+    t0 = datetime(2026, 11, 22, 10, 0, 0, tzinfo=UTC)
+    times = [t0 + timedelta(seconds=s) for s in (1, 2, 3, 123, 124, 134, 145)]
+    body = {"instance_id": iid, "samples": [sample(n, ts=t) for n, t in enumerate(times, 1)]}
+    assert (await client.post("/upper/update_param", headers=vh, json=body)).is_success
+    r = await client.get(
+        f"/api/vehicles/{vid}/track", headers=ADMIN, params={**WINDOW, "format": "gpx"}
+    )
+    ns = {"g": "http://www.topografix.com/GPX/1/1"}
+    segments = ET.fromstring(r.content).findall(".//g:trkseg", ns)
+    # 3 s -> 123 s and 134 s -> 145 s are gaps; 124 s -> 134 s (10 s) is not
+    assert [len(seg.findall("g:trkpt", ns)) for seg in segments] == [3, 3, 1]
+
+
 async def test_a_track_is_named_by_its_vehicle_s_name_and_id(client: httpx.AsyncClient) -> None:
     """A GPX track and a GeoJSON Feature were named by the vehicle's id alone: they carry
     its name as the fleet shows it (the one its start announced, else the registered one)
