@@ -1,7 +1,8 @@
 """Zones in what people read, in a real browser (as test_console_wording): a zone drawn,
 renamed and removed reads as words in a vehicle's events and the replay's list, and the
 replay draws the zones and the obstacles of its cursor's time; a zone or an obstacle
-drawn, changed or removed is told. A world of its own (the module's)."""
+drawn, changed or removed is told; a failsafe and a presence found late read as words. A
+world of its own (the module's)."""
 
 from __future__ import annotations
 
@@ -142,3 +143,35 @@ def test_zones_and_obstacles_drawn_or_removed_are_told(
     expect(said.filter(has_text="obstacle Buoy drawn on the map")).to_have_count(1)
     world.fleet.call("DELETE", f"/api/obstacles/{buoy['obstacle_id']}")
     expect(said.filter(has_text="obstacle Buoy removed")).to_have_count(1)
+
+
+def test_a_failsafe_and_a_late_presence_read_as_words(world: World, open_console: Any) -> None:
+    """What happened read "failsafe entered remote → failsafe" and "failsafe left failsafe →
+    remote"; an offline found after the server was down read as if it had just happened."""
+    page, _ = open_console()
+    console.log_in(page, "mia")
+    said = page.evaluate(
+        """async () => {
+             const { describeEvent } = await import('./js/describe.js');
+             const at = '2026-11-28T00:52:40.000Z';
+             return [
+               describeEvent({ kind: 'failsafe_entered', at,
+                               data: { was: 'remote', control_mode: 'failsafe' } }),
+               describeEvent({ kind: 'failsafe_left', at,
+                               data: { was: 'failsafe', control_mode: 'remote' } }),
+               describeEvent({ kind: 'presence', at,
+                 data: { presence: 'offline', last_seen: '2026-11-28T00:51:33.000Z' } }),
+               describeEvent({ kind: 'presence', at,
+                 data: { presence: 'offline', last_seen: '2026-11-28T00:52:30.000Z' } }),
+             ];
+           }"""
+    )
+    heard = page.evaluate(
+        "() => new Date('2026-11-28T00:51:33.000Z').toLocaleTimeString([], {hour12: false})"
+    )
+    assert said == [
+        "(it was under remote control)",
+        "(now under remote control)",
+        f"offline (last heard {heard})",
+        "offline",  # heard 10 s before: found in time, nothing to add
+    ], said

@@ -78,9 +78,10 @@ export function describeEvent(e, known = () => null) {
     const why = d.reason === "failsafe_changed" ? ": the failsafe changed" : "";
     return `${pct} % (alarm below ${d.threshold_pct ?? "?"} %${why})`;
   }
-  if (e.kind === "failsafe_entered" || e.kind === "failsafe_left") {
-    return `${d.was || "?"} → ${d.control_mode || "?"}${sinceText(e)}`;
+  if (e.kind === "failsafe_entered") { // "failsafe entered (it was under remote control)"
+    return `(it was ${modeWords(d.was)})${sinceText(e)}`;
   }
+  if (e.kind === "failsafe_left") return `(now ${modeWords(d.control_mode)})${sinceText(e)}`;
   if (e.kind.startsWith("control_")) {
     const who = d.holder || d.user || d.username || "";
     const by = e.actor ? e.actor.replace(/^user:/, "") : "";
@@ -138,6 +139,12 @@ export function describeEvent(e, known = () => null) {
 // describeEvent says follows it, so that a line reads as a sentence ("control granted to
 // ana until 14:05:10 (by mia)"), the same in the vehicle panel, "What happened" and the
 // replay.
+/** A control mode in words ("remote" is "under remote control"). */
+function modeWords(mode) {
+  return { remote: "under remote control", local: "under local control", idle: "idle",
+    failsafe: "in failsafe" }[mode] || mode || "?";
+}
+
 const KIND_NAMES = {
   failsafe_acked: "failsafe policy applied by the vehicle", failsafe_changed: "failsafe set",
   control_request: "control requested", control_grant: "control granted to",
