@@ -92,24 +92,26 @@ export class ControlPanel {
     const holding = v && v.control && v.control.holder === this.ctx.me.username;
     if (!(this.managed(id) || holding) || !by || by === this.ctx.me.username) return;
     this.stops = this.stops || new Map();
-    const names = this.stops.get(by);
-    if (names) {
-      names.add(this.nameOf(id));
+    const ids = this.stops.get(by);
+    if (ids) {
+      ids.add(id);
       return;
     }
-    this.stops.set(by, new Set([this.nameOf(id)]));
+    this.stops.set(by, new Set([id]));
     setTimeout(() => {
-      const all = [...this.stops.get(by)].sort();
+      const all = [...this.stops.get(by)];
       this.stops.delete(by);
       // a boat out of contact gets it only when back: "stopped" would say it had happened
-      const away = all.filter((name) => {
-        const boat = [...this.ctx.fleet.vehicles.values()].find((x) => this.nameOf(x.id) === name);
-        return boat && boat.view.presence !== "online";
-      });
-      const here = all.filter((name) => !away.includes(name));
+      const away = (x) => {
+        const boat = this.ctx.fleet.vehicles.get(x);
+        return Boolean(boat) && boat.view.presence !== "online";
+      };
+      const names = (list) => list.map((x) => this.nameOf(x)).sort().join(", ");
+      const here = all.filter((x) => !away(x));
+      const gone = all.filter(away);
       const said = [
-        here.length ? `${by} stopped ${here.join(", ")}` : null,
-        away.length ? `${here.length ? "and sent" : `${by} sent`} a stop to ${away.join(", ")}, ` +
+        here.length ? `${by} stopped ${names(here)}` : null,
+        gone.length ? `${here.length ? "and sent" : `${by} sent`} a stop to ${names(gone)}, ` +
           "out of contact: it reaches the boat only when back" : null,
       ].filter(Boolean).join(" ");
       toast(said, "warn");
