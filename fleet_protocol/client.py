@@ -132,6 +132,8 @@ class ControlRequest(WireModel):
     username: Text
     instance_id: Text
     requested_at: Timestamp
+    #: When the request is dropped if nobody answers it (**extension**).
+    expires_at: Timestamp | None = None
 
 
 class ControlRequestList(WireModel):

@@ -64,15 +64,18 @@ def request(
 
 def requests(
     vehicle: str | None = typer.Argument(None, help="one vehicle; none: all you may answer"),
+    mine: bool = typer.Option(
+        False, "--mine", help="your own requests not answered yet, not those you may answer"
+    ),
     server: str = ServerOpt,
     token: str = TokenOpt,
     as_json: bool = JsonOpt,
 ) -> None:
-    """(manager) The pending control requests you may answer."""
+    """(manager) The pending control requests you may answer; --mine: your own."""
 
     async def act(fleet: FleetClient) -> tuple[dict[str, Any], dict[str, dict[str, Any]]]:
         instance_id = await fleet.instance_id_of(vehicle) if vehicle else None
-        data = await fleet.control_requests(instance_id)
+        data = await fleet.control_requests(instance_id, mine=mine)
         return data, await fleet.instance_vehicles(r["instance_id"] for r in data["requests"])
 
     data, vehicles = run(server, token, act)
@@ -80,7 +83,7 @@ def requests(
         dump(data)
         return
     # The request ids (which no command takes) with --json only: 80 columns hold the rest.
-    table = Table("vehicle", "name", "user", "asked (UTC)")
+    table = Table("vehicle", "name", "user", "asked", "until", caption="times in UTC")
     table.add_column("instance", no_wrap=True)  # whole: grant and deny take it too
     for r in data["requests"]:
         v = vehicles[r["instance_id"]]
@@ -89,6 +92,7 @@ def requests(
             v.get("name") or "-",
             r["username"],
             short_time(r["requested_at"]),
+            short_time(r.get("expires_at")),  # dropped then if nobody answers
             r["instance_id"],
         )
     console.print(table)

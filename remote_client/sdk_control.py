@@ -16,9 +16,12 @@ class ControlCalls(Session):
     async def request_control(self, instance_id: str) -> Body:
         return await self._on_instance("request_control", instance_id)
 
-    async def control_requests(self, instance_id: str | None = None) -> Body:
-        """``{"requests": [...]}``: the pending ones the caller may answer."""
-        params = {"instance_id": instance_id} if instance_id else {}
+    async def control_requests(self, instance_id: str | None = None, *, mine: bool = False) -> Body:
+        """``{"requests": [...]}``: the pending ones the caller may answer; ``mine``: the
+        caller's own, not answered yet (each says when it is dropped: ``expires_at``)."""
+        params: dict[str, str] = {"instance_id": instance_id} if instance_id else {}
+        if mine:
+            params["mine"] = "true"
         body: Body = await self.call("GET", "/client/control_requests", params=params)
         return body
 

@@ -87,7 +87,14 @@ async def test_missions_requests_and_the_lease_from_the_command_line(
         assert asked.exit_code == 0, asked.output
         pending = await fleetctl(base, ADMIN_TOKEN, "requests", iid)
         assert pending.exit_code == 0 and "piet" in pending.stdout
+        assert "piet" not in (await fleetctl(base, op_token, "requests")).stdout  # answers none
+        mine = await fleetctl(base, op_token, "requests", "--mine", "--json")
+        (own,) = json.loads(mine.stdout)["requests"]
+        assert own["request_id"] == json.loads(asked.stdout)["request_id"], mine.output
+        assert own["expires_at"] == json.loads(asked.stdout)["expires_at"]
         assert (await fleetctl(base, ADMIN_TOKEN, "grant", iid, "piet")).exit_code == 0
+        answered = await fleetctl(base, op_token, "requests", "--mine", "--json")
+        assert json.loads(answered.stdout)["requests"] == [], answered.output
         shorter = await fleetctl(base, ADMIN_TOKEN, "grant", iid, "piet", "--duration", "60")
         assert shorter.exit_code == 0 and "a grant never shortens a lease" in shorter.stdout
 

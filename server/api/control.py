@@ -33,9 +33,15 @@ async def control_requests(
     user: Viewer,
     s: ServicesDep,
     instance_id: Annotated[str | None, Query(min_length=1, max_length=64)] = None,
+    mine: Annotated[
+        bool,
+        Query(description="the caller's own pending requests, not the ones it may answer"),
+    ] = False,
 ) -> ControlRequestList:
+    """The pending requests the caller may answer; with ``mine=true``, the caller's own
+    (a console shows "Requested…" for them until they are answered or dropped)."""
     return ControlRequestList.model_validate(
-        {"requests": await s.control.requests_for(user, instance_id)}
+        {"requests": await s.control.requests_for(user, instance_id, mine=mine)}
     )
 
 

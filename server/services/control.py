@@ -49,6 +49,10 @@ _CAS_TRIES = 5
 _REQUEST_SWEEP = timedelta(seconds=1)
 
 
+def _asked(request: ControlRequest) -> datetime:
+    return request.requested_at
+
+
 class ControlService:
     def __init__(
         self,
@@ -108,16 +112,35 @@ class ControlService:
         return lease
 
     async def requests_for(
-        self, principal: Principal, instance_id: str | None
+        self, principal: Principal, instance_id: str | None, *, mine: bool = False
     ) -> list[dict[str, Any]]:
-        """The pending requests this caller may answer (a manager of the vehicle, an admin)."""
+        """The pending requests this caller may answer (a manager of the vehicle, an admin);
+        ``mine``: the ones the caller made and nobody has answered yet. Oldest first, each
+        with the time it is dropped unanswered (``expires_at``)."""
         if instance_id is not None:
             await self.instances.for_viewer(principal, instance_id)  # unknown or unseen: 404
+        if mine:
+            docs = await self.repo.requests_by(principal.name)
+            if instance_id is not None:
+                docs = [d for d in docs if d["instance_id"] == instance_id]
+        elif instance_id is not None:
             docs = await self.repo.requests_of(instance_id)
         else:
             docs = await self.repo.all_requests()
-        pending = [ControlRequest.from_doc(d) for d in docs]
-        return [r.wire() for r in pending if rules.may_grant(principal, r.vehicle_id)]
+        now = self.clock()
+        pending = sorted((ControlRequest.from_doc(d) for d in docs), key=_asked)
+        return [
+            self._told(r)
+            for r in pending
+            if (mine or rules.may_grant(principal, r.vehicle_id)) and self._expiry(r) > now
+        ]
+
+    def _expiry(self, request: ControlRequest) -> datetime:
+        """When an unanswered request is dropped (the sweep may come a little later)."""
+        return request.requested_at + timedelta(seconds=self.settings.control_request_ttl_s)
+
+    def _told(self, request: ControlRequest) -> dict[str, Any]:
+        return request.wire() | {"expires_at": self._expiry(request)}
 
     # ---- operators and managers ------------------------------------------
     async def request(self, principal: Principal, instance_id: str) -> dict[str, Any]:
@@ -140,12 +163,12 @@ class ControlService:
         pending = [ControlRequest.from_doc(d) for d in stored_requests]
         _, req = rules.add_request(pending, fresh, limit=self.settings.max_pending_requests)
         if req is not fresh:
-            return req.wire()  # asked already: the first request stands
+            return self._told(req)  # asked already: the first request stands
         if not await self.repo.insert_request(req.wire() | {"vehicle_id": req.vehicle_id}):
             stored = await self.repo.request_of(state.instance_id, principal.name)
-            return ControlRequest.from_doc(stored).wire() if stored is not None else req.wire()
+            return self._told(ControlRequest.from_doc(stored) if stored is not None else req)
         await self._audit("control_request", state, principal, {"request_id": req.request_id})
-        return req.wire()
+        return self._told(req)
 
     async def grant(
         self,

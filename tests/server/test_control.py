@@ -99,6 +99,47 @@ async def test_a_manager_declines_a_request_and_the_requester_hears_why(w: World
     assert [q["username"] for q in r.json()["requests"]] == [op.username]  # still pending
 
 
+async def test_a_requester_lists_its_own_pending_requests_until_answered_or_dropped(
+    make_settings: Callable[..., Settings],
+) -> None:
+    """``mine=true``: the caller's own requests (a console that was reloaded still says
+    "Requested…"), each with the time it is dropped unanswered."""
+    async with world(make_settings(control_request_ttl_s=300)) as w:
+        v, other = await w.vehicle(), await w.vehicle()
+        op = await w.person("operator", v, other)
+        boss = await w.person("manager", v, other)
+        asked = (await post(w, "request_control", op.headers, instance_id=v.instance_id)).json()
+        assert parse_ts(asked["expires_at"]) == parse_ts(asked["requested_at"]) + timedelta(
+            seconds=300
+        )
+        w.clock.advance(1)
+        await post(w, "request_control", op.headers, instance_id=other.instance_id)
+        again = (await post(w, "request_control", op.headers, instance_id=v.instance_id)).json()
+        assert again == asked  # the first request stands, with its expiry
+
+        async def mine(headers: dict[str, str], **params: str) -> list[str]:
+            r = await w.http.get(
+                "/client/control_requests", headers=headers, params={"mine": "true", **params}
+            )
+            assert r.status_code == 200, r.text
+            return [q["instance_id"] for q in r.json()["requests"]]
+
+        assert await mine(op.headers) == [v.instance_id, other.instance_id]  # oldest first
+        assert await mine(op.headers, instance_id=other.instance_id) == [other.instance_id]
+        assert await mine(boss.headers) == []  # the manager asked nothing
+        r = await w.http.get(
+            "/client/control_requests", headers=op.headers, params={"mine": "maybe"}
+        )
+        assert r.status_code == 422 and r.json()["error"]["details"][0]["field"] == "mine"
+
+        await post(w, "deny_control", boss.headers, instance_id=v.instance_id, user=op.username)
+        assert await mine(op.headers) == [other.instance_id]
+        w.clock.advance(300)  # past the first's expiry, before the sweep ran
+        assert await mine(op.headers) == []
+        r = await w.http.get("/client/control_requests", headers=boss.headers)
+        assert r.json()["requests"] == []  # nor is it offered to the manager
+
+
 async def test_pending_requests_are_bounded(w: World) -> None:
     v = await w.vehicle()
     people = [await w.person("operator", v) for _ in range(3)]

@@ -200,6 +200,12 @@ def test_people_are_told_when_control_changes(
     expect(manager.locator("#toasts")).to_contain_text("ben asks for control of H2OmniX Bravo")
     expect(tab).to_have_text("Control (1)")
     shots(manager, "manager-told-of-request")
+    operator.reload()  # the console learns of its own request from the server again
+    marker(operator, "demo-usv-2").click()
+    asked = panel.locator("button", has_text="Requested…")
+    expect(asked).to_be_disabled()
+    expect(asked).to_have_attribute("title", re.compile(r"your request stands until \d\d:\d\d"))
+    expect(panel.locator("button", has_text="Request control")).to_have_count(0)
     world.fleet.call("POST", "/client/revoke_control", json={"instance_id": instance})
     body = {"instance_id": instance, "user": "ben", "duration_s": 600}
     world.as_user("mia", "POST", "/client/grant_control", json=body)

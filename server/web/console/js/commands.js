@@ -222,9 +222,9 @@ export class Commands {
     return sending(`request/${id}`, async () => {
       const v = this.ctx.fleet.vehicles.get(id);
       try {
-        await this.ctx.api.post("/client/request_control", { instance_id: v.view.instance_id });
-        v.requested = Date.now(); // the button says so until an answer (or two minutes)
-        this.ctx.fleet.changed(id, "control");
+        const asked = await this.ctx.api.post("/client/request_control", { instance_id: v.view.instance_id });
+        this.ctx.controlPanel.asked([asked]); // the button says so until an answer
+
         toast(`control of ${v.view.name || id} requested: the field manager decides`, "ok");
       } catch (e) {
         toast(`request refused: ${e.explain()}`, "error");

@@ -20,6 +20,8 @@ const KIND_LABELS = {
 };
 // How long after this console ended a lease its hold_station event is taken as said.
 const ENDED_HERE_MS = 15000;
+// A request of a server that does not say when it is dropped: the server's default TTL.
+const REQUEST_SHOWN_MS = 600000;
 // A press on the panel holds its redraws until it has become a click: a button replaced
 // under a finger mid-tap lost the tap (a Grant on a phone did nothing). Held this long
 // after the press ends, and never longer than PRESS_MAX_MS.
@@ -53,6 +55,7 @@ export class ControlPanel {
     this.ctx = ctx;
     this.el = document.getElementById("control-pane");
     this.requests = [];
+    this.mine = new Map(); // this user's requests not answered: instance id → until (ms)
     this.caps = new Map();
     this.render = throttled(() => this.draw());
     this.pressed = null; // the timer that ends a press, while one is under way
@@ -158,7 +161,7 @@ export class ControlPanel {
     const hold = holdAfter(name, v && v.view.presence);
     if (v && ["control_grant", "control_deny"].includes(event.kind)
       && (d.holder === me || d.user === me)) {
-      v.requested = null; // answered
+      this.mine.delete(v.view.instance_id); // answered (the list is asked for again, too)
     }
     if (event.kind === "control_request" && this.managed(id) && by !== me) {
       toast(`${by} asks for control of ${name}: see Control`, "info");
@@ -187,7 +190,48 @@ export class ControlPanel {
     return me.role === "admin" || (me.role === "manager" && me.vehicles.includes(id));
   }
 
+  /** Until when this user's request for the vehicle stands (ms), or 0: none pending. */
+  requestedUntil(v) {
+    const until = this.mine.get(v.view.instance_id) || 0;
+    return until > Date.now() ? until : 0;
+  }
+
+  /** Requests this user made, until answered or dropped: ``requests`` as the server gives
+   * them (from a request, or the list of one's own); ``all``: they are all there are. */
+  asked(requests, all = false) {
+    const before = this.mine;
+    this.mine = all ? new Map() : new Map(before);
+    for (const r of requests) {
+      this.mine.set(r.instance_id, Date.parse(r.expires_at || "") || Date.now() + REQUEST_SHOWN_MS);
+    }
+    for (const v of this.ctx.fleet.vehicles.values()) {
+      const id = v.view.instance_id;
+      if (before.get(id) === this.mine.get(id)) continue;
+      this.ctx.fleet.changed(v.id, "control");
+      if (all && !this.mine.has(id) && before.get(id) <= Date.now()) { // nobody answered
+        toast(`your request for control of ${v.view.name || v.id} was not answered in time: ` +
+          "ask again, or call the field manager", "warn");
+      }
+    }
+    // the first to be dropped unanswered: the buttons offer to ask again then
+    clearTimeout(this.dropTimer);
+    const next = Math.min(...this.mine.values());
+    if (Number.isFinite(next)) this.dropTimer = setTimeout(() => this.loadMine(), Math.max(0, next - Date.now()) + 1000);
+  }
+
+  /** The requests this user made that nobody has answered yet, as the server has them
+   * (a reload, a reconnect, a request dropped unanswered, a grant to someone else). */
+  async loadMine() {
+    if (this.ctx.me.role === "viewer") return;
+    try {
+      this.asked((await this.ctx.api.get("/client/control_requests?mine=true")).requests || [], true);
+    } catch (e) {
+      // the buttons stay as they were: the next control event or reconnect asks again
+    }
+  }
+
   async loadRequests() {
+    this.loadMine();
     if (!this.manages) return;
     try {
       this.requests = (await this.ctx.api.get("/client/control_requests")).requests || [];

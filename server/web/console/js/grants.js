@@ -6,8 +6,6 @@
 import { holderText } from "./panels.js";
 import { clock, confirmAction, h, sending, sends } from "./ui.js";
 
-// How long "Requested…" stands on a request not yet answered (a manager may not be on).
-const REQUEST_SHOWN_MS = 120000;
 const TAKE_S = 3600; // a manager who takes control holds it for an hour
 
 /** The button a person is offered for a vehicle it does not hold, or null (a viewer;
@@ -21,8 +19,12 @@ export function controlOffer(ctx, v, label = "Request control") {
       onclick: () => takeControl(ctx, v),
     }, "Take control");
   }
-  if (v.requested && Date.now() - v.requested < REQUEST_SHOWN_MS) {
-    return h("button", { disabled: true, title: "the field manager decides" }, "Requested…");
+  const asked = ctx.controlPanel.requestedUntil(v);
+  if (asked) {
+    return h("button.requested", {
+      disabled: true,
+      title: `the field manager decides; your request stands until ${clock(asked)}`,
+    }, "Requested…");
   }
   return h("button", {
     ...sends(`request/${v.id}`), onclick: () => ctx.commands.requestControl(v.id),

@@ -139,6 +139,7 @@ class Console {
         toast("link back: the view is up to date again", "ok");
         for (const id of this.fleet.vehicles.keys()) this.seedTrail(id);
         this.loadShapes();
+        this.controlPanel.loadRequests(); // answered, or dropped, meanwhile
       }
       this.wasLost = false;
     } else if (state === "lost") {
