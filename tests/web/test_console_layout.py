@@ -4,7 +4,8 @@ banner hid behind the replay's, which covered the zoom and layers buttons, the h
 "l…" and "ben · ope…", and the replay's labels ran off the map; on a desktop the toasts
 covered the map's controls and swallowed clicks on the map between them, a tab under the
 pointer looked selected, and an operating area's name opened at its centre over the boats
-wherever the pointer (or, on a phone, a tap) was in it. A world of its own (the module's):
+wherever the pointer (or, on a phone, a tap) was in it, and the Path tool's bar covered
+40 % of a phone's map. A world of its own (the module's):
 ana holds every vehicle."""
 
 from __future__ import annotations
@@ -313,3 +314,36 @@ def test_a_tap_in_an_operating_area_on_a_phone_opens_nothing(
         expect(tooltip).to_have_count(0)
     finally:
         world.fleet.call("DELETE", f"/api/zones/{zone_id}")
+
+
+def test_a_phone_s_path_tool_leaves_the_map_to_tap(
+    world: World, open_console: Any, shots: Shots
+) -> None:
+    """The Path tool armed on a phone: the action bar took 40 % of the map (every tool,
+    both options, the path's row), and a waypoint tapped low on the map landed on it. It
+    keeps the path's row, the speed and Stop; a tap just above it adds a waypoint; Cancel
+    brings the other tools back."""
+    page, _ = open_console(viewport=PHONE, is_mobile=True, has_touch=True)
+    console.log_in(page, "ana")
+    expect(page.locator("#map")).to_be_visible()
+    console.marker(page, "demo-usv-1").tap()
+    actions = page.locator("#actions")
+    for tool in ("go_to", "station"):
+        expect(actions.locator(f'[data-tool="{tool}"]')).to_be_visible()
+    page.locator('[data-tool="path"]').tap()
+    expect(page.locator("#path-bar")).to_be_visible()
+    console.next_frames(page)
+    shots(page, "phone-path-tool")
+    view, bar = console.box_of(page.locator("#map")), console.box_of(actions)
+    assert bar["height"] <= 0.32 * view["height"], (bar, view)
+    for hidden in ('[data-tool="go_to"]', '[data-tool="station"]', "#hold", "#opt-radius"):
+        expect(actions.locator(hidden)).to_be_hidden()
+    for shown in ("#path-send", "#path-undo", "#path-cancel", "#stop-selected", "#opt-speed"):
+        expect(actions.locator(shown)).to_be_visible()
+    page.touchscreen.tap(view["x"] + view["width"] / 2, bar["y"] - 12)
+    expect(page.locator("#path-count")).to_have_text("1 waypoint")
+    page.locator("#path-cancel").tap()
+    expect(page.locator("#path-bar")).to_be_hidden()
+    for tool in ("go_to", "path", "station"):
+        expect(actions.locator(f'[data-tool="{tool}"]')).to_be_visible()
+    expect(actions.locator("#opt-radius")).to_be_visible()

@@ -77,7 +77,7 @@ export class Tools {
         go_to: "Tap the map where the selected vehicles should go (tap Go to again: cancel).",
         station: "Tap the map where the selected vehicles should keep station " +
           "(tap Keep station again: cancel).",
-        path: "Tap the map to add waypoints, then Send path (or Cancel).",
+        path: "Tap the map to add waypoints.", // Send path and Cancel are under it
       }
       : {
         go_to: "Click the map where the selected vehicles should go (Esc: cancel).",
