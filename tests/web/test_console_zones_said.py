@@ -74,6 +74,21 @@ def test_a_zone_drawn_changed_and_removed_reads_as_words(
     lines.locator("li", has_text="Outer rocks deleted").first.click()
     page.wait_for_function(f"() => ({no_go})() === {with_rocks - 1}")
     shots(page, "replay-zones-in-words")
+    # the timeline marks each change of the zones once (not once per boat), in words (the
+    # three, a moment apart, are one mark), and a click on it moves the cursor there
+    marks = page.locator("#timeline-changes .change-mark.c-zone")
+    said = [(m.get_attribute("title") or "").splitlines() for m in marks.all()]
+    (group,) = [i for i, lines in enumerate(said) if any("rocks" in x for x in lines)]
+    assert [re.sub(r"^\S+ ", "", x) for x in said[group] if "rocks" in x] == [
+        "no-go zone Far rocks drawn",
+        "no-go zone Outer rocks changed (was Far rocks)",
+        "no-go zone Outer rocks removed",
+    ], said
+    page.evaluate("() => fleetConsole.replay.seek(fleetConsole.replay.end)")
+    page.wait_for_function(f"() => ({no_go})() === {with_rocks - 1}")
+    marks.nth(group).click()
+    page.wait_for_function(f"() => ({no_go})() === {with_rocks}")
+    shots(page, "replay-zone-marks")
     page.click("#replay-exit")
 
 
@@ -107,6 +122,18 @@ def test_a_replay_draws_the_obstacles_of_its_cursors_time(
     expect(page.locator("#replay-info .obstacles-then")).to_have_text(
         "Obstacles are drawn as they were at the cursor's time: 2 obstacle changes in this window."
     )
+    # one mark on the timeline (1.5 s apart in 5 min) says both, and goes to the first
+    # its placing and its removal marked on the timeline (with any change a moment
+    # before them: one mark, each click going on to the next of its changes)
+    mark = page.locator("#timeline-changes .change-mark[title*='Old wreck placed']")
+    lines = (mark.get_attribute("title") or "").splitlines()
+    assert next(x for x in lines if "Old wreck" in x).endswith("obstacle Old wreck placed"), lines
+    assert "Old wreck removed" in page.locator("#timeline-changes").inner_html()
+    for _ in range(len(lines)):
+        mark.click()
+        if page.evaluate(wrecks) == 1:
+            break
+    assert page.evaluate("() => fleetConsole.replay.cursor") == drawn
     page.evaluate("t => fleetConsole.replay.seek(t)", drawn + 750)
     page.wait_for_function(f"() => ({wrecks})() === 1")
     shots(page, "replay-wreck-then")

@@ -2,6 +2,7 @@
 // timeline that also holds their commands, grants and events (each lights up as the
 // cursor passes it); the window exports as GPX or GeoJSON (export.js).
 
+import { changeMarks, obstacleChanges, zoneChanges } from "./changes.js";
 import { exportWindow } from "./export.js";
 import { drawTrack, gapBands, offlinePeriods, offlineText, periodAt } from "./gaps.js";
 import { placeLabels } from "./labels.js";
@@ -70,6 +71,7 @@ export class Replay {
     this.statusOut = document.getElementById("replay-status");
     this.gaps = document.getElementById("timeline-gaps");
     this.ticks = document.getElementById("timeline-ticks");
+    this.changes = document.getElementById("timeline-changes");
     this.list = document.getElementById("replay-events");
     this.info = document.getElementById("replay-info");
     this.exportBox = document.getElementById("replay-export");
@@ -199,6 +201,7 @@ export class Replay {
     this.list.replaceChildren();
     this.list.hidden = false;
     this.ticks.replaceChildren();
+    this.changes.replaceChildren();
     this.gaps.replaceChildren();
     this.exportBox.hidden = true;
     this.choice.hold(false);
@@ -365,6 +368,9 @@ export class Replay {
       dataset: { index: i },
     })));
     this.gaps.replaceChildren(...gapBands(this.offline, this.start, this.end, (id) => this.nameOf(id)));
+    // what changed on the map itself: each change once, whichever boats it concerned
+    const changes = [...zoneChanges(this.zoneFrames), ...obstacleChanges(this.obstaclesThen, this.start, this.end)];
+    this.changes.replaceChildren(...changeMarks(changes, this.start, this.end, (t) => this.seek(t), () => this.cursor));
     this.list.replaceChildren(...this.events.map((e, i) => h("li", {
       dataset: { index: i, kind: e.kind },
       title: eventTitle(e),
