@@ -15,6 +15,7 @@ from typing import Any
 import pytest
 from playwright.sync_api import expect
 
+from tests.agent.procs import wait_until
 from tests.web import console_helpers as console
 from tests.web.conftest import Shots, World
 
@@ -347,3 +348,43 @@ def test_a_phone_s_path_tool_leaves_the_map_to_tap(
     for tool in ("go_to", "path", "station"):
         expect(actions.locator(f'[data-tool="{tool}"]')).to_be_visible()
     expect(actions.locator("#opt-radius")).to_be_visible()
+
+
+def test_a_small_station_circle_is_not_hidden_under_a_label(
+    world: World, open_console: Any, shots: Shots
+) -> None:
+    """A keep-station circle a few pixels wide lay under another boat's name, where that
+    name goes first (to the right of its marker): the label goes elsewhere."""
+    page, _ = open_console()
+    console.log_in(page, "ana")
+    expect(page.locator("#map")).to_be_visible()
+    bravo = console.position(world, "demo-usv-2")
+    console.centre_on(page, bravo["lat"], bravo["lon"], 19)
+    label = page.locator('.vicon:not(.replay)[data-vehicle="demo-usv-2"] .vlabel')
+    right = console.box_of(label)  # where Bravo's name is with nothing to keep clear of
+    marker = console.box_of(console.marker(page, "demo-usv-2"))
+    assert right["x"] > marker["x"] + marker["width"] / 2, (right, marker)
+    # Alpha told to keep station 3 m across under the middle of Bravo's name
+    view = console.box_of(page.locator("#map"))
+    middle = [
+        right["x"] + right["width"] / 2 - view["x"],
+        right["y"] + right["height"] / 2 - view["y"],
+    ]
+    at = page.evaluate(
+        "p => { const c = fleetConsole.map.map.containerPointToLatLng(p); return [c.lat, c.lng]; }",
+        middle,
+    )
+    command = {"type": "keep_station", "args": {"lat": at[0], "lon": at[1], "radius_m": 1.5}}
+    world.as_user(
+        "ana", "POST", "/client/submit_control",
+        json={"instance_ids": [world.instances["demo-usv-1"]], "command": command},
+    )  # fmt: skip
+    circle = page.locator("path.station")
+    expect(circle).to_have_count(1)
+
+    def clear() -> bool:
+        ring, name = circle.bounding_box(), label.bounding_box()
+        return bool(ring and name and not console.boxes_overlap(ring, name))
+
+    wait_until(clear, "Bravo's name clear of the station circle", 10)
+    shots(page, "station-clear-of-labels")

@@ -1,6 +1,7 @@
-// Where each vehicle's label goes so that no label covers another label or a marker, nor
-// runs off the map: for each marker (top to bottom), the first of a list of places around
-// it that is free; if none is, the one that covers least. Pure: rectangles in, offsets out.
+// Where each vehicle's label goes so that no label covers another label, a marker or a
+// small thing drawn on the map (a station's circle), nor runs off the map: for each marker
+// (top to bottom), the first of a list of places around it that is free; if none is, the
+// one that covers least. Pure: rectangles in, offsets out.
 
 const GAP = 5;
 
@@ -40,11 +41,13 @@ function outside(box, view) {
 /**
  * anchors: [{id, x, y, w, h}] (the marker's centre on screen, its label's size);
  * r: a marker's radius in pixels; view: {w, h}, the map's size (a label cut by its
- * edge costs as much as one covered). Returns a Map id -> {dx, dy}, the label's
- * top-left corner relative to its marker's centre.
+ * edge costs as much as one covered); clear: [{x, y, w, h}], other boxes no label should
+ * cover. Returns a Map id -> {dx, dy}, the label's top-left corner relative to its
+ * marker's centre.
  */
-export function placeLabels(anchors, r = 12, view = null) {
+export function placeLabels(anchors, r = 12, view = null, clear = []) {
   const taken = anchors.map((a) => ({ x: a.x - r, y: a.y - r, w: 2 * r, h: 2 * r }));
+  taken.push(...clear);
   const placed = new Map();
   const order = [...anchors].sort((a, b) => a.y - b.y || a.x - b.x || (a.id < b.id ? -1 : 1));
   for (const a of order) {

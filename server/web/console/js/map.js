@@ -12,6 +12,10 @@ import { bindKeptTooltip, outlineBand } from "./tooltips.js";
 
 export { L };
 
+// A station circle at most this wide on screen can hide whole under a label: kept clear.
+const SMALL_STATION_PX = 64;
+const EARTH_M = 40075016.686; // the equator's length, in metres
+
 const TRAIL_COLOURS = ["#1565c0", "#c2185b", "#00838f", "#6a1b9a", "#ef6c00", "#2e7d32",
   "#ad1457", "#4e342e"];
 
@@ -209,13 +213,33 @@ export class MapView {
       } else if (cmd.type === "keep_station") {
         const at = a.lat != null ? [a.lat, a.lon] : here ? [here.lat, here.lon] : null;
         if (at) {
-          L.circle(at, { radius: a.radius_m || 2, color: colour, weight: 2, dashArray: "3 4" })
-            .addTo(group);
+          L.circle(at, {
+            radius: a.radius_m || 2, color: colour, weight: 2, dashArray: "3 4", className: "station",
+          }).addTo(group);
         }
       }
     }
     group.addTo(this.paths);
     this.missions.set(v.id, group);
+    this.scheduleLabels(); // a label may cover a station's circle drawn or gone
+  }
+
+  /** The station circles small enough on screen for a label to hide them whole: boxes no
+   * label should cover (a larger one shows past any label). */
+  smallStations() {
+    const boxes = [];
+    for (const group of this.missions.values()) {
+      group.eachLayer((layer) => {
+        if (!(layer instanceof L.Circle)) return;
+        const at = layer.getLatLng();
+        const pt = this.map.latLngToContainerPoint(at);
+        // metres per pixel at its latitude and the map's zoom (Web Mercator)
+        const mpp = (EARTH_M * Math.cos((at.lat * Math.PI) / 180)) / 2 ** (this.map.getZoom() + 8);
+        const r = layer.getRadius() / mpp + 3; // its dashed outline too
+        if (2 * r <= SMALL_STATION_PX) boxes.push({ x: pt.x - r, y: pt.y - r, w: 2 * r, h: 2 * r });
+      });
+    }
+    return boxes;
   }
 
   /** Pan to a vehicle that is off the map's view (its latest position), at the zoom it
@@ -292,7 +316,8 @@ export class MapView {
       labels.set(id, label);
     }
     const size = this.map.getSize();
-    for (const [id, { dx, dy }] of placeLabels(anchors, 13, { w: size.x, h: size.y })) {
+    const placed = placeLabels(anchors, 13, { w: size.x, h: size.y }, this.smallStations());
+    for (const [id, { dx, dy }] of placed) {
       const label = labels.get(id);
       label.style.left = `${13 + dx}px`;
       label.style.top = `${13 + dy}px`;
