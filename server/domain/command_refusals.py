@@ -10,6 +10,13 @@ from server.errors import FleetError, ZoneViolation
 __all__ = ["refused"]
 
 
+def _fields(exc: FleetError) -> dict[str, list[str]]:
+    """The command's fields a refusal is about (``command.args.waypoints.1``: the second
+    waypoint a path cannot be planned through), as its own details name them."""
+    named = [d["field"] for d in exc.details or [] if isinstance(d, dict) and "field" in d]
+    return {"fields": named} if named else {}
+
+
 def refused(refusals: list[tuple[int, str, FleetError]], asked: int) -> FleetError:
     """All or nothing: the first refusal's status, and every refusal in ``details``."""
     refusals.sort(key=lambda r: r[0])
@@ -21,6 +28,7 @@ def refused(refusals: list[tuple[int, str, FleetError]], asked: int) -> FleetErr
             "code": exc.code,
             "message": exc.message,
             **(exc.zone if isinstance(exc, ZoneViolation) else {}),
+            **_fields(exc),
         }
         for index, instance_id, exc in refusals
     ]

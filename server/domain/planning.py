@@ -58,7 +58,13 @@ SEGMENTS_PER_STEP = 16_384
 
 
 class NoPath(ValueError):
-    """No path keeps the clearance (a waypoint is too close to an obstacle, or enclosed)."""
+    """No path keeps the clearance (a waypoint is too close to an obstacle, or enclosed).
+    ``waypoint``: the index (from 0, as a field path counts) of the waypoint refused, when
+    one is; its message counts from 1, as the console numbers them."""
+
+    def __init__(self, message: str, waypoint: int | None = None) -> None:
+        super().__init__(message)
+        self.waypoint = waypoint
 
 
 class OutOfTime(Exception):
@@ -140,15 +146,14 @@ def _check_waypoints(
     index = int(bad[0])
     if in_disc[index].any():
         k = int(np.argmax(in_disc[index]))
-        raise NoPath(
-            f"waypoint {index + 1} is within {radii[k]:g} m of {obstacles[k].name or 'an obstacle'}"
-        )
+        name = obstacles[k].name or "an obstacle"
+        raise NoPath(f"waypoint {index + 1} is within {radii[k]:g} m of {name}", index)
     area = areas[int(np.argmax(in_area[index]))]
     within = f" or within its clearance of {area.clearance:g} m" if area.clearance else ""
     outside = "the outside of "  # the frame round an operating area (zones.keep_out)
     if area.label.startswith(outside):
-        raise NoPath(f"waypoint {index + 1} is outside {area.label[len(outside) :]}{within}")
-    raise NoPath(f"waypoint {index + 1} is inside {area.label}{within}")
+        raise NoPath(f"waypoint {index + 1} is outside {area.label[len(outside) :]}{within}", index)
+    raise NoPath(f"waypoint {index + 1} is inside {area.label}{within}", index)
 
 
 def _leg(

@@ -54,9 +54,12 @@ def vehicle_planner(safety_radius_m: float) -> Planner:
         try:
             path = plan_path(start, waypoints, obstacles, zones, deadline)
         except NoPath as exc:
+            # the waypoint refused named as a field (from 0), when one is
+            field = "command.args.waypoints"
+            if exc.waypoint is not None:
+                field += f".{exc.waypoint}"
             raise Invalid(
-                f"cannot plan the path: {exc}",
-                details=[{"field": "command.args.waypoints", "message": str(exc)}],
+                f"cannot plan the path: {exc}", details=[{"field": field, "message": str(exc)}]
             ) from None
         return {**args, "path": [{"lat": lat, "lon": lon} for lat, lon in path]}
 

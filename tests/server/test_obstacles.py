@@ -209,13 +209,15 @@ async def test_a_waypoint_inside_a_created_obstacle_is_422(w: World) -> None:
     await create(w.http, {"name": "pier 3", "polygon": polygon(PIER)})
     me = await w.vehicle()
     op = await w.operator_in_control(me)
-    command = {"type": "follow_path", "args": {"waypoints": [at(50, 0)], "plan": True}}
+    command = {"type": "follow_path", "args": {"waypoints": [at(-30, 0), at(50, 0)], "plan": True}}
     r = await w.submit(op, [me], command)
     assert r.status_code == 422
     error = r.json()["error"]
     assert error["code"] == "invalid"
     assert "pier 3" in error["message"]
-    assert "waypoint 1" in error["message"]
+    assert "waypoint 2" in error["message"]  # as the console numbers them
+    # the field counts from 0, as every field path does
+    assert [d["fields"] for d in error["details"]] == [["command.args.waypoints.1"]]
 
 
 async def test_a_straight_way_into_a_known_obstacle_is_queued_and_said(w: World) -> None:
