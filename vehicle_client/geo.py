@@ -9,6 +9,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from fleet_protocol import lon_step, normal_lon
+
 EARTH_RADIUS_M = 6_378_137.0
 
 
@@ -20,14 +22,16 @@ class LocalFrame:
     lon0: float
 
     def to_enu(self, lat: float, lon: float) -> tuple[float, float]:
-        east = math.radians(lon - self.lon0) * EARTH_RADIUS_M * math.cos(math.radians(self.lat0))
+        # the short way round: 179.9 E is 0.2 degrees west of 179.9 W, not 359.8 east
+        step = lon_step(lon, self.lon0)
+        east = math.radians(step) * EARTH_RADIUS_M * math.cos(math.radians(self.lat0))
         north = math.radians(lat - self.lat0) * EARTH_RADIUS_M
         return east, north
 
     def to_latlon(self, east: float, north: float) -> tuple[float, float]:
         lat = self.lat0 + math.degrees(north / EARTH_RADIUS_M)
         lon = self.lon0 + math.degrees(east / (EARTH_RADIUS_M * math.cos(math.radians(self.lat0))))
-        return lat, lon
+        return lat, normal_lon(lon)  # east of 180 is the far west: a longitude the wire takes
 
 
 def distance_m(lat1: float, lon1: float, lat2: float, lon2: float) -> float:

@@ -97,6 +97,26 @@ def test_go_to_arrives_within_one_metre_and_reports_done(current: Current) -> No
     assert sim.distance_to(target["lat"], target["lon"]) <= 1.0
 
 
+def test_a_boat_sent_across_the_antimeridian_goes_the_short_way_and_stays_in_range() -> None:
+    """179.9998 E to 179.9998 W is about 40 m east across 180, not 40,000 km west round the
+    globe; every position it reports has a longitude the wire takes (east of 180 it is
+    west: -179.99..., never 180.0001)."""
+    sim = Simulator(-16.8, 179.9998)
+    target = {"lat": -16.8, "lon": -179.9998}
+    assert sim.distance_to(target["lat"], target["lon"]) == pytest.approx(42.6, abs=0.5)
+    sim.start(sim.task_for("go_to", target))
+    report, lons = None, []
+    for _ in range(1200):
+        report = sim.step(0.5)
+        lons.append(sim.position[1])
+        if report is not None and report.status != "executing":
+            break
+    assert report is not None and report.status == "done", report
+    assert all(-180.0 <= lon <= 180.0 for lon in lons), max(lons)
+    assert min(lons) < -179.9990 and max(lons) > 179.9990  # it crossed 180
+    assert sim.distance_to(target["lat"], target["lon"]) <= 1.0
+
+
 def test_keep_station_holds_against_a_current_that_would_carry_it_away() -> None:
     current = Current.from_speed(0.3, 200.0)
     held, drifting = make_sim(current), make_sim(current)

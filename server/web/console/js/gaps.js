@@ -7,6 +7,7 @@
 import { L } from "./map.js";
 import { lastAtOrBefore } from "./replay.js";
 import { clock, h } from "./ui.js";
+import { at } from "./wrap.js";
 
 /** The periods a vehicle was out of contact within [start, end], from its events and
  * its track (both sorted by ``t``): [{from, to, open}], ``open`` when it was still offline
@@ -57,10 +58,10 @@ export function trackRuns(points, periods) {
     const b = points[i];
     const offline = periods.some((p) => a.t < p.to && b.t > p.from);
     const last = runs[runs.length - 1];
-    if (last && last.offline === offline) last.pts.push([b.lat, b.lon]);
-    else runs.push({ offline, pts: [[a.lat, a.lon], [b.lat, b.lon]] });
+    if (last && last.offline === offline) last.pts.push(at(b));
+    else runs.push({ offline, pts: [at(a), at(b)] });
   }
-  if (!runs.length && points.length) runs.push({ offline: false, pts: [[points[0].lat, points[0].lon]] });
+  if (!runs.length && points.length) runs.push({ offline: false, pts: [at(points[0])] });
   return runs;
 }
 

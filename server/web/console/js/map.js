@@ -9,6 +9,7 @@ import { alarmLabel, isFinal, lastKnown, stageLabel } from "./fleet.js";
 import { addBase } from "./grid.js";
 import { placeLabels } from "./labels.js";
 import { bindKeptTooltip, outlineBand } from "./tooltips.js";
+import { at, drawn, setHome } from "./wrap.js";
 
 export { L };
 
@@ -18,6 +19,11 @@ const EARTH_M = 40075016.686; // the equator's length, in metres
 
 const TRAIL_COLOURS = ["#1565c0", "#c2185b", "#00838f", "#6a1b9a", "#ef6c00", "#2e7d32",
   "#ad1457", "#4e342e"];
+
+/** A GeoJSON position ([lon, lat]) drawn near the fleet's meridian (``L.geoJSON``'s option). */
+export function coordsToLatLng(c) {
+  return L.latLng(c[1], drawn(c[0]));
+}
 
 export function colourOf(index) {
   return TRAIL_COLOURS[index % TRAIL_COLOURS.length];
@@ -92,7 +98,10 @@ export class MapView {
     const v = this.fleet.vehicles.get(id);
     if (!v) return;
     const p = v.view.position;
-    if (p && p.lat != null) this.placeMarker(v, p);
+    if (p && p.lat != null) {
+      if (setHome(p.lon)) this.redrawShapes(); // drawn near the fleet from now on
+      this.placeMarker(v, p);
+    }
     this.updateTrail(v);
     if (what === "commands" || what === "position" || what === "view") this.updateMission(v);
     this.scheduleLabels();
@@ -100,7 +109,7 @@ export class MapView {
 
   placeMarker(v, p) {
     let m = this.markers.get(v.id);
-    const latlng = [p.lat, p.lon];
+    const latlng = at(p);
     if (!m) {
       const icon = L.divIcon({
         className: "vicon",
@@ -167,7 +176,7 @@ export class MapView {
 
   updateTrail(v) {
     let line = this.trails.get(v.id);
-    const points = v.trail.map((p) => [p.lat, p.lon]);
+    const points = v.trail.map(at);
     if (!line) {
       line = L.polyline(points, {
         color: colourOf(v.index), weight: 3, opacity: 0.7, interactive: false,
@@ -190,30 +199,30 @@ export class MapView {
       if (isFinal(cmd.status) || !cmd.args) continue;
       const a = cmd.args;
       if (cmd.type === "follow_path") {
-        const pts = (a.path || a.waypoints || []).map((w) => [w.lat, w.lon]);
-        if (here) pts.unshift([here.lat, here.lon]);
+        const pts = (a.path || a.waypoints || []).map(at);
+        if (here) pts.unshift(at(here));
         bindKeptTooltip(L.polyline(pts, {
           color: colour, weight: 2, dashArray: "6 6", className: `planned path-of-${v.id}`,
         }), `${escapeHtml(v.view.name || v.id)}: ${a.path ? "planned path" : "path"}`)
           .addTo(group);
         for (const w of a.waypoints || []) {
-          L.circleMarker([w.lat, w.lon], { radius: 4, color: colour, fillOpacity: 1 })
+          L.circleMarker(at(w), { radius: 4, color: colour, fillOpacity: 1 })
             .addTo(group);
         }
       } else if (cmd.type === "go_to" && a.lat != null) {
         if (here) {
-          L.polyline([[here.lat, here.lon], [a.lat, a.lon]], {
+          L.polyline([at(here), at(a)], {
             color: colour, weight: 2, dashArray: "4 6", className: "planned",
           }).addTo(group);
         }
         bindKeptTooltip(
-          L.circleMarker([a.lat, a.lon], { radius: 6, color: colour, fill: false, weight: 2 }),
+          L.circleMarker(at(a), { radius: 6, color: colour, fill: false, weight: 2 }),
           `${escapeHtml(v.view.name || v.id)}: go to`,
         ).addTo(group);
       } else if (cmd.type === "keep_station") {
-        const at = a.lat != null ? [a.lat, a.lon] : here ? [here.lat, here.lon] : null;
-        if (at) {
-          L.circle(at, {
+        const centre = a.lat != null ? at(a) : here ? at(here) : null;
+        if (centre) {
+          L.circle(centre, {
             radius: a.radius_m || 2, color: colour, weight: 2, dashArray: "3 4", className: "station",
           }).addTo(group);
         }
@@ -248,8 +257,8 @@ export class MapView {
     const v = this.fleet.vehicles.get(id);
     const p = v && v.view.position;
     if (!p || p.lat == null || p.lon == null) return;
-    const at = L.latLng(p.lat, p.lon);
-    if (!this.map.getBounds().pad(-0.1).contains(at)) this.map.panTo(at, { animate: false });
+    const where = L.latLng(...at(p));
+    if (!this.map.getBounds().pad(-0.1).contains(where)) this.map.panTo(where, { animate: false });
   }
 
   setSelected(ids) {
@@ -274,7 +283,7 @@ export class MapView {
     const pts = [...this.fleet.vehicles.values()]
       .map((v) => v.view.position)
       .filter((p) => p && p.lat != null)
-      .map((p) => [p.lat, p.lon]);
+      .map(at);
     if (!pts.length) return false;
     if (pts.length === 1) this.map.setView(pts[0], 17, { animate: false });
     else this.map.fitBounds(L.latLngBounds(pts).pad(0.6), { maxZoom: 18, animate: false });
@@ -284,7 +293,7 @@ export class MapView {
 
   focus(id) {
     const v = this.fleet.vehicles.get(id);
-    if (v && v.view.position) this.map.panTo([v.view.position.lat, v.view.position.lon]);
+    if (v && v.view.position) this.map.panTo(at(v.view.position));
   }
 
   // ---- labels -----------------------------------------------------------------
@@ -330,9 +339,11 @@ export class MapView {
    * boats wherever the pointer was): its name shows on or near its outline (tooltips.js),
    * and a click inside is the map's. */
   setZones(zones) {
+    this.zoneList = zones;
     this.zones.clearLayers();
     for (const z of zones) {
       L.geoJSON(z.polygon, {
+        coordsToLatLng,
         style: {
           className: `zone zone-${z.kind}`,
           color: z.kind === "no_go" ? "#c62828" : "#1565c0",
@@ -350,9 +361,11 @@ export class MapView {
   }
 
   setObstacles(obstacles) {
+    this.obstacleList = obstacles;
     this.obstacles.clearLayers();
     for (const o of obstacles) {
       const shape = L.geoJSON(o.polygon, {
+        coordsToLatLng,
         style: { className: "obstacle", color: "#5d4037", weight: 1, fillOpacity: 0.45 },
       });
       bindKeptTooltip(shape, `${escapeHtml(o.name)} (obstacle, clearance ${o.clearance_m} m)`)
@@ -360,10 +373,18 @@ export class MapView {
     }
   }
 
+  /** The zones and obstacles drawn again (near the fleet, once its meridian is known). */
+  redrawShapes() {
+    if (this.zoneList) this.setZones(this.zoneList);
+    if (this.obstacleList) this.setObstacles(this.obstacleList);
+  }
+
   // ---- drawing a path ----------------------------------------------------------------
-  showDraft(points) {
+  /** The path being drawn: its waypoints ({lat, lon}), numbered. */
+  showDraft(waypoints) {
     this.draft.clearLayers();
-    if (!points.length) return;
+    if (!waypoints.length) return;
+    const points = waypoints.map(at);
     L.polyline(points, { color: "#ef6c00", weight: 3, dashArray: "2 6", className: "draft" })
       .addTo(this.draft);
     points.forEach((p, i) => {

@@ -10,6 +10,7 @@ import { commandName, isFinal, lastKnown, stageLabel } from "./fleet.js";
 import { controlOffer } from "./grants.js";
 import { patchChildren } from "./patch.js";
 import { ago, clock, h, sending, sends, until } from "./ui.js";
+import { lonStep } from "./wrap.js";
 
 // said here before describe.js was split out; control.js reads them from here
 export { describeData, describeEvent, describeFailsafe, kindName } from "./describe.js";
@@ -46,7 +47,7 @@ export function courseText(trail) {
   for (let i = trail.length - 2; i >= 0 && last.t - trail[i].t <= 5000; i -= 1) from = trail[i];
   const rad = Math.PI / 180;
   const north = (last.lat - from.lat) * 111320;
-  const east = (last.lon - from.lon) * 111320 * Math.cos(last.lat * rad);
+  const east = lonStep(from.lon, last.lon) * 111320 * Math.cos(last.lat * rad);
   if (Math.hypot(north, east) < 1) return "–";
   return `${Math.round((Math.atan2(east, north) / rad + 360) % 360) % 360} °`;
 }

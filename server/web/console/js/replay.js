@@ -11,6 +11,7 @@ import { describeEvent, eventTitle, kindName } from "./describe.js";
 import { commandFromEvents } from "./fleet.js";
 import { ReplayForm } from "./replayform.js";
 import { clock, counted, dateTime, h, sending, toast } from "./ui.js";
+import { at as drawnAt, lonStep } from "./wrap.js";
 
 const MAX_EVENTS_PER_VEHICLE = 100000;
 const MAX_POINTS_PER_VEHICLE = 50000; // five pages of the track route
@@ -50,7 +51,7 @@ export function positionAt(points, t) {
   return {
     t,
     lat: a.lat + (b.lat - a.lat) * f,
-    lon: a.lon + (b.lon - a.lon) * f,
+    lon: a.lon + lonStep(a.lon, b.lon) * f, // the short way round, across 180 too
     heading_deg: (ha + turn * f + 360) % 360,
     exact: false,
   };
@@ -311,7 +312,7 @@ export class Replay {
     for (const id of this.ids) {
       const v = this.ctx.fleet.vehicles.get(id);
       const colour = colourOf(v ? v.index : 0);
-      const pts = this.tracks.get(id).map((p) => [p.lat, p.lon]);
+      const pts = this.tracks.get(id).map(drawnAt);
       bounds.push(...pts);
       drawTrack(this.layer, id, this.tracks.get(id), this.offline.get(id), colour);
       const marker = L.marker(pts[0] || [0, 0], {
@@ -402,7 +403,7 @@ export class Replay {
         if (this.layer.hasLayer(marker)) this.layer.removeLayer(marker);
         continue;
       }
-      marker.setLatLng([at.lat, at.lon]);
+      marker.setLatLng(drawnAt(at));
       if (!this.layer.hasLayer(marker)) marker.addTo(this.layer);
       const el = marker.getElement();
       if (el) {

@@ -4,6 +4,7 @@
 // selection. Each command goes through commands.js.
 
 import { readNumber, sending, toast } from "./ui.js";
+import { wireLon } from "./wrap.js";
 
 const $ = (id) => document.getElementById(id);
 const TOUCH = window.matchMedia("(pointer: coarse)"); // a finger: no Esc, no ctrl-click
@@ -98,13 +99,14 @@ export class Tools {
   }
 
   drawDraft() {
-    this.ctx.map.showDraft(this.draftPath.map((p) => [p.lat, p.lon]));
+    this.ctx.map.showDraft(this.draftPath);
     $("path-count").textContent = `${this.draftPath.length} waypoint${this.draftPath.length === 1 ? "" : "s"}`;
   }
 
   mapClicked(latlng) {
     const { commands, map } = this.ctx;
-    const point = { lat: +latlng.lat.toFixed(7), lon: +latlng.lng.toFixed(7) };
+    // east of 180 on a map panned across it: the longitude the server takes (±180)
+    const point = { lat: +latlng.lat.toFixed(7), lon: +wireLon(latlng.lng).toFixed(7) };
     if (this.tool === "go_to") {
       const speed = this.speedArg();
       if (speed == null) return; // said why; the tool stays for another click
