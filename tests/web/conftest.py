@@ -56,20 +56,22 @@ class World:
         return self.fleet.call(method, path, self.tokens[username], **kw)
 
 
-@pytest.fixture(scope="module")
-def world(tmp_path_factory: pytest.TempPathFactory) -> Iterator[World]:
-    """A server, the demo's three vehicles simulated, and three people who log in with a
-    password: ``ana`` and ``ben`` (operators), ``mia`` (the field manager)."""
-    if not (WEB_MODULES / "leaflet" / "dist").is_dir():
-        pytest.fail("server/web/node_modules is missing: run `make web` (npm ci in server/web)")
-    workdir = tmp_path_factory.mktemp("console-server")
+@contextmanager
+def served_world(
+    workdir: Path,
+    vehicles: list[tuple[str, str, float, float]],
+    people: list[tuple[str, str]],
+) -> Iterator[World]:
+    """A server, ``vehicles`` (id, name, lat, lon) simulated there, and ``people``
+    (username, role) who may see them all and log in with the password; the first person
+    holds every vehicle."""
     server = ServerProcess(workdir)
     server.start()
     fleet = Fleet(server)
     world = World(server, fleet, [])
-    ids = [v[0] for v in VEHICLES]
+    ids = [v[0] for v in vehicles]
     try:
-        for vehicle_id, name, lat, lon in VEHICLES:
+        for vehicle_id, name, lat, lon in vehicles:
             token = fleet.call(
                 "POST",
                 "/api/vehicles",
@@ -81,17 +83,29 @@ def world(tmp_path_factory: pytest.TempPathFactory) -> Iterator[World]:
             )  # fmt: skip
             agent.start()
             world.agents.append(agent)
-        for username, role in (("ana", "operator"), ("ben", "operator"), ("mia", "manager")):
+        for username, role in people:
             body = {"username": username, "role": role, "vehicles": ids, "password": PASSWORD}
             world.tokens[username] = fleet.call("POST", "/api/users", json=body)["token"]
         for vehicle_id in ids:
             world.instances[vehicle_id] = fleet.online_instance(vehicle_id)
-            fleet.grant(world.instances[vehicle_id], "ana")
+            fleet.grant(world.instances[vehicle_id], people[0][0])
         yield world
     finally:
         for agent in world.agents:
             agent.stop()
         server.stop(grace_s=5.0)
+
+
+@pytest.fixture(scope="module")
+def world(tmp_path_factory: pytest.TempPathFactory) -> Iterator[World]:
+    """A server, the demo's three vehicles simulated, and three people who log in with a
+    password: ``ana`` and ``ben`` (operators), ``mia`` (the field manager); ana holds
+    every vehicle."""
+    if not (WEB_MODULES / "leaflet" / "dist").is_dir():
+        pytest.fail("server/web/node_modules is missing: run `make web` (npm ci in server/web)")
+    people = [("ana", "operator"), ("ben", "operator"), ("mia", "manager")]
+    with served_world(tmp_path_factory.mktemp("console-server"), list(VEHICLES), people) as w:
+        yield w
 
 
 @pytest.fixture(scope="module")

@@ -12,9 +12,9 @@ from typing import Any
 import pytest
 from playwright.sync_api import expect
 
-from tests.agent.procs import AgentProcess, Fleet, ServerProcess, wait_until
+from tests.agent.procs import wait_until
 from tests.web import console_helpers as console
-from tests.web.conftest import PASSWORD, TIME_SCALE, Shots, World
+from tests.web.conftest import Shots, World, served_world
 
 pytestmark = [pytest.mark.slow, pytest.mark.browser]
 
@@ -26,32 +26,10 @@ BOATS = (("tasman", "Tasman", 179.9997), ("koro", "Koro", -179.9997))
 
 @pytest.fixture(scope="module")
 def world(tmp_path_factory: pytest.TempPathFactory) -> Iterator[World]:
+    boats = [(vehicle_id, name, LAT, lon) for vehicle_id, name, lon in BOATS]
     workdir = tmp_path_factory.mktemp("dateline-server")
-    server = ServerProcess(workdir)
-    server.start()
-    fleet = Fleet(server)
-    world = World(server, fleet, [])
-    try:
-        for vehicle_id, name, lon in BOATS:
-            body = {"vehicle_id": vehicle_id, "name": name, "vehicle_type": "usv"}
-            token = fleet.call("POST", "/api/vehicles", json=body)["token"]
-            agent = AgentProcess(
-                server, token, vehicle_id, workdir / f"{vehicle_id}.outbox",
-                adapter="sim", start=f"{LAT},{lon}", rate_hz=2, time_scale=TIME_SCALE,
-            )  # fmt: skip
-            agent.start()
-            world.agents.append(agent)
-        ids = [b[0] for b in BOATS]
-        body = {"username": "ana", "role": "operator", "vehicles": ids, "password": PASSWORD}
-        world.tokens["ana"] = fleet.call("POST", "/api/users", json=body)["token"]
-        for vehicle_id in ids:
-            world.instances[vehicle_id] = fleet.online_instance(vehicle_id)
-            fleet.grant(world.instances[vehicle_id], "ana")
-        yield world
-    finally:
-        for agent in world.agents:
-            agent.stop()
-        server.stop(grace_s=5.0)
+    with served_world(workdir, boats, [("ana", "operator")]) as w:
+        yield w
 
 
 def centre(box: dict[str, float]) -> tuple[float, float]:
