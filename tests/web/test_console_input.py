@@ -1,7 +1,8 @@
 """What is typed and clicked in the console does what the person meant, in a real browser
 (as test_console_commands): a number field reads a decimal comma as a point and refuses
 anything else, a double click does not act twice nor on a button that appeared under the
-pointer (and Release asks first), and arming a tool moves no button. A world of its own
+pointer (and Release asks first) nor on the map under a confirmation, and arming a tool
+moves no button. A world of its own
 (the module's), in file order: ana holds every vehicle at the start."""
 
 from __future__ import annotations
@@ -170,3 +171,33 @@ def test_arming_a_tool_moves_no_button(world: World, open_console: Any, shots: S
 def calls(guard: Any, path: str) -> int:
     """How many times the page called ``path``."""
     return len([r for r in guard.requests if r.startswith("POST ") and r.endswith(path)])
+
+
+def test_a_double_click_on_a_confirmation_does_not_reach_the_map(
+    world: World, open_console: Any, shots: Shots
+) -> None:
+    """Go to armed, Stop, then a double click on "Stop it": its second click reached the
+    map under the dialog, and the armed Go to sent the boat there (before the stop); the
+    map zoomed in too. The stop alone goes now, and the map stays as it was."""
+    vehicle, instance = "demo-usv-1", world.instances["demo-usv-1"]
+    world.fleet.grant(instance, "ana")
+    page, sent = open_console()
+    console.log_in(page, "ana")
+    console.marker(page, vehicle).click()
+    page.click('#actions [data-tool="go_to"]')
+    expect(page.locator("#tool-hint")).to_be_visible()
+    zoom = page.evaluate("fleetConsole.map.map.getZoom()")
+    page.click("#stop-selected")
+    ok = page.locator("#confirm-ok")
+    expect(ok).to_be_enabled()  # armed after a moment
+    box = console.box_of(ok)
+    map_box = console.box_of(page.locator("#map"))
+    assert map_box["x"] + map_box["width"] > box["x"] + box["width"] / 2  # over the map
+    ok.dblclick()
+    stop = wait_until(lambda: console.newest_command(world, vehicle, "stop"), "the stop")
+    console.next_frames(page)
+    assert calls(sent, "/client/submit_control") == 1  # the stop, and no go_to
+    assert page.evaluate("fleetConsole.map.map.getZoom()") == zoom
+    expect(page.locator("#tool-hint")).to_be_hidden()  # the stop put the tool away
+    assert stop["issued_by"] == "ana"
+    shots(page, "stopped-nothing-else")

@@ -150,6 +150,29 @@ export function readNumber(field, { what, unit, optional = null }) {
 
 const ARM_MS = 800;
 
+// A click meant for a dialog must not reach the map under it: a double click on a
+// confirmation's button ("Stop it") sent its second click to the map, where an armed Go to
+// sent the boat there (before the stop), and zoomed the map in. Clicks on the map are
+// dropped while a dialog is open and for a moment after one closed (its close event comes
+// after the click that closed it).
+const AFTER_DIALOG_MS = 600;
+let dialogEndedAt = 0;
+for (const kind of ["submit", "close", "cancel"]) {
+  document.addEventListener(kind, (e) => {
+    if (e.target.closest && e.target.closest("dialog")) dialogEndedAt = Date.now();
+  }, true);
+}
+for (const kind of ["pointerdown", "mousedown", "click", "dblclick"]) {
+  document.addEventListener(kind, (e) => {
+    const onMap = e.target.closest && e.target.closest("#map");
+    if (!onMap) return;
+    if (document.querySelector("dialog[open]") || Date.now() - dialogEndedAt < AFTER_DIALOG_MS) {
+      e.stopPropagation();
+      e.preventDefault();
+    }
+  }, true);
+}
+
 /**
  * A confirmation that a stray tap cannot give: a modal whose confirming button sits
  * away from the button that opened it, is disabled for the first moments (a double
