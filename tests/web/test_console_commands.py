@@ -172,6 +172,60 @@ def test_draw_a_path_planned_round_an_obstacle(
     shots(page, "dashboard")
 
 
+def test_a_straight_way_into_a_known_obstacle_is_asked_first(
+    world: World, open_console: Any, shots: Shots
+) -> None:
+    """A go_to straight across a moored barge went out at once; the server's note that its
+    way runs into the barge came after, and the boat drove through it. The console asks
+    first: Cancel sends nothing, "Send it anyway" sends it."""
+    here = console.position(world, "demo-usv-3")
+    frame = LocalFrame(here["lat"], here["lon"])
+    corners = [frame.to_latlon(e, n) for e, n in ((-15, 25), (15, 25), (15, 35), (-15, 35))]
+    ring = [[o, a] for a, o in corners]
+    body = {
+        "name": "Moored barge",
+        "polygon": {"type": "Polygon", "coordinates": [[*ring, ring[0]]]},
+    }
+    barge = world.fleet.call("POST", "/api/obstacles", json=body)["obstacle_id"]
+    try:
+        page, guard = open_console()
+        console.log_in(page, "ana")
+        expect(page.locator("path.obstacle")).to_have_count(2)  # the pontoon and the barge
+        console.centre_on(page, *frame.to_latlon(0, 30), 18)
+        console.marker(page, "demo-usv-3").click()
+        beyond = frame.to_latlon(0, 60)  # north, past the barge
+        dialog = page.locator("#confirm")
+        with no_requests(guard):
+            page.click('[data-tool="go_to"]')
+            console.click_map(page, *beyond)
+            expect(dialog).to_be_visible()
+            expect(page.locator("#confirm-title")).to_have_text(
+                "H2OmniX Charlie's way runs into Moored barge"
+            )
+            shots(page, "asked-first")
+            page.click("#confirm-cancel")
+            expect(dialog).to_be_hidden()
+        assert console.newest_command(world, "demo-usv-3", "go_to") is None
+        clear = frame.to_latlon(-40, 0)  # west: clear of it, sent at once
+        page.click('[data-tool="go_to"]')
+        console.click_map(page, *clear)
+        sent = wait_until(lambda: console.newest_command(world, "demo-usv-3", "go_to"), "go_to")
+        assert distance_m(sent["args"]["lat"], sent["args"]["lon"], *clear) < 0.5
+        expect(dialog).to_be_hidden()
+        page.click('[data-tool="go_to"]')
+        console.click_map(page, *beyond)
+        page.locator("#confirm-ok").click()  # sent anyway, as the person decided
+        wait_until(
+            lambda: (
+                (c := console.newest_command(world, "demo-usv-3", "go_to"))
+                and c["command_id"] != sent["command_id"]
+            ),
+            "the go_to sent anyway",
+        )
+    finally:
+        world.fleet.call("DELETE", f"/api/obstacles/{barge}")
+
+
 def test_stop_needs_its_confirmation(world: World, open_console: Any, shots: Shots) -> None:
     page, guard = open_console()
     console.log_in(page, "ana")

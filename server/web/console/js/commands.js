@@ -4,6 +4,7 @@
 // confirmed first, a refusal said with what to do about it; control requested or
 // released, a command cancelled.
 
+import { obstacleOnTheWay } from "./crossing.js";
 import { commandName } from "./fleet.js";
 import { holdAfter, holdText, takeControl } from "./grants.js";
 import { clock, confirmAction, counted, dateTime, metresBetween, sending, toast } from "./ui.js";
@@ -105,6 +106,7 @@ export class Commands {
       });
       if (!ok) return false;
     }
+    if (!(await this.clearOfObstacles(type, args, vehicles))) return false;
     try {
       const ids = vehicles.map((v) => v.view.instance_id);
       const ttl = type === "stop" ? STOP_TTL_S : TTL_S;
@@ -121,6 +123,31 @@ export class Commands {
       this.refused(type, e, vehicles);
       return false;
     }
+  }
+
+  /** A straight way (a go_to, a station away from the boat, a path not planned) that runs
+   * into a known obstacle: asked first. True: send. */
+  async clearOfObstacles(type, args, vehicles) {
+    if (type === "follow_path" && args.plan) return true; // the server plans round them
+    const points = targetPoints(type, args);
+    if (!points.length) return true;
+    const obstacles = this.ctx.map.obstacleList || [];
+    for (const v of vehicles) {
+      const here = v.view.position;
+      const hit = here && obstacleOnTheWay([here, ...points], obstacles);
+      if (!hit) continue;
+      const name = v.view.name || v.id;
+      const way = type === "follow_path" ? "path, as drawn," : "straight way there";
+      return confirmAction({
+        title: `${name}'s ${type === "follow_path" ? "path" : "way"} runs into ${hit.name}`,
+        text: `${name}'s ${way} runs into ${hit.name}, a known fixed obstacle. ` +
+          (type === "follow_path"
+            ? "Tick \u201cplan round obstacles\u201d (one boat) to go round it, or draw the path clear of it."
+            : "Send a path with \u201cplan round obstacles\u201d to go round it, or pick a point clear of it."),
+        confirm: "Send it anyway",
+      });
+    }
+    return true;
   }
 
   /** A speed asked above a vehicle's top speed (its ``max_speed_mps`` parameter, when it

@@ -152,9 +152,9 @@ const ARM_MS = 800;
 
 // A click meant for a dialog must not reach the map under it: a double click on a
 // confirmation's button ("Stop it") sent its second click to the map, where an armed Go to
-// sent the boat there (before the stop), and zoomed the map in. Clicks on the map are
-// dropped while a dialog is open and for a moment after one closed (its close event comes
-// after the click that closed it).
+// sent the boat there (before the stop), and zoomed the map in. The rest of a double click
+// that closed a dialog (its close event comes after the click) is dropped; a new click on
+// the map is the map's.
 const AFTER_DIALOG_MS = 600;
 let dialogEndedAt = 0;
 for (const kind of ["submit", "close", "cancel"]) {
@@ -166,7 +166,8 @@ for (const kind of ["pointerdown", "mousedown", "click", "dblclick"]) {
   document.addEventListener(kind, (e) => {
     const onMap = e.target.closest && e.target.closest("#map");
     if (!onMap) return;
-    if (document.querySelector("dialog[open]") || Date.now() - dialogEndedAt < AFTER_DIALOG_MS) {
+    const rest = e.type === "dblclick" || e.detail > 1; // the second click of a double one
+    if (document.querySelector("dialog[open]") || (rest && Date.now() - dialogEndedAt < AFTER_DIALOG_MS)) {
       e.stopPropagation();
       e.preventDefault();
     }
