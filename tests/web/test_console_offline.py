@@ -50,6 +50,12 @@ def test_a_revoke_of_a_boat_out_of_contact_says_once_that_the_hold_is_queued(
     wait_until(lambda: presence(world) == "offline", "Bravo offline")
     expect(marker(manager, VEHICLE)).to_have_attribute("data-presence", "offline")
     expect(marker(operator, VEHICLE)).to_have_attribute("data-presence", "offline")
+    # a boat gone out of contact is said, with no mission under way too (it went unsaid)
+    gone = toasts(manager).filter(
+        has_text=re.compile(r"^out of contact: H2OmniX Bravo \(last heard \d")
+    )
+    expect(gone).to_have_count(1)
+    gone.locator("xpath=..").locator(".close").click()
 
     manager.click('[data-tab="control"]')
     manager.locator(f'li.lease[data-vehicle="{VEHICLE}"]').get_by_role(

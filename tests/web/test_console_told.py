@@ -241,3 +241,31 @@ def test_went_offline_is_taken_down_when_the_boat_is_back(
     expect(back).to_have_count(1, timeout=60_000)
     expect(gone).to_have_count(0)
     shots(page, "back-not-offline")
+
+
+def test_boats_gone_out_of_contact_while_the_console_was_are_said_after_it(
+    world: World, open_console: Any, shots: Shots
+) -> None:
+    """The server restarted (a field test): the console said "the view is up to date again"
+    and nothing of the boats it found offline in its first snapshot, only grey markers."""
+    vehicle = "demo-usv-3"
+    agent = world.agents[[v[0] for v in VEHICLES].index(vehicle)]
+
+    def presence() -> str:
+        return str(world.fleet.call("GET", f"/api/vehicles/{vehicle}")["presence"])
+
+    page, _ = open_console()
+    log_in(page, "mia")
+    page.evaluate("fleetConsole.live.stop()")  # this console out of contact
+    agent.stop()
+    try:
+        wait_until(lambda: presence() == "offline", "Charlie offline", 60)
+        page.evaluate("fleetConsole.live.start()")
+        expect(page.locator("#link")).to_have_attribute("data-state", "live")
+        said = toasts(page).filter(has_text="H2OmniX Charlie")
+        expect(said.filter(has_text=re.compile(r"out of contact|went offline"))).to_have_count(1)
+        expect(said.first).to_contain_text(re.compile(r"last heard \d\d:\d\d:\d\d"))
+        shots(page, "offline-said-after-reconnect")
+    finally:
+        agent.start()
+        wait_until(lambda: presence() == "online", "Charlie back", 60)

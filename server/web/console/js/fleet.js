@@ -136,7 +136,8 @@ export class Fleet extends EventTarget {
       if (known && (raised.length || cleared.length) && !snapshot) {
         this.dispatchEvent(new CustomEvent("alarms", { detail: { id: v.id, raised, cleared } }));
       }
-      if (known && !snapshot && view.presence && view.presence !== was) {
+      // a snapshot after a reconnect changes presence too: said as any change is
+      if (known && view.presence && view.presence !== was) {
         this.dispatchEvent(new CustomEvent("presence", {
           detail: { id: v.id, was, now: view.presence },
         }));

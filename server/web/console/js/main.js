@@ -223,7 +223,10 @@ class Console {
     }
     if (now !== "offline") return;
     const cmd = this.fleet.latestCommand(id);
-    if (!cmd || isFinal(cmd.status)) return;
+    if (!cmd || isFinal(cmd.status)) {
+      this.sayOffline(id);
+      return;
+    }
     const v = this.fleet.vehicles.get(id);
     const heard = this.fleet.lastContact(id);
     toast(
@@ -233,6 +236,26 @@ class Console {
       null,
       `offline/${id}`,
     );
+  }
+
+  /** A boat gone out of contact with no mission under way, said whatever tab is open: the
+   * boats found offline together (after a server restart, in one snapshot) in one toast. */
+  sayOffline(id) {
+    if (this.offlineSoon) {
+      this.offlineSoon.add(id);
+      return;
+    }
+    this.offlineSoon = new Set([id]);
+    setTimeout(() => {
+      const ids = [...this.offlineSoon].filter((x) => this.fleet.vehicles.get(x)?.view.presence === "offline");
+      this.offlineSoon = null;
+      if (!ids.length) return;
+      const said = ids.map((x) => {
+        const heard = this.fleet.lastContact(x);
+        return `${this.fleet.vehicles.get(x).view.name || x} (last heard ${Number.isFinite(heard) ? clock(heard) : "–"})`;
+      });
+      toast(`out of contact: ${said.join(", ")}`, "warn", null, ids.length === 1 ? `offline/${ids[0]}` : null);
+    }, 500);
   }
 
   /** "link lost · reconnecting in 4 s", as the next try comes nearer. */
