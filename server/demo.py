@@ -96,7 +96,11 @@ def _start_agents(
     procs = []
     for vehicle_id, _, _, _ in VEHICLES:
         lat, lon = starts[vehicle_id]
-        env = {**os.environ, "FLEET_AGENT_TOKEN": tokens[vehicle_id]}  # not on the command line
+        env = {
+            **os.environ,
+            "FLEET_AGENT_TOKEN": tokens[vehicle_id],  # not on the command line
+            "FLEET_AGENT_PARENT_PID": str(os.getpid()),  # it stops when the demo is gone
+        }
         procs.append(
             subprocess.Popen(
                 [

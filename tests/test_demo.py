@@ -144,6 +144,33 @@ def test_a_restarted_demo_resumes_its_vehicles_where_they_were_with_a_new_admin_
         stop_demo(demo)
 
 
+def test_a_demo_killed_takes_its_vehicles_with_it_and_starts_again(tmp_path: Path) -> None:
+    """``kill -9`` of the demo (a field test) left its simulated vehicles running, each
+    holding its outbox: the next demo's vehicles could not start ("outbox in use"). They
+    stop when the demo is gone, and the demo started again has all three online."""
+    port = free_port()
+    base = f"http://127.0.0.1:{port}"
+    ids = ["demo-usv-1", "demo-usv-2", "demo-usv-3"]
+    demo = start_demo(tmp_path, port, tmp_path / "first.log")
+    try:
+        wait_online(base, admin_token(tmp_path / "first.log"), ids)
+        agents = psutil.Process(demo.pid).children(recursive=True)
+        assert len(agents) == 3
+    finally:
+        demo.kill()
+        demo.wait(timeout=30)
+    _, alive = psutil.wait_procs(agents, timeout=20)
+    for agent in alive:
+        agent.kill()
+    assert alive == [], f"simulated vehicles left running: {[p.pid for p in alive]}"
+    demo = start_demo(tmp_path, port, tmp_path / "second.log")
+    try:
+        wait_online(base, admin_token(tmp_path / "second.log"), ids)
+        assert "in use" not in (tmp_path / "second.log").read_text(errors="replace")
+    finally:
+        stop_demo(demo)
+
+
 def test_demo_help_says_what_it_does_and_starts_nothing(tmp_path: Path) -> None:
     ran = subprocess.run(
         [sys.executable, "-m", "server.demo", "--help"],

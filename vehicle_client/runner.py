@@ -5,6 +5,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import os
 import signal
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -116,6 +117,38 @@ async def run_agents(
             await ws.aclose()
 
 
+#: The process that started this agent and takes it down with it (``make demo``): when it
+#: is gone (killed with SIGKILL, say), the agent stops too, as on SIGTERM. An agent left
+#: running held its outbox, and the next demo's agent for that boat could not start.
+PARENT_ENV = "FLEET_AGENT_PARENT_PID"
+
+
+async def _exit_with_parent(main: asyncio.Task[int], every_s: float = 1.0) -> None:
+    parent = os.environ.get(PARENT_ENV)
+    if not parent or not parent.isdigit():
+        return
+    pid = int(parent)
+    if os.getppid() == pid:
+        try:  # Linux: a descriptor that becomes readable when the process ends
+            fd = os.pidfd_open(pid)
+        except (AttributeError, OSError):
+            fd = None
+        if fd is not None:
+            gone = asyncio.Event()
+            loop = asyncio.get_running_loop()
+            loop.add_reader(fd, gone.set)
+            try:
+                await gone.wait()
+            finally:
+                loop.remove_reader(fd)
+                os.close(fd)
+        else:  # elsewhere nothing tells of it: its parent looked at now and then
+            while os.getppid() == pid:  # noqa: ASYNC110
+                await asyncio.sleep(every_s)
+    log.warning("the process that started this agent (%s) is gone: stopping", parent)
+    main.cancel()
+
+
 async def _run(agents: list[VehicleAgent], units: UnitServer | None = None) -> int:
     main = asyncio.current_task()
     loop = asyncio.get_running_loop()
@@ -123,6 +156,7 @@ async def _run(agents: list[VehicleAgent], units: UnitServer | None = None) -> i
         with contextlib.suppress(NotImplementedError, RuntimeError):
             loop.add_signal_handler(sig, main.cancel)  # type: ignore[union-attr]
     status = asyncio.create_task(_status(agents, units))
+    orphan = asyncio.create_task(_exit_with_parent(main))  # type: ignore[arg-type]
     try:
         results = await asyncio.gather(*(a.run() for a in agents), return_exceptions=True)
     except asyncio.CancelledError:
@@ -130,6 +164,7 @@ async def _run(agents: list[VehicleAgent], units: UnitServer | None = None) -> i
         return 0
     finally:
         status.cancel()
+        orphan.cancel()
     if units is not None and any(isinstance(r, TokenRefused) for r in results):
         await units.token_refused()  # before the port goes: a restart would not help them
     code = 0
