@@ -89,6 +89,11 @@ def test_a_zone_drawn_changed_and_removed_reads_as_words(
     marks.nth(group).click()
     page.wait_for_function(f"() => ({no_go})() === {with_rocks}")
     shots(page, "replay-zone-marks")
+    # an event's tick moves the cursor to it, as its line does (a click on it did nothing)
+    page.locator("#timeline-ticks .tick").last.click()
+    assert page.evaluate("fleetConsole.replay.cursor") == page.evaluate(
+        "fleetConsole.replay.events.at(-1).t"
+    )
     page.click("#replay-exit")
 
 
@@ -174,7 +179,8 @@ def test_zones_and_obstacles_drawn_or_removed_are_told(
 
 def test_a_failsafe_and_a_late_presence_read_as_words(world: World, open_console: Any) -> None:
     """What happened read "failsafe entered remote → failsafe" and "failsafe left failsafe →
-    remote"; an offline found after the server was down read as if it had just happened."""
+    remote"; an offline found after the server was down read as if it had just happened;
+    a lease that ran out read "control expired for ben: expired"."""
     page, _ = open_console()
     console.log_in(page, "mia")
     said = page.evaluate(
@@ -190,6 +196,10 @@ def test_a_failsafe_and_a_late_presence_read_as_words(world: World, open_console
                  data: { presence: 'offline', last_seen: '2026-11-28T00:51:33.000Z' } }),
                describeEvent({ kind: 'presence', at,
                  data: { presence: 'offline', last_seen: '2026-11-28T00:52:30.000Z' } }),
+               describeEvent({ kind: 'control_expired', at,
+                               data: { holder: 'ben', reason: 'expired' } }),
+               describeEvent({ kind: 'control_expired', at, data: { holder: 'ben',
+                 reason: 'operator_silent', operator_seen_at: '2026-11-28T00:51:33.000Z' } }),
              ];
            }"""
     )
@@ -201,4 +211,6 @@ def test_a_failsafe_and_a_late_presence_read_as_words(world: World, open_console
         "(now under remote control)",
         f"offline (last heard {heard})",
         "offline",  # heard 10 s before: found in time, nothing to add
+        "ben: its time ran out",  # "control expired for ben: expired" said it twice
+        f"ben: operator silent, none of their consoles heard since {heard}",
     ], said

@@ -169,7 +169,7 @@ export class ControlPanel {
       toast(`control of ${name} passed to ${d.holder} (granted by ${by}); ${hold}`, "error");
     } else if (event.kind === "control_grant" && d.holder === me && by !== me) {
       const lapse = d.operator_timeout_s
-        ? `; it lapses if this console is silent for ${d.operator_timeout_s} s` : "";
+        ? `; it lapses if all your consoles are silent for ${d.operator_timeout_s} s` : "";
       toast(`you now hold control of ${name} (granted by ${by}${lapse})`, "ok");
     } else if (event.kind === "control_deny" && d.user === me) {
       toast(`${by} declined your request for ${name}${d.reason ? `: ${d.reason}` : ""}`, "error");
@@ -408,9 +408,10 @@ export class ControlPanel {
                 ` to ${v.view.name || v.id} until ${dateTime(c.expires_at)}; ` +
                 "any operator or manager who sees the vehicle may still stop it." +
                 (c.operator_timeout_s
-                  ? ` It lapses (and the vehicle holds station) if ${mine ? "your" : "their"}` +
-                    ` client is silent for ${c.operator_timeout_s} s` +
-                    (mine ? ": this console keeps it alive while it is open." : ".")
+                  ? ` It lapses (and the vehicle holds station) if every console of ${mine ? "yours" : "theirs"}` +
+                    ` is silent for ${c.operator_timeout_s} s` +
+                    (mine ? ": this console keeps it alive while it is open, and so does any other you have open."
+                      : "; any console of theirs left open keeps it alive.")
                   : ` It never lapses on silence: it stays ${mine ? "yours" : "theirs"} with ` +
                     `${mine ? "your" : "their"} console closed, until it ends, is released or ` +
                     "is revoked.")))

@@ -91,6 +91,13 @@ export function describeEvent(e, known = () => null) {
       : "";
     // "released by ben", not "released by ben (by ben)"; a request by whom asked
     if (e.kind === "control_request") return by ? `by ${by}` : "";
+    if (e.kind === "control_expired") { // "control expired for ben: expired" said it twice
+      if (d.reason === "operator_silent") {
+        const heard = d.operator_seen_at ? `, none of their consoles heard since ${clock(d.operator_seen_at)}` : "";
+        return `${who}: operator silent${heard}`;
+      }
+      return `${who}: its time ran out`;
+    }
     return `${who}${terms}${d.reason ? `: ${String(d.reason).replace(/_/g, " ")}` : ""}` +
       `${by && by !== who ? ` (by ${by})` : ""}`;
   }

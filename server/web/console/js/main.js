@@ -170,7 +170,7 @@ class Console {
         kept.length ? `${kept.length === held.length ? "Control" : `Control of ${namesOf(kept)}`} ` +
           "stays yours until it ends, with nobody at this console" : null,
         ...lapsing.map((v) => `control of ${v.view.name || v.id} lapses ` +
-          `${v.control.operator_timeout_s} s after this console goes quiet, and the boat holds station`),
+          `${v.control.operator_timeout_s} s after your last open console goes quiet, and the boat holds station`),
       ].filter(Boolean).join("; ");
       const ok = await confirmAction({
         title: `Log out while you hold control of ${names}?`,

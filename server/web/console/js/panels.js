@@ -96,15 +96,16 @@ export function controlSaid(control, me) {
     ` ${mine ? "hold" : "holds"} control until ${clock(control.expires_at)}`];
 }
 
-/** A lease that lapses when its holder's console is silent, said beside it; while this
- * console's own link is lost (CSS), that the holder's may have lapsed already. */
+/** A lease that lapses when its holder's consoles are all silent, said beside it (any
+ * console the holder has open keeps it: the server hears the person, not one screen);
+ * while this console's own link is lost (CSS), that the holder's may have lapsed already. */
 function lapseSaid(timeoutS, mine) {
-  const whose = mine ? "this console is" : "their console is";
+  const whose = mine ? "all your consoles are" : "all their consoles are";
   return h("small.lapse", {},
     h("span.lapse-live", {}, ` · lapses if ${whose} silent for ${timeoutS} s`),
     h("span.lapse-lost", {}, mine
-      ? ` · this console is out of contact: it lapses ${timeoutS} s after the server last heard it, and may have`
-      : ` · lapses if their console is silent for ${timeoutS} s`));
+      ? ` · this console is out of contact: it lapses ${timeoutS} s after the server last heard any console of yours, and may have`
+      : ` · lapses if all their consoles are silent for ${timeoutS} s`));
 }
 
 /** Redraw at most once a frame, however many changes come in. */

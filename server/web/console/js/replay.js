@@ -367,6 +367,7 @@ export class Replay {
       style: `left:${((e.t - this.start) / span) * 100}%`,
       title: `${clock(e.t)} ${this.nameOf(e.vehicle)} ${kindName(e.kind)} ${describeEvent(e, known)}`,
       dataset: { index: i },
+      onclick: () => this.seek(e.t), // as its line in the list does
     })));
     this.gaps.replaceChildren(...gapBands(this.offline, this.start, this.end, (id) => this.nameOf(id)));
     // what changed on the map itself: each change once, whichever boats it concerned
