@@ -45,8 +45,6 @@ __all__ = [
     "Timestamp",
     "WireModel",
     "format_ts",
-    "lon_step",
-    "normal_lon",
     "now_ts",
     "parse_ts",
     "refuse_null",
@@ -187,19 +185,6 @@ TimeBound = Annotated[
 Identifier = Annotated[str, Field(pattern=ID_PATTERN, examples=["usv-1"])]
 Latitude = Annotated[StrictFloat, Field(ge=-90, le=90, allow_inf_nan=False)]
 Longitude = Annotated[StrictFloat, Field(ge=-180, le=180, allow_inf_nan=False)]
-
-
-def lon_step(lon: float, lon0: float) -> float:
-    """``lon - lon0`` the short way round, in [-180, 180): 179.9 to -179.9 is 0.2, east
-    across the antimeridian, not 359.8 west (left as it is when already in range)."""
-    step = lon - lon0
-    return step if -180.0 <= step < 180.0 else (step + 180.0) % 360.0 - 180.0
-
-
-def normal_lon(lon: float) -> float:
-    """``lon`` in [-180, 180], as :data:`Longitude` takes it (left as it is when it is;
-    180.5 is -179.5)."""
-    return lon if -180.0 <= lon <= 180.0 else (lon + 180.0) % 360.0 - 180.0
 
 
 class WireModel(BaseModel):

@@ -9,9 +9,13 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from fleet_protocol import lon_step, normal_lon
-
 EARTH_RADIUS_M = 6_378_137.0
+
+
+def _wrapped(degrees: float) -> float:
+    """An angle in degrees brought into [-180, 180). This module is the standard library's
+    alone (the ROS node imports it on the system's Python): no ``fleet_protocol`` here."""
+    return (degrees + 180.0) % 360.0 - 180.0
 
 
 @dataclass(frozen=True)
@@ -22,8 +26,9 @@ class LocalFrame:
     lon0: float
 
     def to_enu(self, lat: float, lon: float) -> tuple[float, float]:
-        # the short way round: 179.9 E is 0.2 degrees west of 179.9 W, not 359.8 east
-        step = lon_step(lon, self.lon0)
+        step = lon - self.lon0
+        if not -180.0 <= step < 180.0:  # the short way: 179.9 E to 179.9 W is 0.2 east
+            step = _wrapped(step)
         east = math.radians(step) * EARTH_RADIUS_M * math.cos(math.radians(self.lat0))
         north = math.radians(lat - self.lat0) * EARTH_RADIUS_M
         return east, north
@@ -31,7 +36,8 @@ class LocalFrame:
     def to_latlon(self, east: float, north: float) -> tuple[float, float]:
         lat = self.lat0 + math.degrees(north / EARTH_RADIUS_M)
         lon = self.lon0 + math.degrees(east / (EARTH_RADIUS_M * math.cos(math.radians(self.lat0))))
-        return lat, normal_lon(lon)  # east of 180 is the far west: a longitude the wire takes
+        # east of 180 is the far west: a longitude the wire takes (within ±180)
+        return lat, lon if -180.0 <= lon <= 180.0 else _wrapped(lon)
 
 
 def distance_m(lat1: float, lon1: float, lat2: float, lon2: float) -> float:

@@ -5,18 +5,6 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 
-from fleet_protocol import lon_step, normal_lon
-
-__all__ = [
-    "EARTH_RADIUS_M",
-    "from_local",
-    "haversine_m",
-    "lon_step",
-    "normal_lon",
-    "to_local",
-    "unwrap",
-]
-
 EARTH_RADIUS_M = 6_371_008.8
 
 
@@ -26,6 +14,18 @@ def haversine_m(lat1: float, lon1: float, lat2: float, lon2: float) -> float:
     dl = math.radians(lon2 - lon1)
     a = math.sin(dp / 2) ** 2 + math.cos(p1) * math.cos(p2) * math.sin(dl / 2) ** 2
     return 2 * EARTH_RADIUS_M * math.asin(min(1.0, math.sqrt(a)))
+
+
+def lon_step(lon: float, lon0: float) -> float:
+    """``lon - lon0`` the short way round, in [-180, 180): 179.9 to -179.9 is 0.2, east
+    across the antimeridian, not 359.8 west (left as it is when already in range)."""
+    step = lon - lon0
+    return step if -180.0 <= step < 180.0 else (step + 180.0) % 360.0 - 180.0
+
+
+def normal_lon(lon: float) -> float:
+    """``lon`` in [-180, 180] (left as it is when it is; 180.5 is -179.5)."""
+    return lon if -180.0 <= lon <= 180.0 else (lon + 180.0) % 360.0 - 180.0
 
 
 def unwrap(lons: Sequence[float]) -> list[float]:
