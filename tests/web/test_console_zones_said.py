@@ -214,3 +214,39 @@ def test_a_failsafe_and_a_late_presence_read_as_words(world: World, open_console
         "ben: its time ran out",  # "control expired for ben: expired" said it twice
         f"ben: operator silent, none of their consoles heard since {heard}",
     ], said
+
+
+def test_a_zone_drawn_across_a_mission_under_way_is_said(
+    world: World, open_console: Any, shots: Shots
+) -> None:
+    """A no-go zone drawn across a go_to under way was told as "drawn on the map" only;
+    the boat sailed on into it (the server checks again only what is not yet delivered)."""
+    instance = world.instances["demo-usv-2"]
+    here = world.fleet.position(instance)
+    frame = LocalFrame(here["lat"], here["lon"])
+    page, _ = open_console()
+    console.log_in(page, "ana")  # she holds Bravo (the world's grants)
+    lat, lon = frame.to_latlon(0, 400)
+    cid = world.fleet.submit(world.tokens["ana"], instance, "go_to", {"lat": lat, "lon": lon})
+    zone_id = None
+    try:
+        expect(console.marker(page, "demo-usv-2").locator(".chip")).to_contain_text("go to")
+        band = [frame.to_latlon(e, n) for e, n in ((-60, 150), (60, 150), (60, 200), (-60, 200))]
+        ring = [[o, a] for a, o in band]
+        body = {
+            "name": "Kelp band",
+            "kind": "no_go",
+            "polygon": {"type": "Polygon", "coordinates": [[*ring, ring[0]]]},
+        }
+        zone_id = world.fleet.call("POST", "/api/zones", json=body)["zone_id"]
+        said = page.locator("#toasts .toast .msg").filter(
+            has_text="H2OmniX Bravo's go to under way now runs into no-go zone Kelp band"
+        )
+        expect(said).to_have_count(1)
+        expect(said).to_contain_text("stop it, or send it another way")
+        shots(page, "mission-crossed")
+        assert world.fleet.command(cid)["status"] in ("acked", "accepted", "executing")
+    finally:
+        world.fleet.submit(world.tokens["ana"], instance, "stop", {})
+        if zone_id:
+            world.fleet.call("DELETE", f"/api/zones/{zone_id}")

@@ -14,8 +14,8 @@ const TTL_S = 120; // how long a mission waits for its vehicle
 const STOP_TTL_S = 3600; // a stop waits for a vehicle out of reach the longest a command may
 
 /** The points a command sends its vehicles to (none for a stop or a hold where it is). */
-function targetPoints(type, args) {
-  if (type === "follow_path") return args.waypoints || [];
+export function targetPoints(type, args) {
+  if (type === "follow_path") return args.path || args.waypoints || []; // as planned, if it was
   return args.lat != null ? [{ lat: args.lat, lon: args.lon }] : [];
 }
 
@@ -131,7 +131,7 @@ export class Commands {
     if (type === "follow_path" && args.plan) return true; // the server plans round them
     const points = targetPoints(type, args);
     if (!points.length) return true;
-    const obstacles = this.ctx.map.obstacleList || [];
+    const obstacles = this.ctx.liveObstacles || []; // not a replay's
     for (const v of vehicles) {
       const here = v.view.position;
       const hit = here && obstacleOnTheWay([here, ...points], obstacles);

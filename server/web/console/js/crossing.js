@@ -51,8 +51,8 @@ function legMeets(a, b, rings) {
   return within(pa) || within(pb);
 }
 
-/** The first obstacle (``{name, polygon}``) the straight way along ``route`` ({lat, lon}
- * points, from where the boat is) runs into, or null. */
+/** The first shape (an obstacle, a zone: ``{name, polygon}``) the straight way along
+ * ``route`` ({lat, lon} points, from where the boat is) runs into, or null. */
 export function obstacleOnTheWay(route, obstacles) {
   for (let i = 1; i < route.length; i += 1) {
     for (const o of obstacles || []) {

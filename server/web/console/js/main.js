@@ -3,9 +3,10 @@
 // browser's developer tools, and for the browser tests).
 
 import { alarmText } from "./alarms.js";
-import { Commands } from "./commands.js";
+import { Commands, targetPoints } from "./commands.js";
+import { obstacleOnTheWay } from "./crossing.js";
 import { ControlPanel } from "./control.js";
-import { Fleet, TRAIL_MINUTES, isFinal, topicsOf } from "./fleet.js";
+import { Fleet, TRAIL_MINUTES, commandName, isFinal, topicsOf } from "./fleet.js";
 import { MapHolder } from "./holder.js";
 import { LiveLink } from "./live.js";
 import { FleetTable, VehiclePanel } from "./panels.js";
@@ -339,6 +340,7 @@ class Console {
       const zones = (await this.api.get("/api/zones")).zones || [];
       if (this.liveZones) sayShapes(this.liveZones, zones, "zone_id", zoneName);
       this.liveZones = zones;
+      this.sayMissionsCrossed(zones);
       // a replay draws the zones of its time; Back to live draws these
       if (this.app.dataset.replay !== "on") this.map.setZones(this.liveZones);
     } catch (e) {
@@ -353,6 +355,31 @@ class Console {
     } catch (e) {
       console.warn("obstacles:", e.message);
     }
+  }
+
+  /** A no-go zone drawn or changed across a mission under way, said to the boat's holder
+   * and managers (the server checks again only the commands not yet delivered; the boat
+   * sailed on into the zone and only its alarm said so). Once per mission and zone. */
+  sayMissionsCrossed(zones) {
+    const crossed = new Map();
+    for (const v of this.fleet.vehicles.values()) {
+      const here = v.view.position;
+      const held = v.control && v.control.holder === this.me.username;
+      if (!here || here.lat == null || !(held || this.controlPanel.managed(v.id))) continue;
+      const its = zones.filter((z) => z.kind === "no_go"
+        && (!(z.vehicles || []).length || z.vehicles.includes(v.id)));
+      for (const cmd of its.length ? this.fleet.recentCommands(v.id) : []) {
+        if (isFinal(cmd.status) || !cmd.args) continue;
+        const zone = obstacleOnTheWay([here, ...targetPoints(cmd.type, cmd.args)], its);
+        if (zone) crossed.set(`${cmd.command_id}/${zone.zone_id}`, { v, cmd, zone });
+      }
+    }
+    for (const [key, { v, cmd, zone }] of this.crossed ? crossed : []) {
+      if (this.crossed.has(key)) continue;
+      toast(`${v.view.name || v.id}'s ${commandName(cmd.type)} under way now runs into no-go zone ` +
+        `${zone.name}: stop it, or send it another way`, "error", null, `crossed/${v.id}`);
+    }
+    this.crossed = crossed;
   }
 
   // ---- the selection --------------------------------------------------------------------
