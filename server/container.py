@@ -37,6 +37,7 @@ from server.services.audit import AuditLog
 from server.services.auth import AuthService
 from server.services.commands import CommandService
 from server.services.control import ControlService
+from server.services.control_requests import ControlRequests
 from server.services.dead_letters import DeadLetters
 from server.services.events import EventService
 from server.services.fleet import FleetViews
@@ -96,8 +97,12 @@ async def build(
     instances = InstanceService(
         settings, InstancesRepo(store), auth, events, messages, dead_letters, clock
     )
+    control_repo = ControlRepo(store)  # the leases and the requests (indexes: control.load)
     control = ControlService(
-        settings, ControlRepo(store), instances, auth, events, messages, dead_letters, clock
+        settings, control_repo, instances, auth, events, messages, dead_letters, clock
+    )
+    control_requests = ControlRequests(
+        settings, control_repo, control, instances, auth, events, messages, dead_letters, clock
     )
     obstacles = ObstacleService(settings, ObstaclesRepo(store), events, clock)
     zones = ZoneService(settings, ZonesRepo(store), auth, events, messages, clock)
@@ -139,6 +144,7 @@ async def build(
         audit=audit,
         instances=instances,
         control=control,
+        control_requests=control_requests,
         commands=commands,
         obstacles=obstacles,
         zones=zones,
@@ -152,10 +158,12 @@ async def build(
     )
     # Who hears what: in the order given (a finish ends the lease, then the commands).
     messages.register(InstanceFinished, control.on_instance_finished)
+    messages.register(InstanceFinished, control_requests.on_instance_finished)
     messages.register(InstanceFinished, commands.on_instance_finished)
     messages.register(InstanceFinished, lambda e: safety.forget(e.instance_id))
     messages.register(LeaseEnded, commands.on_lease_end)
     messages.register(UserChanged, control.on_user_changed)
+    messages.register(UserChanged, control_requests.on_user_changed)
     messages.register(PresenceChanged, topics.on_presence)
     messages.register(LinkChanged, topics.on_link)
     messages.register(ControlChanged, topics.on_control)

@@ -133,6 +133,7 @@ def _start_background(runtime: Runtime) -> None:
     settings = services.settings
     runtime.spawn("presence", services.instances.sweep, 0.25)
     runtime.spawn("leases", services.control.sweep, 0.2)
+    runtime.spawn("control requests", services.control_requests.sweep, 1.0)
     runtime.spawn("commands", services.commands.sweep, 0.2)
     runtime.spawn("safety", services.safety.tick, settings.rules_every_s)
     runtime.spawn("forecast", services.forecast.tick, settings.forecast_every_s)

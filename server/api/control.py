@@ -25,7 +25,7 @@ router = APIRouter(prefix="/client", tags=["control"])
 
 @router.post("/request_control")
 async def request_control(body: InstanceRef, user: Operator, s: ServicesDep) -> ControlRequest:
-    return ControlRequest.model_validate(await s.control.request(user, body.instance_id))
+    return ControlRequest.model_validate(await s.control_requests.request(user, body.instance_id))
 
 
 @router.get("/control_requests")
@@ -41,7 +41,7 @@ async def control_requests(
     """The pending requests the caller may answer; with ``mine=true``, the caller's own
     (a console shows "Requested…" for them until they are answered or dropped)."""
     return ControlRequestList.model_validate(
-        {"requests": await s.control.requests_for(user, instance_id, mine=mine)}
+        {"requests": await s.control_requests.pending(user, instance_id, mine=mine)}
     )
 
 
@@ -57,7 +57,7 @@ async def grant_control(body: GrantControl, user: Manager, s: ServicesDep) -> Co
 async def deny_control(body: DenyControl, user: Manager, s: ServicesDep) -> OkResult:
     """Decline a pending request for control (404 when there is none from that user);
     a ``control_deny`` event tells the requester, with the reason if given."""
-    await s.control.deny(user, body.instance_id, body.user, body.reason)
+    await s.control_requests.deny(user, body.instance_id, body.user, body.reason)
     return OkResult()
 
 

@@ -9,6 +9,7 @@ while the vehicle reports local control.
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass
 from datetime import datetime, timedelta
 from typing import Any
@@ -223,6 +224,10 @@ class ControlRequest:
             "requested_at": self.requested_at,
         }
 
+    def told(self, ttl: timedelta) -> dict[str, Any]:
+        """As its maker and the managers read it: with when it is dropped unanswered."""
+        return self.wire() | {"expires_at": self.requested_at + ttl}
+
     @classmethod
     def from_doc(cls, doc: dict[str, Any]) -> ControlRequest:
         """A request as the store keeps it (its wire fields and the vehicle)."""
@@ -233,6 +238,28 @@ class ControlRequest:
             doc["vehicle_id"],
             doc["requested_at"],
         )
+
+
+def pending_for(
+    requests: Iterable[ControlRequest],
+    principal: Principal,
+    now: datetime,
+    ttl: timedelta,
+    *,
+    mine: bool = False,
+) -> list[ControlRequest]:
+    """The requests still pending at ``now`` (each dropped ``ttl`` after it was made, the
+    sweep may come a little later) that ``principal`` may answer, or, ``mine``, that it
+    made; oldest first."""
+    return sorted(
+        (
+            r
+            for r in requests
+            if r.requested_at + ttl > now
+            and (r.username == principal.name if mine else may_grant(principal, r.vehicle_id))
+        ),
+        key=lambda r: r.requested_at,
+    )
 
 
 def add_request(

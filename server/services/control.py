@@ -1,7 +1,8 @@
-"""Control arbitration: leases per instance, control requests, grant / revoke / release.
+"""Control arbitration: leases per instance, grant / revoke / release (the requests for
+control: :mod:`server.services.control_requests`).
 
-The store holds the leases (one per instance, under its own key) and the
-pending requests; this replica keeps a copy of the leases it has seen. Every
+The store holds the leases (one per instance, under its own key); this replica keeps a
+copy of the leases it has seen. Every
 decision reads the lease from the store first and writes it back only if it
 is still as read (its ``rev``), so that of two replicas granting, revoking
 or expiring one lease at once, one does it and the other reads the result.
@@ -9,22 +10,20 @@ When a lease ends, :class:`~server.domain.events.LeaseEnded` goes out (the
 command queue cancels the former holder's commands), and
 :class:`~server.domain.events.ControlChanged` tells who holds control now.
 A user whose rights change (:class:`~server.domain.events.UserChanged`: role,
-vehicles, disabled) loses the leases and pending requests the new rights no
-longer allow.
+vehicles, disabled) loses the leases the new rights no longer allow.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import secrets
 from collections.abc import KeysView
-from datetime import datetime, timedelta
+from datetime import datetime
 from typing import Any
 
 from fleet_protocol import ControlInfo, EventKind, format_ts
 from server.domain import arbitration as rules
 from server.domain.access import Principal
-from server.domain.arbitration import ControlRequest, Grantee, Lease
+from server.domain.arbitration import Grantee, Lease
 from server.domain.clock import Clock
 from server.domain.events import (
     ControlChanged,
@@ -33,7 +32,7 @@ from server.domain.events import (
     StateWritten,
     UserChanged,
 )
-from server.errors import Conflict, Forbidden, NotFound, Unavailable
+from server.errors import Conflict, Forbidden, Unavailable
 from server.errors import InstanceFinished as Finished
 from server.services.auth import AuthService
 from server.services.dead_letters import DeadLetters
@@ -45,12 +44,6 @@ from server.storage.control import ControlRepo
 
 #: Tries of a compare-and-set on a lease that other replicas keep changing.
 _CAS_TRIES = 5
-#: How often unanswered control requests are looked for in the store.
-_REQUEST_SWEEP = timedelta(seconds=1)
-
-
-def _asked(request: ControlRequest) -> datetime:
-    return request.requested_at
 
 
 class ControlService:
@@ -74,7 +67,6 @@ class ControlService:
         self.dead_letters = dead_letters
         self.clock = clock
         self._leases: dict[str, Lease] = {}
-        self._requests_swept: datetime | None = None
 
     async def load(self) -> None:
         """The leases, as the store has them. A lease that lapses when its holder's client
@@ -111,65 +103,7 @@ class ControlService:
         self._leases[instance_id] = lease
         return lease
 
-    async def requests_for(
-        self, principal: Principal, instance_id: str | None, *, mine: bool = False
-    ) -> list[dict[str, Any]]:
-        """The pending requests this caller may answer (a manager of the vehicle, an admin);
-        ``mine``: the ones the caller made and nobody has answered yet. Oldest first, each
-        with the time it is dropped unanswered (``expires_at``)."""
-        if instance_id is not None:
-            await self.instances.for_viewer(principal, instance_id)  # unknown or unseen: 404
-        if mine:
-            docs = await self.repo.requests_by(principal.name)
-            if instance_id is not None:
-                docs = [d for d in docs if d["instance_id"] == instance_id]
-        elif instance_id is not None:
-            docs = await self.repo.requests_of(instance_id)
-        else:
-            docs = await self.repo.all_requests()
-        now = self.clock()
-        pending = sorted((ControlRequest.from_doc(d) for d in docs), key=_asked)
-        return [
-            self._told(r)
-            for r in pending
-            if (mine or rules.may_grant(principal, r.vehicle_id)) and self._expiry(r) > now
-        ]
-
-    def _expiry(self, request: ControlRequest) -> datetime:
-        """When an unanswered request is dropped (the sweep may come a little later)."""
-        return request.requested_at + timedelta(seconds=self.settings.control_request_ttl_s)
-
-    def _told(self, request: ControlRequest) -> dict[str, Any]:
-        return request.wire() | {"expires_at": self._expiry(request)}
-
-    # ---- operators and managers ------------------------------------------
-    async def request(self, principal: Principal, instance_id: str) -> dict[str, Any]:
-        state = await self._live_for(principal, instance_id)
-        lease = await self.current(state.instance_id)
-        if lease is not None and lease.holder == principal.name and lease.live(self.clock()):
-            raise Conflict(
-                f"you hold control of {state.name} until {format_ts(lease.expires_at)}: "
-                "nothing to ask (a manager extends a lease by granting it again)",
-                code="control_held",
-            )
-        fresh = ControlRequest(
-            "r-" + secrets.token_hex(8),
-            principal.name,
-            state.instance_id,
-            state.vehicle_id,
-            self.clock(),
-        )
-        stored_requests = await self.repo.requests_of(state.instance_id)
-        pending = [ControlRequest.from_doc(d) for d in stored_requests]
-        _, req = rules.add_request(pending, fresh, limit=self.settings.max_pending_requests)
-        if req is not fresh:
-            return self._told(req)  # asked already: the first request stands
-        if not await self.repo.insert_request(req.wire() | {"vehicle_id": req.vehicle_id}):
-            stored = await self.repo.request_of(state.instance_id, principal.name)
-            return self._told(ControlRequest.from_doc(stored) if stored is not None else req)
-        await self._audit("control_request", state, principal, {"request_id": req.request_id})
-        return self._told(req)
-
+    # ---- managers and holders ---------------------------------------------
     async def grant(
         self,
         principal: Principal,
@@ -178,7 +112,7 @@ class ControlService:
         duration_s: float,
         operator_timeout_s: float | None = None,
     ) -> Lease:
-        state = await self._live_for(principal, instance_id)
+        state = await self.live_for(principal, instance_id)
         rules.check_granter(principal, state.vehicle_id)
         access = await self.auth.user_access(username)
         grantee = Grantee(username, access[0], access[1]) if access is not None else None
@@ -224,16 +158,6 @@ class ControlService:
         self._changed(lease.instance_id, lease.vehicle_id, lease.info())
         return lease
 
-    async def deny(
-        self, principal: Principal, instance_id: str, username: str, reason: str | None
-    ) -> None:
-        state = await self.instances.for_viewer(principal, instance_id)
-        rules.check_granter(principal, state.vehicle_id)
-        if not await self.repo.drop_request(state.instance_id, username):
-            raise NotFound(f"no pending request for control from {username}")
-        self.messages.emit_now(StateWritten(state.instance_id, "lease"))
-        await self._audit("control_deny", state, principal, {"user": username, "reason": reason})
-
     async def revoke(self, principal: Principal, instance_id: str) -> bool:
         """End the live lease; whether there was one (none: nothing recorded)."""
         state = await self.instances.for_viewer(principal, instance_id)
@@ -272,19 +196,11 @@ class ControlService:
 
     # ---- background and handlers ----------------------------------------------
     async def sweep(self, now: datetime | None = None) -> None:
-        """End the leases past their expiry; forget requests nobody answered in time."""
+        """End the leases past their expiry."""
         now = now or self.clock()
         for lease in list(self._leases.values()):
             if not lease.live(now) and not await self._lapse(lease, now):
                 return
-        if self._requests_swept is None or now - self._requests_swept >= _REQUEST_SWEEP:
-            self._requests_swept = now
-            too_old = now - timedelta(seconds=self.settings.control_request_ttl_s)
-            try:
-                for doc in await self.repo.drop_requests_before(too_old):
-                    self.messages.emit_now(StateWritten(doc["instance_id"], "lease"))
-            except Unavailable as exc:
-                self.dead_letters.failed("leases", exc)
 
     async def end_if_lapsed(self, instance_id: str) -> None:
         """End the instance's lease now if it has lapsed, as the sweep would a moment
@@ -334,7 +250,7 @@ class ControlService:
     async def on_user_changed(self, event: UserChanged) -> None:
         """End the leases the user holds and may no longer hold (demoted below operator,
         the vehicle taken away, disabled), through :meth:`_end` (their queued commands are
-        cancelled, the vehicle told); drop such pending requests too."""
+        cancelled, the vehicle told)."""
         rights = await self.auth.user_rights(event.username)
         grantee = Grantee(event.username, *rights) if rights is not None else None
         for doc in await self.repo.leases_held_by(event.username):
@@ -350,19 +266,16 @@ class ControlService:
                     actor=event.actor,
                     data={"holder": lease.holder, "reason": why[0], "why": why[1]},
                 )
-        for doc in await self.repo.requests_by(event.username):
-            if rules.cannot_hold(grantee, doc["vehicle_id"]) is not None:
-                if await self.repo.drop_request(doc["instance_id"], event.username):
-                    self.messages.emit_now(StateWritten(doc["instance_id"], "lease"))
 
     async def on_instance_finished(self, event: InstanceFinished) -> None:
-        await self.repo.drop_requests(event.instance_id)
         lease = await self.current(event.instance_id)
         if lease is not None:
             await self._end(lease, "instance_finished")
 
     # ---- internals ------------------------------------------------------------
-    async def _live_for(self, principal: Principal, instance_id: str) -> InstanceState:
+    async def live_for(self, principal: Principal, instance_id: str) -> InstanceState:
+        """The instance, live and seen by an operator (or above): what asking for, granting
+        or holding control of it takes."""
         state = await self.instances.for_viewer(principal, instance_id)
         if not principal.at_least("operator"):
             raise Forbidden("control needs the operator role or above")

@@ -14,6 +14,7 @@ from server.services.audit import AuditLog
 from server.services.auth import AuthService
 from server.services.commands import CommandService
 from server.services.control import ControlService
+from server.services.control_requests import ControlRequests
 from server.services.dead_letters import DeadLetters
 from server.services.events import EventService
 from server.services.fleet import FleetViews
@@ -46,6 +47,7 @@ class Services:
     audit: AuditLog
     instances: InstanceService
     control: ControlService
+    control_requests: ControlRequests
     commands: CommandService
     obstacles: ObstacleService
     zones: ZoneService

@@ -64,6 +64,10 @@ class World:
         assert r.status_code == 200, r.text
         return op
 
+    async def client_post(self, path: str, headers: dict[str, str], **body: Any) -> httpx.Response:
+        """``POST /client/<path>`` with ``body`` as JSON."""
+        return await self.http.post(f"/client/{path}", headers=headers, json=body)
+
     async def grant(
         self, vehicle: Vehicle, username: str, *, duration_s: int = 600, by: dict[str, str] = ADMIN
     ) -> httpx.Response:

@@ -3,30 +3,15 @@ zones changed, and each vehicle's recent events (snapshot) without gaps."""
 
 from __future__ import annotations
 
-from collections.abc import AsyncIterator, Callable
-
 import httpx
 import pytest
 
-from server.settings import Settings
 from tests.factories import ADMIN, make_user
-from tests.live import call, connect, recv_until, serve
+from tests.live import call, connect, recv_until
 from tests.server.test_ws_client import _vehicle_with_instance, tok
 
 # Each test runs on the embedded store and on FerretDB (the real MongoDB driver).
 pytestmark = pytest.mark.usefixtures("store_backend")
-
-
-@pytest.fixture
-async def base(make_settings: Callable[..., Settings]) -> AsyncIterator[str]:
-    async with serve(make_settings()) as url:
-        yield url
-
-
-@pytest.fixture
-async def api(base: str) -> AsyncIterator[httpx.AsyncClient]:
-    async with httpx.AsyncClient(base_url=base, timeout=10) as c:
-        yield c
 
 
 async def test_zones_says_to_users_that_the_zones_changed(

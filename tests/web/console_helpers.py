@@ -112,6 +112,13 @@ def assert_labels_apart(page: Any) -> None:
             assert not boxes_overlap(a, b), f"labels overlap: {a} {b}"
 
 
+def polygon(corners: list[tuple[float, float]]) -> dict[str, Any]:
+    """A GeoJSON Polygon (as ``/api/zones`` and ``/api/obstacles`` take it) through the
+    corners, (lat, lon) each, its ring closed."""
+    ring = [[lon, lat] for lat, lon in corners]
+    return {"type": "Polygon", "coordinates": [[*ring, ring[0]]]}
+
+
 def ms(ts: str) -> float:
     return datetime.fromisoformat(ts.replace("Z", "+00:00")).timestamp() * 1000
 

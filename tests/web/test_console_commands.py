@@ -181,10 +181,9 @@ def test_a_straight_way_into_a_known_obstacle_is_asked_first(
     here = console.position(world, "demo-usv-3")
     frame = LocalFrame(here["lat"], here["lon"])
     corners = [frame.to_latlon(e, n) for e, n in ((-15, 25), (15, 25), (15, 35), (-15, 35))]
-    ring = [[o, a] for a, o in corners]
     body = {
         "name": "Moored barge",
-        "polygon": {"type": "Polygon", "coordinates": [[*ring, ring[0]]]},
+        "polygon": console.polygon(corners),
     }
     barge = world.fleet.call("POST", "/api/obstacles", json=body)["obstacle_id"]
     try:

@@ -41,11 +41,11 @@ def test_a_fleet_across_180_is_drawn_in_one_piece_and_commanded_across_it(
 ) -> None:
     reef = []  # a no-go zone across 180, 300 m north: two polygons split at 180
     for west, east in ((179.999, 180.0), (-180.0, -179.999)):
-        ring = [[west, -16.797], [east, -16.797], [east, -16.796], [west, -16.796]]
+        corners = [(-16.797, west), (-16.797, east), (-16.796, east), (-16.796, west)]
         body = {
             "name": f"reef {'east' if west > 0 else 'west'}",
             "kind": "no_go",
-            "polygon": {"type": "Polygon", "coordinates": [[*ring, ring[0]]]},
+            "polygon": console.polygon(corners),
         }
         reef.append(world.fleet.call("POST", "/api/zones", json=body)["zone_id"])
     page, _ = open_console()

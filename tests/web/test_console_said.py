@@ -3,8 +3,9 @@ keeps, in a real browser (as test_console_wording): an empty replay left the old
 the map (and Export saved the old window), identical refusals piled up, the server's
 advice for one path sent to several boats could not be followed in the console, the
 Replay tab ticked every boat whatever was selected, raw command types and event codes in
-what people read, and link figures that contradicted each other. A world of its own (the
-module's), in file order: ana holds every vehicle."""
+what people read, and link figures that contradicted each other; a vehicle's name is
+shown as text whatever markup it holds. A world of its own (the module's), in file order: ana holds
+every vehicle (the last test adds one that only zoe sees)."""
 
 from __future__ import annotations
 
@@ -352,3 +353,44 @@ def test_a_sample_dated_years_ahead_does_not_hold_the_marker(
         ".filter((p) => p.lat > 43.94).length"
     )
     assert far == 0, "the trail runs to the glitch"
+
+
+def test_a_name_with_markup_is_shown_as_text_and_no_inline_script_runs(
+    world: World, open_console: Any
+) -> None:
+    """A vehicle chooses its display name: markup in it is text in every label, and the
+    page's policy would refuse an inline handler even if one slipped through."""
+    name = '<img src=x onerror="window.__pwned=1">'
+    vehicle_id = "markup-usv"  # seen only by zoe: the other tests' people still see three
+    body = {"vehicle_id": vehicle_id, "name": name, "vehicle_type": "usv"}
+    token = world.fleet.call("POST", "/api/vehicles", json=body)["token"]
+    started = world.fleet.call(
+        "POST", "/upper/start_instance", token, json={**body, "capabilities": ["stop"]}
+    )
+    sample = {"seq": 1, "ts": datetime.now(UTC).isoformat(), "lat": 43.93, "lon": 15.44}
+    world.fleet.call(
+        "POST", "/upper/update_param", token,
+        json={"instance_id": started["instance_id"], "params": {}, "samples": [sample]},
+    )  # fmt: skip
+    user = {"username": "zoe", "role": "operator", "vehicles": [vehicle_id], "password": PASSWORD}
+    world.fleet.call("POST", "/api/users", json=user)
+    page, guard = open_console()
+    console.log_in(page, "zoe", markers=1)
+    expect(console.marker(page, vehicle_id).locator(".vlabel b")).to_have_text(name)
+    console.marker(page, vehicle_id).click()
+    expect(page.locator("#vehicle-pane")).to_contain_text(name)
+    blocked = "Content Security Policy"
+    with page.expect_console_message(lambda m: blocked in m.text):
+        fired = page.evaluate(  # what an unescaped label would do
+            """n => new Promise(done => {
+                const d = document.createElement("div");
+                d.innerHTML = n;  // its inline handler, set before this listener, runs first
+                d.querySelector("img").addEventListener("error", () => done(true));
+                document.body.append(d);
+            })""",
+            name,
+        )
+    assert fired is True and page.evaluate("window.__pwned") is None
+    refused = [e for e in guard.errors if blocked in e]
+    assert len(refused) == 1 and "script-src" in refused[0]
+    guard.errors.remove(refused[0])  # the refusal this test caused: not a fault of the page

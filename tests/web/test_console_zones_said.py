@@ -32,12 +32,11 @@ def test_a_zone_drawn_changed_and_removed_reads_as_words(
     here = console.position(world, vehicle)
     far = LocalFrame(here["lat"], here["lon"])  # 2 km off: nothing sails near it
     ring = [far.to_latlon(east, north) for east, north in ((0, 2000), (50, 2000), (50, 2050))]
-    coords = [[lon, lat] for lat, lon in ring]
     body = {
         "name": "Far rocks",
         "kind": "no_go",
         "vehicles": [vehicle],
-        "polygon": {"type": "Polygon", "coordinates": [[*coords, coords[0]]]},
+        "polygon": console.polygon(ring),
     }
     zone_id = world.fleet.call("POST", "/api/zones", json=body)["zone_id"]
     world.fleet.call("PATCH", f"/api/zones/{zone_id}", json={"name": "Outer rocks"})
@@ -105,10 +104,9 @@ def test_a_replay_draws_the_obstacles_of_its_cursors_time(
     here = console.position(world, "demo-usv-1")
     near = LocalFrame(here["lat"], here["lon"])
     ring = [near.to_latlon(east, north) for east, north in ((80, 0), (120, 0), (120, 40))]
-    coords = [[lon, lat] for lat, lon in ring]
     body = {
         "name": "Old wreck",
-        "polygon": {"type": "Polygon", "coordinates": [[*coords, coords[0]]]},
+        "polygon": console.polygon(ring),
     }
     made = world.fleet.call("POST", "/api/obstacles", json=body)
     drawn = ms(made["created_at"])
@@ -159,8 +157,7 @@ def test_zones_and_obstacles_drawn_or_removed_are_told(
     here = console.position(world, "demo-usv-2")
     near = LocalFrame(here["lat"], here["lon"])
     ring = [near.to_latlon(east, north) for east, north in ((300, 0), (340, 0), (340, 40))]
-    coords = [[lon, lat] for lat, lon in ring]
-    polygon = {"type": "Polygon", "coordinates": [[*coords, coords[0]]]}
+    polygon = console.polygon(ring)
     said = page.locator("#toasts .toast .msg")
     made = world.fleet.call(
         "POST", "/api/zones", json={"name": "Kelp bed", "kind": "no_go", "polygon": polygon}
@@ -232,11 +229,10 @@ def test_a_zone_drawn_across_a_mission_under_way_is_said(
     try:
         expect(console.marker(page, "demo-usv-2").locator(".chip")).to_contain_text("go to")
         band = [frame.to_latlon(e, n) for e, n in ((-60, 150), (60, 150), (60, 200), (-60, 200))]
-        ring = [[o, a] for a, o in band]
         body = {
             "name": "Kelp band",
             "kind": "no_go",
-            "polygon": {"type": "Polygon", "coordinates": [[*ring, ring[0]]]},
+            "polygon": console.polygon(band),
         }
         zone_id = world.fleet.call("POST", "/api/zones", json=body)["zone_id"]
         said = page.locator("#toasts .toast .msg").filter(

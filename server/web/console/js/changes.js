@@ -8,8 +8,25 @@ import { clock, h } from "./ui.js";
 const GROUPED = 0.01;
 const ZONE_KINDS = { no_go: "no-go zone", operating_area: "operating area" };
 
-function zoneName(z) {
+/** A zone as people read it: "no-go zone reef". */
+export function zoneName(z) {
   return `${ZONE_KINDS[z.kind] || "zone"} ${z.name || z.zone_id}`;
+}
+
+/** What changed from one set of shapes (zones, obstacles) to the next, told apart by
+ * ``key``: ``[{shape, was, how}]``, ``how`` one of drawn, changed, removed (``shape`` the
+ * one removed then). */
+export function shapeDiff(before, after, key) {
+  const was = new Map(before.map((x) => [x[key], x]));
+  const now = new Map(after.map((x) => [x[key], x]));
+  const out = [];
+  for (const [id, x] of now) {
+    const old = was.get(id);
+    if (!old) out.push({ shape: x, was: null, how: "drawn" });
+    else if (JSON.stringify(old) !== JSON.stringify(x)) out.push({ shape: x, was: old, how: "changed" });
+  }
+  for (const [id, x] of was) if (!now.has(id)) out.push({ shape: x, was: x, how: "removed" });
+  return out;
 }
 
 /** What each change of the zones did, from the sets before and after it (the replay's
@@ -17,17 +34,8 @@ function zoneName(z) {
 export function zoneChanges(frames) {
   const out = [];
   for (let i = 1; i < (frames || []).length; i += 1) {
-    const before = new Map(frames[i - 1].zones.map((z) => [z.zone_id, z]));
-    const after = new Map(frames[i].zones.map((z) => [z.zone_id, z]));
-    const said = [];
-    for (const [id, z] of after) {
-      const was = before.get(id);
-      if (!was) said.push(`${zoneName(z)} drawn`);
-      else if (JSON.stringify(was) !== JSON.stringify(z)) {
-        said.push(`${zoneName(z)} changed${was.name !== z.name ? ` (was ${was.name})` : ""}`);
-      }
-    }
-    for (const [id, z] of before) if (!after.has(id)) said.push(`${zoneName(z)} removed`);
+    const said = shapeDiff(frames[i - 1].zones, frames[i].zones, "zone_id").map(({ shape, was, how }) =>
+      `${zoneName(shape)} ${how}${how === "changed" && was.name !== shape.name ? ` (was ${was.name})` : ""}`);
     out.push({ t: frames[i].t, kind: "zone", text: said.join("; ") || "zones changed" });
   }
   return out;

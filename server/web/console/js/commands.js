@@ -4,7 +4,7 @@
 // confirmed first, a refusal said with what to do about it; control requested or
 // released, a command cancelled.
 
-import { obstacleOnTheWay } from "./crossing.js";
+import { shapeOnTheWay } from "./crossing.js";
 import { commandName } from "./fleet.js";
 import { holdAfter, holdText, takeControl } from "./grants.js";
 import { clock, confirmAction, counted, dateTime, metresBetween, sending, toast } from "./ui.js";
@@ -134,7 +134,7 @@ export class Commands {
     const obstacles = this.ctx.liveObstacles || []; // not a replay's
     for (const v of vehicles) {
       const here = v.view.position;
-      const hit = here && obstacleOnTheWay([here, ...points], obstacles);
+      const hit = here && shapeOnTheWay([here, ...points], obstacles);
       if (!hit) continue;
       const name = v.view.name || v.id;
       const way = type === "follow_path" ? "path, as drawn," : "straight way there";

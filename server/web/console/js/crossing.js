@@ -1,6 +1,8 @@
-// Whether a straight way runs into a known fixed obstacle (a pier, a moored barge): a go_to,
-// a station away from the boat or a path not planned go straight, and the server queues
-// them as asked (with a note, after). The console asks first. Pure: points in, a name out.
+// Whether a straight way runs into a shape on the map: a known fixed obstacle (a pier, a
+// moored barge) or a no-go zone. A go_to, a station away from the boat or a path not
+// planned go straight: the console asks before one that runs into an obstacle (the server
+// queues it as asked, with a note after), and says when a zone drawn later is across a
+// mission under way. Pure: points in, a shape out.
 
 import { lonStep } from "./wrap.js";
 
@@ -41,21 +43,21 @@ function inRing(p, ring) {
 /** Whether the straight leg from ``a`` to ``b`` ({lat, lon}) touches the polygon (GeoJSON
  * rings of [lon, lat]: the outline, then holes). */
 function legMeets(a, b, rings) {
-  const local3 = rings.map((ring) => ring.map(([lon, lat]) => local(a, { lat, lon })));
+  const planar = rings.map((ring) => ring.map(([lon, lat]) => local(a, { lat, lon })));
   const [pa, pb] = [[0, 0], local(a, b)];
-  for (const ring of local3) {
+  for (const ring of planar) {
     for (let i = 1; i < ring.length; i += 1) if (segmentsMeet(pa, pb, ring[i - 1], ring[i])) return true;
   }
-  const [outline, ...holes] = local3;
+  const [outline, ...holes] = planar;
   const within = (p) => inRing(p, outline) && !holes.some((h) => inRing(p, h));
   return within(pa) || within(pb);
 }
 
 /** The first shape (an obstacle, a zone: ``{name, polygon}``) the straight way along
  * ``route`` ({lat, lon} points, from where the boat is) runs into, or null. */
-export function obstacleOnTheWay(route, obstacles) {
+export function shapeOnTheWay(route, shapes) {
   for (let i = 1; i < route.length; i += 1) {
-    for (const o of obstacles || []) {
+    for (const o of shapes || []) {
       if (o.polygon && legMeets(route[i - 1], route[i], o.polygon.coordinates)) return o;
     }
   }

@@ -3,8 +3,9 @@
 // browser's developer tools, and for the browser tests).
 
 import { alarmText } from "./alarms.js";
+import { shapeDiff, zoneName } from "./changes.js";
 import { Commands, targetPoints } from "./commands.js";
-import { obstacleOnTheWay } from "./crossing.js";
+import { shapeOnTheWay } from "./crossing.js";
 import { ControlPanel } from "./control.js";
 import { Fleet, TRAIL_MINUTES, commandName, isFinal, topicsOf } from "./fleet.js";
 import { MapHolder } from "./holder.js";
@@ -19,19 +20,12 @@ import { ago, clock, confirmAction, h, sending, toast, until, zoneText } from ".
 const $ = (id) => document.getElementById(id);
 const REPLAY_RETRY_MS = 3000; // the replay's module not loaded: tried again after this
 const namesOf = (vehicles) => vehicles.map((v) => v.view.name || v.id).join(", ");
-const zoneName = (z) => `${z.kind === "no_go" ? "no-go zone" : "operating area"} ${z.name}`;
-
 /** Zones or obstacles drawn, changed or removed since the console last read them, said
  * (a no-go zone appearing over the boats' water came with no word). */
 function sayShapes(before, after, key, named) {
-  const was = new Map(before.map((x) => [x[key], x]));
-  const now = new Map(after.map((x) => [x[key], x]));
-  for (const [id, x] of now) {
-    const old = was.get(id);
-    if (!old) toast(`${named(x)} drawn on the map`, "info");
-    else if (JSON.stringify(old) !== JSON.stringify(x)) toast(`${named(x)} changed`, "info");
+  for (const { shape, how } of shapeDiff(before, after, key)) {
+    toast(`${named(shape)} ${how === "drawn" ? "drawn on the map" : how}`, "info");
   }
-  for (const [id, x] of was) if (!now.has(id)) toast(`${named(x)} removed`, "info");
 }
 
 /** The console once logged in: ``me`` (from /api/me) decides what it offers. */
@@ -370,7 +364,7 @@ class Console {
         && (!(z.vehicles || []).length || z.vehicles.includes(v.id)));
       for (const cmd of its.length ? this.fleet.recentCommands(v.id) : []) {
         if (isFinal(cmd.status) || !cmd.args) continue;
-        const zone = obstacleOnTheWay([here, ...targetPoints(cmd.type, cmd.args)], its);
+        const zone = shapeOnTheWay([here, ...targetPoints(cmd.type, cmd.args)], its);
         if (zone) crossed.set(`${cmd.command_id}/${zone.zone_id}`, { v, cmd, zone });
       }
     }

@@ -104,7 +104,7 @@ export class MapView {
     }
     this.updateTrail(v);
     if (what === "commands" || what === "position" || what === "view") this.updateMission(v);
-    this.scheduleLabels();
+    this.scheduleLabels(); // after the mission too: a label keeps clear of a station's circle
   }
 
   placeMarker(v, p) {
@@ -230,7 +230,6 @@ export class MapView {
     }
     group.addTo(this.paths);
     this.missions.set(v.id, group);
-    this.scheduleLabels(); // a label may cover a station's circle drawn or gone
   }
 
   /** The station circles small enough on screen for a label to hide them whole: boxes no
